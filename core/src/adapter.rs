@@ -1,0 +1,130 @@
+//! The traits the gateway drives: output adapters on vehicles, input sources on operators.
+//!
+//! Both are synchronous and non-blocking by contract; an implementation whose device API blocks
+//! (a serial port, an evdev read) runs it on its own thread and exposes the latest state here.
+//! Errors are [`LinkError`]s, already classified, so the caller's policy is uniform: a transient
+//! failure puts the vehicle in failsafe and is retried, a fatal one is reported and not retried.
+
+use crate::arbiter::Setpoint;
+use crate::error::LinkError;
+use crate::msg::{Mode, MovementCommand};
+use crate::time::MonoTime;
+use std::fmt;
+use std::time::Duration;
+
+/// Health of an output link or input device, for status displays.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum Health {
+    /// Working.
+    #[default]
+    Ok,
+    /// Working with problems (retries, dropped frames); the text says which.
+    Degraded(String),
+    /// Not working; the text says why. The vehicle is in failsafe while an output is down.
+    Down(String),
+}
+
+impl fmt::Display for Health {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Health::Ok => f.write_str("ok"),
+            Health::Degraded(why) => write!(f, "degraded: {why}"),
+            Health::Down(why) => write!(f, "down: {why}"),
+        }
+    }
+}
+
+/// A vehicle's output: turns setpoints into actuator signals.
+///
+/// Implementations also drive the safe state from `Drop`, so that a gateway that unwinds or
+/// returns early never leaves servos driving.
+pub trait OutputAdapter {
+    /// A one-line description for the start-up log (kind and device).
+    fn describe(&self) -> String;
+
+    /// Drives the actuators with `setpoint`.
+    ///
+    /// # Errors
+    /// A classified [`LinkError`] naming the device when the write failed.
+    fn apply(&mut self, now: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError>;
+
+    /// Puts the actuators in their safe state: UGV stopped, multirotor hovering, autopilot
+    /// overrides released. Bypasses any slew limit.
+    ///
+    /// # Errors
+    /// A classified [`LinkError`] naming the device when the write failed.
+    fn safe_state(&mut self, now: MonoTime) -> Result<(), LinkError>;
+
+    /// How often [`OutputAdapter::keepalive`] must run while driving, for devices that time
+    /// out a held value (autopilot RC overrides, CAN servos). `None`: the device holds its value.
+    fn keepalive_period(&self) -> Option<Duration> {
+        None
+    }
+
+    /// Re-sends the last output (see [`OutputAdapter::keepalive_period`]).
+    ///
+    /// # Errors
+    /// As [`OutputAdapter::apply`].
+    fn keepalive(&mut self, _now: MonoTime) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    /// Current health of the link.
+    fn health(&self) -> Health;
+}
+
+/// Operator actions bound to buttons or keys.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum InputAction {
+    /// Switch the driven vehicle's mode.
+    Mode(Mode),
+    /// Ask the selected vehicle's owner for control (REQUEST).
+    RequestControl,
+    /// Accept an incoming request.
+    Accept,
+    /// Refuse an incoming request.
+    Refuse,
+    /// Give a grant back (FINISH).
+    Finish,
+    /// Stop driving the selected vehicle (explicit release).
+    Release,
+    /// Select the next vehicle.
+    NextVehicle,
+    /// Select the previous vehicle.
+    PreviousVehicle,
+}
+
+/// Something an input source reports.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum InputEvent {
+    /// New stick values (already mapped: deadzone, expo, invert applied).
+    Axes(MovementCommand),
+    /// The deadman control was pressed (`true`) or let go (`false`).
+    Deadman(bool),
+    /// An action button or key.
+    Action(InputAction),
+    /// The device is gone or its state can no longer be trusted (unplugged, SYN_DROPPED, silent):
+    /// the operator must stop driving and release at once.
+    Lost {
+        /// Why, naming the device.
+        reason: String,
+    },
+}
+
+/// An operator's input device.
+pub trait InputSource {
+    /// A one-line description for the start-up log.
+    fn describe(&self) -> String;
+
+    /// The next event due at or before `now`, if any; never blocks.
+    ///
+    /// # Errors
+    /// A classified [`LinkError`] when the device failed.
+    fn poll(&mut self, now: MonoTime) -> Result<Option<InputEvent>, LinkError>;
+
+    /// When the source next has an event without outside input (scripts, key ramps), so the
+    /// caller can sleep until then.
+    fn next_deadline(&self) -> Option<MonoTime> {
+        None
+    }
+}

@@ -1,0 +1,709 @@
+//! The per-vehicle ownership arbiter: who drives this vehicle, at every instant (DESIGN.md §4).
+//!
+//! DDS's EXCLUSIVE ownership is not arbitrated by rustdds, so the vehicle does it here, as a pure
+//! state machine: [`Arbiter::step`] takes `now` and one [`Event`] and returns a [`Decision`].
+//! It reads no clock and does no I/O; the same event sequence always yields the same decisions.
+//!
+//! # The contract
+//! The owner is, at every step's `now`:
+//! 1. the holder of the most recent accepted priority grant, if its priority stream is live; else
+//! 2. the live controller with the highest strength; on equal strength the incumbent keeps
+//!    control, and with no incumbent the lowest `device_id` (then the lowest writer id) wins; else
+//! 3. the onboard failsafe.
+//!
+//! *Live* means: its last command sample for this vehicle arrived less than `command_timeout`
+//! ago and it has not released since (explicit release, writer or participant gone).
+//! A priority-strength (65535) stream only counts while its device holds the grant, so a late
+//! sample from a previous holder can never win control back (no ping-pong).
+//!
+//! # Outputs
+//! Each decision may carry an [`OwnerChange`] (from, to, reason), an [`Output`] for the adapter
+//! (apply this setpoint, or go to the safe state) and, for events that changed nothing, why they
+//! were [`Ignored`]. Every output carries its provenance: the controller it came from and a
+//! sequence number. When a new owner takes over, its latest sample is applied at once; it is
+//! fresh by construction, since only live sources can own. A stale sample is never applied.
+//!
+//! # Timing
+//! Liveness expires lazily at any step, and [`Event::Tick`] exists so that expiry is acted on
+//! with no other traffic. [`Arbiter::next_deadline`] tells the caller when the next tick can
+//! change anything, so the gateway sleeps until exactly then instead of polling.
+
+use crate::hierarchy::Strength;
+use crate::msg::{CommandType, ControlCommand, DeviceId, Mode, MovementCommand};
+use crate::time::MonoTime;
+use crate::watchdog::{CommandTimeout, Watchdog};
+use std::fmt;
+
+/// A process on the network that owns writers (a DDS participant), as an opaque number the
+/// binding derives from its identity (the GUID prefix).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct ParticipantId(pub u128);
+
+/// One command stream's identity: which process, and which writer in it (a DDS writer GUID).
+/// Ordered, so that ties are broken deterministically.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct WriterId {
+    /// The process the writer belongs to.
+    pub participant: ParticipantId,
+    /// The writer within that process.
+    pub entity: u32,
+}
+
+impl fmt::Display for WriterId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:x}/{:x}", self.participant.0, self.entity)
+    }
+}
+
+/// A controller as the arbiter knows it: a writer, the device it speaks for, its strength.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Controller {
+    /// The stream.
+    pub writer: WriterId,
+    /// The `src_id` it sends as.
+    pub device: DeviceId,
+    /// Its ownership strength.
+    pub strength: Strength,
+}
+
+/// Who drives the vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Owner {
+    /// The onboard failsafe (strength 0): outputs are in the adapter's safe state.
+    Failsafe,
+    /// A remote controller.
+    Controller(Controller),
+}
+
+impl Owner {
+    /// The owning writer, if a controller owns.
+    pub fn writer(&self) -> Option<WriterId> {
+        match self {
+            Owner::Failsafe => None,
+            Owner::Controller(c) => Some(c.writer),
+        }
+    }
+
+    /// The owning device, if a controller owns.
+    pub fn device(&self) -> Option<DeviceId> {
+        match self {
+            Owner::Failsafe => None,
+            Owner::Controller(c) => Some(c.device),
+        }
+    }
+}
+
+/// The arbiter's inputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event {
+    /// A ControlCommand sample arrived from `writer` (strength from discovery) at `arrival`,
+    /// measured on the vehicle's clock. `arrival` later than `now` is taken as `now`.
+    Sample {
+        /// The writer that sent it.
+        writer: WriterId,
+        /// The writer's ownership strength.
+        strength: Strength,
+        /// The sample.
+        command: ControlCommand,
+        /// When it arrived.
+        arrival: MonoTime,
+    },
+    /// The writer explicitly stopped driving this vehicle (unregister/dispose, or a release).
+    Released {
+        /// The writer.
+        writer: WriterId,
+    },
+    /// The writer left (discovery lost it).
+    WriterGone {
+        /// The writer.
+        writer: WriterId,
+    },
+    /// A whole participant left (discovery or presence heartbeat lost it): all its writers go.
+    ParticipantGone {
+        /// The participant.
+        participant: ParticipantId,
+    },
+    /// A RequestControl ACCEPT for this vehicle was observed: `granted_by` (the owner asked)
+    /// gives the vehicle to `holder`.
+    GrantAccepted {
+        /// The requester, who will drive with a priority writer.
+        holder: DeviceId,
+        /// The owner who consented (`current_controller_id` of the ACCEPT).
+        granted_by: DeviceId,
+    },
+    /// A RequestControl FINISH for this vehicle: `holder` gives its grant back.
+    GrantFinished {
+        /// The grant holder.
+        holder: DeviceId,
+    },
+    /// Time passed: expire silent streams.
+    Tick,
+}
+
+/// Why the owner changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Reason {
+    /// A controller became live while the failsafe owned.
+    Joined,
+    /// A stronger live controller took over from a live owner.
+    Preempted,
+    /// The owner released explicitly.
+    Released,
+    /// The owner's writer or participant left.
+    Left,
+    /// The owner was silent for `command_timeout`.
+    TimedOut,
+    /// A priority grant was accepted and its holder took over.
+    Granted,
+    /// The grant was given back (FINISH); the strongest live controller took over.
+    GrantReturned,
+}
+
+impl fmt::Display for Reason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Reason::Joined => "joined",
+            Reason::Preempted => "preempted",
+            Reason::Released => "released",
+            Reason::Left => "left",
+            Reason::TimedOut => "timed out",
+            Reason::Granted => "granted",
+            Reason::GrantReturned => "grant returned",
+        })
+    }
+}
+
+/// An ownership transition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OwnerChange {
+    /// Previous owner.
+    pub from: Owner,
+    /// New owner.
+    pub to: Owner,
+    /// Why.
+    pub reason: Reason,
+}
+
+/// What the adapter turns into actuator signals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Setpoint {
+    /// Stick values.
+    pub movement: MovementCommand,
+    /// Requested mode.
+    pub mode: Mode,
+}
+
+/// What the output adapter must do now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Output {
+    /// Drive with `setpoint`, sent by `by`.
+    Apply {
+        /// Provenance: the owning controller.
+        by: Controller,
+        /// The values.
+        setpoint: Setpoint,
+        /// Output sequence number (counts every output of this arbiter).
+        seq: u64,
+    },
+    /// Go to the safe state: the failsafe owns, or a new owner has sent only keep-alives so far.
+    SafeState {
+        /// Who owns while the outputs are safe.
+        owner: Owner,
+        /// Output sequence number.
+        seq: u64,
+    },
+}
+
+/// Why an event changed nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Ignored {
+    /// The sample's `dest_id` is another vehicle.
+    NotForThisVehicle,
+    /// The sample claims this vehicle's own id as its source.
+    FromThisVehicle,
+    /// Strength 0 is the onboard failsafe's; no remote writer may use it.
+    FailsafeStrength,
+    /// The writer sent as a different `src_id` before; one stream speaks for one device.
+    SourceMismatch,
+    /// Arrived earlier than a sample or release already processed from the same writer.
+    OutOfOrder,
+    /// Arrived `command_timeout` or more before `now`.
+    Stale,
+    /// A priority-strength sample from a device that holds no grant: recorded (so that the
+    /// holder can take over the instant its grant is seen) but it does not drive.
+    PriorityWithoutGrant,
+    /// The source table is full (see [`ArbiterConfig::max_sources`]).
+    TooManySources,
+    /// A release or departure of a writer or participant the arbiter does not know.
+    UnknownSource,
+    /// An ACCEPT from a device that neither owns the vehicle nor just stepped down.
+    ConsentNotFromOwner,
+    /// An ACCEPT naming this vehicle, or the consenting owner itself, as the holder.
+    InvalidGrant,
+    /// A FINISH from a device that does not hold the grant.
+    NotGrantHolder,
+}
+
+/// Everything one step decided. `Default` is "nothing happened".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Decision {
+    /// Set when the owner changed.
+    pub owner_change: Option<OwnerChange>,
+    /// Set when the adapter must act.
+    pub output: Option<Output>,
+    /// Set when the event was dropped or did not count (diagnostics).
+    pub ignored: Option<Ignored>,
+}
+
+impl Decision {
+    /// The failsafe took over in this step.
+    pub fn entered_failsafe(&self) -> bool {
+        self.owner_change
+            .is_some_and(|c| c.to == Owner::Failsafe && c.from != Owner::Failsafe)
+    }
+
+    /// A controller took over from the failsafe in this step.
+    pub fn left_failsafe(&self) -> bool {
+        self.owner_change
+            .is_some_and(|c| c.from == Owner::Failsafe && c.to != Owner::Failsafe)
+    }
+}
+
+/// Validated arbiter settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ArbiterConfig {
+    /// Silence after which a stream is no longer live.
+    pub command_timeout: CommandTimeout,
+    /// Most sources tracked at once. Bounds memory against a flood of writers; silent sources
+    /// are pruned first. 256 is far above any real fleet (DESIGN.md's benchmarks use ≤ 32).
+    pub max_sources: usize,
+}
+
+impl Default for ArbiterConfig {
+    fn default() -> Self {
+        ArbiterConfig {
+            command_timeout: CommandTimeout::DEFAULT,
+            max_sources: 256,
+        }
+    }
+}
+
+/// Why a source stopped being live by event (rather than by time).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Presence {
+    Streaming,
+    Released,
+}
+
+/// One command stream for this vehicle.
+#[derive(Debug, Clone)]
+struct Source {
+    controller: Controller,
+    watchdog: Watchdog,
+    presence: Presence,
+    /// Latest arrival or release processed: older samples are out of order.
+    high_water: MonoTime,
+    /// Latest movement/mode values; `None` while it has only sent keep-alives.
+    setpoint: Option<Setpoint>,
+}
+
+impl Source {
+    fn is_live(&self, now: MonoTime) -> bool {
+        self.presence == Presence::Streaming && self.watchdog.is_live(now)
+    }
+}
+
+/// A device that stepped down without being preempted, whose consent (ACCEPT) still counts
+/// for one command timeout: its release may overtake its ACCEPT on the wire, since they travel
+/// on different topics.
+#[derive(Debug, Clone, Copy)]
+struct SteppedDown {
+    device: DeviceId,
+    until: MonoTime,
+}
+
+/// Snapshot of one source, for status and diagnostics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SourceStatus {
+    /// The stream.
+    pub controller: Controller,
+    /// Sent within the timeout and not released.
+    pub live: bool,
+    /// Live and allowed to own (a priority stream needs the grant).
+    pub eligible: bool,
+    /// Time since its last sample, if it sent one.
+    pub age: Option<std::time::Duration>,
+}
+
+/// The ownership arbiter of one vehicle. See the [module docs](self) for the contract.
+#[derive(Debug, Clone)]
+pub struct Arbiter {
+    vehicle: DeviceId,
+    config: ArbiterConfig,
+    sources: Vec<Source>,
+    owner: Owner,
+    grant: Option<DeviceId>,
+    stepped_down: Option<SteppedDown>,
+    last_now: MonoTime,
+    seq: u64,
+}
+
+impl Arbiter {
+    /// An arbiter for vehicle `vehicle`, starting with the failsafe owning.
+    pub fn new(vehicle: DeviceId, config: ArbiterConfig) -> Self {
+        Arbiter {
+            vehicle,
+            config,
+            sources: Vec::new(),
+            owner: Owner::Failsafe,
+            grant: None,
+            stepped_down: None,
+            last_now: MonoTime::ZERO,
+            seq: 0,
+        }
+    }
+
+    /// The current owner.
+    pub fn owner(&self) -> Owner {
+        self.owner
+    }
+
+    /// The value for `DeviceInfo.controller_id`: the owner's device id, or the vehicle's own id
+    /// while the failsafe owns.
+    pub fn controller_id(&self) -> DeviceId {
+        self.owner.device().unwrap_or(self.vehicle)
+    }
+
+    /// The device holding the most recent accepted priority grant, if any.
+    pub fn grant_holder(&self) -> Option<DeviceId> {
+        self.grant
+    }
+
+    /// The vehicle this arbiter decides for.
+    pub fn vehicle(&self) -> DeviceId {
+        self.vehicle
+    }
+
+    /// The earliest instant at which a [`Event::Tick`] can change something (a live stream's
+    /// timeout), or `None` when nothing is live.
+    pub fn next_deadline(&self) -> Option<MonoTime> {
+        self.sources
+            .iter()
+            .filter(|s| s.presence == Presence::Streaming)
+            .filter_map(|s| s.watchdog.deadline())
+            .filter(|d| *d > self.last_now)
+            .min()
+    }
+
+    /// The sources known at `now`, for status displays.
+    pub fn sources(&self, now: MonoTime) -> impl Iterator<Item = SourceStatus> + '_ {
+        self.sources.iter().map(move |s| SourceStatus {
+            controller: s.controller,
+            live: s.is_live(now),
+            eligible: self.is_eligible(s, now),
+            age: s.watchdog.last_kick().map(|t| now.saturating_since(t)),
+        })
+    }
+
+    /// Processes one event at `now` and says what follows from it.
+    ///
+    /// `now` must not go backwards; if it does, the latest `now` seen is used instead, so a
+    /// misbehaving clock can delay a timeout but never revive a stream.
+    pub fn step(&mut self, now: MonoTime, event: Event) -> Decision {
+        let now = now.max(self.last_now);
+        self.last_now = now;
+        let before = self.owner;
+        let mut decision = Decision::default();
+
+        // 1. Record the event. `sampled` is the writer whose new values may need applying.
+        let mut sampled = None;
+        match event {
+            Event::Sample {
+                writer,
+                strength,
+                command,
+                arrival,
+            } => match self.record_sample(now, writer, strength, &command, arrival.min(now)) {
+                Ok(is_values) => {
+                    if is_values {
+                        sampled = Some(writer);
+                    }
+                    if strength == Strength::PRIORITY && self.grant != Some(command.src_id) {
+                        decision.ignored = Some(Ignored::PriorityWithoutGrant);
+                    }
+                }
+                Err(why) => decision.ignored = Some(why),
+            },
+            Event::Released { writer } => match self.find(writer) {
+                Some(i) => {
+                    let s = &mut self.sources[i];
+                    s.presence = Presence::Released;
+                    s.watchdog.clear();
+                    s.high_water = s.high_water.max(now);
+                    if self.grant == Some(s.controller.device)
+                        && s.controller.strength == Strength::PRIORITY
+                    {
+                        // A holder that stops its priority stream is done with the grant.
+                        self.grant = None;
+                    }
+                }
+                None => decision.ignored = Some(Ignored::UnknownSource),
+            },
+            Event::WriterGone { writer } => {
+                if !self.remove_where(|c| c.writer == writer) {
+                    decision.ignored = Some(Ignored::UnknownSource);
+                }
+            }
+            Event::ParticipantGone { participant } => {
+                if !self.remove_where(|c| c.writer.participant == participant) {
+                    decision.ignored = Some(Ignored::UnknownSource);
+                }
+            }
+            Event::GrantAccepted { holder, granted_by } => {
+                if let Err(why) = self.accept_grant(now, holder, granted_by) {
+                    decision.ignored = Some(why);
+                }
+            }
+            Event::GrantFinished { holder } => {
+                if self.grant == Some(holder) {
+                    self.grant = None;
+                } else {
+                    decision.ignored = Some(Ignored::NotGrantHolder);
+                }
+            }
+            Event::Tick => {}
+        }
+
+        // 2. Re-arbitrate.
+        let after = self.select(now);
+        if after.writer() != before.writer() {
+            let reason = self.reason(before, &event, now);
+            if let Owner::Controller(c) = before {
+                self.stepped_down = (reason != Reason::Preempted).then_some(SteppedDown {
+                    device: c.device,
+                    until: now + self.config.command_timeout.get(),
+                });
+            }
+            self.owner = after;
+            decision.owner_change = Some(OwnerChange {
+                from: before,
+                to: after,
+                reason,
+            });
+            decision.output = Some(self.output_for_owner());
+        } else {
+            // Same writer; its strength may have been updated.
+            self.owner = after;
+            if sampled.is_some() && sampled == after.writer() {
+                decision.output = Some(self.output_for_owner());
+            }
+        }
+
+        // 3. Housekeeping: forget streams that can no longer matter.
+        if event == Event::Tick {
+            self.sources
+                .retain(|s| s.presence == Presence::Released || s.watchdog.is_live(now));
+        }
+        decision
+    }
+
+    /// Records a sample. `Ok(true)` if it carried values (movement or mode), `Ok(false)` for a
+    /// keep-alive.
+    fn record_sample(
+        &mut self,
+        now: MonoTime,
+        writer: WriterId,
+        strength: Strength,
+        command: &ControlCommand,
+        arrival: MonoTime,
+    ) -> Result<bool, Ignored> {
+        if command.dest_id != self.vehicle {
+            return Err(Ignored::NotForThisVehicle);
+        }
+        if command.src_id == self.vehicle {
+            return Err(Ignored::FromThisVehicle);
+        }
+        if strength == Strength::FAILSAFE {
+            return Err(Ignored::FailsafeStrength);
+        }
+        if now.saturating_since(arrival) >= self.config.command_timeout.get() {
+            return Err(Ignored::Stale);
+        }
+        let index = match self.find(writer) {
+            Some(i) => i,
+            None => self.insert(now, writer, command.src_id, strength)?,
+        };
+        let source = &mut self.sources[index];
+        if source.controller.device != command.src_id {
+            return Err(Ignored::SourceMismatch);
+        }
+        if arrival < source.high_water {
+            return Err(Ignored::OutOfOrder);
+        }
+        source.high_water = arrival;
+        source.controller.strength = strength;
+        source.presence = Presence::Streaming;
+        source.watchdog.kick(arrival);
+        Ok(match command.command_type {
+            CommandType::Probe => false,
+            CommandType::Movement => {
+                source.setpoint = Some(Setpoint {
+                    movement: command.movement_command,
+                    mode: command.mode,
+                });
+                true
+            }
+            CommandType::Mode => {
+                let movement = source
+                    .setpoint
+                    .map_or(MovementCommand::CENTRED, |s| s.movement);
+                source.setpoint = Some(Setpoint {
+                    movement,
+                    mode: command.mode,
+                });
+                true
+            }
+        })
+    }
+
+    fn insert(
+        &mut self,
+        now: MonoTime,
+        writer: WriterId,
+        device: DeviceId,
+        strength: Strength,
+    ) -> Result<usize, Ignored> {
+        if self.sources.len() >= self.config.max_sources {
+            let owner = self.owner.writer();
+            self.sources
+                .retain(|s| s.is_live(now) || Some(s.controller.writer) == owner);
+            if self.sources.len() >= self.config.max_sources {
+                return Err(Ignored::TooManySources);
+            }
+        }
+        self.sources.push(Source {
+            controller: Controller {
+                writer,
+                device,
+                strength,
+            },
+            watchdog: Watchdog::new(self.config.command_timeout),
+            presence: Presence::Streaming,
+            high_water: MonoTime::ZERO,
+            setpoint: None,
+        });
+        Ok(self.sources.len() - 1)
+    }
+
+    fn accept_grant(
+        &mut self,
+        now: MonoTime,
+        holder: DeviceId,
+        granted_by: DeviceId,
+    ) -> Result<(), Ignored> {
+        if holder == self.vehicle || holder == granted_by {
+            return Err(Ignored::InvalidGrant);
+        }
+        let owner_consents = self.owner.device() == Some(granted_by);
+        let just_stepped_down = self
+            .stepped_down
+            .is_some_and(|s| s.device == granted_by && now < s.until);
+        if !(owner_consents || just_stepped_down) {
+            return Err(Ignored::ConsentNotFromOwner);
+        }
+        self.grant = Some(holder);
+        Ok(())
+    }
+
+    fn find(&self, writer: WriterId) -> Option<usize> {
+        self.sources
+            .iter()
+            .position(|s| s.controller.writer == writer)
+    }
+
+    /// Removes matching sources; true if any was removed. A grant holder whose priority stream
+    /// leaves is done with the grant.
+    fn remove_where(&mut self, matches: impl Fn(&Controller) -> bool) -> bool {
+        let before = self.sources.len();
+        let grant = self.grant;
+        let mut holder_left = false;
+        self.sources.retain(|s| {
+            let gone = matches(&s.controller);
+            if gone
+                && Some(s.controller.device) == grant
+                && s.controller.strength == Strength::PRIORITY
+            {
+                holder_left = true;
+            }
+            !gone
+        });
+        if holder_left {
+            self.grant = None;
+        }
+        self.sources.len() != before
+    }
+
+    fn is_eligible(&self, s: &Source, now: MonoTime) -> bool {
+        s.is_live(now)
+            && (s.controller.strength.is_operator()
+                || (s.controller.strength == Strength::PRIORITY
+                    && self.grant == Some(s.controller.device)))
+    }
+
+    /// Applies the contract: strongest eligible source; the incumbent keeps ties; otherwise the
+    /// lowest (device, writer) wins.
+    fn select(&self, now: MonoTime) -> Owner {
+        let incumbent = self.owner.writer();
+        let rank = |s: &Source| {
+            let c = &s.controller;
+            // Larger is better: strength, then incumbency, then lower ids.
+            (
+                c.strength,
+                Some(c.writer) == incumbent,
+                std::cmp::Reverse((c.device, c.writer)),
+            )
+        };
+        self.sources
+            .iter()
+            .filter(|s| self.is_eligible(s, now))
+            .max_by_key(|s| rank(s))
+            .map_or(Owner::Failsafe, |s| Owner::Controller(s.controller))
+    }
+
+    /// Why `before` lost (or the failsafe gave up) ownership in this step.
+    fn reason(&self, before: Owner, event: &Event, now: MonoTime) -> Reason {
+        if let Owner::Controller(c) = before {
+            match self.find(c.writer).map(|i| &self.sources[i]) {
+                None => return Reason::Left,
+                Some(s) if s.presence == Presence::Released => return Reason::Released,
+                Some(s) if !s.watchdog.is_live(now) => return Reason::TimedOut,
+                Some(_) => {}
+            }
+        }
+        match event {
+            Event::GrantAccepted { .. } => Reason::Granted,
+            Event::GrantFinished { .. } => Reason::GrantReturned,
+            _ if before == Owner::Failsafe => Reason::Joined,
+            _ => Reason::Preempted,
+        }
+    }
+
+    fn output_for_owner(&mut self) -> Output {
+        self.seq += 1;
+        let seq = self.seq;
+        let setpoint = match self.owner {
+            Owner::Failsafe => None,
+            Owner::Controller(c) => self
+                .find(c.writer)
+                .and_then(|i| self.sources[i].setpoint)
+                .map(|setpoint| (c, setpoint)),
+        };
+        match setpoint {
+            Some((by, setpoint)) => Output::Apply { by, setpoint, seq },
+            None => Output::SafeState {
+                owner: self.owner,
+                seq,
+            },
+        }
+    }
+}

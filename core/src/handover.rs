@@ -1,0 +1,702 @@
+//! Active handover (DESIGN.md §4): one operator's REQUEST / ACCEPT / REFUSE / FINISH state
+//! machines, as requester and as replier, for every vehicle it deals with.
+//!
+//! All messages of one handover carry the same `(src_id, dest_id, current_controller_id)` triple:
+//! the requester, the vehicle, the owner asked. An operator acts on a message only where it is
+//! `src_id` (as requester: ACCEPT / REFUSE) or `current_controller_id` (as replier: REQUEST /
+//! FINISH); everything else is ignored, as are unknown vehicles and requesters.
+//!
+//! ```text
+//! requester                                   replier (the owner's operator)
+//! request() ── REQUEST (resent every 500 ms) ─▶ auto-accept? ─ yes ─▶ ACCEPT, StopDriving
+//!                                              └ no ─▶ AskOperator … decide() / consent timeout
+//! ◀──────────── ACCEPT ─── StartDriving(priority)         (timeout → REFUSE)
+//! finish() ──── FINISH ─── StopDriving ──────▶ ResumeDriving
+//! ```
+//!
+//! Loss and duplication: the requester resends its REQUEST with the original time stamp, so
+//! the replier recognises a resend and repeats its answer rather than asking again. A late ACCEPT
+//! for a request the requester has given up is handed back at once with FINISH, so nobody holds a
+//! grant it does not use. A FINISH from a requester still waiting withdraws its request.
+//!
+//! Auto-accept compares the requester's `src_priority` with the replier's own strength on that
+//! vehicle (65535 while it holds a grant there, so a grant is never taken away without asking).
+
+use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::hierarchy::Strength;
+use crate::msg::{Ack, DeviceId, RequestControl, TimeT};
+use crate::time::MonoTime;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// When the owner's operator gives control without asking a person.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AutoAccept {
+    /// Always ask the operator.
+    Never,
+    /// Accept at once when the requester's priority exceeds our strength; else ask.
+    #[default]
+    HigherPriority,
+    /// Always accept (unattended stations).
+    Always,
+}
+
+/// `[handover]` as written in TOML; absent keys take defaults.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandoverSettings {
+    /// Auto-accept policy.
+    pub auto_accept: Option<AutoAccept>,
+    /// How long a person has to answer a request before it is refused.
+    pub consent_timeout_ms: Option<u64>,
+    /// How long a requester waits for an answer before giving up.
+    pub reply_timeout_ms: Option<u64>,
+    /// How often an unanswered REQUEST is sent again.
+    pub resend_ms: Option<u64>,
+}
+
+/// Validated handover settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HandoverConfig {
+    /// Auto-accept policy.
+    pub auto_accept: AutoAccept,
+    /// Default 10 s: long enough to read a prompt and decide, short enough that a requester
+    /// whose operator is away is not left waiting.
+    pub consent_timeout: Duration,
+    /// Default 12 s: the consent timeout plus margin for the REFUSE to arrive, so a requester
+    /// normally hears the refusal rather than timing out on its own.
+    pub reply_timeout: Duration,
+    /// Default 500 ms: RequestControl has default QoS (possibly best-effort), so a lost REQUEST
+    /// is repeated well inside a person's patience; more often only adds traffic.
+    pub resend: Duration,
+}
+
+impl Default for HandoverConfig {
+    fn default() -> Self {
+        HandoverConfig {
+            auto_accept: AutoAccept::HigherPriority,
+            consent_timeout: Duration::from_secs(10),
+            reply_timeout: Duration::from_secs(12),
+            resend: Duration::from_millis(500),
+        }
+    }
+}
+
+impl HandoverSettings {
+    /// Validates, filling defaults. Keys are named relative to the `[handover]` table.
+    ///
+    /// # Errors
+    /// [`crate::Error::Config`] for a zero duration, a consent timeout over 10 minutes, a reply
+    /// timeout not longer than the consent timeout, or a resend period not shorter than the reply
+    /// timeout.
+    pub fn validate(&self) -> Result<HandoverConfig> {
+        let d = HandoverConfig::default();
+        let ms = |v: Option<u64>, default: Duration| v.map_or(default, Duration::from_millis);
+        let config = HandoverConfig {
+            auto_accept: self.auto_accept.unwrap_or(d.auto_accept),
+            consent_timeout: ms(self.consent_timeout_ms, d.consent_timeout),
+            reply_timeout: ms(self.reply_timeout_ms, d.reply_timeout),
+            resend: ms(self.resend_ms, d.resend),
+        };
+        let mut errors = ConfigErrors::default();
+        let show = |d: Duration| d.as_millis();
+        if config.consent_timeout.is_zero() || config.consent_timeout > Duration::from_secs(600) {
+            errors.push(ConfigError::new(
+                "consent_timeout_ms",
+                show(config.consent_timeout),
+                "must be 1..=600000",
+            ));
+        }
+        if config.reply_timeout <= config.consent_timeout {
+            errors.push(ConfigError::new(
+                "reply_timeout_ms",
+                show(config.reply_timeout),
+                format!(
+                    "must be longer than consent_timeout_ms ({}) so the requester hears the \
+                     refusal instead of timing out",
+                    show(config.consent_timeout)
+                ),
+            ));
+        }
+        if config.resend.is_zero() || config.resend >= config.reply_timeout {
+            errors.push(ConfigError::new(
+                "resend_ms",
+                show(config.resend),
+                format!(
+                    "must be at least 1 and shorter than reply_timeout_ms ({})",
+                    show(config.reply_timeout)
+                ),
+            ));
+        }
+        errors.into_result(config)
+    }
+}
+
+/// How a request ended, as seen by one side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Outcome {
+    /// The owner accepted: the requester now drives with a priority writer.
+    Accepted,
+    /// The owner refused (a person, a busy replier, or one that does not own the vehicle).
+    Refused,
+    /// No answer in time (requester: reply timeout; replier: consent timeout → REFUSE sent).
+    TimedOut,
+    /// The requester withdrew (FINISH before an answer).
+    Withdrawn,
+}
+
+/// What the operator role must do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Action {
+    /// Publish this RequestControl sample.
+    Send(RequestControl),
+    /// Show the consent prompt: `requester` asks for `vehicle`; refused automatically at
+    /// `deadline`.
+    AskOperator {
+        /// The vehicle.
+        vehicle: DeviceId,
+        /// Who asks.
+        requester: DeviceId,
+        /// Its priority.
+        src_priority: i32,
+        /// When the prompt times out.
+        deadline: MonoTime,
+    },
+    /// Close the prompt for `vehicle`.
+    PromptClosed {
+        /// The vehicle.
+        vehicle: DeviceId,
+        /// How it ended.
+        outcome: Outcome,
+    },
+    /// Our own request for `vehicle` ended.
+    RequestEnded {
+        /// The vehicle.
+        vehicle: DeviceId,
+        /// How it ended.
+        outcome: Outcome,
+    },
+    /// Start driving `vehicle` with a priority writer (strength 65535): we hold the grant.
+    StartPriorityDriving {
+        /// The vehicle.
+        vehicle: DeviceId,
+    },
+    /// Stop driving `vehicle` with the priority writer (we gave the grant back).
+    StopPriorityDriving {
+        /// The vehicle.
+        vehicle: DeviceId,
+    },
+    /// Stop driving `vehicle`: we gave it to a requester.
+    Yield {
+        /// The vehicle.
+        vehicle: DeviceId,
+    },
+    /// The grant holder gave `vehicle` back: we may drive it again.
+    Resume {
+        /// The vehicle.
+        vehicle: DeviceId,
+    },
+}
+
+/// Why a local command could not be carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Refusal {
+    /// A request for this vehicle is already open or granted.
+    #[error("a request for this vehicle is already open or granted")]
+    AlreadyRequested,
+    /// We own the vehicle already (or nobody does, so there is nobody to ask).
+    #[error("no request needed: the owner is this operator or the vehicle's failsafe")]
+    NothingToRequest,
+    /// No open request or grant for this vehicle.
+    #[error("no open request or grant for this vehicle")]
+    NoRequest,
+    /// No prompt is open for this vehicle.
+    #[error("no consent prompt is open for this vehicle")]
+    NoPrompt,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Requesting {
+    /// REQUEST sent; waiting for an answer.
+    Waiting {
+        owner: DeviceId,
+        stamp: TimeT,
+        give_up_at: MonoTime,
+        resend_at: MonoTime,
+    },
+    /// ACCEPT received; we drive with a priority writer until we FINISH.
+    Holding { owner: DeviceId, stamp: TimeT },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Replying {
+    /// The person is being asked.
+    Asking {
+        requester: DeviceId,
+        stamp: TimeT,
+        src_priority: i32,
+        deadline: MonoTime,
+    },
+    /// We accepted and stopped driving; waiting for FINISH.
+    Yielded { requester: DeviceId, stamp: TimeT },
+}
+
+/// One operator's active-handover state, as requester and as replier, for all vehicles.
+#[derive(Debug, Clone)]
+pub struct Handover {
+    me: DeviceId,
+    strength: Strength,
+    config: HandoverConfig,
+    requests: BTreeMap<DeviceId, Requesting>,
+    replies: BTreeMap<DeviceId, Replying>,
+    /// Last answer given per vehicle, to repeat it for a resent REQUEST: (requester, stamp, ack).
+    answered: BTreeMap<DeviceId, (DeviceId, TimeT, Ack)>,
+}
+
+impl Handover {
+    /// The handover state of operator `me` whose regular writers have `strength`.
+    pub fn new(me: DeviceId, strength: Strength, config: HandoverConfig) -> Self {
+        Handover {
+            me,
+            strength,
+            config,
+            requests: BTreeMap::new(),
+            replies: BTreeMap::new(),
+            answered: BTreeMap::new(),
+        }
+    }
+
+    /// The earliest instant a [`Handover::tick`] has work (a resend or a timeout).
+    pub fn next_deadline(&self) -> Option<MonoTime> {
+        let req = self.requests.values().filter_map(|r| match r {
+            Requesting::Waiting {
+                give_up_at,
+                resend_at,
+                ..
+            } => Some((*give_up_at).min(*resend_at)),
+            Requesting::Holding { .. } => None,
+        });
+        let rep = self.replies.values().filter_map(|r| match r {
+            Replying::Asking { deadline, .. } => Some(*deadline),
+            Replying::Yielded { .. } => None,
+        });
+        req.chain(rep).min()
+    }
+
+    /// True while we hold a grant for `vehicle`.
+    pub fn holds_grant(&self, vehicle: DeviceId) -> bool {
+        matches!(
+            self.requests.get(&vehicle),
+            Some(Requesting::Holding { .. })
+        )
+    }
+
+    /// True while we have yielded `vehicle` to a grant holder and must not drive it.
+    pub fn has_yielded(&self, vehicle: DeviceId) -> bool {
+        matches!(self.replies.get(&vehicle), Some(Replying::Yielded { .. }))
+    }
+
+    /// Asks `owner` (the vehicle's current `controller_id`) for `vehicle`. `stamp` is the
+    /// wall-clock time stamp to put on the REQUEST and its resends.
+    ///
+    /// # Errors
+    /// [`Refusal::AlreadyRequested`] if a request is open or granted; [`Refusal::NothingToRequest`]
+    /// if `owner` is us or the vehicle itself (its failsafe: just drive).
+    pub fn request(
+        &mut self,
+        now: MonoTime,
+        vehicle: DeviceId,
+        owner: DeviceId,
+        stamp: TimeT,
+    ) -> Result<Vec<Action>, Refusal> {
+        if self.requests.contains_key(&vehicle) {
+            return Err(Refusal::AlreadyRequested);
+        }
+        if owner == self.me || owner == vehicle {
+            return Err(Refusal::NothingToRequest);
+        }
+        self.requests.insert(
+            vehicle,
+            Requesting::Waiting {
+                owner,
+                stamp,
+                give_up_at: now + self.config.reply_timeout,
+                resend_at: now + self.config.resend,
+            },
+        );
+        Ok(vec![Action::Send(self.message(
+            self.me,
+            vehicle,
+            owner,
+            Ack::Request,
+            stamp,
+            self.priority(),
+        ))])
+    }
+
+    /// Gives a held grant back (FINISH), or withdraws an open request.
+    ///
+    /// # Errors
+    /// [`Refusal::NoRequest`] if there is neither.
+    pub fn finish(&mut self, vehicle: DeviceId) -> Result<Vec<Action>, Refusal> {
+        let state = self.requests.remove(&vehicle).ok_or(Refusal::NoRequest)?;
+        let (owner, stamp, ended) = match state {
+            Requesting::Holding { owner, stamp } => {
+                (owner, stamp, Action::StopPriorityDriving { vehicle })
+            }
+            Requesting::Waiting { owner, stamp, .. } => (
+                owner,
+                stamp,
+                Action::RequestEnded {
+                    vehicle,
+                    outcome: Outcome::Withdrawn,
+                },
+            ),
+        };
+        Ok(vec![
+            Action::Send(self.message(
+                self.me,
+                vehicle,
+                owner,
+                Ack::Finish,
+                stamp,
+                self.priority(),
+            )),
+            ended,
+        ])
+    }
+
+    /// The person answered the consent prompt for `vehicle`.
+    ///
+    /// # Errors
+    /// [`Refusal::NoPrompt`] if no prompt is open for `vehicle` (it timed out or was withdrawn).
+    pub fn decide(&mut self, vehicle: DeviceId, accept: bool) -> Result<Vec<Action>, Refusal> {
+        let Some(Replying::Asking {
+            requester,
+            stamp,
+            src_priority,
+            ..
+        }) = self.replies.get(&vehicle).copied()
+        else {
+            return Err(Refusal::NoPrompt);
+        };
+        let outcome = if accept {
+            Outcome::Accepted
+        } else {
+            Outcome::Refused
+        };
+        let mut actions = self.answer(vehicle, requester, stamp, src_priority, accept);
+        actions.push(Action::PromptClosed { vehicle, outcome });
+        Ok(actions)
+    }
+
+    /// We take `vehicle` back after yielding it (the holder vanished without FINISH). The caller
+    /// starts driving again; a late FINISH is then ignored.
+    pub fn resume(&mut self, vehicle: DeviceId) -> bool {
+        if self.has_yielded(vehicle) {
+            self.replies.remove(&vehicle);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Acts on a RequestControl sample.
+    pub fn on_message(&mut self, now: MonoTime, msg: &RequestControl) -> Vec<Action> {
+        if msg.src_id == self.me && msg.current_controller_id != self.me {
+            self.as_requester(msg)
+        } else if msg.current_controller_id == self.me && msg.src_id != self.me {
+            self.as_replier(now, msg)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// Resends and timeouts due at `now`.
+    pub fn tick(&mut self, now: MonoTime) -> Vec<Action> {
+        let mut actions = Vec::new();
+        let due: Vec<(DeviceId, Requesting)> = self
+            .requests
+            .iter()
+            .filter(|(_, r)| matches!(r, Requesting::Waiting { resend_at, give_up_at, .. } if now >= *resend_at || now >= *give_up_at))
+            .map(|(v, r)| (*v, *r))
+            .collect();
+        for (vehicle, state) in due {
+            let Requesting::Waiting {
+                owner,
+                stamp,
+                give_up_at,
+                ..
+            } = state
+            else {
+                continue;
+            };
+            if now >= give_up_at {
+                // Give up, and hand back any ACCEPT that got lost on its way to us: the vehicle
+                // may hold a grant for us that nobody would use.
+                self.requests.remove(&vehicle);
+                actions.push(Action::Send(self.message(
+                    self.me,
+                    vehicle,
+                    owner,
+                    Ack::Finish,
+                    stamp,
+                    self.priority(),
+                )));
+                actions.push(Action::RequestEnded {
+                    vehicle,
+                    outcome: Outcome::TimedOut,
+                });
+            } else {
+                self.requests.insert(
+                    vehicle,
+                    Requesting::Waiting {
+                        owner,
+                        stamp,
+                        give_up_at,
+                        resend_at: now + self.config.resend,
+                    },
+                );
+                actions.push(Action::Send(self.message(
+                    self.me,
+                    vehicle,
+                    owner,
+                    Ack::Request,
+                    stamp,
+                    self.priority(),
+                )));
+            }
+        }
+        let expired: Vec<(DeviceId, DeviceId, TimeT, i32)> = self
+            .replies
+            .iter()
+            .filter_map(|(v, r)| match r {
+                Replying::Asking {
+                    requester,
+                    stamp,
+                    src_priority,
+                    deadline,
+                } if now >= *deadline => Some((*v, *requester, *stamp, *src_priority)),
+                _ => None,
+            })
+            .collect();
+        for (vehicle, requester, stamp, src_priority) in expired {
+            actions.extend(self.answer(vehicle, requester, stamp, src_priority, false));
+            actions.push(Action::PromptClosed {
+                vehicle,
+                outcome: Outcome::TimedOut,
+            });
+        }
+        actions
+    }
+
+    fn as_requester(&mut self, msg: &RequestControl) -> Vec<Action> {
+        let vehicle = msg.dest_id;
+        let state = self.requests.get(&vehicle).copied();
+        match (msg.ack, state) {
+            (Ack::Accept, Some(Requesting::Waiting { owner, stamp, .. }))
+                if owner == msg.current_controller_id =>
+            {
+                self.requests
+                    .insert(vehicle, Requesting::Holding { owner, stamp });
+                vec![
+                    Action::StartPriorityDriving { vehicle },
+                    Action::RequestEnded {
+                        vehicle,
+                        outcome: Outcome::Accepted,
+                    },
+                ]
+            }
+            (Ack::Refuse, Some(Requesting::Waiting { owner, .. }))
+                if owner == msg.current_controller_id =>
+            {
+                self.requests.remove(&vehicle);
+                vec![Action::RequestEnded {
+                    vehicle,
+                    outcome: Outcome::Refused,
+                }]
+            }
+            // An ACCEPT nobody here is waiting for (we gave up or finished): give it straight
+            // back so the vehicle does not keep a grant for a stream that will never come.
+            (Ack::Accept, None) => vec![Action::Send(self.message(
+                self.me,
+                vehicle,
+                msg.current_controller_id,
+                Ack::Finish,
+                msg.timestamp,
+                self.priority(),
+            ))],
+            // Duplicates (ACCEPT while holding, REFUSE after giving up), answers from an owner
+            // we did not ask, and REQUEST/FINISH echoes change nothing.
+            _ => Vec::new(),
+        }
+    }
+
+    fn as_replier(&mut self, now: MonoTime, msg: &RequestControl) -> Vec<Action> {
+        let vehicle = msg.dest_id;
+        let requester = msg.src_id;
+        let state = self.replies.get(&vehicle).copied();
+        match msg.ack {
+            Ack::Request => match state {
+                // A resend of the request being asked about: the prompt is already up.
+                Some(Replying::Asking {
+                    requester: r,
+                    stamp,
+                    ..
+                }) if r == requester && stamp == msg.timestamp => Vec::new(),
+                // Yielded to this requester: repeat the ACCEPT (ours may have been lost).
+                Some(Replying::Yielded {
+                    requester: r,
+                    stamp,
+                }) if r == requester => {
+                    vec![Action::Send(self.message(
+                        requester,
+                        vehicle,
+                        self.me,
+                        Ack::Accept,
+                        stamp,
+                        msg.src_priority,
+                    ))]
+                }
+                // Busy with another request, or yielded to someone else: not ours to give.
+                Some(_) => vec![Action::Send(self.message(
+                    requester,
+                    vehicle,
+                    self.me,
+                    Ack::Refuse,
+                    msg.timestamp,
+                    msg.src_priority,
+                ))],
+                None => {
+                    if let Some((r, stamp, ack)) = self.answered.get(&vehicle).copied()
+                        && r == requester
+                        && stamp == msg.timestamp
+                    {
+                        // A resend of a request already answered: the same answer again.
+                        return vec![Action::Send(self.message(
+                            requester,
+                            vehicle,
+                            self.me,
+                            ack,
+                            stamp,
+                            msg.src_priority,
+                        ))];
+                    }
+                    if self.auto_accepts(vehicle, msg.src_priority) {
+                        return self.answer(
+                            vehicle,
+                            requester,
+                            msg.timestamp,
+                            msg.src_priority,
+                            true,
+                        );
+                    }
+                    let deadline = now + self.config.consent_timeout;
+                    self.replies.insert(
+                        vehicle,
+                        Replying::Asking {
+                            requester,
+                            stamp: msg.timestamp,
+                            src_priority: msg.src_priority,
+                            deadline,
+                        },
+                    );
+                    vec![Action::AskOperator {
+                        vehicle,
+                        requester,
+                        src_priority: msg.src_priority,
+                        deadline,
+                    }]
+                }
+            },
+            Ack::Finish => match state {
+                Some(Replying::Yielded { requester: r, .. }) if r == requester => {
+                    self.replies.remove(&vehicle);
+                    vec![Action::Resume { vehicle }]
+                }
+                Some(Replying::Asking { requester: r, .. }) if r == requester => {
+                    self.replies.remove(&vehicle);
+                    vec![Action::PromptClosed {
+                        vehicle,
+                        outcome: Outcome::Withdrawn,
+                    }]
+                }
+                _ => Vec::new(),
+            },
+            // ACCEPT/REFUSE naming us as owner are our own answers echoed back.
+            Ack::Accept | Ack::Refuse => Vec::new(),
+        }
+    }
+
+    /// Our priority as a requester: the strength of our regular writers.
+    fn priority(&self) -> i32 {
+        i32::from(self.strength.0)
+    }
+
+    fn auto_accepts(&self, vehicle: DeviceId, src_priority: i32) -> bool {
+        let ours = if self.holds_grant(vehicle) {
+            Strength::PRIORITY
+        } else {
+            self.strength
+        };
+        match self.config.auto_accept {
+            AutoAccept::Never => false,
+            AutoAccept::Always => true,
+            AutoAccept::HigherPriority => src_priority > i32::from(ours.0),
+        }
+    }
+
+    /// Sends our answer and records it; on ACCEPT we yield the vehicle.
+    fn answer(
+        &mut self,
+        vehicle: DeviceId,
+        requester: DeviceId,
+        stamp: TimeT,
+        src_priority: i32,
+        accept: bool,
+    ) -> Vec<Action> {
+        let ack = if accept { Ack::Accept } else { Ack::Refuse };
+        self.answered.insert(vehicle, (requester, stamp, ack));
+        let mut actions = vec![Action::Send(self.message(
+            requester,
+            vehicle,
+            self.me,
+            ack,
+            stamp,
+            src_priority,
+        ))];
+        if accept {
+            self.replies
+                .insert(vehicle, Replying::Yielded { requester, stamp });
+            // A grant we held on this vehicle passes on with it.
+            if self.requests.remove(&vehicle).is_some() {
+                actions.push(Action::StopPriorityDriving { vehicle });
+            }
+            actions.push(Action::Yield { vehicle });
+        } else {
+            self.replies.remove(&vehicle);
+        }
+        actions
+    }
+
+    fn message(
+        &self,
+        requester: DeviceId,
+        vehicle: DeviceId,
+        owner: DeviceId,
+        ack: Ack,
+        stamp: TimeT,
+        src_priority: i32,
+    ) -> RequestControl {
+        RequestControl {
+            src_id: requester,
+            dest_id: vehicle,
+            current_controller_id: owner,
+            src_priority,
+            ack,
+            timestamp: stamp,
+        }
+    }
+}

@@ -1,0 +1,40 @@
+//! `rove-core`: the pure control core of rove, the gateway that lets several operators share
+//! control of several robots safely.
+//!
+//! It answers one question, correctly at every instant: *who drives this vehicle?* — and holds
+//! everything the DDS binding, the adapters and the benchmarks share: the seed's wire data model,
+//! the control hierarchy, the ownership arbiter, the active-handover state machines, the safety
+//! timers, the axis → pulse mapping and the adapter traits.
+//!
+//! This crate must **not** do I/O, spawn threads, use async or read a clock. Time is an argument
+//! ([`MonoTime`]); every state machine is stepped with `now` and an event, and returns what to
+//! do. It depends on no DDS, tokio, MAVLink, evdev or hardware crate (`cargo tree -p rove-core
+//! -e normal` shows serde, serde_repr and thiserror only).
+//!
+//! # Layout
+//! - [`msg`]: the seed IDL types (DeviceInfo, ControlCommand, RequestControl), wire-exact.
+//! - [`hierarchy`]: level × device class → ownership strength.
+//! - [`arbiter`]: the per-vehicle ownership state machine (DESIGN.md §4).
+//! - [`handover`]: REQUEST / ACCEPT / REFUSE / FINISH for requester and replier.
+//! - [`watchdog`]: the command timeout and liveness watchdog.
+//! - [`mapping`]: axis → µs (min/centre/max, trim, reverse, deadband, expo, slew), mode levels.
+//! - [`adapter`]: output-adapter and input-source traits.
+//! - [`sim`]: a recording output and a scripted input.
+//! - [`time`]: monotonic instants.
+//! - [`error`]: configuration errors (naming their keys) and classified link errors.
+
+#![deny(missing_docs)]
+
+pub mod adapter;
+pub mod arbiter;
+pub mod error;
+pub mod handover;
+pub mod hierarchy;
+pub mod mapping;
+pub mod msg;
+pub mod sim;
+pub mod time;
+pub mod watchdog;
+
+pub use error::{Error, Result};
+pub use time::MonoTime;

@@ -1,0 +1,565 @@
+//! Axis → output mapping shared by the PWM and MAVLink adapters: a ±32767 axis becomes a pulse
+//! width in microseconds, and a [`Mode`] becomes a pulse level.
+//!
+//! The chain for one channel, in order: reverse → deadband → expo → scale around the trimmed
+//! centre (separately for each half, so asymmetric min/centre/max work) → round → clamp to
+//! `[min_us, max_us]` → optional slew limit ([`SlewLimiter`]).
+//!
+//! | key | unit | meaning |
+//! |---|---|---|
+//! | `min_us`, `centre_us`, `max_us` | µs | pulse at −full, centre and +full scale |
+//! | `trim_us` | µs | shifts the centre; must stay strictly between min and max |
+//! | `reverse` | bool | swaps the two halves |
+//! | `deadband_pct` | % of full scale | stick travel around centre that outputs centre |
+//! | `expo` | 0..=1 | 0 linear; 1 cubic (fine control near centre) |
+//! | `slew_us_per_s` | µs/s | largest change of the output per second |
+//!
+//! Safe-state values are written without slew limiting: a failsafe must not be slowed down.
+
+use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::msg::{Mode, MovementCommand};
+use crate::time::MonoTime;
+use serde::{Deserialize, Serialize};
+
+/// Pulse widths accepted anywhere in a channel map, in µs. Servo and autopilot signals live in
+/// 500–2500 µs; the wider bounds leave room for unusual devices while still rejecting typos such
+/// as `15000`.
+pub const PULSE_RANGE_US: std::ops::RangeInclusive<u16> = 100..=10_000;
+
+/// One of the four movement axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    /// `MovementCommand::throttle`.
+    Throttle,
+    /// `MovementCommand::roll` (UGV steering).
+    Roll,
+    /// `MovementCommand::pitch`.
+    Pitch,
+    /// `MovementCommand::yaw`.
+    Yaw,
+}
+
+impl Axis {
+    /// The axis's value in `movement`.
+    pub fn of(self, movement: &MovementCommand) -> i16 {
+        match self {
+            Axis::Throttle => movement.throttle,
+            Axis::Roll => movement.roll,
+            Axis::Pitch => movement.pitch,
+            Axis::Yaw => movement.yaw,
+        }
+    }
+}
+
+/// A channel's mapping as written in TOML. `min_us`/`centre_us`/`max_us` default to the servo
+/// standard 1000/1500/2000 µs; the others to "off".
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisMapSettings {
+    /// Pulse at −32767 (or +32767 when reversed).
+    pub min_us: Option<u16>,
+    /// Pulse at 0 before trim.
+    pub centre_us: Option<u16>,
+    /// Pulse at +32767 (or −32767 when reversed).
+    pub max_us: Option<u16>,
+    /// Shift of the centre.
+    pub trim_us: Option<i16>,
+    /// Swap directions.
+    pub reverse: Option<bool>,
+    /// Dead zone around centre, percent of full scale (0..=50).
+    pub deadband_pct: Option<f64>,
+    /// Expo (0..=1).
+    pub expo: Option<f64>,
+    /// Slew limit in µs per second (absent: none).
+    pub slew_us_per_s: Option<u32>,
+}
+
+/// A validated axis → pulse mapping.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisMap {
+    min_us: u16,
+    centre_us: u16,
+    max_us: u16,
+    reverse: bool,
+    /// Dead zone as a fraction of full scale, 0..=0.5.
+    deadband: f64,
+    expo: f64,
+    slew_us_per_s: Option<u32>,
+}
+
+impl Default for AxisMap {
+    /// 1000/1500/2000 µs, linear, no deadband, no slew limit.
+    fn default() -> Self {
+        AxisMap {
+            min_us: 1000,
+            centre_us: 1500,
+            max_us: 2000,
+            reverse: false,
+            deadband: 0.0,
+            expo: 0.0,
+            slew_us_per_s: None,
+        }
+    }
+}
+
+impl AxisMapSettings {
+    /// Validates, filling defaults. Keys are named relative to the channel's table.
+    ///
+    /// # Errors
+    /// [`crate::Error::Config`] listing every key that is out of range: pulses outside
+    /// [`PULSE_RANGE_US`], `min_us < centre_us + trim_us < max_us` broken, deadband outside
+    /// 0..=50 %, expo outside 0..=1, a zero slew rate.
+    pub fn validate(&self) -> Result<AxisMap> {
+        let d = AxisMap::default();
+        let min = self.min_us.unwrap_or(d.min_us);
+        let centre = self.centre_us.unwrap_or(d.centre_us);
+        let max = self.max_us.unwrap_or(d.max_us);
+        let trim = self.trim_us.unwrap_or(0);
+        let deadband_pct = self.deadband_pct.unwrap_or(0.0);
+        let expo = self.expo.unwrap_or(0.0);
+        let mut errors = ConfigErrors::default();
+        for (key, v) in [("min_us", min), ("centre_us", centre), ("max_us", max)] {
+            if !PULSE_RANGE_US.contains(&v) {
+                errors.push(ConfigError::new(
+                    key,
+                    v,
+                    format!(
+                        "must be {}..={} µs",
+                        PULSE_RANGE_US.start(),
+                        PULSE_RANGE_US.end()
+                    ),
+                ));
+            }
+        }
+        let trimmed = i32::from(centre) + i32::from(trim);
+        if !(i32::from(min) < trimmed && trimmed < i32::from(max)) {
+            let key = if self.trim_us.is_some() {
+                "trim_us"
+            } else {
+                "centre_us"
+            };
+            let value = if self.trim_us.is_some() {
+                trim.to_string()
+            } else {
+                centre.to_string()
+            };
+            errors.push(ConfigError::new(
+                key,
+                value,
+                format!(
+                    "centre_us + trim_us ({trimmed}) must lie strictly between min_us ({min}) \
+                     and max_us ({max})"
+                ),
+            ));
+        }
+        if !(0.0..=50.0).contains(&deadband_pct) {
+            errors.push(ConfigError::new(
+                "deadband_pct",
+                deadband_pct,
+                "must be 0..=50 (percent of full scale)",
+            ));
+        }
+        if !(0.0..=1.0).contains(&expo) {
+            errors.push(ConfigError::new("expo", expo, "must be 0..=1"));
+        }
+        if self.slew_us_per_s == Some(0) {
+            errors.push(ConfigError::new(
+                "slew_us_per_s",
+                0,
+                "must be at least 1 (omit the key for no slew limit)",
+            ));
+        }
+        // `trimmed` is within (min, max) ⊂ u16 once validation passed.
+        let centre_us = u16::try_from(trimmed).unwrap_or(centre);
+        errors.into_result(AxisMap {
+            min_us: min,
+            centre_us,
+            max_us: max,
+            reverse: self.reverse.unwrap_or(false),
+            deadband: deadband_pct / 100.0,
+            expo,
+            slew_us_per_s: self.slew_us_per_s,
+        })
+    }
+}
+
+impl AxisMap {
+    /// Pulse at −full scale.
+    pub fn min_us(&self) -> u16 {
+        self.min_us
+    }
+
+    /// Pulse at centre, trim included: the neutral output.
+    pub fn centre_us(&self) -> u16 {
+        self.centre_us
+    }
+
+    /// Pulse at +full scale.
+    pub fn max_us(&self) -> u16 {
+        self.max_us
+    }
+
+    /// The slew limiter this channel needs (unlimited if no `slew_us_per_s`).
+    pub fn slew_limiter(&self) -> SlewLimiter {
+        SlewLimiter::new(self.slew_us_per_s)
+    }
+
+    /// Maps an axis value to a pulse width. Total: every `i16` gives a pulse in `[min, max]`;
+    /// −32768 counts as −32767.
+    pub fn map(&self, axis: i16) -> u16 {
+        let mut x = f64::from(axis.max(-i16::MAX)) / f64::from(i16::MAX);
+        if self.reverse {
+            x = -x;
+        }
+        let magnitude = x.abs();
+        let magnitude = if magnitude <= self.deadband {
+            0.0
+        } else {
+            (magnitude - self.deadband) / (1.0 - self.deadband)
+        };
+        let shaped = (1.0 - self.expo) * magnitude + self.expo * magnitude.powi(3);
+        let centre = f64::from(self.centre_us);
+        let pulse = if x >= 0.0 {
+            centre + shaped * (f64::from(self.max_us) - centre)
+        } else {
+            centre - shaped * (centre - f64::from(self.min_us))
+        };
+        // In range by construction (shaped ∈ [0, 1]); clamp guards rounding at the ends.
+        pulse
+            .round()
+            .clamp(f64::from(self.min_us), f64::from(self.max_us)) as u16
+    }
+}
+
+/// Limits how fast an output may change, for gentle starts on servos and ESCs.
+///
+/// Keeps the fractional position, so slow rates at high update rates still move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SlewLimiter {
+    rate_us_per_s: Option<u32>,
+    last: Option<(MonoTime, f64)>,
+}
+
+impl SlewLimiter {
+    /// A limiter allowing `rate_us_per_s` (unlimited if `None`).
+    pub fn new(rate_us_per_s: Option<u32>) -> Self {
+        SlewLimiter {
+            rate_us_per_s,
+            last: None,
+        }
+    }
+
+    /// Moves toward `target_us`, at most `rate × elapsed` since the last step. The first step
+    /// after construction or [`Self::reset`] passes the target through.
+    pub fn step(&mut self, now: MonoTime, target_us: u16) -> u16 {
+        let target = f64::from(target_us);
+        let next = match (self.rate_us_per_s, self.last) {
+            (Some(rate), Some((then, position))) => {
+                let budget = f64::from(rate) * now.saturating_since(then).as_secs_f64();
+                position + (target - position).clamp(-budget, budget)
+            }
+            _ => target,
+        };
+        self.last = Some((now, next));
+        next.round() as u16
+    }
+
+    /// Jumps to `value_us` with no limit (safe state), and limits from there.
+    pub fn reset(&mut self, now: MonoTime, value_us: u16) {
+        self.last = Some((now, f64::from(value_us)));
+    }
+}
+
+/// `[..mode_levels]` as written in TOML: the pulse for each mode.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeLevelsSettings {
+    /// Pulse for MANUAL.
+    pub manual_us: Option<u16>,
+    /// Pulse for ASSISTED.
+    pub assisted_us: Option<u16>,
+    /// Pulse for AUTO.
+    pub auto_us: Option<u16>,
+}
+
+/// Pulse levels of a mode-switch channel, one per [`Mode`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModeLevels {
+    manual_us: u16,
+    assisted_us: u16,
+    auto_us: u16,
+}
+
+impl ModeLevelsSettings {
+    /// Validates against `defaults` (each adapter knows its device's usual levels).
+    ///
+    /// # Errors
+    /// [`crate::Error::Config`] for a level outside [`PULSE_RANGE_US`] or two modes sharing a
+    /// level (the device could not tell them apart).
+    pub fn validate(&self, defaults: ModeLevels) -> Result<ModeLevels> {
+        let levels = ModeLevels {
+            manual_us: self.manual_us.unwrap_or(defaults.manual_us),
+            assisted_us: self.assisted_us.unwrap_or(defaults.assisted_us),
+            auto_us: self.auto_us.unwrap_or(defaults.auto_us),
+        };
+        let named = [
+            ("manual_us", levels.manual_us),
+            ("assisted_us", levels.assisted_us),
+            ("auto_us", levels.auto_us),
+        ];
+        let mut errors = ConfigErrors::default();
+        for (i, (key, v)) in named.iter().enumerate() {
+            if !PULSE_RANGE_US.contains(v) {
+                errors.push(ConfigError::new(
+                    *key,
+                    v,
+                    format!(
+                        "must be {}..={} µs",
+                        PULSE_RANGE_US.start(),
+                        PULSE_RANGE_US.end()
+                    ),
+                ));
+            }
+            if let Some((other, _)) = named[..i].iter().find(|(_, w)| w == v) {
+                errors.push(ConfigError::new(
+                    *key,
+                    v,
+                    format!("must differ from {other}: the device could not tell the modes apart"),
+                ));
+            }
+        }
+        errors.into_result(levels)
+    }
+}
+
+impl ModeLevels {
+    /// Levels from explicit values, unvalidated: for adapters' built-in defaults.
+    pub const fn new(manual_us: u16, assisted_us: u16, auto_us: u16) -> Self {
+        ModeLevels {
+            manual_us,
+            assisted_us,
+            auto_us,
+        }
+    }
+
+    /// The pulse for `mode`.
+    pub fn level(&self, mode: Mode) -> u16 {
+        match mode {
+            Mode::Manual => self.manual_us,
+            Mode::Assisted => self.assisted_us,
+            Mode::Auto => self.auto_us,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::time::Duration;
+
+    fn map(toml_text: &str) -> AxisMap {
+        toml::from_str::<AxisMapSettings>(toml_text)
+            .expect("parses")
+            .validate()
+            .expect("valid")
+    }
+
+    #[test]
+    fn default_map_is_the_servo_standard() {
+        let m = AxisMap::default();
+        assert_eq!(m.map(0), 1500);
+        assert_eq!(m.map(i16::MAX), 2000);
+        assert_eq!(m.map(-i16::MAX), 1000);
+        assert_eq!(m.map(i16::MIN), 1000);
+        assert_eq!(m.map(16384), 1750);
+        assert_eq!(AxisMapSettings::default().validate(), Ok(m));
+    }
+
+    #[test]
+    fn trim_shifts_centre_and_halves_scale_separately() {
+        let m = map("trim_us = 20");
+        assert_eq!(m.map(0), 1520);
+        assert_eq!(m.map(i16::MAX), 2000);
+        assert_eq!(m.map(-i16::MAX), 1000);
+        assert_eq!(m.centre_us(), 1520);
+        // Asymmetric ranges: each half has its own span.
+        let m = map("min_us = 1100\ncentre_us = 1400\nmax_us = 2000");
+        assert_eq!(m.map(-16384), 1250);
+        assert_eq!(m.map(16384), 1700);
+    }
+
+    #[test]
+    fn reverse_swaps_directions() {
+        let m = map("reverse = true");
+        assert_eq!(m.map(i16::MAX), 1000);
+        assert_eq!(m.map(-i16::MAX), 2000);
+        assert_eq!(m.map(0), 1500);
+    }
+
+    #[test]
+    fn deadband_outputs_centre_then_rescales_without_a_jump() {
+        let m = map("deadband_pct = 10");
+        assert_eq!(m.map(3276), 1500); // 9.998 % of full scale
+        assert_eq!(m.map(-3276), 1500);
+        assert_eq!(m.map(3300), 1500); // just past: moves by < 1 µs, no jump
+        assert_eq!(m.map(i16::MAX), 2000);
+    }
+
+    #[test]
+    fn expo_softens_the_centre_and_keeps_the_ends() {
+        let m = map("expo = 1.0");
+        assert_eq!(m.map(16384), 1563); // 0.5³ × 500 = 62.5 → 1562.5 rounds up
+        assert_eq!(m.map(i16::MAX), 2000);
+        let half = map("expo = 0.5");
+        assert_eq!(half.map(16384), 1656); // (0.25 + 0.0625) × 500 = 156.25
+    }
+
+    #[test]
+    fn validation_names_every_bad_key() {
+        let raw: AxisMapSettings = toml::from_str(
+            "min_us = 1600\nmax_us = 20000\ndeadband_pct = 60\nexpo = -0.1\nslew_us_per_s = 0",
+        )
+        .expect("parses");
+        let err = raw.validate().expect_err("invalid").to_string();
+        for key in [
+            "max_us = 20000",
+            "centre_us = 1500: centre_us + trim_us (1500) must lie strictly between min_us (1600)",
+            "deadband_pct = 60",
+            "expo = -0.1",
+            "slew_us_per_s = 0",
+        ] {
+            assert!(err.contains(key), "missing {key:?} in:\n{err}");
+        }
+    }
+
+    #[test]
+    fn trim_beyond_the_range_is_rejected_naming_trim() {
+        let raw: AxisMapSettings = toml::from_str("trim_us = 500").expect("parses");
+        let err = raw.validate().expect_err("trim to max").to_string();
+        assert!(err.starts_with("trim_us = 500:"), "{err}");
+    }
+
+    #[test]
+    fn rejects_unknown_keys() {
+        assert!(toml::from_str::<AxisMapSettings>("centre = 1500").is_err());
+    }
+
+    #[test]
+    fn slew_limits_rate_and_keeps_fractions() {
+        let mut s = SlewLimiter::new(Some(100)); // 100 µs per second
+        let t0 = MonoTime::from_millis(0);
+        assert_eq!(s.step(t0, 1500), 1500);
+        // 1 ms steps allow 0.1 µs each: after 10 steps the output has moved 1 µs.
+        let mut out = 0;
+        for i in 1..=10 {
+            out = s.step(t0 + Duration::from_millis(i), 2000);
+        }
+        assert_eq!(out, 1501);
+        assert_eq!(s.step(t0 + Duration::from_millis(1010), 2000), 1601);
+        s.reset(t0 + Duration::from_millis(1010), 1500);
+        assert_eq!(s.step(t0 + Duration::from_millis(1010), 1000), 1500);
+        assert_eq!(s.step(t0 + Duration::from_millis(2010), 1000), 1400);
+    }
+
+    #[test]
+    fn unlimited_slew_passes_through() {
+        let mut s = SlewLimiter::new(None);
+        assert_eq!(s.step(MonoTime::ZERO, 1000), 1000);
+        assert_eq!(s.step(MonoTime::ZERO, 2000), 2000);
+    }
+
+    #[test]
+    fn mode_levels_map_each_mode_and_must_differ() {
+        let defaults = ModeLevels::new(1100, 1500, 1900);
+        let levels = ModeLevelsSettings {
+            auto_us: Some(1950),
+            ..Default::default()
+        }
+        .validate(defaults)
+        .expect("valid");
+        assert_eq!(levels.level(Mode::Manual), 1100);
+        assert_eq!(levels.level(Mode::Assisted), 1500);
+        assert_eq!(levels.level(Mode::Auto), 1950);
+        let err = ModeLevelsSettings {
+            auto_us: Some(1500),
+            ..Default::default()
+        }
+        .validate(defaults)
+        .expect_err("duplicate level")
+        .to_string();
+        assert!(
+            err.starts_with("auto_us = 1500: must differ from assisted_us"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn axis_picks_its_field() {
+        let m = MovementCommand {
+            throttle: 1,
+            roll: 2,
+            pitch: 3,
+            yaw: 4,
+        };
+        let picked: Vec<i16> = [Axis::Throttle, Axis::Roll, Axis::Pitch, Axis::Yaw]
+            .iter()
+            .map(|a| a.of(&m))
+            .collect();
+        assert_eq!(picked, [1, 2, 3, 4]);
+    }
+
+    prop_compose! {
+        fn valid_map()(
+            min in 500u16..1400, span_lo in 10u16..500, span_hi in 10u16..900,
+            trim in -5i16..=5, reverse: bool, deadband in 0.0f64..=50.0, expo in 0.0f64..=1.0,
+        ) -> AxisMap {
+            AxisMapSettings {
+                min_us: Some(min), centre_us: Some(min + span_lo), max_us: Some(min + span_lo + span_hi),
+                trim_us: Some(trim), reverse: Some(reverse), deadband_pct: Some(deadband),
+                expo: Some(expo), slew_us_per_s: None,
+            }.validate().expect("valid by construction")
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2_000))]
+
+        /// Every axis value maps into [min, max]; centre maps to the trimmed centre; full scale to
+        /// the ends; and the map is monotonic (rising, or falling when reversed).
+        #[test]
+        fn mapping_is_bounded_centred_and_monotonic(m in valid_map(), a: i16, b: i16) {
+            let (pa, pb) = (m.map(a), m.map(b));
+            prop_assert!(m.min_us() <= pa && pa <= m.max_us());
+            prop_assert_eq!(m.map(0), m.centre_us());
+            let (lo, hi) = if m.reverse { (m.max_us(), m.min_us()) } else { (m.min_us(), m.max_us()) };
+            prop_assert_eq!(m.map(-i16::MAX), lo);
+            prop_assert_eq!(m.map(i16::MAX), hi);
+            let (a, b, pa, pb) = if a <= b { (a, b, pa, pb) } else { (b, a, pb, pa) };
+            let _ = (a, b);
+            if m.reverse { prop_assert!(pa >= pb) } else { prop_assert!(pa <= pb) }
+        }
+
+        /// The slew limiter never moves faster than its rate (±1 µs of rounding) and reaches any
+        /// target given enough time.
+        #[test]
+        fn slew_never_exceeds_rate(
+            rate in 1u32..5_000,
+            steps in prop::collection::vec((1u64..50, 1000u16..=2000), 1..50),
+        ) {
+            let mut s = SlewLimiter::new(Some(rate));
+            let mut now = MonoTime::ZERO;
+            let mut last = s.step(now, 1500);
+            for (dt_ms, target) in steps {
+                now = now + Duration::from_millis(dt_ms);
+                let out = s.step(now, target);
+                let budget = f64::from(rate) * dt_ms as f64 / 1000.0;
+                prop_assert!(f64::from(out.abs_diff(last)) <= budget.ceil() + 1.0);
+                last = out;
+            }
+            let later = now + Duration::from_secs(1000 / u64::from(rate) + 2);
+            prop_assert_eq!(s.step(later, 1234), 1234);
+        }
+    }
+}
