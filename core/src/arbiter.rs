@@ -20,8 +20,11 @@
 //! Each decision may carry an [`OwnerChange`] (from, to, reason), an [`Output`] for the adapter
 //! (apply this setpoint, or go to the safe state) and, for events that changed nothing, why they
 //! were [`Ignored`]. Every output carries its provenance: the controller it came from and a
-//! sequence number. When a new owner takes over, its latest sample is applied at once; it is
-//! fresh by construction, since only live sources can own. A stale sample is never applied.
+//! sequence number. When a new owner takes over, its latest values (MOVEMENT or MODE) are applied
+//! at once if they arrived within `command_timeout`. Older values are never applied: the output
+//! goes to the safe state instead — also when an owner keeps its stream alive with PROBE
+//! keep-alives only, once its last values are a timeout old. A live owner therefore keeps
+//! ownership on PROBEs, but cannot keep the vehicle moving on them.
 //!
 //! # Timing
 //! Liveness expires lazily at any step, and [`Event::Tick`] exists so that expiry is acted on
@@ -205,7 +208,8 @@ pub enum Output {
         /// Output sequence number (counts every output of this arbiter).
         seq: u64,
     },
-    /// Go to the safe state: the failsafe owns, or a new owner has sent only keep-alives so far.
+    /// Go to the safe state: the failsafe owns, or the owner has no fresh values (it has sent
+    /// only keep-alives for a timeout, or nothing but keep-alives yet).
     SafeState {
         /// Who owns while the outputs are safe.
         owner: Owner,
@@ -274,8 +278,10 @@ impl Decision {
 pub struct ArbiterConfig {
     /// Silence after which a stream is no longer live.
     pub command_timeout: CommandTimeout,
-    /// Most sources tracked at once. Bounds memory against a flood of writers; silent sources
-    /// are pruned first. 256 is far above any real fleet (DESIGN.md's benchmarks use ≤ 32).
+    /// Most sources tracked at once. Bounds memory against a flood of writers: when the table is
+    /// full, silent sources are forgotten to make room; if all are live, the new one is ignored.
+    /// Sources are otherwise kept until their writer or participant leaves. 256 is far above any
+    /// real fleet (DESIGN.md's benchmarks use ≤ 32).
     pub max_sources: usize,
 }
 
@@ -303,13 +309,20 @@ struct Source {
     presence: Presence,
     /// Latest arrival or release processed: older samples are out of order.
     high_water: MonoTime,
-    /// Latest movement/mode values; `None` while it has only sent keep-alives.
-    setpoint: Option<Setpoint>,
+    /// Latest movement/mode values and when they arrived; `None` while it has only sent
+    /// keep-alives. Values are fresh for one command timeout, like the stream itself.
+    setpoint: Option<(MonoTime, Setpoint)>,
 }
 
 impl Source {
     fn is_live(&self, now: MonoTime) -> bool {
         self.presence == Presence::Streaming && self.watchdog.is_live(now)
+    }
+
+    fn fresh_setpoint(&self, now: MonoTime, timeout: CommandTimeout) -> Option<Setpoint> {
+        self.setpoint
+            .filter(|(at, _)| now < *at + timeout.get())
+            .map(|(_, sp)| sp)
     }
 }
 
@@ -344,6 +357,9 @@ pub struct Arbiter {
     owner: Owner,
     grant: Option<DeviceId>,
     stepped_down: Option<SteppedDown>,
+    /// True while the last output was `Apply`: the owner's values are driving the vehicle and
+    /// must be withdrawn (safe state) the moment they go stale.
+    driving: bool,
     last_now: MonoTime,
     seq: u64,
 }
@@ -358,6 +374,7 @@ impl Arbiter {
             owner: Owner::Failsafe,
             grant: None,
             stepped_down: None,
+            driving: false,
             last_now: MonoTime::ZERO,
             seq: 0,
         }
@@ -385,12 +402,21 @@ impl Arbiter {
     }
 
     /// The earliest instant at which a [`Event::Tick`] can change something (a live stream's
-    /// timeout), or `None` when nothing is live.
+    /// timeout, or the owner's values going stale), or `None` when nothing can.
     pub fn next_deadline(&self) -> Option<MonoTime> {
-        self.sources
+        let timeout = self.config.command_timeout.get();
+        let streams = self
+            .sources
             .iter()
             .filter(|s| s.presence == Presence::Streaming)
-            .filter_map(|s| s.watchdog.deadline())
+            .filter_map(|s| s.watchdog.deadline());
+        let values = self
+            .owner_source()
+            .filter(|_| self.driving)
+            .and_then(|s| s.setpoint)
+            .map(|(at, _)| at + timeout);
+        streams
+            .chain(values)
             .filter(|d| *d > self.last_now)
             .min()
     }
@@ -440,9 +466,7 @@ impl Arbiter {
                     s.presence = Presence::Released;
                     s.watchdog.clear();
                     s.high_water = s.high_water.max(now);
-                    if self.grant == Some(s.controller.device)
-                        && s.controller.strength == Strength::PRIORITY
-                    {
+                    if is_grant_stream(&s.controller, self.grant) {
                         // A holder that stops its priority stream is done with the grant.
                         self.grant = None;
                     }
@@ -479,7 +503,11 @@ impl Arbiter {
         if after.writer() != before.writer() {
             let reason = self.reason(before, &event, now);
             if let Owner::Controller(c) = before {
-                self.stepped_down = (reason != Reason::Preempted).then_some(SteppedDown {
+                let stepped_down = matches!(
+                    reason,
+                    Reason::Released | Reason::Left | Reason::TimedOut
+                );
+                self.stepped_down = stepped_down.then_some(SteppedDown {
                     device: c.device,
                     until: now + self.config.command_timeout.get(),
                 });
@@ -494,16 +522,17 @@ impl Arbiter {
         } else {
             // Same writer; its strength may have been updated.
             self.owner = after;
-            if sampled.is_some() && sampled == after.writer() {
+            let owner_sent_values = sampled.is_some() && sampled == after.writer();
+            let values_lapsed = self.driving
+                && self
+                    .owner_source()
+                    .and_then(|s| s.fresh_setpoint(now, self.config.command_timeout))
+                    .is_none();
+            if owner_sent_values || values_lapsed {
                 decision.output = Some(self.output_for_owner());
             }
         }
 
-        // 3. Housekeeping: forget streams that can no longer matter.
-        if event == Event::Tick {
-            self.sources
-                .retain(|s| s.presence == Presence::Released || s.watchdog.is_live(now));
-        }
         decision
     }
 
@@ -544,26 +573,23 @@ impl Arbiter {
         source.controller.strength = strength;
         source.presence = Presence::Streaming;
         source.watchdog.kick(arrival);
-        Ok(match command.command_type {
-            CommandType::Probe => false,
-            CommandType::Movement => {
-                source.setpoint = Some(Setpoint {
-                    movement: command.movement_command,
-                    mode: command.mode,
-                });
-                true
-            }
-            CommandType::Mode => {
-                let movement = source
-                    .setpoint
-                    .map_or(MovementCommand::CENTRED, |s| s.movement);
-                source.setpoint = Some(Setpoint {
-                    movement,
-                    mode: command.mode,
-                });
-                true
-            }
-        })
+        let timeout = self.config.command_timeout;
+        let values = match command.command_type {
+            CommandType::Probe => return Ok(false),
+            CommandType::Movement => Setpoint {
+                movement: command.movement_command,
+                mode: command.mode,
+            },
+            // A mode change keeps the current stick values, if they are still fresh.
+            CommandType::Mode => Setpoint {
+                movement: source
+                    .fresh_setpoint(arrival, timeout)
+                    .map_or(MovementCommand::CENTRED, |s| s.movement),
+                mode: command.mode,
+            },
+        };
+        source.setpoint = Some((arrival, values));
+        Ok(true)
     }
 
     fn insert(
@@ -574,9 +600,16 @@ impl Arbiter {
         strength: Strength,
     ) -> Result<usize, Ignored> {
         if self.sources.len() >= self.config.max_sources {
+            // Make room by forgetting silent streams. Only here, under a flood of writers, does
+            // the arbiter forget a stream that has not left: a later release of a forgotten
+            // stream is then unknown. The owner and the grant holder's streams are never evicted.
             let owner = self.owner.writer();
-            self.sources
-                .retain(|s| s.is_live(now) || Some(s.controller.writer) == owner);
+            let grant = self.grant;
+            self.sources.retain(|s| {
+                s.is_live(now)
+                    || Some(s.controller.writer) == owner
+                    || is_grant_stream(&s.controller, grant)
+            });
             if self.sources.len() >= self.config.max_sources {
                 return Err(Ignored::TooManySources);
             }
@@ -629,10 +662,7 @@ impl Arbiter {
         let mut holder_left = false;
         self.sources.retain(|s| {
             let gone = matches(&s.controller);
-            if gone
-                && Some(s.controller.device) == grant
-                && s.controller.strength == Strength::PRIORITY
-            {
+            if gone && is_grant_stream(&s.controller, grant) {
                 holder_left = true;
             }
             !gone
@@ -645,9 +675,7 @@ impl Arbiter {
 
     fn is_eligible(&self, s: &Source, now: MonoTime) -> bool {
         s.is_live(now)
-            && (s.controller.strength.is_operator()
-                || (s.controller.strength == Strength::PRIORITY
-                    && self.grant == Some(s.controller.device)))
+            && (s.controller.strength.is_operator() || is_grant_stream(&s.controller, self.grant))
     }
 
     /// Applies the contract: strongest eligible source; the incumbent keeps ties; otherwise the
@@ -688,17 +716,29 @@ impl Arbiter {
         }
     }
 
+    fn owner_source(&self) -> Option<&Source> {
+        self.owner
+            .writer()
+            .and_then(|w| self.find(w))
+            .map(|i| &self.sources[i])
+    }
+
+    /// The output for the current owner: its fresh values, or the safe state when the failsafe
+    /// owns or the owner has no fresh values (only keep-alives lately).
     fn output_for_owner(&mut self) -> Output {
         self.seq += 1;
         let seq = self.seq;
-        let setpoint = match self.owner {
+        let now = self.last_now;
+        let timeout = self.config.command_timeout;
+        let values = match self.owner {
             Owner::Failsafe => None,
             Owner::Controller(c) => self
-                .find(c.writer)
-                .and_then(|i| self.sources[i].setpoint)
+                .owner_source()
+                .and_then(|s| s.fresh_setpoint(now, timeout))
                 .map(|setpoint| (c, setpoint)),
         };
-        match setpoint {
+        self.driving = values.is_some();
+        match values {
             Some((by, setpoint)) => Output::Apply { by, setpoint, seq },
             None => Output::SafeState {
                 owner: self.owner,
@@ -706,4 +746,9 @@ impl Arbiter {
             },
         }
     }
+}
+
+/// True if `c` is a priority stream of the device holding `grant`.
+fn is_grant_stream(c: &Controller, grant: Option<DeviceId>) -> bool {
+    c.strength == Strength::PRIORITY && grant == Some(c.device)
 }
