@@ -156,7 +156,8 @@ pub enum Reason {
     Left,
     /// The owner was silent for `command_timeout`.
     TimedOut,
-    /// A priority grant was accepted and its holder took over.
+    /// The holder of an accepted priority grant took over (when the grant was seen, or when its
+    /// priority stream started).
     Granted,
     /// The grant was given back (FINISH); the strongest live controller took over.
     GrantReturned,
@@ -415,10 +416,7 @@ impl Arbiter {
             .filter(|_| self.driving)
             .and_then(|s| s.setpoint)
             .map(|(at, _)| at + timeout);
-        streams
-            .chain(values)
-            .filter(|d| *d > self.last_now)
-            .min()
+        streams.chain(values).filter(|d| *d > self.last_now).min()
     }
 
     /// The sources known at `now`, for status displays.
@@ -503,10 +501,8 @@ impl Arbiter {
         if after.writer() != before.writer() {
             let reason = self.reason(before, &event, now);
             if let Owner::Controller(c) = before {
-                let stepped_down = matches!(
-                    reason,
-                    Reason::Released | Reason::Left | Reason::TimedOut
-                );
+                let stepped_down =
+                    matches!(reason, Reason::Released | Reason::Left | Reason::TimedOut);
                 self.stepped_down = stepped_down.then_some(SteppedDown {
                     device: c.device,
                     until: now + self.config.command_timeout.get(),
@@ -708,8 +704,13 @@ impl Arbiter {
                 Some(_) => {}
             }
         }
+        let after_is_grant = match self.select(now) {
+            Owner::Controller(c) => is_grant_stream(&c, self.grant),
+            Owner::Failsafe => false,
+        };
         match event {
             Event::GrantAccepted { .. } => Reason::Granted,
+            _ if after_is_grant => Reason::Granted,
             Event::GrantFinished { .. } => Reason::GrantReturned,
             _ if before == Owner::Failsafe => Reason::Joined,
             _ => Reason::Preempted,

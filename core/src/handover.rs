@@ -21,6 +21,11 @@
 //!
 //! Auto-accept compares the requester's `src_priority` with the replier's own strength on that
 //! vehicle (65535 while it holds a grant there, so a grant is never taken away without asking).
+//!
+//! On [`Action::Yield`] the replier stops streaming but does **not** release: it stays the
+//! vehicle's owner until the grant holder's priority stream takes over (at its first sample) or
+//! its own stream times out. Releasing at once would drop the vehicle to failsafe for the moment
+//! between the ACCEPT and the holder's first sample.
 
 use crate::error::{ConfigError, ConfigErrors, Result};
 use crate::hierarchy::Strength;
@@ -188,7 +193,7 @@ pub enum Action {
         /// The vehicle.
         vehicle: DeviceId,
     },
-    /// Stop driving `vehicle`: we gave it to a requester.
+    /// Stop streaming to `vehicle`, without releasing: we gave it to a requester (module docs).
     Yield {
         /// The vehicle.
         vehicle: DeviceId,

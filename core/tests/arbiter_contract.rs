@@ -6,8 +6,8 @@ mod common;
 
 use common::*;
 use rove_core::arbiter::{
-    ArbiterConfig, Controller, Decision, Event, Ignored, Output, Owner, OwnerChange,
-    ParticipantId, Reason, Setpoint,
+    ArbiterConfig, Controller, Decision, Event, Ignored, Output, Owner, OwnerChange, ParticipantId,
+    Reason, Setpoint,
 };
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{CommandType, Mode};
@@ -81,7 +81,10 @@ fn stronger_controller_joining_preempts() {
     let mut rig = Rig::new();
     rig.drive(0, w(1), OP_A, 220, 100);
     let d = rig.drive(10, w(2), OP_B, 340, 200);
-    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Preempted)));
+    assert_eq!(
+        change(&d),
+        Some((Some(OP_A), Some(OP_B), Reason::Preempted))
+    );
     assert_eq!(applied(&d), Some((OP_B, 200)));
     // The preempted controller keeps streaming but is not applied.
     let d = rig.drive(20, w(1), OP_A, 220, 101);
@@ -197,7 +200,13 @@ fn everyone_silent_enters_failsafe_exactly_at_the_timeout() {
     let d = rig.tick(130);
     assert!(d.entered_failsafe());
     assert_eq!(change(&d), Some((Some(OP_A), None, Reason::TimedOut)));
-    assert!(matches!(d.output, Some(Output::SafeState { owner: Owner::Failsafe, .. })));
+    assert!(matches!(
+        d.output,
+        Some(Output::SafeState {
+            owner: Owner::Failsafe,
+            ..
+        })
+    ));
     assert_eq!(rig.arb.controller_id(), VEHICLE);
     assert_eq!(rig.arb.next_deadline(), None);
 }
@@ -310,7 +319,10 @@ fn probes_keep_a_controller_live_but_apply_nothing() {
     // Owner with no values yet: outputs stay safe.
     assert!(matches!(
         d.output,
-        Some(Output::SafeState { owner: Owner::Controller(_), .. })
+        Some(Output::SafeState {
+            owner: Owner::Controller(_),
+            ..
+        })
     ));
     for t in (50..=400).step_by(50) {
         let d = rig.send(t, w(1), Strength(220), command(OP_A, CommandType::Probe, 0));
@@ -424,7 +436,10 @@ fn a_strength_update_is_taken_from_the_next_sample() {
     rig.drive(0, w(1), OP_A, 220, 1);
     rig.drive(1, w(2), OP_B, 210, 2);
     let d = rig.drive(2, w(2), OP_B, 230, 3);
-    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Preempted)));
+    assert_eq!(
+        change(&d),
+        Some((Some(OP_A), Some(OP_B), Reason::Preempted))
+    );
 }
 
 // ---- Rule 1: the priority grant -------------------------------------------------------------
@@ -442,9 +457,12 @@ fn granted_rig() -> Rig {
         },
     );
     assert_eq!(d.ignored, None);
-    assert_eq!(d.owner_change, None, "holder not streaming with priority yet");
+    assert_eq!(
+        d.owner_change, None,
+        "holder not streaming with priority yet"
+    );
     let d = rig.drive(6, pw(2), OP_B, 65535, 22);
-    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Preempted)));
+    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Granted)));
     assert_eq!(applied(&d), Some((OP_B, 22)));
     rig
 }
@@ -493,7 +511,10 @@ fn finish_returns_control_to_the_strongest_live_controller() {
     let mut rig = granted_rig();
     rig.drive(10, w(1), OP_A, 220, 1);
     let d = rig.at(11, Event::GrantFinished { holder: OP_B });
-    assert_eq!(change(&d), Some((Some(OP_B), Some(OP_A), Reason::GrantReturned)));
+    assert_eq!(
+        change(&d),
+        Some((Some(OP_B), Some(OP_A), Reason::GrantReturned))
+    );
     assert_eq!(applied(&d), Some((OP_A, 1)));
     assert_eq!(rig.arb.grant_holder(), None);
 }
@@ -557,7 +578,7 @@ fn a_silent_grant_holder_falls_back_to_rule_two_and_wins_again_when_back() {
     }
     assert_eq!(rig.arb.controller_id(), OP_A, "B silent since 6 ms");
     let d = rig.drive(201, pw(2), OP_B, 65535, 22);
-    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Preempted)));
+    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Granted)));
 }
 
 #[test]
@@ -630,7 +651,15 @@ fn source_status_reports_liveness_eligibility_and_age() {
     rows.sort_by_key(|s| s.controller.writer);
     let summary: Vec<_> = rows
         .iter()
-        .map(|s| (s.controller.device, s.controller.strength.0, s.live, s.eligible, s.age))
+        .map(|s| {
+            (
+                s.controller.device,
+                s.controller.strength.0,
+                s.live,
+                s.eligible,
+                s.age,
+            )
+        })
         .collect();
     use std::time::Duration as D;
     assert_eq!(

@@ -354,7 +354,10 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
             Owner::Controller(c) => {
                 prop_assert!(
                     top.iter().any(|(_, w)| *w == c.writer),
-                    "owner {:?} not among strongest {:?} at step {}", c, top, i
+                    "owner {:?} not among strongest {:?} at step {}",
+                    c,
+                    top,
+                    i
                 );
                 prop_assert_eq!(Some(c.strength.0), best);
             }
@@ -363,7 +366,12 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
         if let Some(prev) = before.writer()
             && top.iter().any(|(_, w)| *w == prev)
         {
-            prop_assert_eq!(after.writer(), Some(prev), "incumbent replaced at step {}", i);
+            prop_assert_eq!(
+                after.writer(),
+                Some(prev),
+                "incumbent replaced at step {}",
+                i
+            );
         }
         // With no incumbent among the strongest, the lowest (device, writer) wins.
         if d.owner_change.is_some() && !top.is_empty() {
@@ -374,12 +382,13 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
             if c.reason == Reason::Preempted
                 && let (Owner::Controller(from), Owner::Controller(to)) = (c.from, c.to)
             {
-                prop_assert!(to.strength > from.strength, "preempted by a non-stronger one");
+                prop_assert!(
+                    to.strength > from.strength,
+                    "preempted by a non-stronger one"
+                );
             }
             if let Owner::Controller(from) = c.from {
-                model
-                    .recent_owners
-                    .push((from.device, now + TIMEOUT));
+                model.recent_owners.push((from.device, now + TIMEOUT));
             }
         }
         if let Owner::Controller(c) = after {
@@ -398,19 +407,30 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
                 prop_assert!(seq > last_output_seq);
                 last_output_seq = seq;
                 prop_assert_eq!(Some(by.writer), after.writer());
-                prop_assert_eq!(owner_fresh, Some(setpoint), "not the latest fresh values at step {}", i);
+                prop_assert_eq!(
+                    owner_fresh,
+                    Some(setpoint),
+                    "not the latest fresh values at step {}",
+                    i
+                );
                 driving = true;
             }
             Some(Output::SafeState { owner, seq }) => {
                 prop_assert!(seq > last_output_seq);
                 last_output_seq = seq;
                 prop_assert_eq!(owner, after);
-                prop_assert_eq!(owner_fresh, None, "safe state despite fresh values at step {}", i);
+                prop_assert_eq!(
+                    owner_fresh,
+                    None,
+                    "safe state despite fresh values at step {}",
+                    i
+                );
                 driving = false;
             }
             None => prop_assert!(
                 d.owner_change.is_none() && !owner_sent_values && !values_lapsed,
-                "missing output at step {}", i
+                "missing output at step {}",
+                i
             ),
         }
 
@@ -428,7 +448,12 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
             .chain(value_expiry)
             .filter(|t| *t > now)
             .min();
-        prop_assert_eq!(arb.next_deadline(), expected_deadline, "deadline at step {}", i);
+        prop_assert_eq!(
+            arb.next_deadline(),
+            expected_deadline,
+            "deadline at step {}",
+            i
+        );
         let _ = grant_before;
     }
     Ok(())

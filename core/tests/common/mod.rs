@@ -76,10 +76,21 @@ impl Rig {
         strength: u16,
         throttle: i16,
     ) -> Decision {
-        self.send(t, writer, Strength(strength), command(device, CommandType::Movement, throttle))
+        self.send(
+            t,
+            writer,
+            Strength(strength),
+            command(device, CommandType::Movement, throttle),
+        )
     }
 
-    pub fn send(&mut self, t: u64, writer: WriterId, strength: Strength, cmd: ControlCommand) -> Decision {
+    pub fn send(
+        &mut self,
+        t: u64,
+        writer: WriterId,
+        strength: Strength,
+        cmd: ControlCommand,
+    ) -> Decision {
         self.arb.step(
             ms(t),
             Event::Sample {
