@@ -15,7 +15,9 @@
 //! ```
 //!
 //! Loss and duplication: the requester resends its REQUEST with the original time stamp, so
-//! the replier recognises a resend and repeats its answer rather than asking again. A late ACCEPT
+//! the replier recognises a resend and repeats its answer rather than asking again. Every message
+//! of a handover carries its REQUEST's stamp; an answer or FINISH with an earlier stamp belongs
+//! to an earlier handover and is not taken for the current one (see `answers`). A late ACCEPT
 //! for a request the requester has given up is handed back at once with FINISH, so nobody holds a
 //! grant it does not use. A FINISH from a requester still waiting withdraws its request.
 //!
@@ -256,8 +258,22 @@ pub struct Handover {
     config: HandoverConfig,
     requests: BTreeMap<DeviceId, Requesting>,
     replies: BTreeMap<DeviceId, Replying>,
-    /// Last answer given per vehicle, to repeat it for a resent REQUEST: (requester, stamp, ack).
-    answered: BTreeMap<DeviceId, (DeviceId, TimeT, Ack)>,
+    /// The last request answered per vehicle, so that a resent REQUEST (same requester and
+    /// stamp) gets the same answer, or none once that handover is over.
+    answered: BTreeMap<DeviceId, (DeviceId, TimeT, Answer)>,
+    /// Stamp of our latest request: each new request gets a strictly later one, so that its
+    /// messages can never be mistaken for an earlier handover's, even with a coarse clock.
+    last_stamp: TimeT,
+}
+
+/// What became of a request this operator answered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Answer {
+    Refused,
+    /// Accepted; the grant is still out (we are yielded).
+    Accepted,
+    /// Accepted and since finished (or we resumed): a resend must not re-open it.
+    Closed,
 }
 
 impl Handover {
@@ -270,6 +286,7 @@ impl Handover {
             requests: BTreeMap::new(),
             replies: BTreeMap::new(),
             answered: BTreeMap::new(),
+            last_stamp: TimeT(0),
         }
     }
 
@@ -304,7 +321,8 @@ impl Handover {
     }
 
     /// Asks `owner` (the vehicle's current `controller_id`) for `vehicle`. `stamp` is the
-    /// wall-clock time stamp to put on the REQUEST and its resends.
+    /// wall-clock time stamp to put on the REQUEST and its resends; if it is not later than our
+    /// previous request's, the next later value is used instead.
     ///
     /// # Errors
     /// [`Refusal::AlreadyRequested`] if a request is open or granted; [`Refusal::NothingToRequest`]
@@ -322,6 +340,8 @@ impl Handover {
         if owner == self.me || owner == vehicle {
             return Err(Refusal::NothingToRequest);
         }
+        let stamp = stamp.max(TimeT(self.last_stamp.0.saturating_add(1)));
+        self.last_stamp = stamp;
         self.requests.insert(
             vehicle,
             Requesting::Waiting {
@@ -402,6 +422,7 @@ impl Handover {
     pub fn resume(&mut self, vehicle: DeviceId) -> bool {
         if self.has_yielded(vehicle) {
             self.replies.remove(&vehicle);
+            self.close_answer(vehicle);
             true
         } else {
             false
@@ -500,9 +521,19 @@ impl Handover {
     fn as_requester(&mut self, msg: &RequestControl) -> Vec<Action> {
         let vehicle = msg.dest_id;
         let state = self.requests.get(&vehicle).copied();
+        let hand_back = || {
+            vec![Action::Send(self.message(
+                self.me,
+                vehicle,
+                msg.current_controller_id,
+                Ack::Finish,
+                msg.timestamp,
+                self.priority(),
+            ))]
+        };
         match (msg.ack, state) {
             (Ack::Accept, Some(Requesting::Waiting { owner, stamp, .. }))
-                if owner == msg.current_controller_id =>
+                if owner == msg.current_controller_id && answers(msg.timestamp, stamp) =>
             {
                 self.requests
                     .insert(vehicle, Requesting::Holding { owner, stamp });
@@ -514,8 +545,8 @@ impl Handover {
                     },
                 ]
             }
-            (Ack::Refuse, Some(Requesting::Waiting { owner, .. }))
-                if owner == msg.current_controller_id =>
+            (Ack::Refuse, Some(Requesting::Waiting { owner, stamp, .. }))
+                if owner == msg.current_controller_id && answers(msg.timestamp, stamp) =>
             {
                 self.requests.remove(&vehicle);
                 vec![Action::RequestEnded {
@@ -523,18 +554,13 @@ impl Handover {
                     outcome: Outcome::Refused,
                 }]
             }
-            // An ACCEPT nobody here is waiting for (we gave up or finished): give it straight
-            // back so the vehicle does not keep a grant for a stream that will never come.
-            (Ack::Accept, None) => vec![Action::Send(self.message(
-                self.me,
-                vehicle,
-                msg.current_controller_id,
-                Ack::Finish,
-                msg.timestamp,
-                self.priority(),
-            ))],
-            // Duplicates (ACCEPT while holding, REFUSE after giving up), answers from an owner
-            // we did not ask, and REQUEST/FINISH echoes change nothing.
+            // An ACCEPT nobody here is waiting for (we gave up, finished, or it answers an
+            // earlier request): give it straight back so the vehicle does not keep a grant for
+            // a stream that will never come. While we hold a grant, an ACCEPT is a duplicate or
+            // stale and is left alone: handing it back would end our current grant.
+            (Ack::Accept, None | Some(Requesting::Waiting { .. })) => hand_back(),
+            // REFUSE after giving up, answers from an owner we did not ask, and REQUEST/FINISH
+            // echoes change nothing.
             _ => Vec::new(),
         }
     }
@@ -575,19 +601,23 @@ impl Handover {
                     msg.src_priority,
                 ))],
                 None => {
-                    if let Some((r, stamp, ack)) = self.answered.get(&vehicle).copied()
+                    if let Some((r, stamp, answer)) = self.answered.get(&vehicle).copied()
                         && r == requester
                         && stamp == msg.timestamp
                     {
-                        // A resend of a request already answered: the same answer again.
-                        return vec![Action::Send(self.message(
-                            requester,
-                            vehicle,
-                            self.me,
-                            ack,
-                            stamp,
-                            msg.src_priority,
-                        ))];
+                        // A resend of a request already answered: the same refusal again; an
+                        // accepted one is over (FINISH seen or we resumed), so it gets nothing.
+                        return match answer {
+                            Answer::Refused => vec![Action::Send(self.message(
+                                requester,
+                                vehicle,
+                                self.me,
+                                Ack::Refuse,
+                                stamp,
+                                msg.src_priority,
+                            ))],
+                            Answer::Accepted | Answer::Closed => Vec::new(),
+                        };
                     }
                     if self.auto_accepts(vehicle, msg.src_priority) {
                         return self.answer(
@@ -616,12 +646,22 @@ impl Handover {
                     }]
                 }
             },
+            // A FINISH ends the handover it names (requester and stamp): a late FINISH of an
+            // earlier handover must not end the current one.
             Ack::Finish => match state {
-                Some(Replying::Yielded { requester: r, .. }) if r == requester => {
+                Some(Replying::Yielded {
+                    requester: r,
+                    stamp,
+                }) if r == requester && answers(msg.timestamp, stamp) => {
                     self.replies.remove(&vehicle);
+                    self.close_answer(vehicle);
                     vec![Action::Resume { vehicle }]
                 }
-                Some(Replying::Asking { requester: r, .. }) if r == requester => {
+                Some(Replying::Asking {
+                    requester: r,
+                    stamp,
+                    ..
+                }) if r == requester && answers(msg.timestamp, stamp) => {
                     self.replies.remove(&vehicle);
                     vec![Action::PromptClosed {
                         vehicle,
@@ -632,6 +672,12 @@ impl Handover {
             },
             // ACCEPT/REFUSE naming us as owner are our own answers echoed back.
             Ack::Accept | Ack::Refuse => Vec::new(),
+        }
+    }
+
+    fn close_answer(&mut self, vehicle: DeviceId) {
+        if let Some(entry) = self.answered.get_mut(&vehicle) {
+            entry.2 = Answer::Closed;
         }
     }
 
@@ -662,8 +708,12 @@ impl Handover {
         src_priority: i32,
         accept: bool,
     ) -> Vec<Action> {
-        let ack = if accept { Ack::Accept } else { Ack::Refuse };
-        self.answered.insert(vehicle, (requester, stamp, ack));
+        let (ack, answer) = if accept {
+            (Ack::Accept, Answer::Accepted)
+        } else {
+            (Ack::Refuse, Answer::Refused)
+        };
+        self.answered.insert(vehicle, (requester, stamp, answer));
         let mut actions = vec![Action::Send(self.message(
             requester,
             vehicle,
@@ -704,4 +754,13 @@ impl Handover {
             timestamp: stamp,
         }
     }
+}
+
+/// True if a message stamped `msg` can belong to the handover whose REQUEST was stamped
+/// `request`. rove echoes the request's stamp on every message of a handover, so for rove peers
+/// this is equality; a foreign peer may stamp with its own send time, which is later unless its
+/// clock is behind ours. A message of an *earlier* handover carries an earlier stamp and is
+/// rejected either way.
+fn answers(msg: TimeT, request: TimeT) -> bool {
+    msg >= request
 }

@@ -735,3 +735,36 @@ fn twist_mux_locks_as_grants() {
         "nothing live"
     );
 }
+
+// ---- DeviceInfo.controller_id ------------------------------------------------------------------
+
+/// Every change of owner is visible in `controller_id` in the same step that decided it, so the
+/// vehicle publishes it within one event-loop turn; the failsafe shows as the vehicle's own id.
+#[test]
+fn controller_id_follows_every_owner_change_in_the_same_step() {
+    let mut rig = Rig::new();
+    let timeline: [(u64, Event); 4] = [
+        (0, Event::Tick),
+        (1, Event::Released { writer: w(2) }),
+        (
+            2,
+            Event::ParticipantGone {
+                participant: ParticipantId(1),
+            },
+        ),
+        (3, Event::Tick),
+    ];
+    rig.drive(0, w(1), OP_A, 220, 1);
+    assert_eq!(rig.arb.controller_id(), OP_A);
+    rig.drive(0, w(2), OP_B, 340, 2);
+    assert_eq!(rig.arb.controller_id(), OP_B);
+    for (t, event) in timeline {
+        let d = rig.at(t, event);
+        let expected = rig.arb.owner().device().unwrap_or(VEHICLE);
+        assert_eq!(rig.arb.controller_id(), expected);
+        if let Some(c) = d.owner_change {
+            assert_eq!(c.to.device().unwrap_or(VEHICLE), rig.arb.controller_id());
+        }
+    }
+    assert_eq!(rig.arb.controller_id(), VEHICLE);
+}

@@ -123,12 +123,38 @@ fn refuse_ends_the_request() {
 }
 
 #[test]
-fn an_answer_from_an_owner_we_did_not_ask_is_ignored() {
+fn an_accept_from_an_owner_we_did_not_ask_is_handed_back() {
     let mut b = requester_b();
     b.request(ms(0), VEHICLE, A, STAMP).expect("request");
     let mut from_c = msg(B, Ack::Accept, 120, STAMP);
     from_c.current_controller_id = C;
-    assert_eq!(b.on_message(ms(5), &from_c), []);
+    let mut finish = msg(B, Ack::Finish, 120, STAMP);
+    finish.current_controller_id = C;
+    assert_eq!(b.on_message(ms(5), &from_c), [Action::Send(finish)]);
+    assert!(!b.holds_grant(VEHICLE));
+    // A REFUSE from C does not end our request to A either.
+    from_c.ack = Ack::Refuse;
+    assert_eq!(b.on_message(ms(6), &from_c), []);
+    assert_eq!(
+        b.request(ms(7), VEHICLE, A, STAMP),
+        Err(Refusal::AlreadyRequested)
+    );
+}
+
+#[test]
+fn an_answer_to_an_earlier_request_is_not_taken_for_the_current_one() {
+    let mut b = requester_b();
+    b.request(ms(0), VEHICLE, A, STAMP).expect("first");
+    b.finish(VEHICLE).expect("withdraw");
+    // Same wall-clock stamp again: the machine still makes the second request's stamp later.
+    let actions = b.request(ms(1), VEHICLE, A, STAMP).expect("second");
+    let Action::Send(second) = actions[0] else {
+        panic!("expected a REQUEST, got {actions:?}");
+    };
+    assert!(second.timestamp > STAMP);
+    // The first request's ACCEPT arrives late: handed back, not held.
+    let actions = b.on_message(ms(2), &msg(B, Ack::Accept, 120, STAMP));
+    assert_eq!(sent(&actions), [(B, Ack::Finish)]);
     assert!(!b.holds_grant(VEHICLE));
 }
 
@@ -528,4 +554,40 @@ fn end_to_end_request_accept_drive_finish_with_no_ping_pong() {
     // exactly once, and A's late sample at 320 ms did not win the vehicle back.
     assert_eq!(bus.owners, [Some(A), Some(B), None, Some(A)]);
     assert_eq!(bus.vehicle.grant_holder(), None);
+}
+
+// ---- Regressions found by tests/handover_properties.rs ----------------------------------------
+
+/// A late FINISH from an earlier handover must not end the current one (both would drive).
+#[test]
+fn a_late_finish_of_an_earlier_handover_does_not_end_the_current_one() {
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    a.on_message(ms(1), &msg(B, Ack::Finish, 120, STAMP));
+    let second = TimeT(5_000);
+    a.on_message(ms(2), &msg(B, Ack::Request, 120, second));
+    assert!(a.has_yielded(VEHICLE));
+    // The first handover's FINISH arrives again, late.
+    assert_eq!(a.on_message(ms(3), &msg(B, Ack::Finish, 120, STAMP)), []);
+    assert!(a.has_yielded(VEHICLE));
+    assert_eq!(
+        a.on_message(ms(4), &msg(B, Ack::Finish, 120, second)),
+        [Action::Resume { vehicle: VEHICLE }]
+    );
+}
+
+/// A REQUEST resent after its grant was finished (or taken back) must not re-accept it.
+#[test]
+fn a_resent_request_after_the_grant_ended_gets_no_answer() {
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    a.on_message(ms(1), &msg(B, Ack::Finish, 120, STAMP));
+    assert_eq!(a.on_message(ms(2), &msg(B, Ack::Request, 120, STAMP)), []);
+    assert!(!a.has_yielded(VEHICLE));
+
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    assert!(a.resume(VEHICLE));
+    assert_eq!(a.on_message(ms(2), &msg(B, Ack::Request, 120, STAMP)), []);
+    assert!(!a.has_yielded(VEHICLE));
 }
