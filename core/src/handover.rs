@@ -351,14 +351,12 @@ impl Handover {
                 resend_at: now + self.config.resend,
             },
         );
-        Ok(vec![Action::Send(self.message(
-            self.me,
+        Ok(vec![self.as_requester_send(
             vehicle,
             owner,
             Ack::Request,
             stamp,
-            self.priority(),
-        ))])
+        )])
     }
 
     /// Gives a held grant back (FINISH), or withdraws an open request.
@@ -381,14 +379,7 @@ impl Handover {
             ),
         };
         Ok(vec![
-            Action::Send(self.message(
-                self.me,
-                vehicle,
-                owner,
-                Ack::Finish,
-                stamp,
-                self.priority(),
-            )),
+            self.as_requester_send(vehicle, owner, Ack::Finish, stamp),
             ended,
         ])
     }
@@ -443,56 +434,36 @@ impl Handover {
     /// Resends and timeouts due at `now`.
     pub fn tick(&mut self, now: MonoTime) -> Vec<Action> {
         let mut actions = Vec::new();
-        let due: Vec<(DeviceId, Requesting)> = self
-            .requests
-            .iter()
-            .filter(|(_, r)| matches!(r, Requesting::Waiting { resend_at, give_up_at, .. } if now >= *resend_at || now >= *give_up_at))
-            .map(|(v, r)| (*v, *r))
-            .collect();
-        for (vehicle, state) in due {
-            let Requesting::Waiting {
+        // (vehicle, owner, stamp, give up?)
+        let mut due = Vec::new();
+        for (vehicle, state) in &mut self.requests {
+            if let Requesting::Waiting {
                 owner,
                 stamp,
                 give_up_at,
-                ..
+                resend_at,
             } = state
-            else {
-                continue;
-            };
-            if now >= give_up_at {
+            {
+                if now >= *give_up_at {
+                    due.push((*vehicle, *owner, *stamp, true));
+                } else if now >= *resend_at {
+                    *resend_at = now + self.config.resend;
+                    due.push((*vehicle, *owner, *stamp, false));
+                }
+            }
+        }
+        for (vehicle, owner, stamp, give_up) in due {
+            if give_up {
                 // Give up, and hand back any ACCEPT that got lost on its way to us: the vehicle
                 // may hold a grant for us that nobody would use.
                 self.requests.remove(&vehicle);
-                actions.push(Action::Send(self.message(
-                    self.me,
-                    vehicle,
-                    owner,
-                    Ack::Finish,
-                    stamp,
-                    self.priority(),
-                )));
+                actions.push(self.as_requester_send(vehicle, owner, Ack::Finish, stamp));
                 actions.push(Action::RequestEnded {
                     vehicle,
                     outcome: Outcome::TimedOut,
                 });
             } else {
-                self.requests.insert(
-                    vehicle,
-                    Requesting::Waiting {
-                        owner,
-                        stamp,
-                        give_up_at,
-                        resend_at: now + self.config.resend,
-                    },
-                );
-                actions.push(Action::Send(self.message(
-                    self.me,
-                    vehicle,
-                    owner,
-                    Ack::Request,
-                    stamp,
-                    self.priority(),
-                )));
+                actions.push(self.as_requester_send(vehicle, owner, Ack::Request, stamp));
             }
         }
         let expired: Vec<(DeviceId, DeviceId, TimeT, i32)> = self
@@ -522,14 +493,12 @@ impl Handover {
         let vehicle = msg.dest_id;
         let state = self.requests.get(&vehicle).copied();
         let hand_back = || {
-            vec![Action::Send(self.message(
-                self.me,
+            vec![self.as_requester_send(
                 vehicle,
                 msg.current_controller_id,
                 Ack::Finish,
                 msg.timestamp,
-                self.priority(),
-            ))]
+            )]
         };
         match (msg.ack, state) {
             (Ack::Accept, Some(Requesting::Waiting { owner, stamp, .. }))
@@ -582,24 +551,22 @@ impl Handover {
                     requester: r,
                     stamp,
                 }) if r == requester => {
-                    vec![Action::Send(self.message(
-                        requester,
+                    vec![self.as_replier_send(
                         vehicle,
-                        self.me,
+                        requester,
                         Ack::Accept,
                         stamp,
                         msg.src_priority,
-                    ))]
+                    )]
                 }
                 // Busy with another request, or yielded to someone else: not ours to give.
-                Some(_) => vec![Action::Send(self.message(
-                    requester,
+                Some(_) => vec![self.as_replier_send(
                     vehicle,
-                    self.me,
+                    requester,
                     Ack::Refuse,
                     msg.timestamp,
                     msg.src_priority,
-                ))],
+                )],
                 None => {
                     if let Some((r, stamp, answer)) = self.answered.get(&vehicle).copied()
                         && r == requester
@@ -608,14 +575,13 @@ impl Handover {
                         // A resend of a request already answered: the same refusal again; an
                         // accepted one is over (FINISH seen or we resumed), so it gets nothing.
                         return match answer {
-                            Answer::Refused => vec![Action::Send(self.message(
-                                requester,
+                            Answer::Refused => vec![self.as_replier_send(
                                 vehicle,
-                                self.me,
+                                requester,
                                 Ack::Refuse,
                                 stamp,
                                 msg.src_priority,
-                            ))],
+                            )],
                             Answer::Accepted | Answer::Closed => Vec::new(),
                         };
                     }
@@ -714,14 +680,7 @@ impl Handover {
             (Ack::Refuse, Answer::Refused)
         };
         self.answered.insert(vehicle, (requester, stamp, answer));
-        let mut actions = vec![Action::Send(self.message(
-            requester,
-            vehicle,
-            self.me,
-            ack,
-            stamp,
-            src_priority,
-        ))];
+        let mut actions = vec![self.as_replier_send(vehicle, requester, ack, stamp, src_priority)];
         if accept {
             self.replies
                 .insert(vehicle, Replying::Yielded { requester, stamp });
@@ -736,23 +695,41 @@ impl Handover {
         actions
     }
 
-    fn message(
+    /// A message of ours as requester: we ask `owner` for `vehicle`.
+    fn as_requester_send(
         &self,
-        requester: DeviceId,
         vehicle: DeviceId,
         owner: DeviceId,
         ack: Ack,
         stamp: TimeT,
-        src_priority: i32,
-    ) -> RequestControl {
-        RequestControl {
-            src_id: requester,
+    ) -> Action {
+        Action::Send(RequestControl {
+            src_id: self.me,
             dest_id: vehicle,
             current_controller_id: owner,
+            src_priority: self.priority(),
+            ack,
+            timestamp: stamp,
+        })
+    }
+
+    /// A message of ours as replier (the owner asked), echoing the request's stamp and priority.
+    fn as_replier_send(
+        &self,
+        vehicle: DeviceId,
+        requester: DeviceId,
+        ack: Ack,
+        stamp: TimeT,
+        src_priority: i32,
+    ) -> Action {
+        Action::Send(RequestControl {
+            src_id: requester,
+            dest_id: vehicle,
+            current_controller_id: self.me,
             src_priority,
             ack,
             timestamp: stamp,
-        }
+        })
     }
 }
 
