@@ -1,0 +1,614 @@
+//! Configuration files: one TOML file per device (DESIGN.md §7).
+//!
+//! Two stages: the raw serde structs below reject unknown keys and only parse; `validate()`
+//! turns them into [`VehicleConfig`] / [`OperatorConfig`], collecting every problem. Every error
+//! names the file, the line and the key: `vehicle.toml:7: vehicle.command_timeout_ms = 0: …`.
+//! An absent key takes its default quietly; a present but invalid key is an error.
+
+use anyhow::{Context, anyhow};
+use rove_core::arbiter::ArbiterConfig;
+use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::handover::{HandoverConfig, HandoverSettings};
+use rove_core::hierarchy::{DeviceClass, Hierarchy, HierarchyTable, Level, Strength};
+use rove_core::msg::{DeviceId, Mode, MovementCommand};
+use rove_core::watchdog::CommandTimeout;
+use serde::{Deserialize, Serialize};
+use std::net::Ipv4Addr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// `[device]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeviceSection {
+    /// This device's id on the network; unique per device.
+    pub id: DeviceId,
+    /// Human-readable name (absent: "rove-<id>").
+    pub name: Option<String>,
+}
+
+/// `[network]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkSection {
+    /// DDS domain id (absent: 0).
+    pub domain_id: Option<u16>,
+    /// IPv4 addresses of the interfaces DDS may use (absent: loopback only).
+    pub interfaces: Option<Vec<Ipv4Addr>>,
+    /// Presence heartbeat period, ms (absent: 500). Crashed devices drop from device lists
+    /// after three missed heartbeats, because rustdds's own participant lease is ~50 s.
+    pub heartbeat_ms: Option<u64>,
+}
+
+/// `[vehicle]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VehicleSection {
+    /// Owner silence before re-arbitration (absent: 100).
+    pub command_timeout_ms: Option<u64>,
+}
+
+/// `[output]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSection {
+    /// Which adapter drives the actuators. Only `sim` exists so far.
+    pub adapter: AdapterKind,
+}
+
+/// Output adapters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AdapterKind {
+    /// Records outputs in memory (and in the status), for tests, demos and benchmarks.
+    Sim,
+}
+
+/// A vehicle's file as written.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawVehicle {
+    /// `[device]`.
+    pub device: DeviceSection,
+    /// `[network]`.
+    #[serde(default)]
+    pub network: NetworkSection,
+    /// `[vehicle]`.
+    #[serde(default)]
+    pub vehicle: VehicleSection,
+    /// `[output]`.
+    pub output: OutputSection,
+}
+
+/// `[operator]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatorSection {
+    /// Where the operator is: mobile, stationary or remote.
+    pub level: Level,
+    /// The device: desktop, laptop, tablet or phone.
+    pub device_class: DeviceClass,
+    /// Fine offset 0..=9 within the rank (absent: 0).
+    pub offset: Option<u8>,
+    /// Keep-alive stream rate while driving, Hz (absent: 50).
+    pub stream_hz: Option<u32>,
+    /// Vehicles to drive from the start.
+    #[serde(default)]
+    pub drive: Vec<DeviceId>,
+}
+
+/// `[input]`: until the evdev adapters land, a scripted source.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
+pub enum InputSection {
+    /// Constant stick values.
+    Constant {
+        /// Throttle axis (absent: 0).
+        #[serde(default)]
+        throttle: i16,
+        /// Roll axis (absent: 0).
+        #[serde(default)]
+        roll: i16,
+        /// Pitch axis (absent: 0).
+        #[serde(default)]
+        pitch: i16,
+        /// Yaw axis (absent: 0).
+        #[serde(default)]
+        yaw: i16,
+        /// Mode (absent: manual).
+        mode: Option<ModeName>,
+    },
+}
+
+/// Mode names in config.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeName {
+    /// MANUAL.
+    Manual,
+    /// ASSISTED.
+    Assisted,
+    /// AUTO.
+    Auto,
+}
+
+impl From<ModeName> for Mode {
+    fn from(m: ModeName) -> Mode {
+        match m {
+            ModeName::Manual => Mode::Manual,
+            ModeName::Assisted => Mode::Assisted,
+            ModeName::Auto => Mode::Auto,
+        }
+    }
+}
+
+/// An operator's file as written.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawOperator {
+    /// `[device]`.
+    pub device: DeviceSection,
+    /// `[network]`.
+    #[serde(default)]
+    pub network: NetworkSection,
+    /// `[operator]`.
+    pub operator: OperatorSection,
+    /// `[hierarchy]`: a custom strength table (absent: DESIGN.md §3).
+    #[serde(default)]
+    pub hierarchy: HierarchyTable,
+    /// `[handover]`.
+    #[serde(default)]
+    pub handover: HandoverSettings,
+    /// `[input]` (absent: centred sticks).
+    pub input: Option<InputSection>,
+}
+
+/// Validated identity and network settings, shared by both roles.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Common {
+    /// Device id.
+    pub id: DeviceId,
+    /// Device name.
+    pub name: String,
+    /// DDS domain.
+    pub domain_id: u16,
+    /// Interfaces DDS is confined to.
+    pub interfaces: Vec<Ipv4Addr>,
+    /// Presence heartbeat period.
+    pub heartbeat: Duration,
+}
+
+/// A validated vehicle configuration.
+#[derive(Debug, Clone)]
+pub struct VehicleConfig {
+    /// Identity and network.
+    pub common: Common,
+    /// Arbiter settings.
+    pub arbiter: ArbiterConfig,
+    /// Output adapter.
+    pub adapter: AdapterKind,
+}
+
+/// A validated operator configuration.
+#[derive(Debug, Clone)]
+pub struct OperatorConfig {
+    /// Identity and network.
+    pub common: Common,
+    /// Rank in the hierarchy.
+    pub level: Level,
+    /// Device class.
+    pub device_class: DeviceClass,
+    /// Ownership strength of the regular writer.
+    pub strength: Strength,
+    /// Keep-alive period.
+    pub stream_period: Duration,
+    /// Vehicles driven from the start.
+    pub drive: Vec<DeviceId>,
+    /// Active-handover settings.
+    pub handover: HandoverConfig,
+    /// Stick values and mode streamed while driving.
+    pub input: (MovementCommand, Mode),
+}
+
+/// Reads and validates a vehicle config.
+///
+/// # Errors
+/// The file cannot be read, is not valid TOML, has unknown keys, or has invalid values; the
+/// message names the file, line and key.
+pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
+    let text = read(path)?;
+    let raw: RawVehicle = parse(path, &text)?;
+    raw.validate().map_err(|e| located(path, &text, e))
+}
+
+/// Reads and validates an operator config.
+///
+/// # Errors
+/// As [`load_vehicle`].
+pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
+    let text = read(path)?;
+    let raw: RawOperator = parse(path, &text)?;
+    raw.validate().map_err(|e| located(path, &text, e))
+}
+
+/// A config file, either role, for `rove check-config`.
+#[derive(Debug)]
+pub enum AnyConfig {
+    /// A vehicle's file.
+    Vehicle(VehicleConfig),
+    /// An operator's file.
+    Operator(OperatorConfig),
+}
+
+/// Loads a file of either role, telling them apart by their `[vehicle]`/`[output]` or
+/// `[operator]` table.
+///
+/// # Errors
+/// As [`load_vehicle`]; also when the file has neither role's table.
+pub fn load_any(path: &Path) -> anyhow::Result<AnyConfig> {
+    let text = read(path)?;
+    let table: toml::Table = toml::from_str(&text)
+        .map_err(|e| anyhow!("{}: {}", path.display(), e.to_string().trim_end()))?;
+    if table.contains_key("operator") {
+        let raw: RawOperator = parse(path, &text)?;
+        let config = raw.validate().map_err(|e| located(path, &text, e))?;
+        Ok(AnyConfig::Operator(config))
+    } else if table.contains_key("output") || table.contains_key("vehicle") {
+        let raw: RawVehicle = parse(path, &text)?;
+        let config = raw.validate().map_err(|e| located(path, &text, e))?;
+        Ok(AnyConfig::Vehicle(config))
+    } else {
+        Err(anyhow!(
+            "{}: neither a vehicle config ([output]) nor an operator config ([operator])",
+            path.display()
+        ))
+    }
+}
+
+fn read(path: &Path) -> anyhow::Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+fn parse<T: for<'de> Deserialize<'de>>(path: &Path, text: &str) -> anyhow::Result<T> {
+    toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|span| text[..span.start.min(text.len())].matches('\n').count() + 1);
+        let message = e.message().trim_end();
+        match line {
+            Some(line) => anyhow!("{}:{line}: {message}", path.display()),
+            None => anyhow!("{}: {message}", path.display()),
+        }
+    })
+}
+
+/// Turns validation errors into one message per problem, each `file:line: key = value: rule`.
+fn located(path: &Path, text: &str, error: rove_core::Error) -> anyhow::Error {
+    match error {
+        rove_core::Error::Config(errors) => {
+            let lines: Vec<String> = errors
+                .0
+                .iter()
+                .map(|e| match key_line(text, &e.key) {
+                    Some(line) => format!("{}:{line}: {e}", path.display()),
+                    None => format!("{}: {e}", path.display()),
+                })
+                .collect();
+            anyhow!("{}", lines.join("\n"))
+        }
+        other => anyhow!("{}: {other}", path.display()),
+    }
+}
+
+/// The 1-based line where the dotted `key` (e.g. `operator.stream_hz`, `mobile.laptop` inside
+/// `[hierarchy]`, or an inline table entry) is written, found by scanning table headers and
+/// `key =` lines. `None` if the key is absent (a default that broke a rule with another key).
+pub fn key_line(text: &str, key: &str) -> Option<usize> {
+    let mut table = String::new();
+    let mut best = None;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if let Some(header) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
+            table = header.trim().to_string();
+            if table == key {
+                best = Some(i + 1);
+            }
+            continue;
+        }
+        let Some((name, rest)) = line.split_once('=') else {
+            continue;
+        };
+        let name = name.trim();
+        let full = if table.is_empty() {
+            name.to_string()
+        } else {
+            format!("{table}.{name}")
+        };
+        // `drive[0]` is written on the `drive = [...]` line.
+        let base = key.split('[').next().unwrap_or(key);
+        if full == key || full == base {
+            return Some(i + 1);
+        }
+        // Inline tables: `mobile = { laptop = 315 }` holds `mobile.laptop`.
+        if let Some(inner) = key.strip_prefix(&format!("{full}.")) {
+            let pattern = format!("{inner} =");
+            let compact = format!("{inner}=");
+            if rest.contains(&pattern) || rest.contains(&compact) {
+                return Some(i + 1);
+            }
+        }
+        if key.starts_with(&format!("{full}.")) || key == table {
+            best = best.or(Some(i + 1));
+        }
+    }
+    best
+}
+
+const DEFAULT_HEARTBEAT_MS: u64 = 500;
+const DEFAULT_STREAM_HZ: u32 = 50;
+
+fn validate_common(
+    device: &DeviceSection,
+    network: &NetworkSection,
+    errors: &mut ConfigErrors,
+) -> Common {
+    let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
+    if !(50..=10_000).contains(&heartbeat_ms) {
+        errors.push(ConfigError::new(
+            "network.heartbeat_ms",
+            heartbeat_ms,
+            "must be 50..=10000",
+        ));
+    }
+    if device.id <= 0 {
+        errors.push(ConfigError::new(
+            "device.id",
+            device.id,
+            "must be a positive device id",
+        ));
+    }
+    let domain_id = network.domain_id.unwrap_or(0);
+    // RTPS maps domain ids to ports (7400 + 250 × domain); above 232 the ports overflow.
+    if domain_id > 232 {
+        errors.push(ConfigError::new(
+            "network.domain_id",
+            domain_id,
+            "must be 0..=232 (RTPS port mapping)",
+        ));
+    }
+    let interfaces = network
+        .interfaces
+        .clone()
+        .unwrap_or_else(|| vec![Ipv4Addr::LOCALHOST]);
+    if interfaces.is_empty() {
+        errors.push(ConfigError::new(
+            "network.interfaces",
+            "[]",
+            "must name at least one interface address (absent: loopback)",
+        ));
+    }
+    Common {
+        id: device.id,
+        name: device
+            .name
+            .clone()
+            .unwrap_or_else(|| format!("rove-{}", device.id)),
+        domain_id,
+        interfaces,
+        heartbeat: Duration::from_millis(heartbeat_ms),
+    }
+}
+
+impl RawVehicle {
+    /// Validates, filling defaults.
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every invalid key.
+    pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
+        let mut errors = ConfigErrors::default();
+        let common = validate_common(&self.device, &self.network, &mut errors);
+        let timeout = match CommandTimeout::from_millis(
+            "vehicle.command_timeout_ms",
+            self.vehicle.command_timeout_ms.unwrap_or(100),
+        ) {
+            Ok(t) => t,
+            Err(rove_core::Error::Config(e)) => {
+                errors.0.extend(e.0);
+                CommandTimeout::DEFAULT
+            }
+            Err(_) => CommandTimeout::DEFAULT,
+        };
+        errors.into_result(VehicleConfig {
+            common,
+            arbiter: ArbiterConfig {
+                command_timeout: timeout,
+                ..ArbiterConfig::default()
+            },
+            adapter: self.output.adapter,
+        })
+    }
+}
+
+impl RawOperator {
+    /// Validates, filling defaults.
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every invalid key.
+    pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
+        let mut errors = ConfigErrors::default();
+        let common = validate_common(&self.device, &self.network, &mut errors);
+        let hierarchy = match Hierarchy::from_table(&self.hierarchy) {
+            Ok(h) => h,
+            Err(rove_core::Error::Config(e)) => {
+                errors.extend_within("hierarchy", e);
+                Hierarchy::STANDARD
+            }
+            Err(_) => Hierarchy::STANDARD,
+        };
+        let offset = self.operator.offset.unwrap_or(0);
+        let strength = hierarchy
+            .strength(self.operator.level, self.operator.device_class, offset)
+            .unwrap_or_else(|e| {
+                errors.push(ConfigError::new("operator.offset", offset, e.to_string()));
+                Strength(1)
+            });
+        let stream_hz = self.operator.stream_hz.unwrap_or(DEFAULT_STREAM_HZ);
+        if !(1..=1000).contains(&stream_hz) {
+            errors.push(ConfigError::new(
+                "operator.stream_hz",
+                stream_hz,
+                "must be 1..=1000; at least 10 keeps a vehicle with the default 100 ms command \
+                 timeout from timing out between samples",
+            ));
+        }
+        let handover = match self.handover.validate() {
+            Ok(h) => h,
+            Err(rove_core::Error::Config(e)) => {
+                errors.extend_within("handover", e);
+                HandoverConfig::default()
+            }
+            Err(_) => HandoverConfig::default(),
+        };
+        for (i, v) in self.operator.drive.iter().enumerate() {
+            if *v == self.device.id {
+                errors.push(ConfigError::new(
+                    format!("operator.drive[{i}]"),
+                    v,
+                    "is this operator's own device id",
+                ));
+            }
+        }
+        let input = match &self.input {
+            None => (MovementCommand::CENTRED, Mode::Manual),
+            Some(InputSection::Constant {
+                throttle,
+                roll,
+                pitch,
+                yaw,
+                mode,
+            }) => (
+                MovementCommand {
+                    throttle: *throttle,
+                    roll: *roll,
+                    pitch: *pitch,
+                    yaw: *yaw,
+                },
+                mode.map_or(Mode::Manual, Mode::from),
+            ),
+        };
+        errors.into_result(OperatorConfig {
+            common,
+            level: self.operator.level,
+            device_class: self.operator.device_class,
+            strength,
+            stream_period: Duration::from_secs_f64(1.0 / f64::from(stream_hz.max(1))),
+            drive: self.operator.drive.clone(),
+            handover,
+            input,
+        })
+    }
+}
+
+/// The path of a config shipped in `configs/` (for tests and the demo).
+pub fn shipped(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("configs")
+        .join(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(name: &str, text: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("rove-config-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let path = dir.join(name);
+        std::fs::write(&path, text).expect("write");
+        path
+    }
+
+    #[test]
+    fn every_shipped_config_loads() {
+        let dir = shipped("");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&dir).expect("configs/ exists") {
+            let path = entry.expect("entry").path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                load_any(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                seen += 1;
+            }
+        }
+        assert!(seen >= 3, "only {seen} configs in {}", dir.display());
+    }
+
+    #[test]
+    fn unknown_key_names_file_line_and_key() {
+        let path = write(
+            "unknown.toml",
+            "[device]\nid = 5\n\n[operator]\nlevel = \"mobile\"\ndevice_class = \"phone\"\nstream_rate = 5\n",
+        );
+        let err = format!("{:#}", load_operator(&path).expect_err("unknown key"));
+        assert!(err.contains("unknown.toml:7:"), "{err}");
+        assert!(err.contains("unknown field `stream_rate`"), "{err}");
+    }
+
+    #[test]
+    fn invalid_values_are_all_reported_with_their_lines() {
+        let path = write(
+            "invalid.toml",
+            "[device]\nid = 5\n\n[operator]\nlevel = \"mobile\"\ndevice_class = \"phone\"\n\
+             offset = 12\nstream_hz = 0\ndrive = [5]\n\n[hierarchy]\nmobile = { laptop = 315 }\n",
+        );
+        let err = format!("{:#}", load_operator(&path).expect_err("invalid"));
+        for expected in [
+            "invalid.toml:12: hierarchy.mobile.laptop = 315",
+            "invalid.toml:7: operator.offset = 12",
+            "invalid.toml:8: operator.stream_hz = 0",
+            "invalid.toml:9: operator.drive[0] = 5",
+        ] {
+            assert!(err.contains(expected), "missing {expected:?} in:\n{err}");
+        }
+    }
+
+    #[test]
+    fn vehicle_defaults_are_quiet_and_bad_timeout_is_loud() {
+        let path = write(
+            "vehicle.toml",
+            "[device]\nid = 100\n\n[output]\nadapter = \"sim\"\n",
+        );
+        let v = load_vehicle(&path).expect("valid");
+        assert_eq!(v.common.interfaces, [Ipv4Addr::LOCALHOST]);
+        assert_eq!(v.arbiter.command_timeout, CommandTimeout::DEFAULT);
+        assert_eq!(v.common.name, "rove-100");
+        let path = write(
+            "vehicle-bad.toml",
+            "[device]\nid = 100\n[vehicle]\ncommand_timeout_ms = 0\n[output]\nadapter = \"sim\"\n",
+        );
+        let err = format!("{:#}", load_vehicle(&path).expect_err("timeout 0"));
+        assert!(
+            err.contains("vehicle-bad.toml:4: vehicle.command_timeout_ms = 0"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn unknown_adapter_is_rejected_naming_the_line() {
+        let path = write(
+            "adapter.toml",
+            "[device]\nid = 100\n[output]\nadapter = \"warp\"\n",
+        );
+        let err = format!("{:#}", load_vehicle(&path).expect_err("no such adapter"));
+        assert!(err.contains("adapter.toml:4:"), "{err}");
+    }
+
+    #[test]
+    fn key_line_finds_tables_keys_and_inline_entries() {
+        let text = "[a]\nx = 1\n[b.c]\ny = { z = 2 }\n";
+        assert_eq!(key_line(text, "a.x"), Some(2));
+        assert_eq!(key_line(text, "b.c.y.z"), Some(4));
+        assert_eq!(key_line(text, "b.c"), Some(3));
+        assert_eq!(key_line(text, "q"), None);
+    }
+}
