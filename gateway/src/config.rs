@@ -14,7 +14,9 @@ use rove_core::msg::{DeviceId, Mode, MovementCommand};
 use rove_core::watchdog::CommandTimeout;
 use serde::{Deserialize, Serialize};
 use std::net::Ipv4Addr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+#[cfg(test)]
+use std::path::PathBuf;
 use std::time::Duration;
 
 /// `[device]`.
@@ -509,7 +511,8 @@ impl RawOperator {
     }
 }
 
-/// The path of a config shipped in `configs/` (for tests and the demo).
+/// The path of a config shipped in `configs/`.
+#[cfg(test)]
 pub fn shipped(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("..")

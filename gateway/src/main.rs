@@ -1,8 +1,13 @@
-//! `rove`: the gateway binary. For now it carries the demo; the vehicle and operator roles, the
-//! DDS binding, `status` and `check-config` arrive with issue 4 (see DESIGN.md §8).
+//! `rove`: the gateway binary — vehicle and operator roles over DDS, `status`, `check-config` and
+//! the demo (DESIGN.md §8). `main` only parses and maps the result to an exit code.
 
 mod config;
+mod dds;
 mod demo;
+mod operator;
+mod runtime;
+mod status;
+mod vehicle;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -23,6 +28,42 @@ enum Command {
         /// Do not pace the story in real time; print it at once.
         #[arg(long)]
         fast: bool,
+    },
+    /// Run the vehicle role: take commands from the current owner only, drive the output.
+    Vehicle {
+        /// The vehicle's config file.
+        #[arg(short, long, default_value = "/etc/rove/vehicle.toml")]
+        config: std::path::PathBuf,
+        /// Append every output (apply / safe, owner, values, times) as JSON lines to this file.
+        #[arg(long)]
+        record: Option<std::path::PathBuf>,
+    },
+    /// Run the operator role: stream commands to the vehicles this operator drives.
+    Operator {
+        /// The operator's config file.
+        #[arg(short, long, default_value = "/etc/rove/operator.toml")]
+        config: std::path::PathBuf,
+        /// Ask this vehicle's owner for control (active handover) once the vehicle is seen.
+        #[arg(long, value_name = "VEHICLE_ID")]
+        request: Option<i64>,
+    },
+    /// Show the devices on the network and who drives each vehicle.
+    Status {
+        /// DDS domain id.
+        #[arg(long, default_value_t = 0)]
+        domain: u16,
+        /// Interface addresses DDS may use (repeatable; default loopback).
+        #[arg(long = "interface", value_name = "IPV4")]
+        interfaces: Vec<std::net::Ipv4Addr>,
+        /// Print one JSON snapshot instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Keep printing, once a second.
+        #[arg(long)]
+        watch: bool,
+        /// How long to listen before the first snapshot, in ms.
+        #[arg(long, default_value_t = 1500)]
+        listen_ms: u64,
     },
     /// Validate a vehicle or operator config; print the effective config with `--print`.
     CheckConfig {
@@ -56,6 +97,37 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Vehicle { config, record } => {
+            runtime::init_logging();
+            let config = config::load_vehicle(&config)?;
+            tokio_runtime()?.block_on(vehicle::run(config, record))
+        }
+        Command::Operator { config, request } => {
+            runtime::init_logging();
+            let config = config::load_operator(&config)?;
+            tokio_runtime()?.block_on(operator::run(config, request))
+        }
+        Command::Status {
+            domain,
+            interfaces,
+            json,
+            watch,
+            listen_ms,
+        } => {
+            let interfaces = if interfaces.is_empty() {
+                vec![std::net::Ipv4Addr::LOCALHOST]
+            } else {
+                interfaces
+            };
+            tokio_runtime()?.block_on(status::run(status::Options {
+                domain_id: domain,
+                interfaces,
+                listen: std::time::Duration::from_millis(listen_ms),
+                heartbeat: std::time::Duration::from_millis(500),
+                json,
+                watch,
+            }))
+        }
         Command::Demo { fast } => {
             demo::run(!fast, |line| println!("{line}"))?;
             Ok(())
@@ -77,4 +149,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// One single-threaded runtime per process: each role is one event loop, and rustdds runs its
+/// own network threads, so more worker threads would only add hand-offs.
+fn tokio_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?)
 }

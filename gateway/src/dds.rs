@@ -1,0 +1,336 @@
+//! The DDS binding: rove's three seed topics on rustdds, with the seed's QoS (DESIGN.md §2).
+//!
+//! `rove-core` holds the wire types and knows nothing of DDS; this module wraps them in keyed
+//! newtypes (`#[serde(transparent)]`, so the bytes on the wire are exactly the core type's CDR),
+//! creates the participant confined to the configured networks, and converts DDS identities
+//! (GUIDs) into the core's opaque [`WriterId`] / [`ParticipantId`].
+//!
+//! Ownership strength: rustdds does not arbitrate EXCLUSIVE ownership, but it carries every remote
+//! writer's OWNERSHIP_STRENGTH in discovery (SEDP). The vehicle learns strengths from the
+//! participant's `WriterDetected` events, falling back to `discovered_writers()` for a sample
+//! whose writer it has not seen announced yet: the standard mechanism, no side channel.
+//!
+//! Known limitations (intentional, not bugs):
+//! - rustdds has no `unregister_instance`; a graceful release is a `dispose` of the instance.
+//! - A foreign *exclusive reader* does not match rove's exclusive writers (a rustdds QoS parsing
+//!   bug, see `../shared/notes/rustdds.md`); foreign exclusive writers → rove readers do match.
+
+use anyhow::Context;
+use rove_core::arbiter::{ParticipantId, WriterId};
+use rove_core::hierarchy::Strength;
+use rove_core::msg::{
+    ControlCommand, DeviceId, DeviceInfo, RequestControl, topic_names, type_names,
+};
+use rustdds::policy::{Durability, History, Liveliness, Ownership, Reliability};
+use rustdds::{
+    DomainParticipant, DomainParticipantBuilder, GUID, Keyed, QosPolicies, QosPolicyBuilder,
+    TopicKind,
+};
+use serde::{Deserialize, Serialize};
+use std::net::Ipv4Addr;
+
+/// DeviceInfo keyed by `device_id`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct KeyedDeviceInfo(pub DeviceInfo);
+
+impl Keyed for KeyedDeviceInfo {
+    type K = DeviceId;
+    fn key(&self) -> DeviceId {
+        self.0.device_id
+    }
+}
+
+/// ControlCommand keyed by `dest_id` (one instance per vehicle).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct KeyedControlCommand(pub ControlCommand);
+
+impl Keyed for KeyedControlCommand {
+    type K = DeviceId;
+    fn key(&self) -> DeviceId {
+        self.0.dest_id
+    }
+}
+
+/// How long a reliable write may block when the send window is full. Control samples are
+/// superseded 20 ms later, so waiting longer than a few ms only delays the next one.
+const MAX_BLOCKING_MS: i64 = 5;
+
+/// DeviceInfo: reliable, TRANSIENT_LOCAL (late joiners get every device at once), latest only;
+/// writer liveliness 1 s, reader 3 s (seed Table 4.2).
+pub fn device_info_qos(reader: bool) -> QosPolicies {
+    let lease = if reader { 3 } else { 1 };
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(MAX_BLOCKING_MS),
+        })
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+        .liveliness(Liveliness::Automatic {
+            lease_duration: rustdds::Duration::from_secs(lease),
+        })
+        .build()
+}
+
+/// ControlCommand: EXCLUSIVE ownership with the writer's strength; reliable so that a dispose
+/// (graceful release) is never lost; latest only.
+pub fn control_command_qos(strength: Strength) -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(MAX_BLOCKING_MS),
+        })
+        .history(History::KeepLast { depth: 1 })
+        .ownership(Ownership::Exclusive {
+            strength: i32::from(strength.0),
+        })
+        .build()
+}
+
+/// RequestControl: the DDS default QoS, made reliable on our side (a writer's default) with a
+/// short history, so handover messages are not lost between rove peers.
+pub fn request_control_qos() -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(MAX_BLOCKING_MS),
+        })
+        .history(History::KeepLast { depth: 16 })
+        .build()
+}
+
+/// A participant and the three topics.
+pub struct Domain {
+    /// The participant.
+    pub participant: DomainParticipant,
+    /// Topic DeviceInfo.
+    pub device_info: rustdds::Topic,
+    /// Topic ControlCommand.
+    pub control_command: rustdds::Topic,
+    /// Topic RequestControl.
+    pub request_control: rustdds::Topic,
+    /// Publisher for all writers.
+    pub publisher: rustdds::Publisher,
+    /// Subscriber for all readers.
+    pub subscriber: rustdds::Subscriber,
+}
+
+impl std::fmt::Debug for Domain {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Domain").finish_non_exhaustive()
+    }
+}
+
+impl Domain {
+    /// Joins `domain_id`, confined to `interfaces`.
+    ///
+    /// # Errors
+    /// rustdds cannot create the participant (ports in use, no such interface) or a topic.
+    pub fn join(domain_id: u16, interfaces: &[Ipv4Addr]) -> anyhow::Result<Domain> {
+        let participant = DomainParticipantBuilder::new(domain_id)
+            .with_only_networks(interfaces.iter().copied())
+            .same_host_loopback(true)
+            .build()
+            .with_context(|| format!("cannot join DDS domain {domain_id} on {interfaces:?}"))?;
+        let default = QosPolicyBuilder::new().build();
+        let topic = |name: &str, type_name: &str, qos: &QosPolicies, kind| {
+            participant
+                .create_topic(name.to_string(), type_name.to_string(), qos, kind)
+                .with_context(|| format!("cannot create topic {name}"))
+        };
+        let device_info = topic(
+            topic_names::DEVICE_INFO,
+            type_names::DEVICE_INFO,
+            &device_info_qos(false),
+            TopicKind::WithKey,
+        )?;
+        let control_command = topic(
+            topic_names::CONTROL_COMMAND,
+            type_names::CONTROL_COMMAND,
+            &control_command_qos(Strength(1)),
+            TopicKind::WithKey,
+        )?;
+        let request_control = topic(
+            topic_names::REQUEST_CONTROL,
+            type_names::REQUEST_CONTROL,
+            &request_control_qos(),
+            TopicKind::NoKey,
+        )?;
+        let publisher = participant
+            .create_publisher(&default)
+            .context("cannot create publisher")?;
+        let subscriber = participant
+            .create_subscriber(&default)
+            .context("cannot create subscriber")?;
+        Ok(Domain {
+            participant,
+            device_info,
+            control_command,
+            request_control,
+            publisher,
+            subscriber,
+        })
+    }
+
+    /// A DeviceInfo writer.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn device_info_writer(
+        &self,
+    ) -> anyhow::Result<rustdds::with_key::DataWriterCdr<KeyedDeviceInfo>> {
+        self.publisher
+            .create_datawriter_cdr(&self.device_info, Some(device_info_qos(false)))
+            .context("cannot create DeviceInfo writer")
+    }
+
+    /// A DeviceInfo reader.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn device_info_reader(
+        &self,
+    ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedDeviceInfo>> {
+        self.subscriber
+            .create_datareader_cdr(&self.device_info, Some(device_info_qos(true)))
+            .context("cannot create DeviceInfo reader")
+    }
+
+    /// A ControlCommand writer with `strength`.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn command_writer(
+        &self,
+        strength: Strength,
+    ) -> anyhow::Result<rustdds::with_key::DataWriterCdr<KeyedControlCommand>> {
+        self.publisher
+            .create_datawriter_cdr(&self.control_command, Some(control_command_qos(strength)))
+            .context("cannot create ControlCommand writer")
+    }
+
+    /// A ControlCommand reader (exclusive, as the seed's vehicles read).
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn command_reader(
+        &self,
+    ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedControlCommand>> {
+        self.subscriber
+            .create_datareader_cdr(
+                &self.control_command,
+                Some(control_command_qos(Strength::FAILSAFE)),
+            )
+            .context("cannot create ControlCommand reader")
+    }
+
+    /// A RequestControl writer.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn request_writer(&self) -> anyhow::Result<rustdds::no_key::DataWriterCdr<RequestControl>> {
+        self.publisher
+            .create_datawriter_no_key_cdr(&self.request_control, Some(request_control_qos()))
+            .context("cannot create RequestControl writer")
+    }
+
+    /// A RequestControl reader.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it.
+    pub fn request_reader(&self) -> anyhow::Result<rustdds::no_key::DataReaderCdr<RequestControl>> {
+        self.subscriber
+            .create_datareader_no_key_cdr(&self.request_control, Some(request_control_qos()))
+            .context("cannot create RequestControl reader")
+    }
+
+    /// The ownership strength a remote writer announced in discovery, if known.
+    pub fn discovered_strength(&self, writer: GUID) -> Option<Strength> {
+        self.participant
+            .discovered_writers()
+            .into_iter()
+            .find(|w| w.publication_topic_data.key == writer)
+            .and_then(|w| strength_of(w.publication_topic_data.ownership))
+    }
+}
+
+/// The strength of an EXCLUSIVE writer; `None` for SHARED or absent ownership, and for values
+/// outside 0..=65535 (not a rove strength).
+pub fn strength_of(ownership: Option<Ownership>) -> Option<Strength> {
+    match ownership? {
+        Ownership::Exclusive { strength } => u16::try_from(strength).ok().map(Strength),
+        Ownership::Shared => None,
+    }
+}
+
+/// The core's identity for a DDS writer: participant = GUID prefix, entity = entity id.
+pub fn writer_id(guid: GUID) -> WriterId {
+    let bytes = guid.to_bytes();
+    let mut entity = [0u8; 4];
+    entity.copy_from_slice(&bytes[12..16]);
+    WriterId {
+        participant: participant_id(&bytes[..12]),
+        entity: u32::from_be_bytes(entity),
+    }
+}
+
+/// The core's identity for a DDS participant from its 12-byte GUID prefix.
+pub fn participant_id(prefix: &[u8]) -> ParticipantId {
+    let mut wide = [0u8; 16];
+    let n = prefix.len().min(12);
+    wide[4..4 + n].copy_from_slice(&prefix[..n]);
+    ParticipantId(u128::from_be_bytes(wide))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writer_ids_keep_participant_and_entity_apart() {
+        let mut bytes = [0u8; 16];
+        bytes[..12].copy_from_slice(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
+        bytes[12..].copy_from_slice(&[0, 0, 1, 0x02]);
+        let id = writer_id(GUID::from_bytes(bytes));
+        assert_eq!(id.entity, 0x0000_0102);
+        assert_eq!(id.participant, participant_id(&bytes[..12]));
+        let mut other = bytes;
+        other[15] = 0x03;
+        let other_id = writer_id(GUID::from_bytes(other));
+        assert_eq!(other_id.participant, id.participant);
+        assert_ne!(other_id, id);
+    }
+
+    #[test]
+    fn only_exclusive_rove_strengths_count() {
+        assert_eq!(
+            strength_of(Some(Ownership::Exclusive { strength: 220 })),
+            Some(Strength(220))
+        );
+        assert_eq!(strength_of(Some(Ownership::Shared)), None);
+        assert_eq!(strength_of(None), None);
+        assert_eq!(
+            strength_of(Some(Ownership::Exclusive { strength: -1 })),
+            None
+        );
+        assert_eq!(
+            strength_of(Some(Ownership::Exclusive { strength: 70_000 })),
+            None
+        );
+    }
+
+    /// The keyed wrappers put exactly the core type's bytes on the wire.
+    #[test]
+    fn wrappers_are_transparent_on_the_wire() {
+        let cmd = ControlCommand {
+            src_id: 1,
+            dest_id: 2,
+            command_type: rove_core::msg::CommandType::Movement,
+            movement_command: rove_core::msg::MovementCommand::CENTRED,
+            mode: rove_core::msg::Mode::Auto,
+            timestamp: rove_core::msg::TimeT(9),
+        };
+        let wrapped = serde_json::to_value(KeyedControlCommand(cmd)).expect("json");
+        assert_eq!(wrapped, serde_json::to_value(cmd).expect("json"));
+        assert_eq!(KeyedControlCommand(cmd).key(), 2);
+    }
+}

@@ -1,0 +1,275 @@
+//! `rove operator`: streams ControlCommand to the vehicles it drives, keeps the device list and
+//! takes part in active handover as requester and replier.
+//!
+//! Streaming: every driven vehicle gets a sample on every input change and at least every
+//! `stream_period` (keep-alive). A priority writer (strength 65535) is created at start, so its
+//! discovery is done long before a grant needs it; it streams only to vehicles we hold a grant
+//! for. Consent: the config's auto-accept policy decides; a request that needs a person waits
+//! for the console (a later issue) and is refused at the consent timeout meanwhile.
+//!
+//! Stop (SIGTERM, SIGINT): held grants are finished, every instance we drive is disposed (an
+//! explicit release, so the vehicle hands over at once), and the participant leaves.
+
+use crate::config::OperatorConfig;
+use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
+use crate::runtime::{Clock, RateLimited, shutdown_signal, sleep_until};
+use futures::StreamExt;
+use rove_core::handover::{Action, Handover};
+use rove_core::hierarchy::Strength;
+use rove_core::msg::{
+    CommandType, ControlCommand, DeviceId, DeviceInfo, DeviceType, RequestControl,
+};
+use rustdds::with_key::Sample;
+use std::collections::{BTreeMap, BTreeSet};
+use tracing::{info, warn};
+
+type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
+
+/// Runs the operator role until SIGTERM/SIGINT. `request`: ask this vehicle's owner for control
+/// as soon as the vehicle is seen.
+///
+/// # Errors
+/// The participant, a topic, a reader or writer cannot be created.
+pub async fn run(config: OperatorConfig, mut request: Option<DeviceId>) -> anyhow::Result<()> {
+    let clock = Clock::start();
+    let me = config.common.id;
+    let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
+    let regular = domain.command_writer(config.strength)?;
+    let priority = domain.command_writer(Strength::PRIORITY)?;
+    let request_writer = domain.request_writer()?;
+    let info_writer = domain.device_info_writer()?;
+    let infos = domain.device_info_reader()?;
+    let requests = domain.request_reader()?;
+    info!(
+        device = me,
+        name = %config.common.name,
+        level = ?config.level,
+        class = ?config.device_class,
+        strength = config.strength.0,
+        domain = config.common.domain_id,
+        interfaces = ?config.common.interfaces,
+        drive = ?config.drive,
+        "operator started"
+    );
+
+    let mut state = Streams {
+        me,
+        input: config.input,
+        driving: config.drive.iter().copied().collect(),
+        priority: BTreeSet::new(),
+        regular,
+        priority_writer: priority,
+        failed: RateLimited::new("ControlCommand write failed"),
+    };
+    let mut handover = Handover::new(me, config.strength, config.handover);
+    let mut vehicles: BTreeMap<DeviceId, DeviceInfo> = BTreeMap::new();
+    let my_info = DeviceInfo {
+        device_id: me,
+        name: config.common.name.clone(),
+        device_type: DeviceType::Controller,
+        controller_id: me,
+    };
+    let publish_info = || {
+        if let Err(e) = info_writer.write(KeyedDeviceInfo(my_info.clone()), None) {
+            warn!(cause = ?e, "cannot publish DeviceInfo");
+        }
+    };
+    publish_info();
+
+    let mut infos = infos.async_sample_stream();
+    let mut requests = requests.async_sample_stream();
+    let mut stream_timer = tokio::time::interval(config.stream_period);
+    stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut heartbeat = tokio::time::interval(config.common.heartbeat);
+    let shutdown = shutdown_signal()?;
+    tokio::pin!(shutdown);
+    let mut malformed = RateLimited::new("malformed DeviceInfo or RequestControl sample");
+
+    loop {
+        let deadline = handover.next_deadline().map(|d| clock.instant(d));
+        let actions = tokio::select! {
+            _ = &mut shutdown => break,
+            _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
+            _ = heartbeat.tick() => { publish_info(); Vec::new() }
+            sample = infos.next() => {
+                match sample {
+                    Some(Ok(s)) => {
+                        if let Sample::Value(KeyedDeviceInfo(info)) = s.into_value()
+                            && info.device_type == DeviceType::Vehicle
+                        {
+                            vehicles.insert(info.device_id, info);
+                        }
+                    }
+                    Some(Err(e)) => malformed.warn(&e),
+                    None => anyhow::bail!("DeviceInfo stream ended"),
+                }
+                // Ask once the vehicle and its owner are known.
+                match request.and_then(|v| vehicles.get(&v)) {
+                    Some(v) if v.controller_id == me => {
+                        info!(vehicle = v.device_id, "already driving it: no request needed");
+                        request = None;
+                        Vec::new()
+                    }
+                    Some(v) => {
+                        let (vehicle, owner) = (v.device_id, v.controller_id);
+                        request = None;
+                        match handover.request(clock.now(), vehicle, owner, clock.stamp()) {
+                            Ok(actions) => {
+                                info!(vehicle, owner, "requesting control");
+                                actions
+                            }
+                            Err(e) => {
+                                warn!(vehicle, owner, cause = %e, "cannot request control");
+                                Vec::new()
+                            }
+                        }
+                    }
+                    None => Vec::new(),
+                }
+            }
+            sample = requests.next() => match sample {
+                Some(Ok(s)) => handover.on_message(clock.now(), s.value()),
+                Some(Err(e)) => { malformed.warn(&e); Vec::new() }
+                None => anyhow::bail!("RequestControl stream ended"),
+            },
+            _ = sleep_until(deadline) => handover.tick(clock.now()),
+        };
+        for action in actions {
+            carry_out(action, &mut state, &request_writer, &clock);
+        }
+    }
+
+    info!("operator stopping: finishing grants and releasing vehicles");
+    let held: Vec<DeviceId> = state.priority.iter().copied().collect();
+    for vehicle in held {
+        if let Ok(actions) = handover.finish(vehicle) {
+            for action in actions {
+                carry_out(action, &mut state, &request_writer, &clock);
+            }
+        }
+    }
+    state.release_all();
+    // Leave the device lists at once rather than after missed heartbeats.
+    if let Err(e) = info_writer.dispose(&me, None) {
+        warn!(cause = ?e, "cannot withdraw DeviceInfo");
+    }
+    Ok(())
+}
+
+/// What this operator streams, and its writers.
+struct Streams {
+    me: DeviceId,
+    input: (rove_core::msg::MovementCommand, rove_core::msg::Mode),
+    /// Vehicles driven with the regular writer.
+    driving: BTreeSet<DeviceId>,
+    /// Vehicles driven with the priority writer (grants held).
+    priority: BTreeSet<DeviceId>,
+    regular: CommandWriter,
+    priority_writer: CommandWriter,
+    failed: RateLimited,
+}
+
+impl Streams {
+    fn command(&self, vehicle: DeviceId, clock: &Clock) -> KeyedControlCommand {
+        KeyedControlCommand(ControlCommand {
+            src_id: self.me,
+            dest_id: vehicle,
+            command_type: CommandType::Movement,
+            movement_command: self.input.0,
+            mode: self.input.1,
+            timestamp: clock.stamp(),
+        })
+    }
+
+    fn send(&mut self, vehicle: DeviceId, priority: bool, clock: &Clock) {
+        let sample = self.command(vehicle, clock);
+        let writer = if priority {
+            &self.priority_writer
+        } else {
+            &self.regular
+        };
+        if let Err(e) = writer.write(sample, None) {
+            self.failed.warn(&e);
+        }
+    }
+
+    fn send_all(&mut self, clock: &Clock) {
+        let regular: Vec<_> = self.driving.iter().copied().collect();
+        for v in regular {
+            self.send(v, false, clock);
+        }
+        let held: Vec<_> = self.priority.iter().copied().collect();
+        for v in held {
+            self.send(v, true, clock);
+        }
+    }
+
+    fn release(&mut self, vehicle: DeviceId, priority: bool) {
+        let writer = if priority {
+            &self.priority_writer
+        } else {
+            &self.regular
+        };
+        if let Err(e) = writer.dispose(&vehicle, None) {
+            warn!(vehicle, cause = ?e, "release (dispose) failed");
+        }
+    }
+
+    fn release_all(&mut self) {
+        let regular: Vec<_> = std::mem::take(&mut self.driving).into_iter().collect();
+        for v in regular {
+            self.release(v, false);
+        }
+        let held: Vec<_> = std::mem::take(&mut self.priority).into_iter().collect();
+        for v in held {
+            self.release(v, true);
+        }
+    }
+}
+
+fn carry_out(
+    action: Action,
+    state: &mut Streams,
+    requests: &rustdds::no_key::DataWriterCdr<RequestControl>,
+    clock: &Clock,
+) {
+    match action {
+        Action::Send(msg) => {
+            if let Err(e) = requests.write(msg, None) {
+                warn!(cause = ?e, "cannot send RequestControl");
+            }
+        }
+        Action::AskOperator {
+            vehicle,
+            requester,
+            src_priority,
+            ..
+        } => info!(
+            vehicle,
+            requester, src_priority, "control requested: consent needed (refused at timeout)"
+        ),
+        Action::PromptClosed { vehicle, outcome } => {
+            info!(vehicle, ?outcome, "consent prompt closed")
+        }
+        Action::RequestEnded { vehicle, outcome } => info!(vehicle, ?outcome, "request ended"),
+        Action::StartPriorityDriving { vehicle } => {
+            info!(vehicle, "grant received: driving with the priority writer");
+            state.priority.insert(vehicle);
+            state.send(vehicle, true, clock);
+        }
+        Action::StopPriorityDriving { vehicle } => {
+            info!(vehicle, "grant given back");
+            state.priority.remove(&vehicle);
+            state.release(vehicle, true);
+        }
+        Action::Yield { vehicle } => {
+            info!(vehicle, "yielding to the grant holder");
+            state.driving.remove(&vehicle);
+        }
+        Action::Resume { vehicle } => {
+            info!(vehicle, "grant returned: driving again");
+            state.driving.insert(vehicle);
+            state.send(vehicle, false, clock);
+        }
+    }
+}

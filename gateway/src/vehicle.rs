@@ -1,0 +1,258 @@
+//! `rove vehicle`: DDS samples → arbiter → output adapter, with DeviceInfo publishing.
+//!
+//! One task, one `select!` loop: every input (command samples, disposals, discovery events,
+//! RequestControl, timers) becomes an arbiter [`Event`]; every decision is carried out at once:
+//! outputs to the adapter, ownership changes to DeviceInfo (published in the same loop turn).
+//! The loop sleeps until the arbiter's next deadline, so a silent owner is dropped exactly one
+//! command timeout after its last sample, with no polling.
+//!
+//! Start: the adapter is put in its safe state before the participant joins. Stop (SIGTERM,
+//! SIGINT): the arbiter's owner is dropped, the adapter goes safe, DeviceInfo shows the failsafe,
+//! and the participant leaves the domain cleanly.
+
+use crate::config::{AdapterKind, VehicleConfig};
+use crate::dds::{self, Domain, KeyedDeviceInfo};
+use crate::runtime::{Clock, RateLimited, shutdown_signal, sleep_until};
+use anyhow::Context;
+use futures::StreamExt;
+use rove_core::adapter::OutputAdapter;
+use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
+use rove_core::msg::{Ack, DeviceInfo, DeviceType};
+use rove_core::sim::SimOutput;
+use rustdds::with_key::Sample;
+use rustdds::{DomainParticipantStatusEvent, StatusEvented};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::PathBuf;
+use tracing::{debug, info, warn};
+
+/// Runs the vehicle role until SIGTERM/SIGINT.
+///
+/// # Errors
+/// The participant, a topic, a reader or writer cannot be created, or the output record file
+/// cannot be opened.
+pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Result<()> {
+    let clock = Clock::start();
+    let me = config.common.id;
+    let mut output = match config.adapter {
+        AdapterKind::Sim => SimOutput::default(),
+    };
+    output
+        .safe_state(clock.now())
+        .map_err(|e| anyhow::anyhow!("output adapter: {e}"))?;
+    let mut log = match &record {
+        Some(path) => Some(OutputLog::create(path)?),
+        None => None,
+    };
+
+    let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
+    let info_writer = domain.device_info_writer()?;
+    let commands = domain.command_reader()?;
+    let requests = domain.request_reader()?;
+    let listener = domain.participant.status_listener();
+    info!(
+        device = me,
+        name = %config.common.name,
+        domain = config.common.domain_id,
+        interfaces = ?config.common.interfaces,
+        adapter = %output.describe(),
+        command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
+        "vehicle started"
+    );
+
+    let mut arbiter = Arbiter::new(me, config.arbiter);
+    let mut strengths = HashMap::new();
+    let publish = |controller_id| {
+        let info = DeviceInfo {
+            device_id: me,
+            name: config.common.name.clone(),
+            device_type: DeviceType::Vehicle,
+            controller_id,
+        };
+        if let Err(e) = info_writer.write(KeyedDeviceInfo(info), None) {
+            warn!(cause = ?e, "cannot publish DeviceInfo");
+        }
+    };
+    publish(arbiter.controller_id());
+
+    let mut commands = commands.async_sample_stream();
+    let mut requests = requests.async_sample_stream();
+    let mut status = listener.as_async_status_stream();
+    let mut heartbeat = tokio::time::interval(config.common.heartbeat);
+    let shutdown = shutdown_signal()?;
+    tokio::pin!(shutdown);
+    let mut malformed = RateLimited::new("malformed or unreadable ControlCommand sample");
+
+    loop {
+        let deadline = arbiter.next_deadline().map(|d| clock.instant(d));
+        let event = tokio::select! {
+            _ = &mut shutdown => break,
+            sample = commands.next() => match sample {
+                Some(Ok(sample)) => {
+                    let guid = sample.sample_info().writer_guid();
+                    let writer = dds::writer_id(guid);
+                    match sample.into_value() {
+                        Sample::Value(cmd) => {
+                            let strength = match strengths.get(&guid) {
+                                Some(s) => Some(*s),
+                                None => {
+                                    let s = domain.discovered_strength(guid);
+                                    if let Some(s) = s { strengths.insert(guid, s); }
+                                    s
+                                }
+                            };
+                            match strength {
+                                Some(strength) => Some(Event::Sample {
+                                    writer, strength, command: cmd.0, arrival: clock.now(),
+                                }),
+                                None => {
+                                    debug!(%writer, "sample from a writer with no known strength");
+                                    None
+                                }
+                            }
+                        }
+                        Sample::Dispose(key) if key == me => Some(Event::Released { writer }),
+                        Sample::Dispose(_) => None,
+                    }
+                }
+                Some(Err(e)) => { malformed.warn(&e); None }
+                None => anyhow::bail!("ControlCommand stream ended"),
+            },
+            request = requests.next() => match request {
+                Some(Ok(sample)) => {
+                    let rc = sample.value();
+                    match rc.ack {
+                        _ if rc.dest_id != me => None,
+                        Ack::Accept => Some(Event::GrantAccepted {
+                            holder: rc.src_id, granted_by: rc.current_controller_id,
+                        }),
+                        Ack::Finish => Some(Event::GrantFinished { holder: rc.src_id }),
+                        Ack::Request | Ack::Refuse => None,
+                    }
+                }
+                Some(Err(e)) => { malformed.warn(&e); None }
+                None => anyhow::bail!("RequestControl stream ended"),
+            },
+            ev = status.next() => match ev {
+                Some(DomainParticipantStatusEvent::WriterDetected { writer }) => {
+                    if let Some(s) = dds::strength_of(writer.qos.ownership()) {
+                        strengths.insert(writer.guid, s);
+                    }
+                    None
+                }
+                Some(DomainParticipantStatusEvent::WriterLost { guid, .. }) => {
+                    strengths.remove(&guid);
+                    Some(Event::WriterGone { writer: dds::writer_id(guid) })
+                }
+                Some(DomainParticipantStatusEvent::ParticipantLost { id, .. }) => {
+                    Some(Event::ParticipantGone { participant: dds::participant_id(id.as_ref()) })
+                }
+                _ => None,
+            },
+            _ = heartbeat.tick() => { publish(arbiter.controller_id()); None }
+            _ = sleep_until(deadline) => Some(Event::Tick),
+        };
+        let Some(event) = event else { continue };
+        let now = clock.now();
+        let decision = arbiter.step(now, event);
+        carry_out(me, &decision, &mut output, log.as_mut(), &clock, &publish);
+    }
+
+    // Shutdown: outputs safe first, then tell everyone, then leave.
+    info!("vehicle stopping: outputs to safe state");
+    if let Err(e) = output.safe_state(clock.now()) {
+        warn!(cause = %e, "safe state on shutdown failed");
+    }
+    if let Some(log) = log.as_mut() {
+        log.record(&clock, "safe", Owner::Failsafe, None);
+    }
+    publish(me);
+    // Leave the device lists at once rather than after missed heartbeats.
+    if let Err(e) = info_writer.dispose(&me, None) {
+        warn!(cause = ?e, "cannot withdraw DeviceInfo");
+    }
+    Ok(())
+}
+
+fn carry_out(
+    me: i64,
+    decision: &Decision,
+    output: &mut SimOutput,
+    log: Option<&mut OutputLog>,
+    clock: &Clock,
+    publish: &impl Fn(i64),
+) {
+    if let Some(change) = decision.owner_change {
+        info!(
+            from = ?change.from.device(),
+            to = ?change.to.device(),
+            reason = %change.reason,
+            "owner changed"
+        );
+        // Published in the same loop turn; the failsafe shows as the vehicle's own id.
+        publish(change.to.device().unwrap_or(me));
+    }
+    let now = clock.now();
+    match decision.output {
+        Some(Output::Apply { by, setpoint, .. }) => {
+            if let Err(e) = output.apply(now, &setpoint) {
+                warn!(cause = %e, "output failed");
+            }
+            if let Some(log) = log {
+                log.record(clock, "apply", Owner::Controller(by), Some(setpoint));
+            }
+        }
+        Some(Output::SafeState { owner, .. }) => {
+            if let Err(e) = output.safe_state(now) {
+                warn!(cause = %e, "safe state failed");
+            }
+            if let Some(log) = log {
+                log.record(clock, "safe", owner, None);
+            }
+        }
+        None => {}
+    }
+}
+
+/// The sim adapter's record as JSON lines, one per output, for tests and benchmarks:
+/// `{"wall_us":…,"mono_us":…,"action":"apply"|"safe","owner":id|null,"throttle":…,…}`.
+struct OutputLog {
+    file: std::io::BufWriter<std::fs::File>,
+}
+
+impl OutputLog {
+    fn create(path: &std::path::Path) -> anyhow::Result<OutputLog> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create output record {}", path.display()))?;
+        Ok(OutputLog {
+            file: std::io::BufWriter::new(file),
+        })
+    }
+
+    fn record(
+        &mut self,
+        clock: &Clock,
+        action: &str,
+        owner: Owner,
+        setpoint: Option<rove_core::arbiter::Setpoint>,
+    ) {
+        let mut line = serde_json::json!({
+            "wall_us": clock.wall_micros(),
+            "mono_us": clock.now().as_nanos() / 1_000,
+            "action": action,
+            "owner": owner.device(),
+        });
+        if let Some(sp) = setpoint {
+            line["throttle"] = sp.movement.throttle.into();
+            line["roll"] = sp.movement.roll.into();
+            line["pitch"] = sp.movement.pitch.into();
+            line["yaw"] = sp.movement.yaw.into();
+            line["mode"] = (sp.mode as u32).into();
+        }
+        // Flushed per line: tests and benchmarks read the file while the vehicle runs.
+        let ok = writeln!(self.file, "{line}").and_then(|()| self.file.flush());
+        if let Err(e) = ok {
+            warn!(cause = %e, "cannot write output record");
+        }
+    }
+}
