@@ -44,6 +44,9 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         Some(path) => Some(OutputLog::create(path)?),
         None => None,
     };
+    if let Some(log) = log.as_mut() {
+        log.record(&clock, "safe", Owner::Failsafe, None);
+    }
 
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
     let info_writer = domain.device_info_writer()?;

@@ -1,0 +1,208 @@
+//! The DDS hierarchy between real processes (issue 4): passive and active handover, failsafe,
+//! device lists. Each test runs `rove` processes in a network namespace of its own.
+//!
+//! Latencies are measured and printed (run with `--nocapture` to see them), never asserted:
+//! timing goals live in `rove bench`.
+
+mod util;
+
+use std::time::Duration;
+use util::{Rig, records, wait_for_output, wall_us};
+
+const V: i64 = 100;
+
+#[test]
+fn a_lone_operator_drives_the_vehicle() {
+    let mut rig = Rig::new("lone");
+    let record = rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    let out = wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    assert_eq!(out.throttle, Some(1000));
+    // The vehicle starts in the safe state, before anyone drives.
+    assert_eq!(records(&record)[0].action, "safe");
+    let status = rig.status();
+    let vehicle = Rig::device(&status, V).expect("vehicle listed");
+    assert_eq!(vehicle["controller_id"], 11);
+    assert_eq!(vehicle["type"], "vehicle");
+}
+
+#[test]
+fn a_stronger_operator_takes_over_and_a_graceful_quit_hands_back_at_once() {
+    let mut rig = Rig::new("preempt");
+    let record = rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let phone = rig.operator(12, "mobile", "phone", &[V], 2000, "", &[]);
+    let out = wait_for_output(&record, Some(12), 0).expect("phone preempts");
+    assert_eq!(out.throttle, Some(2000));
+
+    let quit = wall_us();
+    rig.procs[phone].terminate();
+    let back = wait_for_output(&record, Some(11), quit).expect("laptop back");
+    eprintln!(
+        "graceful quit → laptop applied after {:.1} ms",
+        (back.wall_us - quit) as f64 / 1000.0
+    );
+    assert!(rig.procs[phone].wait_exit(util::PATIENCE).is_some());
+}
+
+#[test]
+fn a_weaker_or_equal_operator_joining_does_not_take_over() {
+    let mut rig = Rig::new("weaker");
+    let record = rig.vehicle(V);
+    rig.operator(12, "stationary", "tablet", &[V], 2000, "", &[]);
+    wait_for_output(&record, Some(12), 0).expect("tablet drives");
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    rig.operator(13, "stationary", "tablet", &[V], 3000, "", &[]);
+    // Wait until both newcomers are on the network and streaming, then check nothing changed.
+    let deadline = std::time::Instant::now() + util::PATIENCE;
+    loop {
+        let status = rig.status();
+        if Rig::device(&status, 11).is_some() && Rig::device(&status, 13).is_some() {
+            assert_eq!(
+                Rig::device(&status, V).expect("vehicle")["controller_id"],
+                12
+            );
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "newcomers never seen");
+    }
+    let later = wall_us();
+    wait_for_output(&record, Some(12), later).expect("still the tablet");
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.owner != Some(11) && o.owner != Some(13)),
+        "a weaker or equal operator was applied"
+    );
+}
+
+#[test]
+fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsafe() {
+    let mut rig = Rig::new("crash");
+    let record = rig.vehicle(V);
+    let laptop = rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let phone = rig.operator(12, "mobile", "phone", &[V], 2000, "", &[]);
+    wait_for_output(&record, Some(12), 0).expect("phone drives");
+
+    let crash = wall_us();
+    rig.procs[phone].crash();
+    let back = wait_for_output(&record, Some(11), crash).expect("laptop after timeout");
+    eprintln!(
+        "SIGKILL → laptop applied after {:.1} ms (command timeout 100 ms)",
+        (back.wall_us - crash) as f64 / 1000.0
+    );
+
+    let crash = wall_us();
+    rig.procs[laptop].crash();
+    let safe = wait_for_output(&record, None, crash).expect("failsafe");
+    eprintln!(
+        "SIGKILL of the last operator → failsafe after {:.1} ms",
+        (safe.wall_us - crash) as f64 / 1000.0
+    );
+    // Nothing drives after the failsafe took over.
+    std::thread::sleep(Duration::from_millis(300)); // observation window, not synchronisation
+    assert!(
+        records(&record)
+            .iter()
+            .filter(|o| o.wall_us > safe.wall_us)
+            .all(|o| o.action == "safe"),
+        "outputs driven after failsafe"
+    );
+}
+
+#[test]
+fn active_handover_accept_drive_and_finish() {
+    let mut rig = Rig::new("accept");
+    let record = rig.vehicle(V);
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        "[handover]\nauto_accept = \"always\"\n",
+        &[],
+    );
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let asked = wall_us();
+    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    let granted = wait_for_output(&record, Some(13), asked).expect("tablet granted");
+    assert_eq!(granted.throttle, Some(3000));
+
+    // FINISH (the tablet stops gracefully): the laptop drives again.
+    let finish = wall_us();
+    rig.procs[tablet].terminate();
+    let back = wait_for_output(&record, Some(11), finish).expect("laptop resumes");
+    eprintln!(
+        "FINISH → laptop applied after {:.1} ms",
+        (back.wall_us - finish) as f64 / 1000.0
+    );
+    // No ping-pong: once the laptop was back, the tablet never drove again.
+    assert!(
+        records(&record)
+            .iter()
+            .filter(|o| o.wall_us > back.wall_us)
+            .all(|o| o.owner != Some(13))
+    );
+}
+
+#[test]
+fn active_handover_refused_at_the_consent_timeout() {
+    let mut rig = Rig::new("refuse");
+    let record = rig.vehicle(V);
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        "[handover]\nauto_accept = \"never\"\nconsent_timeout_ms = 300\nreply_timeout_ms = 2000\n",
+        &[],
+    );
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    // The request ends refused: the tablet says so in its log.
+    let deadline = std::time::Instant::now() + util::PATIENCE;
+    let log = rig.procs[tablet].log.clone();
+    loop {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        if text.contains("request ended") {
+            assert!(text.contains("Refused"), "tablet log:\n{text}");
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "no answer:\n{text}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(records(&record).iter().all(|o| o.owner != Some(13)));
+}
+
+#[test]
+fn status_lists_every_device_and_reports_duplicate_ids() {
+    let mut rig = Rig::new("status");
+    rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[], 0, "", &[]);
+    rig.operator(12, "mobile", "phone", &[], 0, "", &[]);
+    rig.operator(12, "remote", "desktop", &[], 0, "", &[]);
+    let deadline = std::time::Instant::now() + util::PATIENCE;
+    loop {
+        let status = rig.status();
+        let ids: Vec<i64> = status["devices"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|d| d["id"].as_i64()).collect())
+            .unwrap_or_default();
+        if ids == [11, 12, V] && status["duplicates"] == serde_json::json!([12]) {
+            assert!(
+                status["devices"]
+                    .as_array()
+                    .is_some_and(|a| a.iter().all(|d| d["online"] == true))
+            );
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "incomplete status: {status}"
+        );
+    }
+}

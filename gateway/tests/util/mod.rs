@@ -1,0 +1,274 @@
+//! Harness for multi-process tests: a network namespace per test (loopback with multicast, as
+//! `../shared/notes/rustdds.md` requires), real `rove` processes inside it, their output records
+//! and `rove status --json`. Children are killed and the namespace deleted on drop; on a failing
+//! test every child's log is printed.
+
+#![allow(dead_code)]
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+static NEXT: AtomicUsize = AtomicUsize::new(0);
+
+/// Generous: a loaded 2-core CI machine starting several DDS processes at once.
+pub const PATIENCE: Duration = Duration::from_secs(15);
+
+fn rove() -> &'static str {
+    env!("CARGO_BIN_EXE_rove")
+}
+
+fn run(args: &[&str]) -> Result<(), String> {
+    let out = Command::new(args[0])
+        .args(&args[1..])
+        .output()
+        .map_err(|e| format!("{args:?}: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
+}
+
+/// A running `rove` process.
+pub struct Proc {
+    pub name: String,
+    child: Child,
+    pub log: PathBuf,
+}
+
+impl Proc {
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// SIGTERM: a graceful stop.
+    pub fn terminate(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.pid().to_string()])
+            .status();
+    }
+
+    /// SIGKILL: a crash.
+    pub fn crash(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// Waits for the process to exit; its exit status.
+    pub fn wait_exit(&mut self, patience: Duration) -> Option<std::process::ExitStatus> {
+        let deadline = Instant::now() + patience;
+        while Instant::now() < deadline {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        None
+    }
+}
+
+/// One test's world: a namespace, a directory, processes.
+pub struct Rig {
+    pub ns: String,
+    pub dir: PathBuf,
+    pub procs: Vec<Proc>,
+}
+
+impl Rig {
+    pub fn new(test: &str) -> Rig {
+        let n = NEXT.fetch_add(1, Ordering::SeqCst);
+        let ns = format!("rove-{}-{n}", std::process::id());
+        let dir = std::env::temp_dir().join(format!("rove-it-{}-{n}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("test dir");
+        let setup = [
+            vec!["ip", "netns", "add", &ns],
+            vec!["ip", "-n", &ns, "link", "set", "lo", "up"],
+            vec!["ip", "-n", &ns, "link", "set", "lo", "multicast", "on"],
+            vec!["ip", "-n", &ns, "route", "add", "224.0.0.0/4", "dev", "lo"],
+        ];
+        for cmd in setup {
+            if let Err(e) = run(&cmd) {
+                panic!(
+                    "cannot create the test's network namespace (these tests need root and \
+                     iproute2): {e}"
+                );
+            }
+        }
+        Rig {
+            ns,
+            dir,
+            procs: Vec::new(),
+        }
+    }
+
+    pub fn write(&self, name: &str, text: &str) -> PathBuf {
+        let path = self.dir.join(name);
+        std::fs::write(&path, text).expect("write config");
+        path
+    }
+
+    fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
+        let log = self.dir.join(format!("{}-{name}.log", self.procs.len()));
+        let file = std::fs::File::create(&log).expect("log file");
+        let child = Command::new("ip")
+            .args(["netns", "exec", &self.ns, rove()])
+            .args(args)
+            .env("RUST_LOG", "info,rustdds=warn")
+            .stdin(Stdio::null())
+            .stdout(file.try_clone().expect("log"))
+            .stderr(file)
+            .spawn()
+            .expect("spawn rove");
+        self.procs.push(Proc {
+            name: name.to_string(),
+            child,
+            log,
+        });
+        self.procs.len() - 1
+    }
+
+    /// Starts vehicle `id` (sim adapter) recording its outputs; returns the record path.
+    pub fn vehicle(&mut self, id: i64) -> PathBuf {
+        let config = self.write(
+            &format!("vehicle-{id}.toml"),
+            &format!("[device]\nid = {id}\nname = \"v{id}\"\n[output]\nadapter = \"sim\"\n"),
+        );
+        let record = self.dir.join(format!("vehicle-{id}.jsonl"));
+        let args = [
+            "vehicle",
+            "-c",
+            config.to_str().expect("utf-8 path"),
+            "--record",
+            record.to_str().expect("utf-8 path"),
+        ];
+        self.spawn(&format!("vehicle-{id}"), &args);
+        record
+    }
+
+    /// Starts an operator; `extra_toml` is appended to its file (e.g. `[handover]` lines).
+    #[allow(clippy::too_many_arguments)]
+    pub fn operator(
+        &mut self,
+        id: i64,
+        level: &str,
+        class: &str,
+        drive: &[i64],
+        throttle: i16,
+        extra_toml: &str,
+        args: &[&str],
+    ) -> usize {
+        let drive: Vec<String> = drive.iter().map(i64::to_string).collect();
+        let config = self.write(
+            &format!("operator-{id}-{}.toml", self.procs.len()),
+            &format!(
+                "[device]\nid = {id}\nname = \"op{id}\"\n[operator]\nlevel = \"{level}\"\n\
+                 device_class = \"{class}\"\ndrive = [{}]\n[input]\nsource = \"constant\"\n\
+                 throttle = {throttle}\n{extra_toml}\n",
+                drive.join(", ")
+            ),
+        );
+        let mut all = vec!["operator", "-c", config.to_str().expect("utf-8 path")];
+        all.extend_from_slice(args);
+        self.spawn(&format!("operator-{id}"), &all)
+    }
+
+    /// `rove status --json` in the namespace.
+    pub fn status(&self) -> Value {
+        let out = Command::new("ip")
+            .args(["netns", "exec", &self.ns, rove(), "status", "--json"])
+            .args(["--listen-ms", "1200"])
+            .output()
+            .expect("run rove status");
+        let text = String::from_utf8_lossy(&out.stdout);
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| {
+            panic!(
+                "status output is not JSON ({e}): {text}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        })
+    }
+
+    /// The device row of `id` in a status snapshot.
+    pub fn device(status: &Value, id: i64) -> Option<Value> {
+        status["devices"]
+            .as_array()?
+            .iter()
+            .find(|d| d["id"] == id)
+            .cloned()
+    }
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        for p in &mut self.procs {
+            p.crash();
+        }
+        if std::thread::panicking() {
+            for p in &self.procs {
+                let log = std::fs::read_to_string(&p.log).unwrap_or_default();
+                eprintln!("===== {} ({}) =====\n{log}", p.name, p.log.display());
+            }
+        }
+        let _ = run(&["ip", "netns", "del", &self.ns]);
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// One output of the vehicle's record.
+#[derive(Debug, Clone)]
+pub struct Out {
+    pub wall_us: u64,
+    pub action: String,
+    pub owner: Option<i64>,
+    pub throttle: Option<i64>,
+}
+
+pub fn records(path: &Path) -> Vec<Out> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    text.lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .map(|v| Out {
+            wall_us: v["wall_us"].as_u64().unwrap_or(0),
+            action: v["action"].as_str().unwrap_or("").to_string(),
+            owner: v["owner"].as_i64(),
+            throttle: v["throttle"].as_i64(),
+        })
+        .collect()
+}
+
+/// Waits until the vehicle applies a command from `owner` (or, for `None`, goes safe under the
+/// failsafe) after `since_us` (wall clock); returns that output.
+pub fn wait_for_output(record: &Path, owner: Option<i64>, since_us: u64) -> Result<Out, String> {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let all = records(record);
+        if let Some(hit) = all.iter().find(|o| {
+            o.wall_us >= since_us && o.owner == owner && (o.action == "apply") == owner.is_some()
+        }) {
+            return Ok(hit.clone());
+        }
+        if Instant::now() > deadline {
+            return Err(format!(
+                "no output from {owner:?} after {since_us}; last outputs: {:?}",
+                all.iter().rev().take(5).collect::<Vec<_>>()
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Microseconds since the Unix epoch, comparable with the record's `wall_us`.
+pub fn wall_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
