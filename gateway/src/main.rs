@@ -1,15 +1,8 @@
 //! `rove`: the gateway binary — vehicle and operator roles over DDS, `status`, `check-config` and
 //! the demo (DESIGN.md §8). `main` only parses and maps the result to an exit code.
 
-mod config;
-mod dds;
-mod demo;
-mod operator;
-mod runtime;
-mod status;
-mod vehicle;
-
 use clap::{Parser, Subcommand};
+use rove_gateway::{config, demo, operator, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.

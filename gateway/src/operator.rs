@@ -30,7 +30,7 @@ type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
 ///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created.
-pub async fn run(config: OperatorConfig, mut request: Option<DeviceId>) -> anyhow::Result<()> {
+pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::Result<()> {
     let clock = Clock::start();
     let me = config.common.id;
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
@@ -63,6 +63,10 @@ pub async fn run(config: OperatorConfig, mut request: Option<DeviceId>) -> anyho
     };
     let mut handover = Handover::new(me, config.strength, config.handover);
     let mut vehicles: BTreeMap<DeviceId, DeviceInfo> = BTreeMap::new();
+    // A request waits until the vehicle's owner is known. A vehicle that still looks ownerless
+    // after two heartbeats is free: we drive it instead (the first DeviceInfo a late joiner
+    // gets may be an older sample that still shows the failsafe).
+    let mut request = request.map(|v| (v, clock.now() + config.common.heartbeat * 2));
     let my_info = DeviceInfo {
         device_id: me,
         name: config.common.name.clone(),
@@ -104,13 +108,21 @@ pub async fn run(config: OperatorConfig, mut request: Option<DeviceId>) -> anyho
                     None => anyhow::bail!("DeviceInfo stream ended"),
                 }
                 // Ask once the vehicle and its owner are known.
-                match request.and_then(|v| vehicles.get(&v)) {
-                    Some(v) if v.controller_id == me => {
+                match request.and_then(|(v, free_after)| Some((vehicles.get(&v)?, free_after))) {
+                    Some((v, _)) if v.controller_id == me => {
                         info!(vehicle = v.device_id, "already driving it: no request needed");
                         request = None;
                         Vec::new()
                     }
-                    Some(v) => {
+                    Some((v, free_after)) if v.controller_id == v.device_id => {
+                        if clock.now() >= free_after {
+                            info!(vehicle = v.device_id, "vehicle is free: driving it, no request needed");
+                            state.driving.insert(v.device_id);
+                            request = None;
+                        }
+                        Vec::new()
+                    }
+                    Some((v, _)) => {
                         let (vehicle, owner) = (v.device_id, v.controller_id);
                         request = None;
                         match handover.request(clock.now(), vehicle, owner, clock.stamp()) {

@@ -4,16 +4,19 @@
 //! Latencies are measured and printed (run with `--nocapture` to see them), never asserted:
 //! timing goals live in `rove bench`.
 
-mod util;
-
+use rove_gateway::harness::{self as util, Rig, records, wait_for_output, wall_us};
+use std::path::Path;
 use std::time::Duration;
-use util::{Rig, records, wait_for_output, wall_us};
+
+fn rig(test: &str) -> Rig {
+    Rig::new(Path::new(env!("CARGO_BIN_EXE_rove")), test).unwrap_or_else(|e| panic!("{e}"))
+}
 
 const V: i64 = 100;
 
 #[test]
 fn a_lone_operator_drives_the_vehicle() {
-    let mut rig = Rig::new("lone");
+    let mut rig = rig("lone");
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     let out = wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -28,7 +31,7 @@ fn a_lone_operator_drives_the_vehicle() {
 
 #[test]
 fn a_stronger_operator_takes_over_and_a_graceful_quit_hands_back_at_once() {
-    let mut rig = Rig::new("preempt");
+    let mut rig = rig("preempt");
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -48,7 +51,7 @@ fn a_stronger_operator_takes_over_and_a_graceful_quit_hands_back_at_once() {
 
 #[test]
 fn a_weaker_or_equal_operator_joining_does_not_take_over() {
-    let mut rig = Rig::new("weaker");
+    let mut rig = rig("weaker");
     let record = rig.vehicle(V);
     rig.operator(12, "stationary", "tablet", &[V], 2000, "", &[]);
     wait_for_output(&record, Some(12), 0).expect("tablet drives");
@@ -79,7 +82,7 @@ fn a_weaker_or_equal_operator_joining_does_not_take_over() {
 
 #[test]
 fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsafe() {
-    let mut rig = Rig::new("crash");
+    let mut rig = rig("crash");
     let record = rig.vehicle(V);
     let laptop = rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -114,7 +117,7 @@ fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsaf
 
 #[test]
 fn active_handover_accept_drive_and_finish() {
-    let mut rig = Rig::new("accept");
+    let mut rig = rig("accept");
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -150,7 +153,7 @@ fn active_handover_accept_drive_and_finish() {
 
 #[test]
 fn active_handover_refused_at_the_consent_timeout() {
-    let mut rig = Rig::new("refuse");
+    let mut rig = rig("refuse");
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -180,7 +183,7 @@ fn active_handover_refused_at_the_consent_timeout() {
 
 #[test]
 fn status_lists_every_device_and_reports_duplicate_ids() {
-    let mut rig = Rig::new("status");
+    let mut rig = rig("status");
     rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[], 0, "", &[]);
     rig.operator(12, "mobile", "phone", &[], 0, "", &[]);

@@ -1,9 +1,7 @@
-//! Harness for multi-process tests: a network namespace per test (loopback with multicast, as
-//! `../shared/notes/rustdds.md` requires), real `rove` processes inside it, their output records
-//! and `rove status --json`. Children are killed and the namespace deleted on drop; on a failing
-//! test every child's log is printed.
-
-#![allow(dead_code)]
+//! Runs real `rove` processes in a network namespace of their own (loopback with multicast, as
+//! `../shared/notes/rustdds.md` requires): used by the multi-process tests, `rove demo` and
+//! `rove bench`. Children are killed and the namespace deleted on drop; when a test panics every
+//! child's log is printed. Needs root and iproute2 (`ip netns`).
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -15,10 +13,6 @@ static NEXT: AtomicUsize = AtomicUsize::new(0);
 
 /// Generous: a loaded 2-core CI machine starting several DDS processes at once.
 pub const PATIENCE: Duration = Duration::from_secs(15);
-
-fn rove() -> &'static str {
-    env!("CARGO_BIN_EXE_rove")
-}
 
 fn run(args: &[&str]) -> Result<(), String> {
     let out = Command::new(args[0])
@@ -36,6 +30,7 @@ fn run(args: &[&str]) -> Result<(), String> {
 }
 
 /// A running `rove` process.
+#[derive(Debug)]
 pub struct Proc {
     pub name: String,
     child: Child,
@@ -73,20 +68,37 @@ impl Proc {
     }
 }
 
-/// One test's world: a namespace, a directory, processes.
+/// One world: a namespace, a directory, processes.
+#[derive(Debug)]
 pub struct Rig {
+    /// The `rove` binary.
+    pub rove: PathBuf,
+    /// Namespace name.
     pub ns: String,
+    /// Directory for configs, logs and records.
     pub dir: PathBuf,
+    /// Started processes, in order.
     pub procs: Vec<Proc>,
 }
 
 impl Rig {
-    pub fn new(test: &str) -> Rig {
+    /// A fresh namespace and directory named after `test`, running `rove`.
+    ///
+    /// # Errors
+    /// The namespace cannot be created (not root, no iproute2).
+    pub fn new(rove: &Path, test: &str) -> Result<Rig, String> {
         let n = NEXT.fetch_add(1, Ordering::SeqCst);
         let ns = format!("rove-{}-{n}", std::process::id());
         let dir = std::env::temp_dir().join(format!("rove-it-{}-{n}-{test}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("test dir");
+        let rig = Rig {
+            rove: rove.to_path_buf(),
+            ns: ns.clone(),
+            dir,
+            procs: Vec::new(),
+        };
+        // Constructed first, so that a failure half-way still deletes the namespace on drop.
         let setup = [
             vec!["ip", "netns", "add", &ns],
             vec!["ip", "-n", &ns, "link", "set", "lo", "up"],
@@ -94,18 +106,11 @@ impl Rig {
             vec!["ip", "-n", &ns, "route", "add", "224.0.0.0/4", "dev", "lo"],
         ];
         for cmd in setup {
-            if let Err(e) = run(&cmd) {
-                panic!(
-                    "cannot create the test's network namespace (these tests need root and \
-                     iproute2): {e}"
-                );
-            }
+            run(&cmd).map_err(|e| {
+                format!("cannot create a network namespace (needs root and iproute2): {e}")
+            })?;
         }
-        Rig {
-            ns,
-            dir,
-            procs: Vec::new(),
-        }
+        Ok(rig)
     }
 
     pub fn write(&self, name: &str, text: &str) -> PathBuf {
@@ -114,11 +119,15 @@ impl Rig {
         path
     }
 
-    fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
+    /// Starts `rove ARGS` in the namespace, logging to `DIR/N-NAME.log`; returns its index.
+    pub fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
         let log = self.dir.join(format!("{}-{name}.log", self.procs.len()));
         let file = std::fs::File::create(&log).expect("log file");
         let child = Command::new("ip")
-            .args(["netns", "exec", &self.ns, rove()])
+            .arg("netns")
+            .arg("exec")
+            .arg(&self.ns)
+            .arg(&self.rove)
             .args(args)
             .env("RUST_LOG", "info,rustdds=warn")
             .stdin(Stdio::null())
@@ -182,7 +191,11 @@ impl Rig {
     /// `rove status --json` in the namespace.
     pub fn status(&self) -> Value {
         let out = Command::new("ip")
-            .args(["netns", "exec", &self.ns, rove(), "status", "--json"])
+            .arg("netns")
+            .arg("exec")
+            .arg(&self.ns)
+            .arg(&self.rove)
+            .args(["status", "--json"])
             .args(["--listen-ms", "1200"])
             .output()
             .expect("run rove status");

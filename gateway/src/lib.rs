@@ -1,0 +1,22 @@
+//! `rove-gateway`: the process side of rove — the DDS binding, the vehicle and operator roles,
+//! configuration, `rove status`, the demo, the handover benchmark and the process harness they
+//! and the multi-process tests share. The binary `rove` (`main.rs`) is only the CLI on top.
+//!
+//! # Layout
+//! - [`config`]: TOML files → validated configs; errors name file, line and key.
+//! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
+//! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
+//! - [`status`]: device list and ownership, table / JSON / event stream.
+//! - [`demo`]: the README's demo; [`bench`]: `rove bench handover`.
+//! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
+//! - [`runtime`]: clock, signals, rate-limited warnings, logging.
+
+pub mod bench;
+pub mod config;
+pub mod dds;
+pub mod demo;
+pub mod harness;
+pub mod operator;
+pub mod runtime;
+pub mod status;
+pub mod vehicle;
