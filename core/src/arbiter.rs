@@ -32,7 +32,7 @@
 //! change anything, so the gateway sleeps until exactly then instead of polling.
 
 use crate::hierarchy::Strength;
-use crate::msg::{CommandType, ControlCommand, DeviceId, Mode, MovementCommand};
+use crate::msg::{CommandType, ControlCommand, DeviceId, Mode, MovementCommand, TimeT};
 use crate::time::MonoTime;
 use crate::watchdog::{CommandTimeout, Watchdog};
 use std::fmt;
@@ -133,11 +133,17 @@ pub enum Event {
         holder: DeviceId,
         /// The owner who consented (`current_controller_id` of the ACCEPT).
         granted_by: DeviceId,
+        /// The handover's stamp (the REQUEST's, echoed by rove peers).
+        stamp: TimeT,
     },
     /// A RequestControl FINISH for this vehicle: `holder` gives its grant back.
     GrantFinished {
         /// The grant holder.
         holder: DeviceId,
+        /// The stamp of the handover it finishes: a FINISH stamped earlier than the current
+        /// grant belongs to an earlier handover (a replay, or a stale ACCEPT handed back) and
+        /// does not end the current grant.
+        stamp: TimeT,
     },
     /// Time passed: expire silent streams.
     Tick,
@@ -245,7 +251,8 @@ pub enum Ignored {
     ConsentNotFromOwner,
     /// An ACCEPT naming this vehicle, or the consenting owner itself, as the holder.
     InvalidGrant,
-    /// A FINISH from a device that does not hold the grant.
+    /// A FINISH that does not name the current grant: another device, or an earlier handover's
+    /// stamp.
     NotGrantHolder,
 }
 
@@ -357,6 +364,8 @@ pub struct Arbiter {
     sources: Vec<Source>,
     owner: Owner,
     grant: Option<DeviceId>,
+    /// Stamp of the current grant's ACCEPT.
+    grant_stamp: TimeT,
     stepped_down: Option<SteppedDown>,
     /// True while the last output was `Apply`: the owner's values are driving the vehicle and
     /// must be withdrawn (safe state) the moment they go stale.
@@ -374,6 +383,7 @@ impl Arbiter {
             sources: Vec::new(),
             owner: Owner::Failsafe,
             grant: None,
+            grant_stamp: TimeT(0),
             stepped_down: None,
             driving: false,
             last_now: MonoTime::ZERO,
@@ -481,13 +491,21 @@ impl Arbiter {
                     decision.ignored = Some(Ignored::UnknownSource);
                 }
             }
-            Event::GrantAccepted { holder, granted_by } => {
+            Event::GrantAccepted {
+                holder,
+                granted_by,
+                stamp,
+            } => {
                 if let Err(why) = self.accept_grant(now, holder, granted_by) {
                     decision.ignored = Some(why);
+                } else {
+                    self.grant_stamp = stamp;
                 }
             }
-            Event::GrantFinished { holder } => {
-                if self.grant == Some(holder) {
+            Event::GrantFinished { holder, stamp } => {
+                // `>=`: rove echoes the grant's stamp; a foreign peer stamping its FINISH at
+                // send time is later still.
+                if self.grant == Some(holder) && stamp >= self.grant_stamp {
                     self.grant = None;
                 } else {
                     decision.ignored = Some(Ignored::NotGrantHolder);

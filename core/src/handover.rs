@@ -264,6 +264,9 @@ pub struct Handover {
     /// Stamp of our latest request: each new request gets a strictly later one, so that its
     /// messages can never be mistaken for an earlier handover's, even with a coarse clock.
     last_stamp: TimeT,
+    /// Stamp of our first request, if any: an ACCEPT stamped earlier answers nobody here (a
+    /// history replay, e.g. of a previous process with our id) and is ignored, not handed back.
+    first_stamp: Option<TimeT>,
 }
 
 /// What became of a request this operator answered.
@@ -287,6 +290,7 @@ impl Handover {
             replies: BTreeMap::new(),
             answered: BTreeMap::new(),
             last_stamp: TimeT(0),
+            first_stamp: None,
         }
     }
 
@@ -342,6 +346,7 @@ impl Handover {
         }
         let stamp = stamp.max(TimeT(self.last_stamp.0.saturating_add(1)));
         self.last_stamp = stamp;
+        self.first_stamp.get_or_insert(stamp);
         self.requests.insert(
             vehicle,
             Requesting::Waiting {
@@ -527,7 +532,11 @@ impl Handover {
             // earlier request): give it straight back so the vehicle does not keep a grant for
             // a stream that will never come. While we hold a grant, an ACCEPT is a duplicate or
             // stale and is left alone: handing it back would end our current grant.
-            (Ack::Accept, None | Some(Requesting::Waiting { .. })) => hand_back(),
+            (Ack::Accept, None | Some(Requesting::Waiting { .. }))
+                if self.first_stamp.is_some_and(|first| msg.timestamp >= first) =>
+            {
+                hand_back()
+            }
             // REFUSE after giving up, answers from an owner we did not ask, and REQUEST/FINISH
             // echoes change nothing.
             _ => Vec::new(),

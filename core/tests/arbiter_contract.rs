@@ -10,7 +10,10 @@ use rove_core::arbiter::{
     Reason, Setpoint,
 };
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{CommandType, Mode};
+use rove_core::msg::{CommandType, Mode, TimeT};
+
+/// The stamp of the handovers in these tests.
+const S: TimeT = TimeT(7);
 use rove_core::watchdog::CommandTimeout;
 
 const OP_A: i64 = 1; // stationary laptop
@@ -454,6 +457,7 @@ fn granted_rig() -> Rig {
         Event::GrantAccepted {
             holder: OP_B,
             granted_by: OP_A,
+            stamp: S,
         },
     );
     assert_eq!(d.ignored, None);
@@ -500,6 +504,7 @@ fn a_grant_seen_after_the_holder_started_streaming_takes_effect_at_once() {
         Event::GrantAccepted {
             holder: OP_B,
             granted_by: OP_A,
+            stamp: S,
         },
     );
     assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Granted)));
@@ -510,7 +515,13 @@ fn a_grant_seen_after_the_holder_started_streaming_takes_effect_at_once() {
 fn finish_returns_control_to_the_strongest_live_controller() {
     let mut rig = granted_rig();
     rig.drive(10, w(1), OP_A, 220, 1);
-    let d = rig.at(11, Event::GrantFinished { holder: OP_B });
+    let d = rig.at(
+        11,
+        Event::GrantFinished {
+            holder: OP_B,
+            stamp: S,
+        },
+    );
     assert_eq!(
         change(&d),
         Some((Some(OP_B), Some(OP_A), Reason::GrantReturned))
@@ -529,6 +540,7 @@ fn a_late_sample_from_a_previous_holder_cannot_win_control_back() {
         Event::GrantAccepted {
             holder: OP_C,
             granted_by: OP_B,
+            stamp: S,
         },
     );
     assert_eq!(change(&d), Some((Some(OP_B), Some(OP_C), Reason::Granted)));
@@ -542,10 +554,43 @@ fn a_late_sample_from_a_previous_holder_cannot_win_control_back() {
     assert_eq!(rig.arb.controller_id(), OP_C);
 }
 
+/// rustdds replays a RequestControl writer's history to a newly matched reader, so a requester
+/// may hand back an old ACCEPT with a FINISH of that old handover: it must not end the current
+/// grant (found by `rove bench handover --scenario active`).
+#[test]
+fn a_finish_of_an_earlier_handover_does_not_end_the_current_grant() {
+    let mut rig = granted_rig();
+    let d = rig.at(
+        10,
+        Event::GrantFinished {
+            holder: OP_B,
+            stamp: TimeT(S.0 - 1),
+        },
+    );
+    assert_eq!(d.ignored, Some(Ignored::NotGrantHolder));
+    assert_eq!(rig.arb.grant_holder(), Some(OP_B));
+    // A later stamp (a foreign peer stamping at send time) does end it.
+    let d = rig.at(
+        11,
+        Event::GrantFinished {
+            holder: OP_B,
+            stamp: TimeT(S.0 + 1),
+        },
+    );
+    assert_eq!(d.ignored, None);
+    assert_eq!(rig.arb.grant_holder(), None);
+}
+
 #[test]
 fn a_finish_from_a_non_holder_is_ignored() {
     let mut rig = granted_rig();
-    let d = rig.at(10, Event::GrantFinished { holder: OP_A });
+    let d = rig.at(
+        10,
+        Event::GrantFinished {
+            holder: OP_A,
+            stamp: S,
+        },
+    );
     assert_eq!(d.ignored, Some(Ignored::NotGrantHolder));
     assert_eq!(rig.arb.grant_holder(), Some(OP_B));
 }
@@ -590,7 +635,14 @@ fn consent_from_a_device_that_does_not_own_the_vehicle_is_ignored() {
         (OP_A, OP_A, Ignored::InvalidGrant),
         (VEHICLE, OP_A, Ignored::InvalidGrant),
     ] {
-        let d = rig.at(1, Event::GrantAccepted { holder, granted_by });
+        let d = rig.at(
+            1,
+            Event::GrantAccepted {
+                holder,
+                granted_by,
+                stamp: S,
+            },
+        );
         assert_eq!(d.ignored, Some(why));
     }
     assert_eq!(rig.arb.grant_holder(), None);
@@ -608,6 +660,7 @@ fn consent_of_an_owner_that_just_released_counts_for_one_timeout() {
         Event::GrantAccepted {
             holder: OP_B,
             granted_by: OP_A,
+            stamp: S,
         },
     );
     assert_eq!(change(&d), Some((None, Some(OP_B), Reason::Granted)));
@@ -621,6 +674,7 @@ fn consent_of_an_owner_that_just_released_counts_for_one_timeout() {
         Event::GrantAccepted {
             holder: OP_B,
             granted_by: OP_A,
+            stamp: S,
         },
     );
     assert_eq!(d.ignored, Some(Ignored::ConsentNotFromOwner));
@@ -636,6 +690,7 @@ fn consent_of_a_preempted_owner_does_not_count() {
         Event::GrantAccepted {
             holder: OP_B,
             granted_by: OP_A,
+            stamp: S,
         },
     );
     assert_eq!(d.ignored, Some(Ignored::ConsentNotFromOwner));

@@ -25,7 +25,7 @@ use rove_core::arbiter::{
     Setpoint, WriterId,
 };
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{CommandType, DeviceId, MovementCommand};
+use rove_core::msg::{CommandType, DeviceId, MovementCommand, TimeT};
 use std::collections::BTreeMap;
 use std::time::Duration;
 
@@ -63,8 +63,9 @@ enum Gen {
     Accept {
         holder: DeviceId,
         granted_by: Option<DeviceId>,
+        stamp: u64,
     },
-    Finish(DeviceId),
+    Finish(DeviceId, u64),
     Tick,
 }
 
@@ -76,9 +77,9 @@ fn gen_event() -> impl Strategy<Value = Gen> {
         1 => (0..n).prop_map(Gen::Release),
         1 => (0..n).prop_map(Gen::WriterGone),
         1 => (1u32..=5).prop_map(Gen::ParticipantGone),
-        1 => (prop::sample::select(vec![1, 2, 3, VEHICLE]), prop::option::weighted(0.4, 1i64..=4))
-            .prop_map(|(holder, granted_by)| Gen::Accept { holder, granted_by }),
-        1 => (1i64..=4).prop_map(Gen::Finish),
+        1 => (prop::sample::select(vec![1, 2, 3, VEHICLE]), prop::option::weighted(0.4, 1i64..=4), 0u64..4)
+            .prop_map(|(holder, granted_by, stamp)| Gen::Accept { holder, granted_by, stamp }),
+        1 => (1i64..=4, 0u64..4).prop_map(|(holder, stamp)| Gen::Finish(holder, stamp)),
         3 => Just(Gen::Tick),
     ]
 }
@@ -127,11 +128,19 @@ fn play(steps: &[(u64, Gen)]) -> (Vec<(MonoTime, Event)>, Vec<Decision>) {
             Gen::ParticipantGone(p) => Event::ParticipantGone {
                 participant: ParticipantId(u128::from(*p)),
             },
-            Gen::Accept { holder, granted_by } => Event::GrantAccepted {
+            Gen::Accept {
+                holder,
+                granted_by,
+                stamp,
+            } => Event::GrantAccepted {
                 holder: *holder,
                 granted_by: granted_by.unwrap_or(arb.controller_id()),
+                stamp: TimeT(*stamp),
             },
-            Gen::Finish(holder) => Event::GrantFinished { holder: *holder },
+            Gen::Finish(holder, stamp) => Event::GrantFinished {
+                holder: *holder,
+                stamp: TimeT(*stamp),
+            },
             Gen::Tick => Event::Tick,
         };
         decisions.push(arb.step(ms(now), event));
@@ -155,6 +164,7 @@ struct Shadow {
 struct Model {
     writers: BTreeMap<WriterId, Shadow>,
     grant: Option<DeviceId>,
+    grant_stamp: TimeT,
     /// (device, until): owners recently seen, whose ACCEPT may still be honoured.
     recent_owners: Vec<(DeviceId, MonoTime)>,
 }
@@ -285,14 +295,15 @@ impl Model {
                 }
                 false
             }
-            Event::GrantAccepted { holder, .. } => {
+            Event::GrantAccepted { holder, stamp, .. } => {
                 if grant_taken {
                     self.grant = Some(holder);
+                    self.grant_stamp = stamp;
                 }
                 false
             }
-            Event::GrantFinished { holder } => {
-                if self.grant == Some(holder) {
+            Event::GrantFinished { holder, stamp } => {
+                if self.grant == Some(holder) && stamp >= self.grant_stamp {
                     self.grant = None;
                 }
                 false
@@ -318,7 +329,9 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
 
         // Grant bookkeeping: ACCEPTs are honoured only from the owner or a recent owner.
         let grant_taken = matches!(event, Event::GrantAccepted { .. }) && d.ignored.is_none();
-        if let Event::GrantAccepted { holder, granted_by } = event
+        if let Event::GrantAccepted {
+            holder, granted_by, ..
+        } = event
             && grant_taken
         {
             prop_assert_eq!(arb.grant_holder(), Some(*holder));

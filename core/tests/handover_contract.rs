@@ -201,6 +201,20 @@ fn no_answer_within_the_reply_timeout_gives_up_and_hands_back_any_lost_accept() 
     assert_eq!(b.next_deadline(), None);
 }
 
+/// rustdds replays a writer's history to new readers: an ACCEPT older than anything we asked
+/// for is not ours to hand back (found by `rove bench handover --scenario active`).
+#[test]
+fn an_accept_older_than_our_first_request_is_ignored() {
+    let mut b = requester_b();
+    assert_eq!(b.on_message(ms(0), &msg(B, Ack::Accept, 120, STAMP)), []);
+    b.request(ms(1), VEHICLE, A, STAMP).expect("request");
+    assert_eq!(
+        b.on_message(ms(2), &msg(B, Ack::Accept, 120, TimeT(STAMP.0 - 1))),
+        []
+    );
+    assert!(!b.holds_grant(VEHICLE));
+}
+
 #[test]
 fn a_late_accept_after_giving_up_is_handed_straight_back() {
     let mut b = requester_b();
@@ -454,8 +468,12 @@ impl Bus {
                         Ack::Accept => Some(Event::GrantAccepted {
                             holder: m.src_id,
                             granted_by: m.current_controller_id,
+                            stamp: m.timestamp,
                         }),
-                        Ack::Finish => Some(Event::GrantFinished { holder: m.src_id }),
+                        Ack::Finish => Some(Event::GrantFinished {
+                            holder: m.src_id,
+                            stamp: m.timestamp,
+                        }),
                         Ack::Request | Ack::Refuse => None,
                     };
                     if let Some(e) = event {

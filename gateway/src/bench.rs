@@ -1,1 +1,552 @@
-//! placeholder
+//! `rove bench handover`: the seed's handover experiments (Tables 5.1–5.3) between real processes
+//! in a private network namespace.
+//!
+//! Every controller is a separate `rove operator` process; the vehicle is `rove vehicle` with the
+//! sim adapter recording its outputs; an observer (`rove status --events`) timestamps every
+//! DeviceInfo and RequestControl sample it receives. Per run, from the trigger instant (quit,
+//! kill, or the observer's receipt of the ACCEPT), two latencies:
+//! - `deviceinfo`: until the observer receives the vehicle's DeviceInfo naming the new owner;
+//! - `applied`: until the vehicle's adapter applies the new owner's command (or goes safe).
+//!
+//! A ping-pong is counted when, within 1 s of the trigger, the vehicle applies a command from the
+//! owner it just left after having applied the new owner's.
+//!
+//! All processes share one machine clock (wall time in microseconds), so no clock sync is needed.
+
+use crate::harness::{self, Out, Rig, records, wall_us};
+use serde::Serialize;
+use serde_json::Value;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const VEHICLE: i64 = 100;
+/// The window in which a return to the previous owner counts as ping-pong.
+const PING_PONG_WINDOW_US: u64 = 1_000_000;
+
+/// Which experiment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Scenario {
+    /// The owner quits gracefully (SIGTERM → release).
+    Graceful,
+    /// The owner is killed (SIGKILL): detected by the command timeout.
+    Crash,
+    /// A weaker operator requests control; the owner auto-accepts.
+    Active,
+    /// A new node joins and lists every device.
+    Latejoin,
+}
+
+/// Summary statistics in milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Stats {
+    /// Mean.
+    pub mean: f64,
+    /// Sample standard deviation.
+    pub stdev: f64,
+    /// Minimum.
+    pub min: f64,
+    /// Maximum.
+    pub max: f64,
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile (nearest rank).
+    pub p99: f64,
+}
+
+impl Stats {
+    /// Statistics of `values` (ms); `None` if empty.
+    pub fn of(values: &[f64]) -> Option<Stats> {
+        if values.is_empty() {
+            return None;
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = if v.len() > 1 {
+            v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)
+        } else {
+            0.0
+        };
+        let rank = |p: f64| v[((p * n).ceil() as usize).clamp(1, v.len()) - 1];
+        Some(Stats {
+            mean,
+            stdev: var.sqrt(),
+            min: v[0],
+            max: v[v.len() - 1],
+            p50: rank(0.50),
+            p99: rank(0.99),
+        })
+    }
+}
+
+/// One scenario's result, as written by `--json` (one object per scenario run).
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// Scenario.
+    pub scenario: Scenario,
+    /// Controllers (or devices, for latejoin).
+    pub controllers: usize,
+    /// Runs measured.
+    pub runs: usize,
+    /// Always "ms".
+    pub unit: &'static str,
+    /// Trigger → DeviceInfo with the new owner (latejoin: start → all devices listed).
+    pub deviceinfo: Option<Stats>,
+    /// Trigger → new owner's command applied (latejoin: not measured).
+    pub applied: Option<Stats>,
+    /// Returns to the previous owner within 1 s.
+    pub ping_pong: usize,
+    /// Raw samples, ms.
+    #[serde(skip)]
+    pub raw: (Vec<f64>, Vec<f64>),
+}
+
+/// Options of one benchmark invocation.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Which experiment.
+    pub scenario: Scenario,
+    /// Controllers in play (graceful/crash: owner + N−1 backups; active: owner, requester and
+    /// N−2 bystanders).
+    pub controllers: usize,
+    /// Devices for latejoin.
+    pub devices: usize,
+    /// Runs.
+    pub runs: usize,
+}
+
+/// Backup ranks, weakest first: (level, class, strength).
+const RANKS: [(&str, &str); 12] = [
+    ("remote", "desktop"),
+    ("remote", "laptop"),
+    ("remote", "tablet"),
+    ("remote", "phone"),
+    ("stationary", "desktop"),
+    ("stationary", "laptop"),
+    ("stationary", "tablet"),
+    ("stationary", "phone"),
+    ("mobile", "desktop"),
+    ("mobile", "laptop"),
+    ("mobile", "tablet"),
+    ("mobile", "phone"),
+];
+
+/// Runs one scenario.
+///
+/// # Errors
+/// The namespace or a process cannot be started, or an expected event never comes.
+pub fn run(
+    rove: &Path,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    let mut rig = Rig::new(rove, "bench").map_err(anyhow::Error::msg)?;
+    let observer = rig.spawn("observer", &["status", "--events"]);
+    let events_path = rig.procs[observer].log.clone();
+    match options.scenario {
+        Scenario::Latejoin => latejoin(&mut rig, options, progress),
+        Scenario::Graceful | Scenario::Crash => passive(&mut rig, options, &events_path, progress),
+        Scenario::Active => active(&mut rig, options, &events_path, progress),
+    }
+}
+
+fn passive(
+    rig: &mut Rig,
+    options: &Options,
+    events: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    let record = rig.vehicle(VEHICLE);
+    let backups = options.controllers.saturating_sub(1).min(RANKS.len() - 1);
+    let mut successor = None;
+    for (i, (level, class)) in RANKS.iter().take(backups).enumerate() {
+        let id = 21 + i as i64;
+        rig.operator(id, level, class, &[VEHICLE], 100, "", &[]);
+        successor = Some(id);
+    }
+    if let Some(s) = successor {
+        harness::wait_for_output(&record, Some(s), 0).map_err(anyhow::Error::msg)?;
+    }
+    let (mut info, mut applied, mut ping_pong) = (Vec::new(), Vec::new(), 0);
+    for run in 0..options.runs {
+        // The owner: a mobile phone, above every backup.
+        let owner = rig.operator(11, "mobile", "phone", &[VEHICLE], 2000, "", &[]);
+        harness::wait_for_output(&record, Some(11), wall_us()).map_err(anyhow::Error::msg)?;
+        let t0 = wall_us();
+        if options.scenario == Scenario::Crash {
+            rig.procs[owner].crash();
+        } else {
+            rig.procs[owner].terminate();
+        }
+        let out = harness::wait_for_output(&record, successor, t0).map_err(anyhow::Error::msg)?;
+        let seen = wait_event(events, t0, |e| {
+            e["kind"] == "device"
+                && e["id"] == VEHICLE
+                && e["controller_id"] == successor.unwrap_or(VEHICLE)
+        })?;
+        info.push(ms(seen - t0));
+        applied.push(ms(out.wall_us - t0));
+        ping_pong += count_ping_pong(&records(&record), t0, Some(11), successor);
+        if options.scenario == Scenario::Graceful {
+            rig.procs[owner].wait_exit(harness::PATIENCE);
+        }
+        progress(&format!(
+            "run {}/{}: applied {:.2} ms",
+            run + 1,
+            options.runs,
+            ms(out.wall_us - t0)
+        ));
+    }
+    Ok(report(options, info, applied, ping_pong))
+}
+
+fn active(
+    rig: &mut Rig,
+    options: &Options,
+    events: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    let record = rig.vehicle(VEHICLE);
+    // The owner accepts every request, as the seed's experiment did.
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[VEHICLE],
+        1000,
+        "[handover]\nauto_accept = \"always\"\n",
+        &[],
+    );
+    harness::wait_for_output(&record, Some(11), 0).map_err(anyhow::Error::msg)?;
+    for (i, (level, class)) in RANKS
+        .iter()
+        .take(options.controllers.saturating_sub(2))
+        .enumerate()
+    {
+        rig.operator(31 + i as i64, level, class, &[VEHICLE], 100, "", &[]);
+    }
+    let (mut info, mut applied, mut ping_pong) = (Vec::new(), Vec::new(), 0);
+    for run in 0..options.runs {
+        let start = wall_us();
+        let requester = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+        let accept = wait_event(events, start, |e| {
+            e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13
+        })?;
+        let out =
+            harness::wait_for_output(&record, Some(13), accept).map_err(anyhow::Error::msg)?;
+        let seen = wait_event(events, accept, |e| {
+            e["kind"] == "device" && e["id"] == VEHICLE && e["controller_id"] == 13
+        })?;
+        info.push(ms(seen.saturating_sub(accept)));
+        applied.push(ms(out.wall_us.saturating_sub(accept)));
+        // Hold the grant past the ping-pong window, then FINISH and wait for the owner.
+        let hold_until = accept + PING_PONG_WINDOW_US;
+        while wall_us() < hold_until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        ping_pong += count_ping_pong(&records(&record), accept, Some(11), Some(13));
+        let finish = wall_us();
+        rig.procs[requester].terminate();
+        harness::wait_for_output(&record, Some(11), finish).map_err(anyhow::Error::msg)?;
+        rig.procs[requester].wait_exit(harness::PATIENCE);
+        progress(&format!(
+            "run {}/{}: applied {:.2} ms",
+            run + 1,
+            options.runs,
+            ms(out.wall_us.saturating_sub(accept))
+        ));
+    }
+    Ok(report(options, info, applied, ping_pong))
+}
+
+fn latejoin(
+    rig: &mut Rig,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    let devices = options.devices.max(1);
+    rig.vehicle(VEHICLE);
+    for i in 1..devices {
+        let (level, class) = RANKS[i % RANKS.len()];
+        rig.operator(200 + i as i64, level, class, &[], 0, "", &[]);
+    }
+    let mut listed = Vec::new();
+    for run in 0..options.runs {
+        let t0 = wall_us();
+        let p = rig.spawn(&format!("joiner-{run}"), &["status", "--events"]);
+        let path = rig.procs[p].log.clone();
+        let deadline = Instant::now() + harness::PATIENCE;
+        let done = loop {
+            let mut ids = std::collections::BTreeSet::new();
+            let mut at = None;
+            for e in read_events(&path) {
+                if e["kind"] == "device" {
+                    ids.insert(e["id"].as_i64().unwrap_or_default());
+                    if ids.len() == devices && at.is_none() {
+                        at = e["wall_us"].as_u64();
+                    }
+                }
+            }
+            if let Some(at) = at {
+                break at;
+            }
+            anyhow::ensure!(
+                Instant::now() < deadline,
+                "late joiner saw only {} of {devices} devices",
+                ids.len()
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        rig.procs[p].crash();
+        listed.push(ms(done.saturating_sub(t0)));
+        progress(&format!(
+            "run {}/{}: all {devices} listed after {:.1} ms",
+            run + 1,
+            options.runs,
+            ms(done - t0)
+        ));
+    }
+    let mut r = report(options, listed, Vec::new(), 0);
+    r.controllers = devices;
+    Ok(r)
+}
+
+fn report(options: &Options, info: Vec<f64>, applied: Vec<f64>, ping_pong: usize) -> Report {
+    Report {
+        scenario: options.scenario,
+        controllers: options.controllers,
+        runs: options.runs,
+        unit: "ms",
+        deviceinfo: Stats::of(&info),
+        applied: Stats::of(&applied),
+        ping_pong,
+        raw: (info, applied),
+    }
+}
+
+fn ms(us: u64) -> f64 {
+    us as f64 / 1000.0
+}
+
+fn read_events(path: &Path) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+/// The arrival time of the first observer event after `since` that matches.
+fn wait_event(path: &Path, since: u64, matches: impl Fn(&Value) -> bool) -> anyhow::Result<u64> {
+    let deadline = Instant::now() + harness::PATIENCE;
+    loop {
+        if let Some(at) = read_events(path)
+            .iter()
+            .filter(|e| e["wall_us"].as_u64().is_some_and(|t| t >= since))
+            .find(|e| matches(e))
+            .and_then(|e| e["wall_us"].as_u64())
+        {
+            return Ok(at);
+        }
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "expected event never observed in {}",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// Within the window after `t0`: once `new` was applied, any later output applied from `old`.
+pub fn count_ping_pong(outputs: &[Out], t0: u64, old: Option<i64>, new: Option<i64>) -> usize {
+    let window = outputs
+        .iter()
+        .filter(|o| o.wall_us >= t0 && o.wall_us < t0 + PING_PONG_WINDOW_US);
+    let mut after_new = false;
+    let mut count = 0;
+    let mut previous = None;
+    for o in window {
+        if o.owner == new {
+            after_new = true;
+        } else if after_new && o.owner == old && o.action == "apply" && previous != Some(o.owner) {
+            count += 1;
+        }
+        previous = Some(o.owner);
+    }
+    count
+}
+
+/// The seed's figures for comparison (thesis Tables 5.1–5.3), ms.
+pub fn seed_figure(scenario: Scenario) -> &'static str {
+    match scenario {
+        Scenario::Graceful => "31.8–50.4 (mean, by controller count)",
+        Scenario::Crash => "424 (0.5 s lease)",
+        Scenario::Active => "23.7 mean / 150 max, with ping-pong",
+        Scenario::Latejoin => "—",
+    }
+}
+
+/// The human table for a set of reports.
+pub fn table(reports: &[Report]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<9} {:>4} {:>5} {:<10} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>4}  seed",
+        "scenario", "n", "runs", "measure", "mean", "stdev", "min", "p50", "p99", "max", "pp"
+    );
+    for r in reports {
+        for (name, s) in [("deviceinfo", r.deviceinfo), ("applied", r.applied)] {
+            let Some(s) = s else { continue };
+            let _ = writeln!(
+                out,
+                "{:<9} {:>4} {:>5} {:<10} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>4}  {}",
+                format!("{:?}", r.scenario).to_lowercase(),
+                r.controllers,
+                r.runs,
+                name,
+                s.mean,
+                s.stdev,
+                s.min,
+                s.p50,
+                s.p99,
+                s.max,
+                r.ping_pong,
+                seed_figure(r.scenario)
+            );
+        }
+    }
+    out
+}
+
+/// A box plot (min, p25, median, p75, max per series) as a self-contained SVG.
+pub fn svg(reports: &[Report]) -> String {
+    let series: Vec<(String, Vec<f64>)> = reports
+        .iter()
+        .flat_map(|r| {
+            let label = format!("{:?} n={}", r.scenario, r.controllers).to_lowercase();
+            [
+                (format!("{label} info"), r.raw.0.clone()),
+                (format!("{label} applied"), r.raw.1.clone()),
+            ]
+        })
+        .filter(|(_, v)| !v.is_empty())
+        .collect();
+    let max = series
+        .iter()
+        .flat_map(|(_, v)| v.iter().copied())
+        .fold(1.0_f64, f64::max);
+    let (w, row) = (720.0, 28.0);
+    let h = 40.0 + row * series.len() as f64;
+    let x = |v: f64| 220.0 + (w - 240.0) * v / max;
+    let mut s = format!(
+        "<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}' font-family='monospace' font-size='11'>\n\
+         <text x='220' y='14'>handover latency, ms (0 … {max:.1})</text>\n"
+    );
+    for (i, (label, v)) in series.iter().enumerate() {
+        let mut v = v.clone();
+        v.sort_by(f64::total_cmp);
+        let q = |p: f64| v[((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)];
+        let y = 30.0 + row * i as f64;
+        let _ = writeln!(
+            s,
+            "<text x='4' y='{:.1}'>{label}</text>\
+             <line x1='{:.1}' x2='{:.1}' y1='{:.1}' y2='{:.1}' stroke='black'/>\
+             <rect x='{:.1}' y='{:.1}' width='{:.1}' height='16' fill='#9cf' stroke='black'/>\
+             <line x1='{:.1}' x2='{:.1}' y1='{:.1}' y2='{:.1}' stroke='red'/>",
+            y + 12.0,
+            x(q(0.0)),
+            x(q(1.0)),
+            y + 8.0,
+            y + 8.0,
+            x(q(0.25)),
+            y,
+            (x(q(0.75)) - x(q(0.25))).max(1.0),
+            x(q(0.5)),
+            x(q(0.5)),
+            y,
+            y + 16.0,
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// Writes the JSON objects (one per scenario run) to `path`.
+///
+/// # Errors
+/// The file cannot be written.
+pub fn write_json(path: &PathBuf, reports: &[Report]) -> anyhow::Result<()> {
+    let text: Vec<String> = reports
+        .iter()
+        .map(serde_json::to_string)
+        .collect::<Result<_, _>>()?;
+    std::fs::write(path, text.join("\n") + "\n")?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_match_hand_computed_values() {
+        let s = Stats::of(&[4.0, 1.0, 3.0, 2.0]).expect("non-empty");
+        assert_eq!((s.min, s.max, s.mean), (1.0, 4.0, 2.5));
+        assert_eq!(s.p50, 2.0);
+        assert_eq!(s.p99, 4.0);
+        assert!((s.stdev - 1.290_994).abs() < 1e-6);
+        assert_eq!(Stats::of(&[]), None);
+    }
+
+    fn out(t: u64, owner: Option<i64>) -> Out {
+        Out {
+            wall_us: t,
+            action: "apply".into(),
+            owner,
+            throttle: None,
+        }
+    }
+
+    #[test]
+    fn ping_pong_counts_returns_to_the_old_owner_after_the_new_one() {
+        let seq = [
+            out(0, Some(1)),
+            out(10, Some(2)),
+            out(20, Some(1)),
+            out(30, Some(1)),
+            out(40, Some(2)),
+            out(50, Some(1)),
+        ];
+        assert_eq!(count_ping_pong(&seq, 0, Some(1), Some(2)), 2);
+        // Old owner's outputs before the new one took over are not ping-pong.
+        assert_eq!(count_ping_pong(&seq[..2], 0, Some(1), Some(2)), 0);
+        // Outside the window nothing counts.
+        assert_eq!(
+            count_ping_pong(
+                &[out(0, Some(2)), out(2_000_000, Some(1))],
+                0,
+                Some(1),
+                Some(2)
+            ),
+            0
+        );
+    }
+
+    #[test]
+    fn svg_has_one_box_per_series() {
+        let r = Report {
+            scenario: Scenario::Graceful,
+            controllers: 2,
+            runs: 2,
+            unit: "ms",
+            deviceinfo: None,
+            applied: None,
+            ping_pong: 0,
+            raw: (vec![1.0, 2.0], vec![3.0, 4.0]),
+        };
+        assert_eq!(svg(&[r]).matches("<rect").count(), 2);
+    }
+}

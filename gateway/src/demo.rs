@@ -179,8 +179,12 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
                 Ack::Accept => grants.push(Event::GrantAccepted {
                     holder: msg.src_id,
                     granted_by: msg.current_controller_id,
+                    stamp: msg.timestamp,
                 }),
-                Ack::Finish => grants.push(Event::GrantFinished { holder: msg.src_id }),
+                Ack::Finish => grants.push(Event::GrantFinished {
+                    holder: msg.src_id,
+                    stamp: msg.timestamp,
+                }),
                 Ack::Request | Ack::Refuse => {}
             }
             for i in 0..ops.len() {

@@ -129,7 +129,10 @@ impl Rig {
             .arg(&self.ns)
             .arg(&self.rove)
             .args(args)
-            .env("RUST_LOG", "info,rustdds=warn")
+            .env(
+                "RUST_LOG",
+                std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),
+            )
             .stdin(Stdio::null())
             .stdout(file.try_clone().expect("log"))
             .stderr(file)
@@ -230,7 +233,8 @@ impl Drop for Rig {
             }
         }
         let _ = run(&["ip", "netns", "del", &self.ns]);
-        if !std::thread::panicking() {
+        // ROVE_KEEP_RIG=1 keeps configs, logs and records for a look after the fact.
+        if !std::thread::panicking() && std::env::var_os("ROVE_KEEP_RIG").is_none() {
             let _ = std::fs::remove_dir_all(&self.dir);
         }
     }

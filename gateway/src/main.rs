@@ -2,7 +2,7 @@
 //! the demo (DESIGN.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::{config, demo, operator, runtime, status, vehicle};
+use rove_gateway::{bench, config, demo, operator, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
@@ -57,6 +57,15 @@ enum Command {
         /// How long to listen before the first snapshot, in ms.
         #[arg(long, default_value_t = 1500)]
         listen_ms: u64,
+        /// Print every DeviceInfo and RequestControl sample as a JSON line, with its arrival
+        /// time, until stopped.
+        #[arg(long)]
+        events: bool,
+    },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
     },
     /// Validate a vehicle or operator config; print the effective config with `--print`.
     CheckConfig {
@@ -65,6 +74,33 @@ enum Command {
         /// Print the effective configuration (defaults filled in).
         #[arg(long)]
         print: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// Handover latency between real processes in a private network namespace (needs root):
+    /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
+    Handover {
+        /// Which experiment.
+        #[arg(long, value_enum)]
+        scenario: bench::Scenario,
+        /// Controller counts to run, comma-separated (graceful/crash: owner + N−1 backups;
+        /// active: owner, requester and N−2 bystanders).
+        #[arg(long, value_delimiter = ',', default_value = "2")]
+        controllers: Vec<usize>,
+        /// Devices on the network for `latejoin`.
+        #[arg(long, default_value_t = 32)]
+        devices: usize,
+        /// Runs per controller count.
+        #[arg(long, default_value_t = 100)]
+        runs: usize,
+        /// Write one JSON object per scenario run to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+        /// Write a box plot of all runs to this SVG file.
+        #[arg(long)]
+        svg: Option<std::path::PathBuf>,
     },
 }
 
@@ -106,6 +142,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             json,
             watch,
             listen_ms,
+            events,
         } => {
             let interfaces = if interfaces.is_empty() {
                 vec![std::net::Ipv4Addr::LOCALHOST]
@@ -119,10 +156,48 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 heartbeat: std::time::Duration::from_millis(500),
                 json,
                 watch,
+                events,
             }))
         }
         Command::Demo { fast } => {
             demo::run(!fast, |line| println!("{line}"))?;
+            Ok(())
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Handover {
+                    scenario,
+                    controllers,
+                    devices,
+                    runs,
+                    json,
+                    svg,
+                },
+        } => {
+            let rove = std::env::current_exe()?;
+            let mut reports = Vec::new();
+            for n in controllers {
+                let options = bench::Options {
+                    scenario,
+                    controllers: n,
+                    devices,
+                    runs,
+                };
+                let report = bench::run(&rove, &options, &mut |line| eprintln!("  {line}"))?;
+                print!("{}", bench::table(std::slice::from_ref(&report)));
+                reports.push(report);
+                if scenario == bench::Scenario::Latejoin {
+                    break;
+                }
+            }
+            println!();
+            print!("{}", bench::table(&reports));
+            if let Some(path) = json {
+                bench::write_json(&path, &reports)?;
+            }
+            if let Some(path) = svg {
+                std::fs::write(&path, bench::svg(&reports))?;
+            }
             Ok(())
         }
         Command::CheckConfig { file, print } => {

@@ -25,6 +25,11 @@ use tracing::{info, warn};
 
 type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
 
+/// Longest wait, per writer, for peers to acknowledge the final FINISH and disposals on exit.
+/// Loopback acknowledges in about a millisecond; 300 ms covers a loaded radio link without
+/// holding up a systemd stop noticeably. If it runs out, peers fall back to the command timeout.
+const SHUTDOWN_ACK_WAIT: std::time::Duration = std::time::Duration::from_millis(300);
+
 /// Runs the operator role until SIGTERM/SIGINT. `request`: ask this vehicle's owner for control
 /// as soon as the vehicle is seen.
 ///
@@ -109,9 +114,13 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
                 }
                 // Ask once the vehicle and its owner are known.
                 match request.and_then(|(v, free_after)| Some((vehicles.get(&v)?, free_after))) {
+                    // Names us: true only if we stream to it; otherwise it is an older
+                    // sample (a previous process with our id), so wait for a fresher one.
                     Some((v, _)) if v.controller_id == me => {
-                        info!(vehicle = v.device_id, "already driving it: no request needed");
-                        request = None;
+                        if state.streams_to(v.device_id) {
+                            info!(vehicle = v.device_id, "already driving it: no request needed");
+                            request = None;
+                        }
                         Vec::new()
                     }
                     Some((v, free_after)) if v.controller_id == v.device_id => {
@@ -140,7 +149,11 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
                 }
             }
             sample = requests.next() => match sample {
-                Some(Ok(s)) => handover.on_message(clock.now(), s.value()),
+                Some(Ok(s)) => {
+                    let rc = s.value();
+                    tracing::debug!(?rc.ack, rc.src_id, rc.current_controller_id, stamp = rc.timestamp.0, "RequestControl");
+                    handover.on_message(clock.now(), rc)
+                }
                 Some(Err(e)) => { malformed.warn(&e); Vec::new() }
                 None => anyhow::bail!("RequestControl stream ended"),
             },
@@ -164,6 +177,19 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
     // Leave the device lists at once rather than after missed heartbeats.
     if let Err(e) = info_writer.dispose(&me, None) {
         warn!(cause = ?e, "cannot withdraw DeviceInfo");
+    }
+    // The FINISHes and disposals above are reliable writes; leaving the domain at once would
+    // drop them before every reader has them (seen: a replier never resumed). Wait, bounded,
+    // for the acknowledgments. Blocking is fine here: the event loop is over.
+    let wait = SHUTDOWN_ACK_WAIT;
+    let acked = [
+        request_writer.wait_for_acknowledgments(wait),
+        state.regular.wait_for_acknowledgments(wait),
+        state.priority_writer.wait_for_acknowledgments(wait),
+        info_writer.wait_for_acknowledgments(wait),
+    ];
+    if !acked.iter().all(|r| matches!(r, Ok(true))) {
+        warn!("not every peer acknowledged the release before exit");
     }
     Ok(())
 }
@@ -191,6 +217,10 @@ impl Streams {
             mode: self.input.1,
             timestamp: clock.stamp(),
         })
+    }
+
+    fn streams_to(&self, vehicle: DeviceId) -> bool {
+        self.driving.contains(&vehicle) || self.priority.contains(&vehicle)
     }
 
     fn send(&mut self, vehicle: DeviceId, priority: bool, clock: &Clock) {

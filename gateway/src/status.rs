@@ -65,6 +65,9 @@ pub struct Options {
     pub json: bool,
     /// Keep printing.
     pub watch: bool,
+    /// Print every DeviceInfo and RequestControl sample as a JSON line with its arrival time
+    /// (for benchmarks and scripts), instead of snapshots.
+    pub events: bool,
 }
 
 /// Runs `rove status`.
@@ -74,6 +77,8 @@ pub struct Options {
 pub async fn run(options: Options) -> anyhow::Result<()> {
     let domain = Domain::join(options.domain_id, &options.interfaces)?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
+    let mut requests = domain.request_reader()?.async_sample_stream();
+    let clock = crate::runtime::Clock::start();
     let mut seen: BTreeMap<DeviceId, Seen> = BTreeMap::new();
     let mut next_print = tokio::time::Instant::now() + options.listen;
     loop {
@@ -88,6 +93,12 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                                 info: info.clone(), at: Instant::now(), withdrawn: false,
                                 participants: BTreeSet::new(),
                             });
+                            if options.events {
+                                println!("{}", serde_json::json!({
+                                    "wall_us": clock.wall_micros(), "kind": "device",
+                                    "id": info.device_id, "controller_id": info.controller_id,
+                                }));
+                            }
                             entry.info = info;
                             entry.at = Instant::now();
                             entry.withdrawn = false;
@@ -104,7 +115,20 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 Some(Err(_)) => {} // malformed sample: not a device we can show
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
-            _ = tokio::time::sleep_until(next_print) => {
+            request = requests.next() => match request {
+                Some(Ok(s)) if options.events => {
+                    let rc = s.value();
+                    println!("{}", serde_json::json!({
+                        "wall_us": clock.wall_micros(), "kind": "request",
+                        "ack": format!("{:?}", rc.ack).to_lowercase(), "src": rc.src_id,
+                        "dest": rc.dest_id, "current": rc.current_controller_id,
+                        "stamp": rc.timestamp.0,
+                    }));
+                }
+                Some(_) => {}
+                None => anyhow::bail!("RequestControl stream ended"),
+            },
+            _ = tokio::time::sleep_until(next_print), if !options.events => {
                 let snap = snapshot(&seen, options.heartbeat * 3);
                 if options.json {
                     println!("{}", serde_json::to_string(&snap)?);

@@ -24,7 +24,7 @@ use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::PathBuf;
-use tracing::{debug, info, warn};
+use tracing::{info, warn};
 
 /// Runs the vehicle role until SIGTERM/SIGINT.
 ///
@@ -85,6 +85,8 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
     let shutdown = shutdown_signal()?;
     tokio::pin!(shutdown);
     let mut malformed = RateLimited::new("malformed or unreadable ControlCommand sample");
+    let mut unknown_strength =
+        RateLimited::new("ControlCommand from a writer whose ownership strength is unknown");
 
     loop {
         let deadline = arbiter.next_deadline().map(|d| clock.instant(d));
@@ -109,7 +111,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
                                     writer, strength, command: cmd.0, arrival: clock.now(),
                                 }),
                                 None => {
-                                    debug!(%writer, "sample from a writer with no known strength");
+                                    unknown_strength.warn(&writer);
                                     None
                                 }
                             }
@@ -127,9 +129,9 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
                     match rc.ack {
                         _ if rc.dest_id != me => None,
                         Ack::Accept => Some(Event::GrantAccepted {
-                            holder: rc.src_id, granted_by: rc.current_controller_id,
+                            holder: rc.src_id, granted_by: rc.current_controller_id, stamp: rc.timestamp,
                         }),
-                        Ack::Finish => Some(Event::GrantFinished { holder: rc.src_id }),
+                        Ack::Finish => Some(Event::GrantFinished { holder: rc.src_id, stamp: rc.timestamp }),
                         Ack::Request | Ack::Refuse => None,
                     }
                 }
