@@ -233,7 +233,7 @@ fn active(
         let start = wall_us();
         let requester = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
         let accept = wait_event(events, start, |e| {
-            e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13
+            e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13 && e["current"] == 11
         })?;
         let out =
             harness::wait_for_output(&record, Some(13), accept).map_err(anyhow::Error::msg)?;

@@ -1,9 +1,10 @@
-//! `rove demo`: a simulated vehicle and three scripted operators, showing every kind of handover.
+//! `rove demo`: a simulated vehicle and three operators, showing every kind of handover.
 //!
-//! This version runs the real control core (arbiter, handover state machines, sim output) in one
-//! process, on a virtual clock, with the network replaced by direct delivery. The multi-process
-//! demo over DDS on loopback replaces it when the DDS binding lands (issue 4); the script and the
-//! printed story stay the same.
+//! [`run_processes`] (the default) starts real `rove vehicle` / `rove operator` processes in a
+//! private network namespace (loopback only, so nothing leaves the machine; needs root and
+//! iproute2) and prints each handover as the vehicle's output shows it, with the measured time.
+//! [`run`] (`--in-process`, and the fallback without namespaces) plays the same story on the
+//! control core alone, on a virtual clock, with the network replaced by direct delivery.
 //!
 //! The story (default strengths, DESIGN.md §3):
 //! 1. a stationary laptop (220) joins and drives;
@@ -243,6 +244,78 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
         }
     ));
     Ok(summary)
+}
+
+/// The story with real processes over DDS. Each step waits for the vehicle's output to show the
+/// expected owner and prints how long that took from the trigger.
+///
+/// # Errors
+/// The namespace cannot be created (not root, no iproute2), or a step's outcome never shows.
+pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> anyhow::Result<()> {
+    use crate::harness::{Rig, wait_for_output, wall_us};
+    let mut rig = Rig::new(rove, "demo").map_err(anyhow::Error::msg)?;
+    let record = rig.vehicle(VEHICLE);
+    print(&format!(
+        "vehicle {VEHICLE} (sim output) started in a private network namespace (loopback only)"
+    ));
+    let start = wall_us();
+    let mut step = |rig: &mut Rig, what: &str, owner: Option<DeviceId>, since: u64| {
+        let out = wait_for_output(&record, owner, since).map_err(anyhow::Error::msg)?;
+        let who = owner.map_or("the failsafe (outputs safe)".to_string(), |o| o.to_string());
+        print(&format!(
+            "{what}: vehicle driven by {who} — {:.1} ms later",
+            (out.wall_us.saturating_sub(since)) as f64 / 1000.0
+        ));
+        let _ = rig;
+        anyhow::Ok(())
+    };
+    let laptop = rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[VEHICLE],
+        1000,
+        "[handover]\nauto_accept = \"always\"\n",
+        &[],
+    );
+    step(
+        &mut rig,
+        "laptop 11 (stationary, 220) starts and joins",
+        Some(11),
+        start,
+    )?;
+    let t = wall_us();
+    let phone = rig.operator(12, "mobile", "phone", &[VEHICLE], 2000, "", &[]);
+    step(
+        &mut rig,
+        "phone 12 (mobile, 340) starts and preempts",
+        Some(12),
+        t,
+    )?;
+    let t = wall_us();
+    rig.procs[phone].terminate();
+    step(&mut rig, "phone quits (releases)", Some(11), t)?;
+    let t = wall_us();
+    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    step(
+        &mut rig,
+        "tablet 13 (remote, 130) starts and requests; the laptop accepts",
+        Some(13),
+        t,
+    )?;
+    let t = wall_us();
+    rig.procs[tablet].terminate();
+    step(&mut rig, "tablet finishes its grant and quits", Some(11), t)?;
+    let t = wall_us();
+    rig.procs[laptop].crash();
+    step(
+        &mut rig,
+        "laptop crashes (SIGKILL, no release; command timeout 100 ms)",
+        None,
+        t,
+    )?;
+    print("done: every process stops; the namespace is removed");
+    Ok(())
 }
 
 /// What the demo did, for its test.

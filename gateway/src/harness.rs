@@ -42,6 +42,11 @@ impl Proc {
         self.child.id()
     }
 
+    /// Still running?
+    pub fn is_running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+
     /// SIGTERM: a graceful stop.
     pub fn terminate(&mut self) {
         let _ = Command::new("kill")
@@ -189,6 +194,11 @@ impl Rig {
         let mut all = vec!["operator", "-c", config.to_str().expect("utf-8 path")];
         all.extend_from_slice(args);
         self.spawn(&format!("operator-{id}"), &all)
+    }
+
+    /// Runs a shell command inside the namespace (e.g. to send raw datagrams).
+    pub fn sh(&self, script: &str) -> Result<(), String> {
+        run(&["ip", "netns", "exec", &self.ns, "bash", "-c", script])
     }
 
     /// `rove status --json` in the namespace.

@@ -18,7 +18,10 @@ enum Command {
     /// Run a simulated vehicle and three scripted operators and print every handover
     /// (join, preempt, quit, request/accept/finish, crash → failsafe).
     Demo {
-        /// Do not pace the story in real time; print it at once.
+        /// Play the story on the control core in this process (no DDS, no root needed).
+        #[arg(long)]
+        in_process: bool,
+        /// With `--in-process`: do not pace the story in real time; print it at once.
         #[arg(long)]
         fast: bool,
     },
@@ -159,7 +162,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 events,
             }))
         }
-        Command::Demo { fast } => {
+        Command::Demo { in_process, fast } => {
+            if !in_process {
+                let rove = std::env::current_exe()?;
+                match demo::run_processes(&rove, &mut |line| println!("{line}")) {
+                    Ok(()) => return Ok(()),
+                    // Without namespaces (not root), fall back to the in-process story.
+                    Err(e) if e.to_string().contains("network namespace") => {
+                        eprintln!("rove demo: {e:#}; playing the story in-process instead");
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
             demo::run(!fast, |line| println!("{line}"))?;
             Ok(())
         }

@@ -72,6 +72,10 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
     // after two heartbeats is free: we drive it instead (the first DeviceInfo a late joiner
     // gets may be an older sample that still shows the failsafe).
     let mut request = request.map(|v| (v, clock.now() + config.common.heartbeat * 2));
+    // rustdds replays a writer's history when it matches a new reader, so the first DeviceInfo
+    // may name a past owner. Ask only on a sample that arrives a heartbeat after start: the
+    // replay comes at match time, live samples at every heartbeat.
+    let ask_after = clock.now() + config.common.heartbeat;
     let my_info = DeviceInfo {
         device_id: me,
         name: config.common.name.clone(),
@@ -113,7 +117,11 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
                     None => anyhow::bail!("DeviceInfo stream ended"),
                 }
                 // Ask once the vehicle and its owner are known.
-                match request.and_then(|(v, free_after)| Some((vehicles.get(&v)?, free_after))) {
+                let info_is_live = clock.now() >= ask_after;
+                match request
+                    .filter(|_| info_is_live)
+                    .and_then(|(v, free_after)| Some((vehicles.get(&v)?, free_after)))
+                {
                     // Names us: true only if we stream to it; otherwise it is an older
                     // sample (a previous process with our id), so wait for a fresher one.
                     Some((v, _)) if v.controller_id == me => {

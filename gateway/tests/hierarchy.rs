@@ -209,3 +209,66 @@ fn status_lists_every_device_and_reports_duplicate_ids() {
         );
     }
 }
+
+/// The README's demo runs its whole story over DDS between real processes.
+#[test]
+fn the_demo_tells_its_story_between_real_processes() {
+    let mut lines = Vec::new();
+    rove_gateway::demo::run_processes(Path::new(env!("CARGO_BIN_EXE_rove")), &mut |l| {
+        lines.push(l.to_string())
+    })
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    let story = lines.join("\n");
+    for expected in [
+        "joins: vehicle driven by 11",
+        "preempts: vehicle driven by 12",
+        "phone quits (releases): vehicle driven by 11",
+        "the laptop accepts: vehicle driven by 13",
+        "quits: vehicle driven by 11",
+        "command timeout 100 ms): vehicle driven by the failsafe",
+    ] {
+        assert!(
+            story.contains(expected),
+            "missing {expected:?} in:\n{story}"
+        );
+    }
+}
+
+/// Random datagrams and truncated RTPS messages at every port of the domain, a stronger operator
+/// driving another vehicle, and commands from an unknown id for an unknown vehicle change
+/// nothing and crash nothing.
+#[test]
+fn garbage_and_misaddressed_traffic_change_nothing() {
+    let mut rig = rig("garbage");
+    let record = rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    // A mobile phone (stronger) that drives vehicle 101, and an unknown id driving 999.
+    rig.operator(12, "mobile", "phone", &[101], 2000, "", &[]);
+    rig.operator(77, "mobile", "phone", &[999], 2000, "", &[]);
+    let noise = "for p in $(seq 7400 7420); do \
+                   head -c 512 /dev/urandom > /dev/udp/127.0.0.1/$p; \
+                   printf 'RTPS\\x02\\x03\\x01\\x0f\\x00\\x01junk' > /dev/udp/127.0.0.1/$p; \
+                 done; \
+                 head -c 512 /dev/urandom > /dev/udp/239.255.0.1/7400; true";
+    for _ in 0..20 {
+        rig.sh(noise).expect("send noise");
+    }
+    // Wait until both newcomers are on the network, then check that nothing changed.
+    let deadline = std::time::Instant::now() + util::PATIENCE;
+    while {
+        let status = rig.status();
+        Rig::device(&status, 12).is_none() || Rig::device(&status, 77).is_none()
+    } {
+        assert!(std::time::Instant::now() < deadline, "newcomers never seen");
+    }
+    let later = wall_us();
+    wait_for_output(&record, Some(11), later).expect("still the laptop");
+    assert!(rig.procs[0].is_running(), "the vehicle died");
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.owner.is_none() || o.owner == Some(11)),
+        "a command for another vehicle was applied"
+    );
+}
