@@ -25,7 +25,7 @@ use std::time::Duration;
 pub struct DeviceSection {
     /// This device's id on the network; unique per device.
     pub id: DeviceId,
-    /// Human-readable name (absent: "rove-<id>").
+    /// Human-readable name (absent: `rove-<id>`).
     pub name: Option<String>,
 }
 

@@ -7,7 +7,7 @@
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
-//! - [`demo`]: the README's demo; [`bench`]: `rove bench handover`.
+//! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover`.
 //! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
 
