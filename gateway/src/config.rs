@@ -401,6 +401,27 @@ fn validate_common(
     }
 }
 
+/// The value of a section's validation, or `fallback` with its problems filed under `prefix`
+/// (so that validation goes on and reports every problem at once).
+fn collect<T>(
+    result: rove_core::Result<T>,
+    prefix: &str,
+    errors: &mut ConfigErrors,
+    fallback: T,
+) -> T {
+    match result {
+        Ok(value) => value,
+        Err(rove_core::Error::Config(e)) => {
+            errors.extend_within(prefix, e);
+            fallback
+        }
+        Err(other) => {
+            errors.push(ConfigError::new(prefix, "?", other.to_string()));
+            fallback
+        }
+    }
+}
+
 impl RawVehicle {
     /// Validates, filling defaults.
     ///
@@ -409,17 +430,15 @@ impl RawVehicle {
     pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &mut errors);
-        let timeout = match CommandTimeout::from_millis(
-            "vehicle.command_timeout_ms",
-            self.vehicle.command_timeout_ms.unwrap_or(100),
-        ) {
-            Ok(t) => t,
-            Err(rove_core::Error::Config(e)) => {
-                errors.0.extend(e.0);
-                CommandTimeout::DEFAULT
-            }
-            Err(_) => CommandTimeout::DEFAULT,
-        };
+        let timeout = collect(
+            CommandTimeout::from_millis(
+                "vehicle.command_timeout_ms",
+                self.vehicle.command_timeout_ms.unwrap_or(100),
+            ),
+            "",
+            &mut errors,
+            CommandTimeout::DEFAULT,
+        );
         errors.into_result(VehicleConfig {
             common,
             arbiter: ArbiterConfig {
@@ -439,14 +458,12 @@ impl RawOperator {
     pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &mut errors);
-        let hierarchy = match Hierarchy::from_table(&self.hierarchy) {
-            Ok(h) => h,
-            Err(rove_core::Error::Config(e)) => {
-                errors.extend_within("hierarchy", e);
-                Hierarchy::STANDARD
-            }
-            Err(_) => Hierarchy::STANDARD,
-        };
+        let hierarchy = collect(
+            Hierarchy::from_table(&self.hierarchy),
+            "hierarchy",
+            &mut errors,
+            Hierarchy::STANDARD,
+        );
         let offset = self.operator.offset.unwrap_or(0);
         let strength = hierarchy
             .strength(self.operator.level, self.operator.device_class, offset)
@@ -463,14 +480,12 @@ impl RawOperator {
                  timeout from timing out between samples",
             ));
         }
-        let handover = match self.handover.validate() {
-            Ok(h) => h,
-            Err(rove_core::Error::Config(e)) => {
-                errors.extend_within("handover", e);
-                HandoverConfig::default()
-            }
-            Err(_) => HandoverConfig::default(),
-        };
+        let handover = collect(
+            self.handover.validate(),
+            "handover",
+            &mut errors,
+            HandoverConfig::default(),
+        );
         for (i, v) in self.operator.drive.iter().enumerate() {
             if *v == self.device.id {
                 errors.push(ConfigError::new(

@@ -259,14 +259,13 @@ pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> any
         "vehicle {VEHICLE} (sim output) started in a private network namespace (loopback only)"
     ));
     let start = wall_us();
-    let mut step = |rig: &mut Rig, what: &str, owner: Option<DeviceId>, since: u64| {
+    let mut step = |what: &str, owner: Option<DeviceId>, since: u64| {
         let out = wait_for_output(&record, owner, since).map_err(anyhow::Error::msg)?;
         let who = owner.map_or("the failsafe (outputs safe)".to_string(), |o| o.to_string());
         print(&format!(
             "{what}: vehicle driven by {who} — {:.1} ms later",
             (out.wall_us.saturating_sub(since)) as f64 / 1000.0
         ));
-        let _ = rig;
         anyhow::Ok(())
     };
     let laptop = rig.operator(
@@ -279,37 +278,29 @@ pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> any
         &[],
     );
     step(
-        &mut rig,
         "laptop 11 (stationary, 220) starts and joins",
         Some(11),
         start,
     )?;
     let t = wall_us();
     let phone = rig.operator(12, "mobile", "phone", &[VEHICLE], 2000, "", &[]);
-    step(
-        &mut rig,
-        "phone 12 (mobile, 340) starts and preempts",
-        Some(12),
-        t,
-    )?;
+    step("phone 12 (mobile, 340) starts and preempts", Some(12), t)?;
     let t = wall_us();
     rig.procs[phone].terminate();
-    step(&mut rig, "phone quits (releases)", Some(11), t)?;
+    step("phone quits (releases)", Some(11), t)?;
     let t = wall_us();
     let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     step(
-        &mut rig,
         "tablet 13 (remote, 130) starts and requests; the laptop accepts",
         Some(13),
         t,
     )?;
     let t = wall_us();
     rig.procs[tablet].terminate();
-    step(&mut rig, "tablet finishes its grant and quits", Some(11), t)?;
+    step("tablet finishes its grant and quits", Some(11), t)?;
     let t = wall_us();
     rig.procs[laptop].crash();
     step(
-        &mut rig,
         "laptop crashes (SIGKILL, no release; command timeout 100 ms)",
         None,
         t,
