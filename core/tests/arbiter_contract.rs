@@ -530,6 +530,35 @@ fn finish_returns_control_to_the_strongest_live_controller() {
     assert_eq!(rig.arb.grant_holder(), None);
 }
 
+/// The yielded owner stands by with PROBEs: at FINISH the vehicle returns to it, not to a
+/// weaker bystander that happens to be streaming, and holds the safe state until its first
+/// movement sample (PROBE keeps ownership, not motion).
+#[test]
+fn finish_returns_control_to_a_standing_by_owner_before_a_bystander() {
+    let mut rig = granted_rig();
+    for t in (20..200).step_by(20) {
+        rig.send(t, w(1), Strength(220), command(OP_A, CommandType::Probe, 0));
+        rig.drive(t, w(3), OP_C, 110, 3);
+        let d = rig.drive(t, pw(2), OP_B, 65535, 22);
+        assert_eq!(applied(&d), Some((OP_B, 22)));
+    }
+    let d = rig.at(
+        201,
+        Event::GrantFinished {
+            holder: OP_B,
+            stamp: S,
+        },
+    );
+    assert_eq!(
+        change(&d),
+        Some((Some(OP_B), Some(OP_A), Reason::GrantReturned))
+    );
+    assert!(matches!(d.output, Some(Output::SafeState { .. })));
+    let d = rig.drive(202, w(1), OP_A, 220, 7);
+    assert_eq!(applied(&d), Some((OP_A, 7)));
+    assert_eq!(rig.arb.controller_id(), OP_A);
+}
+
 #[test]
 fn a_late_sample_from_a_previous_holder_cannot_win_control_back() {
     let mut rig = granted_rig();

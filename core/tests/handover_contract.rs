@@ -255,7 +255,7 @@ fn asks_the_operator_when_priority_is_not_higher_and_accepts_on_consent() {
             deadline: ms(10_000)
         }]
     );
-    let actions = a.decide(VEHICLE, true).expect("prompt open");
+    let actions = a.decide(ms(10), VEHICLE, true).expect("prompt open");
     assert_eq!(
         actions,
         [
@@ -267,14 +267,14 @@ fn asks_the_operator_when_priority_is_not_higher_and_accepts_on_consent() {
             },
         ]
     );
-    assert_eq!(a.decide(VEHICLE, true), Err(Refusal::NoPrompt));
+    assert_eq!(a.decide(ms(10), VEHICLE, true), Err(Refusal::NoPrompt));
 }
 
 #[test]
 fn the_operator_refusing_sends_refuse() {
     let mut a = owner_a(AutoAccept::HigherPriority);
     a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
-    let actions = a.decide(VEHICLE, false).expect("prompt open");
+    let actions = a.decide(ms(10), VEHICLE, false).expect("prompt open");
     assert_eq!(sent(&actions), [(B, Ack::Refuse)]);
     assert!(!a.has_yielded(VEHICLE));
 }
@@ -296,7 +296,7 @@ fn the_consent_timeout_refuses() {
             },
         ]
     );
-    assert_eq!(a.decide(VEHICLE, true), Err(Refusal::NoPrompt));
+    assert_eq!(a.decide(ms(10), VEHICLE, true), Err(Refusal::NoPrompt));
 }
 
 #[test]
@@ -314,7 +314,7 @@ fn a_resent_request_does_not_prompt_twice_and_gets_the_same_answer_again() {
     let mut a = owner_a(AutoAccept::HigherPriority);
     a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
     assert_eq!(a.on_message(ms(500), &msg(B, Ack::Request, 120, STAMP)), []);
-    a.decide(VEHICLE, false).expect("prompt open");
+    a.decide(ms(10), VEHICLE, false).expect("prompt open");
     // The REFUSE was lost; B resends the same request: same answer, no new prompt.
     assert_eq!(
         a.on_message(ms(1000), &msg(B, Ack::Request, 120, STAMP)),
@@ -343,7 +343,7 @@ fn a_second_requester_is_refused_while_busy_or_after_yielding() {
         sent(&a.on_message(ms(1), &msg(C, Ack::Request, 130, STAMP))),
         [(C, Ack::Refuse)]
     );
-    a.decide(VEHICLE, true).expect("prompt open");
+    a.decide(ms(10), VEHICLE, true).expect("prompt open");
     assert_eq!(
         sent(&a.on_message(ms(2), &msg(C, Ack::Request, 130, STAMP))),
         [(C, Ack::Refuse)]
@@ -422,7 +422,7 @@ fn a_grant_holder_is_always_asked_before_its_grant_is_passed_on() {
         [Action::AskOperator { requester: C, .. }]
     ));
     // On consent the grant passes on: B stops its priority stream and yields.
-    let actions = b.decide(VEHICLE, true).expect("prompt open");
+    let actions = b.decide(ms(10), VEHICLE, true).expect("prompt open");
     assert!(actions.contains(&Action::StopPriorityDriving { vehicle: VEHICLE }));
     assert!(actions.contains(&Action::Yield { vehicle: VEHICLE }));
     assert!(!b.holds_grant(VEHICLE));
@@ -531,7 +531,9 @@ fn end_to_end_request_accept_drive_finish_with_no_ping_pong() {
             local.extend(bus.deliver(t, 1, actions));
         }
         if t == 300 {
-            let actions = bus.ops[0].decide(VEHICLE, true).expect("prompt open");
+            let actions = bus.ops[0]
+                .decide(ms(10), VEHICLE, true)
+                .expect("prompt open");
             local.extend(bus.deliver(t, 0, actions));
         }
         if t == 1000 {
@@ -608,4 +610,95 @@ fn a_resent_request_after_the_grant_ended_gets_no_answer() {
     assert!(a.resume(VEHICLE));
     assert_eq!(a.on_message(ms(2), &msg(B, Ack::Request, 120, STAMP)), []);
     assert!(!a.has_yielded(VEHICLE));
+}
+
+/// A yielded replier learns from the vehicle that the grant is over when the FINISH never
+/// arrives (seen in the benchmark: a holder quit before its FINISH was delivered).
+#[test]
+fn a_lost_finish_is_made_up_for_by_the_vehicle_naming_us_again() {
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    assert!(a.has_yielded(VEHICLE));
+    // Still ours until the holder's stream reaches the vehicle: nothing to do.
+    assert_eq!(a.on_vehicle_owner(VEHICLE, A), []);
+    assert_eq!(a.on_vehicle_owner(VEHICLE, B), []);
+    assert!(a.has_yielded(VEHICLE));
+    // The holder drove; now the vehicle names us again: the grant ended.
+    assert_eq!(
+        a.on_vehicle_owner(VEHICLE, A),
+        [Action::Resume { vehicle: VEHICLE }]
+    );
+    assert!(!a.has_yielded(VEHICLE));
+    // The late FINISH and a resent REQUEST of that handover change nothing.
+    assert_eq!(a.on_message(ms(5), &msg(B, Ack::Finish, 120, STAMP)), []);
+    assert_eq!(a.on_message(ms(6), &msg(B, Ack::Request, 120, STAMP)), []);
+}
+
+#[test]
+fn a_bystander_or_the_failsafe_on_the_vehicle_ends_the_yield() {
+    for other in [C, VEHICLE] {
+        // Before the holder was seen: the handover broke down.
+        let mut a = owner_a(AutoAccept::Always);
+        a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+        assert_eq!(
+            a.on_vehicle_owner(VEHICLE, other),
+            [Action::Resume { vehicle: VEHICLE }]
+        );
+        // After: the holder left without FINISH.
+        let mut a = owner_a(AutoAccept::Always);
+        a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+        a.on_vehicle_owner(VEHICLE, B);
+        assert_eq!(
+            a.on_vehicle_owner(VEHICLE, other),
+            [Action::Resume { vehicle: VEHICLE }]
+        );
+    }
+}
+
+#[test]
+fn vehicle_owners_change_nothing_unless_we_have_yielded() {
+    let mut a = owner_a(AutoAccept::Never);
+    for owner in [A, B, C, VEHICLE] {
+        assert_eq!(a.on_vehicle_owner(VEHICLE, owner), []);
+    }
+    // Asking the person is not yielding.
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    assert_eq!(a.on_vehicle_owner(VEHICLE, C), []);
+    // Another vehicle's owner says nothing about ours.
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(0), &msg(B, Ack::Request, 120, STAMP));
+    assert_eq!(a.on_vehicle_owner(VEHICLE + 1, C), []);
+    assert!(a.has_yielded(VEHICLE));
+}
+
+/// The holder never shows up on the vehicle: after two resend periods the standby stream stops
+/// (so the vehicle can time us out); we stay yielded until the vehicle says otherwise.
+#[test]
+fn the_standby_ends_when_the_holder_never_takes_over() {
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(100), &msg(B, Ack::Request, 120, STAMP));
+    let resend = HandoverConfig::default().resend;
+    assert_eq!(a.next_deadline(), Some(ms(100) + resend * 2));
+    assert_eq!(
+        a.tick(ms(100) + (resend * 2 - std::time::Duration::from_nanos(1))),
+        []
+    );
+    assert_eq!(
+        a.tick(ms(100) + resend * 2),
+        [Action::EndStandby { vehicle: VEHICLE }]
+    );
+    assert_eq!(a.next_deadline(), None);
+    assert_eq!(a.tick(ms(5_000)), []);
+    assert!(a.has_yielded(VEHICLE));
+    assert_eq!(
+        a.on_vehicle_owner(VEHICLE, VEHICLE),
+        [Action::Resume { vehicle: VEHICLE }]
+    );
+
+    // Once the holder has been seen there is no standby deadline.
+    let mut a = owner_a(AutoAccept::Always);
+    a.on_message(ms(100), &msg(B, Ack::Request, 120, STAMP));
+    a.on_vehicle_owner(VEHICLE, B);
+    assert_eq!(a.next_deadline(), None);
+    assert_eq!(a.tick(ms(60_000)), []);
 }

@@ -124,7 +124,7 @@ proptest! {
                     }
                 }
                 Op::Decide(accept) => {
-                    if let Ok(out) = net.a.decide(VEHICLE, accept) {
+                    if let Ok(out) = net.a.decide(net.now, VEHICLE, accept) {
                         net.post(true, out)?;
                     }
                 }

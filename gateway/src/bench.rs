@@ -211,18 +211,23 @@ fn active(
 ) -> anyhow::Result<Report> {
     let record = rig.vehicle(VEHICLE);
     // The owner accepts every request, as the seed's experiment did.
+    // It is the strongest passive controller, so bystanders (all weaker, ranks repeating
+    // when there are more bystanders than ranks) never take the vehicle themselves.
+    // Its record gives the instant each ACCEPT leaves: the start of the measurement. (An
+    // observer's arrival time is no substitute: the vehicle may hear the ACCEPT first.)
+    let sent = rig.dir.join("owner-sent.jsonl");
     rig.operator(
         11,
-        "stationary",
-        "laptop",
+        "mobile",
+        "phone",
         &[VEHICLE],
         1000,
         "[handover]\nauto_accept = \"always\"\n",
-        &[],
+        &["--record", sent.to_str().unwrap_or_default()],
     );
     harness::wait_for_output(&record, Some(11), 0).map_err(anyhow::Error::msg)?;
-    for (i, (level, class)) in RANKS
-        .iter()
+    let bystanders = RANKS[..RANKS.len() - 1].iter().cycle();
+    for (i, (level, class)) in bystanders
         .take(options.controllers.saturating_sub(2))
         .enumerate()
     {
@@ -232,7 +237,7 @@ fn active(
     for run in 0..options.runs {
         let start = wall_us();
         let requester = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
-        let accept = wait_event(events, start, |e| {
+        let accept = wait_event(&sent, start, |e| {
             e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13 && e["current"] == 11
         })?;
         let out =

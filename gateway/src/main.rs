@@ -42,6 +42,9 @@ enum Command {
         /// Ask this vehicle's owner for control (active handover) once the vehicle is seen.
         #[arg(long, value_name = "VEHICLE_ID")]
         request: Option<i64>,
+        /// Append every RequestControl sent (with its send time) as JSON lines to this file.
+        #[arg(long)]
+        record: Option<std::path::PathBuf>,
     },
     /// Show the devices on the network and who drives each vehicle.
     Status {
@@ -134,10 +137,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let config = config::load_vehicle(&config)?;
             tokio_runtime()?.block_on(vehicle::run(config, record))
         }
-        Command::Operator { config, request } => {
+        Command::Operator {
+            config,
+            request,
+            record,
+        } => {
             runtime::init_logging();
             let config = config::load_operator(&config)?;
-            tokio_runtime()?.block_on(operator::run(config, request))
+            tokio_runtime()?.block_on(operator::run(config, request, record.as_deref()))
         }
         Command::Status {
             domain,

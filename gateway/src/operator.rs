@@ -12,7 +12,7 @@
 
 use crate::config::OperatorConfig;
 use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
-use crate::runtime::{Clock, RateLimited, shutdown_signal, sleep_until};
+use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use futures::StreamExt;
 use rove_core::handover::{Action, Handover};
 use rove_core::hierarchy::Strength;
@@ -31,12 +31,19 @@ type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
 const SHUTDOWN_ACK_WAIT: std::time::Duration = std::time::Duration::from_millis(300);
 
 /// Runs the operator role until SIGTERM/SIGINT. `request`: ask this vehicle's owner for control
-/// as soon as the vehicle is seen.
+/// as soon as the vehicle is seen. `record`: append every RequestControl this operator sends,
+/// with its send time, as JSON lines (the instant an ACCEPT leaves, for the benchmark).
 ///
 /// # Errors
-/// The participant, a topic, a reader or writer cannot be created.
-pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::Result<()> {
+/// The participant, a topic, a reader or writer cannot be created, or the record cannot be
+/// opened.
+pub async fn run(
+    config: OperatorConfig,
+    request: Option<DeviceId>,
+    record: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
     let clock = Clock::start();
+    let mut record = record.map(JsonLines::create).transpose()?;
     let me = config.common.id;
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
     let regular = domain.command_writer(config.strength)?;
@@ -62,6 +69,7 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
         input: config.input,
         driving: config.drive.iter().copied().collect(),
         priority: BTreeSet::new(),
+        standby: BTreeSet::new(),
         regular,
         priority_writer: priority,
         failed: RateLimited::new("ControlCommand write failed"),
@@ -105,11 +113,14 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
             _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
             _ = heartbeat.tick() => { publish_info(); Vec::new() }
             sample = infos.next() => {
+                // A yielded vehicle's published owner can show that its grant is over.
+                let mut actions = Vec::new();
                 match sample {
                     Some(Ok(s)) => {
                         if let Sample::Value(KeyedDeviceInfo(info)) = s.into_value()
                             && info.device_type == DeviceType::Vehicle
                         {
+                            actions = handover.on_vehicle_owner(info.device_id, info.controller_id);
                             vehicles.insert(info.device_id, info);
                         }
                     }
@@ -129,7 +140,6 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
                             info!(vehicle = v.device_id, "already driving it: no request needed");
                             request = None;
                         }
-                        Vec::new()
                     }
                     Some((v, free_after)) if v.controller_id == v.device_id => {
                         if clock.now() >= free_after {
@@ -137,24 +147,21 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
                             state.driving.insert(v.device_id);
                             request = None;
                         }
-                        Vec::new()
                     }
                     Some((v, _)) => {
                         let (vehicle, owner) = (v.device_id, v.controller_id);
                         request = None;
                         match handover.request(clock.now(), vehicle, owner, clock.stamp()) {
-                            Ok(actions) => {
+                            Ok(more) => {
                                 info!(vehicle, owner, "requesting control");
-                                actions
+                                actions.extend(more);
                             }
-                            Err(e) => {
-                                warn!(vehicle, owner, cause = %e, "cannot request control");
-                                Vec::new()
-                            }
+                            Err(e) => warn!(vehicle, owner, cause = %e, "cannot request control"),
                         }
                     }
-                    None => Vec::new(),
+                    None => {}
                 }
+                actions
             }
             sample = requests.next() => match sample {
                 Some(Ok(s)) => {
@@ -168,7 +175,7 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
             _ = sleep_until(deadline) => handover.tick(clock.now()),
         };
         for action in actions {
-            carry_out(action, &mut state, &request_writer, &clock);
+            carry_out(action, &mut state, &request_writer, &clock, record.as_mut());
         }
     }
 
@@ -177,7 +184,7 @@ pub async fn run(config: OperatorConfig, request: Option<DeviceId>) -> anyhow::R
     for vehicle in held {
         if let Ok(actions) = handover.finish(vehicle) {
             for action in actions {
-                carry_out(action, &mut state, &request_writer, &clock);
+                carry_out(action, &mut state, &request_writer, &clock, record.as_mut());
             }
         }
     }
@@ -210,17 +217,20 @@ struct Streams {
     driving: BTreeSet<DeviceId>,
     /// Vehicles driven with the priority writer (grants held).
     priority: BTreeSet<DeviceId>,
+    /// Vehicles yielded to a grant holder: PROBEs on the regular writer keep us the vehicle's
+    /// fallback, so it returns to us (not to a bystander) when the grant ends.
+    standby: BTreeSet<DeviceId>,
     regular: CommandWriter,
     priority_writer: CommandWriter,
     failed: RateLimited,
 }
 
 impl Streams {
-    fn command(&self, vehicle: DeviceId, clock: &Clock) -> KeyedControlCommand {
+    fn command(&self, vehicle: DeviceId, kind: CommandType, clock: &Clock) -> KeyedControlCommand {
         KeyedControlCommand(ControlCommand {
             src_id: self.me,
             dest_id: vehicle,
-            command_type: CommandType::Movement,
+            command_type: kind,
             movement_command: self.input.0,
             mode: self.input.1,
             timestamp: clock.stamp(),
@@ -231,8 +241,8 @@ impl Streams {
         self.driving.contains(&vehicle) || self.priority.contains(&vehicle)
     }
 
-    fn send(&mut self, vehicle: DeviceId, priority: bool, clock: &Clock) {
-        let sample = self.command(vehicle, clock);
+    fn send(&mut self, vehicle: DeviceId, priority: bool, kind: CommandType, clock: &Clock) {
+        let sample = self.command(vehicle, kind, clock);
         let writer = if priority {
             &self.priority_writer
         } else {
@@ -246,11 +256,15 @@ impl Streams {
     fn send_all(&mut self, clock: &Clock) {
         let regular: Vec<_> = self.driving.iter().copied().collect();
         for v in regular {
-            self.send(v, false, clock);
+            self.send(v, false, CommandType::Movement, clock);
+        }
+        let standby: Vec<_> = self.standby.iter().copied().collect();
+        for v in standby {
+            self.send(v, false, CommandType::Probe, clock);
         }
         let held: Vec<_> = self.priority.iter().copied().collect();
         for v in held {
-            self.send(v, true, clock);
+            self.send(v, true, CommandType::Movement, clock);
         }
     }
 
@@ -266,7 +280,8 @@ impl Streams {
     }
 
     fn release_all(&mut self) {
-        let regular: Vec<_> = std::mem::take(&mut self.driving).into_iter().collect();
+        let mut regular = std::mem::take(&mut self.driving);
+        regular.append(&mut self.standby);
         for v in regular {
             self.release(v, false);
         }
@@ -282,9 +297,13 @@ fn carry_out(
     state: &mut Streams,
     requests: &rustdds::no_key::DataWriterCdr<RequestControl>,
     clock: &Clock,
+    record: Option<&mut JsonLines>,
 ) {
     match action {
         Action::Send(msg) => {
+            if let Some(record) = record {
+                record.write(&crate::runtime::request_json(clock, &msg));
+            }
             if let Err(e) = requests.write(msg, None) {
                 warn!(cause = ?e, "cannot send RequestControl");
             }
@@ -305,7 +324,7 @@ fn carry_out(
         Action::StartPriorityDriving { vehicle } => {
             info!(vehicle, "grant received: driving with the priority writer");
             state.priority.insert(vehicle);
-            state.send(vehicle, true, clock);
+            state.send(vehicle, true, CommandType::Movement, clock);
         }
         Action::StopPriorityDriving { vehicle } => {
             info!(vehicle, "grant given back");
@@ -313,13 +332,20 @@ fn carry_out(
             state.release(vehicle, true);
         }
         Action::Yield { vehicle } => {
-            info!(vehicle, "yielding to the grant holder");
+            info!(vehicle, "yielding to the grant holder (standing by)");
             state.driving.remove(&vehicle);
+            state.standby.insert(vehicle);
+            state.send(vehicle, false, CommandType::Probe, clock);
+        }
+        Action::EndStandby { vehicle } => {
+            info!(vehicle, "grant holder never took over: standby ends");
+            state.standby.remove(&vehicle);
         }
         Action::Resume { vehicle } => {
-            info!(vehicle, "grant returned: driving again");
+            info!(vehicle, "grant over: driving again");
+            state.standby.remove(&vehicle);
             state.driving.insert(vehicle);
-            state.send(vehicle, false, clock);
+            state.send(vehicle, false, CommandType::Movement, clock);
         }
     }
 }

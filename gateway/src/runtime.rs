@@ -127,3 +127,46 @@ pub async fn sleep_until(deadline: Option<tokio::time::Instant>) {
         None => std::future::pending().await,
     }
 }
+
+/// An append-only JSON-lines record for tests and benchmarks, flushed per line so readers can
+/// follow it while the process runs. Write failures are warned about, never fatal: the record
+/// is an instrument, not part of control.
+#[derive(Debug)]
+pub struct JsonLines {
+    file: std::io::BufWriter<std::fs::File>,
+}
+
+impl JsonLines {
+    /// Creates (truncates) the record file.
+    ///
+    /// # Errors
+    /// The file cannot be created.
+    pub fn create(path: &std::path::Path) -> anyhow::Result<JsonLines> {
+        use anyhow::Context;
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create record {}", path.display()))?;
+        Ok(JsonLines {
+            file: std::io::BufWriter::new(file),
+        })
+    }
+
+    /// Appends one line.
+    pub fn write(&mut self, line: &serde_json::Value) {
+        use std::io::Write;
+        let ok = writeln!(self.file, "{line}").and_then(|()| self.file.flush());
+        if let Err(e) = ok {
+            warn!(cause = %e, "cannot write record");
+        }
+    }
+}
+
+/// A RequestControl sample as a JSON object, stamped with the wall clock now (µs), as
+/// `rove status --events` prints it and `rove operator --record` records it.
+pub fn request_json(clock: &Clock, rc: &rove_core::msg::RequestControl) -> serde_json::Value {
+    serde_json::json!({
+        "wall_us": clock.wall_micros(), "kind": "request",
+        "ack": format!("{:?}", rc.ack).to_lowercase(), "src": rc.src_id,
+        "dest": rc.dest_id, "current": rc.current_controller_id,
+        "stamp": rc.timestamp.0,
+    })
+}

@@ -118,12 +118,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
             request = requests.next() => match request {
                 Some(Ok(s)) if options.events => {
                     let rc = s.value();
-                    println!("{}", serde_json::json!({
-                        "wall_us": clock.wall_micros(), "kind": "request",
-                        "ack": format!("{:?}", rc.ack).to_lowercase(), "src": rc.src_id,
-                        "dest": rc.dest_id, "current": rc.current_controller_id,
-                        "stamp": rc.timestamp.0,
-                    }));
+                    println!("{}", crate::runtime::request_json(&clock, &rc));
                 }
                 Some(_) => {}
                 None => anyhow::bail!("RequestControl stream ended"),

@@ -12,8 +12,7 @@
 
 use crate::config::{AdapterKind, VehicleConfig};
 use crate::dds::{self, Domain, KeyedDeviceInfo};
-use crate::runtime::{Clock, RateLimited, shutdown_signal, sleep_until};
-use anyhow::Context;
+use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use futures::StreamExt;
 use rove_core::adapter::OutputAdapter;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
@@ -22,7 +21,6 @@ use rove_core::sim::SimOutput;
 use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::PathBuf;
 use tracing::{info, warn};
 
@@ -221,17 +219,11 @@ fn carry_out(
 
 /// The sim adapter's record as JSON lines, one per output, for tests and benchmarks:
 /// `{"wall_us":…,"mono_us":…,"action":"apply"|"safe","owner":id|null,"throttle":…,…}`.
-struct OutputLog {
-    file: std::io::BufWriter<std::fs::File>,
-}
+struct OutputLog(JsonLines);
 
 impl OutputLog {
     fn create(path: &std::path::Path) -> anyhow::Result<OutputLog> {
-        let file = std::fs::File::create(path)
-            .with_context(|| format!("cannot create output record {}", path.display()))?;
-        Ok(OutputLog {
-            file: std::io::BufWriter::new(file),
-        })
+        JsonLines::create(path).map(OutputLog)
     }
 
     fn record(
@@ -254,10 +246,6 @@ impl OutputLog {
             line["yaw"] = sp.movement.yaw.into();
             line["mode"] = (sp.mode as u32).into();
         }
-        // Flushed per line: tests and benchmarks read the file while the vehicle runs.
-        let ok = writeln!(self.file, "{line}").and_then(|()| self.file.flush());
-        if let Err(e) = ok {
-            warn!(cause = %e, "cannot write output record");
-        }
+        self.0.write(&line);
     }
 }

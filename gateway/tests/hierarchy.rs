@@ -128,13 +128,15 @@ fn active_handover_accept_drive_and_finish() {
         "[handover]\nauto_accept = \"always\"\n",
         &[],
     );
-    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let laptop = wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    // A weaker bystander streams from now on; it must never get the vehicle.
+    rig.operator(31, "remote", "desktop", &[V], 500, "", &[]);
     let asked = wall_us();
     let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     let granted = wait_for_output(&record, Some(13), asked).expect("tablet granted");
     assert_eq!(granted.throttle, Some(3000));
 
-    // FINISH (the tablet stops gracefully): the laptop drives again.
+    // FINISH (the tablet stops gracefully): the laptop, standing by, drives again.
     let finish = wall_us();
     rig.procs[tablet].terminate();
     let back = wait_for_output(&record, Some(11), finish).expect("laptop resumes");
@@ -142,12 +144,55 @@ fn active_handover_accept_drive_and_finish() {
         "FINISH → laptop applied after {:.1} ms",
         (back.wall_us - finish) as f64 / 1000.0
     );
+    let all = records(&record);
     // No ping-pong: once the laptop was back, the tablet never drove again.
+    assert!(
+        all.iter()
+            .filter(|o| o.wall_us > back.wall_us)
+            .all(|o| o.owner != Some(13))
+    );
+    assert!(
+        all.iter()
+            .filter(|o| o.wall_us > laptop.wall_us)
+            .all(|o| o.owner != Some(31)),
+        "the bystander drove"
+    );
+}
+
+/// The grant holder crashes: no FINISH ever comes. The vehicle falls back to the standing-by
+/// owner once the holder's stream times out, and the owner, seeing itself named again, resumes.
+#[test]
+fn a_crashed_grant_holder_gives_the_vehicle_back_to_the_owner() {
+    let mut rig = rig("holder-crash");
+    let record = rig.vehicle(V);
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        "[handover]\nauto_accept = \"always\"\n",
+        &[],
+    );
+    let laptop = wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    rig.operator(31, "remote", "desktop", &[V], 500, "", &[]);
+    let asked = wall_us();
+    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    wait_for_output(&record, Some(13), asked).expect("tablet granted");
+    let crash = wall_us();
+    rig.procs[tablet].crash();
+    let back = wait_for_output(&record, Some(11), crash).expect("laptop resumes");
+    assert_eq!(back.throttle, Some(1000));
+    eprintln!(
+        "holder crash → laptop applied after {:.1} ms",
+        (back.wall_us - crash) as f64 / 1000.0
+    );
     assert!(
         records(&record)
             .iter()
-            .filter(|o| o.wall_us > back.wall_us)
-            .all(|o| o.owner != Some(13))
+            .filter(|o| o.wall_us > laptop.wall_us)
+            .all(|o| o.owner != Some(31)),
+        "the bystander drove"
     );
 }
 
