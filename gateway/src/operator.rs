@@ -135,19 +135,20 @@ pub async fn run(
                 {
                     // Names us: true only if we stream to it; otherwise it is an older
                     // sample (a previous process with our id), so wait for a fresher one.
-                    Some((v, _)) if v.controller_id == me => {
-                        if state.streams_to(v.device_id) {
-                            info!(vehicle = v.device_id, "already driving it: no request needed");
-                            request = None;
-                        }
+                    Some((v, _)) if v.controller_id == me && state.streams_to(v.device_id) => {
+                        info!(vehicle = v.device_id, "already driving it: no request needed");
+                        request = None;
                     }
-                    Some((v, free_after)) if v.controller_id == v.device_id => {
-                        if clock.now() >= free_after {
-                            info!(vehicle = v.device_id, "vehicle is free: driving it, no request needed");
-                            state.driving.insert(v.device_id);
-                            request = None;
-                        }
+                    Some((v, _)) if v.controller_id == me => {}
+                    Some((v, free_after))
+                        if v.controller_id == v.device_id && clock.now() >= free_after =>
+                    {
+                        info!(vehicle = v.device_id, "vehicle is free: driving it, no request needed");
+                        state.driving.insert(v.device_id);
+                        request = None;
                     }
+                    // Looks free, but may be an old sample: wait for the next heartbeat.
+                    Some((v, _)) if v.controller_id == v.device_id => {}
                     Some((v, _)) => {
                         let (vehicle, owner) = (v.device_id, v.controller_id);
                         request = None;

@@ -118,7 +118,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
             request = requests.next() => match request {
                 Some(Ok(s)) if options.events => {
                     let rc = s.value();
-                    println!("{}", crate::runtime::request_json(&clock, &rc));
+                    println!("{}", crate::runtime::request_json(&clock, rc));
                 }
                 Some(_) => {}
                 None => anyhow::bail!("RequestControl stream ended"),
