@@ -1,0 +1,1010 @@
+//! The `[output]` section of a config-defined PWM vehicle: the raw serde structs (which only
+//! parse and reject unknown keys) and `validate()`, which checks every key, collects every
+//! problem and returns the validated [`PwmVehicleConfig`].
+//!
+//! Keys of errors are relative to the `[output]` table, e.g. `channels[2].max_us`; the gateway
+//! puts `output.` in front.
+
+use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::mapping::{
+    Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US,
+};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Default PWM period in µs: 20 ms (50 Hz), the frame rate every analogue servo, ESC and RC
+/// flight controller accepts. Shorter periods (digital servos at 333 Hz) are configurable;
+/// an analogue servo driven faster than it expects can overheat.
+pub const DEFAULT_PERIOD_US: u32 = 20_000;
+
+/// Accepted PWM periods, µs: 2.5 ms (400 Hz) to 100 ms (10 Hz). Outside this no RC device
+/// understands the signal; inside, every pulse must still be shorter than the period.
+pub const PERIOD_RANGE_US: std::ops::RangeInclusive<u32> = 2_500..=100_000;
+
+/// Default root of the Linux PWM class in sysfs.
+pub const DEFAULT_SYSFS_ROOT: &str = "/sys/class/pwm";
+
+/// BCM GPIO numbers usable for software PWM on the Raspberry Pi's 40-pin header.
+pub const GPIO_PIN_RANGE: std::ops::RangeInclusive<i64> = 0..=27;
+
+/// Hardware PWM channels of the Raspberry Pi (PWM0, PWM1).
+pub const HARDWARE_PWM_CHANNEL_RANGE: std::ops::RangeInclusive<i64> = 0..=1;
+
+/// Default levels of a generic `source = "mode"` channel: a three-position switch at the
+/// servo standard's ends and centre. Device presets (Naza-M) bring their own.
+pub const DEFAULT_MODE_LEVELS: ModeLevels = ModeLevels::new(1000, 1500, 2000);
+
+/// Which PWM device drives the channels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendKind {
+    /// Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).
+    Sysfs,
+    /// Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.
+    Rppal,
+    /// Records pulses in memory.
+    Sim,
+}
+
+/// What a channel outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// The throttle axis.
+    Throttle,
+    /// The roll axis (UGV steering).
+    Roll,
+    /// The pitch axis.
+    Pitch,
+    /// The yaw axis.
+    Yaw,
+    /// The mode, as one of three levels.
+    Mode,
+    /// A fixed pulse (`value_us`).
+    Constant,
+}
+
+/// Output polarity, as the kernel's sysfs `polarity` file spells it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Polarity {
+    /// Active high (the pulse is high).
+    Normal,
+    /// Active low, for an inverting level shifter.
+    Inversed,
+}
+
+impl Polarity {
+    /// The word written to sysfs.
+    pub fn as_sysfs(self) -> &'static str {
+        match self {
+            Polarity::Normal => "normal",
+            Polarity::Inversed => "inversed",
+        }
+    }
+}
+
+/// `[output]` for `adapter = "pwm"`, as written.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PwmVehicleSettings {
+    /// Which device drives the channels.
+    pub backend: Option<BackendKind>,
+    /// PWM period, µs (absent: [`DEFAULT_PERIOD_US`]).
+    pub period_us: Option<u32>,
+    /// sysfs only: the PWM class directory (absent: [`DEFAULT_SYSFS_ROOT`]).
+    pub sysfs_root: Option<PathBuf>,
+    /// sysfs only: the `pwmchipN` used by channels that name no `chip` (absent: 0).
+    pub chip: Option<i64>,
+    /// The outputs, one table per channel (`[[output.channels]]`).
+    #[serde(default)]
+    pub channels: Vec<ChannelSettings>,
+}
+
+/// One `[[output.channels]]` table, as written.
+///
+/// The mapping keys (`min_us` … `slew_us_per_s`) are those of
+/// [`rove_core::mapping::AxisMapSettings`], written directly in the channel's table.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSettings {
+    /// Unique name, for logs and status (`steering`, `throttle`, `U`…).
+    pub name: Option<String>,
+    /// What the channel outputs.
+    pub source: Option<SourceKind>,
+    /// `source = "constant"`: the pulse, µs.
+    pub value_us: Option<u16>,
+    /// sysfs: the `pwmchipN` (absent: the section's `chip`).
+    pub chip: Option<i64>,
+    /// sysfs: the channel number within the chip (`pwmchipN/pwmM`).
+    pub channel: Option<i64>,
+    /// rppal: software PWM on this BCM GPIO pin (0..=27).
+    pub pin: Option<i64>,
+    /// rppal: hardware PWM channel (0..=1).
+    pub pwm_channel: Option<i64>,
+    /// sysfs and rppal hardware PWM: output polarity (absent: left as the device has it).
+    pub polarity: Option<Polarity>,
+    /// Axis sources: pulse at −full scale.
+    pub min_us: Option<u16>,
+    /// Axis sources: pulse at centre.
+    pub centre_us: Option<u16>,
+    /// Axis sources: pulse at +full scale.
+    pub max_us: Option<u16>,
+    /// Axis sources: centre shift.
+    pub trim_us: Option<i16>,
+    /// Axis sources: swap directions.
+    pub reverse: Option<bool>,
+    /// Axis sources: dead zone, percent of full scale.
+    pub deadband_pct: Option<f64>,
+    /// Axis sources: expo 0..=1.
+    pub expo: Option<f64>,
+    /// Axis sources: slew limit, µs per second.
+    pub slew_us_per_s: Option<u32>,
+    /// `source = "mode"`: pulse for MANUAL.
+    pub manual_us: Option<u16>,
+    /// `source = "mode"`: pulse for ASSISTED.
+    pub assisted_us: Option<u16>,
+    /// `source = "mode"`: pulse for AUTO.
+    pub auto_us: Option<u16>,
+    /// Pulse in the safe state (absent: the centre for axes, the ASSISTED level for mode,
+    /// `value_us` for constants).
+    pub failsafe_us: Option<u16>,
+}
+
+/// Where a channel is wired.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ChannelAddress {
+    /// sysfs `pwmchip{chip}/pwm{channel}`.
+    Sysfs {
+        /// Chip number.
+        chip: u32,
+        /// Channel within the chip.
+        channel: u32,
+    },
+    /// rppal software PWM on a BCM GPIO pin.
+    GpioPin(u8),
+    /// rppal hardware PWM channel.
+    HardwarePwm(u8),
+    /// Sim backend channel named by nothing but its position.
+    Unaddressed,
+}
+
+impl std::fmt::Display for ChannelAddress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ChannelAddress::Sysfs { chip, channel } => write!(f, "pwmchip{chip}/pwm{channel}"),
+            ChannelAddress::GpioPin(pin) => write!(f, "GPIO{pin}"),
+            ChannelAddress::HardwarePwm(ch) => write!(f, "PWM{ch}"),
+            ChannelAddress::Unaddressed => f.write_str("unaddressed"),
+        }
+    }
+}
+
+/// What drives a validated channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ChannelSource {
+    /// A movement axis through its map (and slew limiter).
+    Axis(Axis, AxisMap),
+    /// The mode, as levels.
+    Mode(ModeLevels),
+    /// A fixed pulse, µs.
+    Constant(u16),
+}
+
+/// A validated channel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelConfig {
+    name: String,
+    address: ChannelAddress,
+    polarity: Option<Polarity>,
+    source: ChannelSource,
+    failsafe_us: u16,
+}
+
+impl ChannelConfig {
+    /// The channel's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Where it is wired.
+    pub fn address(&self) -> ChannelAddress {
+        self.address
+    }
+
+    /// Polarity to set, if configured.
+    pub fn polarity(&self) -> Option<Polarity> {
+        self.polarity
+    }
+
+    /// What drives it.
+    pub fn source(&self) -> ChannelSource {
+        self.source
+    }
+
+    /// Its safe-state pulse, µs.
+    pub fn failsafe_us(&self) -> u16 {
+        self.failsafe_us
+    }
+}
+
+/// Validated backend choice with its options.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BackendConfig {
+    /// sysfs under `root`.
+    Sysfs {
+        /// The PWM class directory.
+        root: PathBuf,
+    },
+    /// rppal.
+    Rppal,
+    /// In-memory recording.
+    Sim,
+}
+
+/// A validated PWM vehicle: only this type crosses crate boundaries.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PwmVehicleConfig {
+    backend: BackendConfig,
+    period: Duration,
+    channels: Vec<ChannelConfig>,
+}
+
+impl PwmVehicleConfig {
+    /// The backend and its options.
+    pub fn backend(&self) -> &BackendConfig {
+        &self.backend
+    }
+
+    /// The PWM period.
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    /// The channels, in config order (backends and the vehicle index them the same way).
+    pub fn channels(&self) -> &[ChannelConfig] {
+        &self.channels
+    }
+
+    /// Index of the channel called `name`.
+    pub fn channel_index(&self, name: &str) -> Option<usize> {
+        self.channels.iter().position(|c| c.name == name)
+    }
+
+    /// Every channel's address, in order: what a backend is opened with.
+    pub fn addresses(&self) -> Vec<ChannelAddress> {
+        self.channels.iter().map(|c| c.address).collect()
+    }
+}
+
+fn range_msg(range: &std::ops::RangeInclusive<u16>) -> String {
+    format!("must be {}..={} µs", range.start(), range.end())
+}
+
+impl PwmVehicleSettings {
+    /// Validates, filling defaults; keys in errors are relative to `[output]`.
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every problem: missing `backend`, a period outside
+    /// [`PERIOD_RANGE_US`], backend options given to another backend, an empty channel list,
+    /// and per channel (`channels[i].key`): missing or duplicate name, missing or wrong address
+    /// keys for the backend, pin/channel out of range, two channels on one address, mapping
+    /// errors (min > max …), keys that do not apply to the source, pulses not shorter than the
+    /// period, a failsafe outside the channel's range.
+    pub fn validate(&self) -> rove_core::Result<PwmVehicleConfig> {
+        let mut errors = ConfigErrors::default();
+        let backend_kind = self.backend.unwrap_or_else(|| {
+            errors.push(ConfigError::new(
+                "backend",
+                "(absent)",
+                "must be one of \"sysfs\", \"rppal\", \"sim\"",
+            ));
+            BackendKind::Sim
+        });
+        let period_us = self.period_us.unwrap_or(DEFAULT_PERIOD_US);
+        if !PERIOD_RANGE_US.contains(&period_us) {
+            errors.push(ConfigError::new(
+                "period_us",
+                period_us,
+                format!(
+                    "must be {}..={} µs (400 Hz to 10 Hz)",
+                    PERIOD_RANGE_US.start(),
+                    PERIOD_RANGE_US.end()
+                ),
+            ));
+        }
+        if backend_kind != BackendKind::Sysfs {
+            if let Some(root) = &self.sysfs_root {
+                errors.push(ConfigError::new(
+                    "sysfs_root",
+                    format!("{:?}", root.display().to_string()),
+                    "only applies to backend = \"sysfs\"",
+                ));
+            }
+            if let Some(chip) = self.chip {
+                errors.push(ConfigError::new(
+                    "chip",
+                    chip,
+                    "only applies to backend = \"sysfs\"",
+                ));
+            }
+        }
+        let default_chip = match self.chip {
+            Some(c) => u32_key(&mut errors, "chip", c),
+            None => 0,
+        };
+        if self.channels.is_empty() {
+            errors.push(ConfigError::new(
+                "channels",
+                "[]",
+                "must list at least one channel ([[output.channels]])",
+            ));
+        }
+        let mut channels = Vec::with_capacity(self.channels.len());
+        let mut names: HashMap<&str, usize> = HashMap::new();
+        let mut addresses: HashMap<ChannelAddress, usize> = HashMap::new();
+        for (i, raw) in self.channels.iter().enumerate() {
+            let prefix = format!("channels[{i}]");
+            let mut ch_errors = ConfigErrors::default();
+            let channel = raw.validate(backend_kind, default_chip, period_us, &mut ch_errors);
+            if let Some(name) = raw.name.as_deref() {
+                if let Some(first) = names.get(name) {
+                    ch_errors.push(ConfigError::new(
+                        "name",
+                        format!("{name:?}"),
+                        format!("must be unique: channels[{first}] has the same name"),
+                    ));
+                } else {
+                    names.insert(name, i);
+                }
+            }
+            if let Some(ch) = channel
+                .as_ref()
+                .filter(|c| c.address != ChannelAddress::Unaddressed)
+            {
+                if let Some(first) = addresses.get(&ch.address) {
+                    ch_errors.push(ConfigError::new(
+                        address_key(raw),
+                        ch.address,
+                        format!("must be unique: channels[{first}] drives the same output"),
+                    ));
+                } else {
+                    addresses.insert(ch.address, i);
+                }
+            }
+            errors.extend_within(&prefix, ch_errors);
+            if let Some(ch) = channel {
+                channels.push(ch);
+            }
+        }
+        let backend = match backend_kind {
+            BackendKind::Sysfs => BackendConfig::Sysfs {
+                root: self
+                    .sysfs_root
+                    .clone()
+                    .unwrap_or_else(|| PathBuf::from(DEFAULT_SYSFS_ROOT)),
+            },
+            BackendKind::Rppal => BackendConfig::Rppal,
+            BackendKind::Sim => BackendConfig::Sim,
+        };
+        errors.into_result(PwmVehicleConfig {
+            backend,
+            period: Duration::from_micros(u64::from(period_us)),
+            channels,
+        })
+    }
+}
+
+/// The key a duplicate-address error is filed under: the one that names the device.
+fn address_key(raw: &ChannelSettings) -> &'static str {
+    if raw.pin.is_some() {
+        "pin"
+    } else if raw.pwm_channel.is_some() {
+        "pwm_channel"
+    } else {
+        "channel"
+    }
+}
+
+fn u32_key(errors: &mut ConfigErrors, key: &str, v: i64) -> u32 {
+    u32::try_from(v).unwrap_or_else(|_| {
+        errors.push(ConfigError::new(key, v, "must be 0..=4294967295"));
+        0
+    })
+}
+
+impl ChannelSettings {
+    fn mapping(&self) -> AxisMapSettings {
+        AxisMapSettings {
+            min_us: self.min_us,
+            centre_us: self.centre_us,
+            max_us: self.max_us,
+            trim_us: self.trim_us,
+            reverse: self.reverse,
+            deadband_pct: self.deadband_pct,
+            expo: self.expo,
+            slew_us_per_s: self.slew_us_per_s,
+        }
+    }
+
+    fn mapping_keys(&self) -> Vec<&'static str> {
+        let present = [
+            ("min_us", self.min_us.is_some()),
+            ("centre_us", self.centre_us.is_some()),
+            ("max_us", self.max_us.is_some()),
+            ("trim_us", self.trim_us.is_some()),
+            ("reverse", self.reverse.is_some()),
+            ("deadband_pct", self.deadband_pct.is_some()),
+            ("expo", self.expo.is_some()),
+            ("slew_us_per_s", self.slew_us_per_s.is_some()),
+        ];
+        present
+            .iter()
+            .filter(|(_, p)| *p)
+            .map(|(k, _)| *k)
+            .collect()
+    }
+
+    fn level_keys(&self) -> Vec<&'static str> {
+        [
+            ("manual_us", self.manual_us.is_some()),
+            ("assisted_us", self.assisted_us.is_some()),
+            ("auto_us", self.auto_us.is_some()),
+        ]
+        .iter()
+        .filter(|(_, p)| *p)
+        .map(|(k, _)| *k)
+        .collect()
+    }
+
+    fn address(
+        &self,
+        backend: BackendKind,
+        default_chip: u32,
+        errors: &mut ConfigErrors,
+    ) -> Option<ChannelAddress> {
+        let mut check = |key: &str, v: i64, range: std::ops::RangeInclusive<i64>, what: &str| {
+            if range.contains(&v) {
+                u8::try_from(v).ok()
+            } else {
+                errors.push(ConfigError::new(
+                    key,
+                    v,
+                    format!("must be {}..={} ({what})", range.start(), range.end()),
+                ));
+                None
+            }
+        };
+        let pin = self
+            .pin
+            .map(|v| check("pin", v, GPIO_PIN_RANGE, "BCM GPIO number"));
+        let hw = self.pwm_channel.map(|v| {
+            check(
+                "pwm_channel",
+                v,
+                HARDWARE_PWM_CHANNEL_RANGE,
+                "Raspberry Pi hardware PWM channel",
+            )
+        });
+        let sysfs_given = self.chip.is_some() || self.channel.is_some();
+        let forms =
+            usize::from(pin.is_some()) + usize::from(hw.is_some()) + usize::from(sysfs_given);
+        if forms > 1 {
+            errors.push(ConfigError::new(
+                "pin",
+                self.pin.map_or("(absent)".into(), |p| p.to_string()),
+                "give one address: `pin`, `pwm_channel`, or `chip`/`channel`",
+            ));
+            return None;
+        }
+        let sysfs = |errors: &mut ConfigErrors| -> Option<ChannelAddress> {
+            let chip = match self.chip {
+                Some(c) => u32::try_from(c).ok().or_else(|| {
+                    errors.push(ConfigError::new("chip", c, "must be 0..=4294967295"));
+                    None
+                })?,
+                None => default_chip,
+            };
+            let Some(channel) = self.channel else {
+                errors.push(ConfigError::new(
+                    "channel",
+                    "(absent)",
+                    "must name the channel within the chip (pwmchipN/pwmM) for backend = \"sysfs\"",
+                ));
+                return None;
+            };
+            let channel = u32::try_from(channel).ok().or_else(|| {
+                errors.push(ConfigError::new(
+                    "channel",
+                    channel,
+                    "must be 0..=4294967295",
+                ));
+                None
+            })?;
+            Some(ChannelAddress::Sysfs { chip, channel })
+        };
+        match backend {
+            BackendKind::Sysfs => {
+                if pin.is_some() || hw.is_some() {
+                    let key = if pin.is_some() { "pin" } else { "pwm_channel" };
+                    errors.push(ConfigError::new(
+                        key,
+                        self.pin.or(self.pwm_channel).unwrap_or_default(),
+                        "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`",
+                    ));
+                    return None;
+                }
+                sysfs(errors)
+            }
+            BackendKind::Rppal => {
+                if sysfs_given {
+                    let key = if self.channel.is_some() {
+                        "channel"
+                    } else {
+                        "chip"
+                    };
+                    errors.push(ConfigError::new(
+                        key,
+                        self.channel.or(self.chip).unwrap_or_default(),
+                        "only applies to backend = \"sysfs\"; rppal channels take `pin` or `pwm_channel`",
+                    ));
+                    return None;
+                }
+                match (pin, hw) {
+                    (Some(pin), None) => {
+                        if self.polarity.is_some() {
+                            errors.push(ConfigError::new(
+                                "polarity",
+                                self.polarity.map_or("", |p| p.as_sysfs()),
+                                "software PWM on a GPIO pin has no polarity setting; \
+                                 use a hardware `pwm_channel` or invert externally",
+                            ));
+                        }
+                        pin.map(ChannelAddress::GpioPin)
+                    }
+                    (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
+                    _ => {
+                        errors.push(ConfigError::new(
+                            "pin",
+                            "(absent)",
+                            "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
+                             for backend = \"rppal\"",
+                        ));
+                        None
+                    }
+                }
+            }
+            // Sim takes any one address form (so that a Pi config runs on a laptop by changing
+            // only `backend`), or none.
+            BackendKind::Sim => match (pin, hw) {
+                (Some(pin), _) => pin.map(ChannelAddress::GpioPin),
+                (_, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
+                _ if sysfs_given => sysfs(errors),
+                _ => Some(ChannelAddress::Unaddressed),
+            },
+        }
+    }
+
+    fn validate(
+        &self,
+        backend: BackendKind,
+        default_chip: u32,
+        period_us: u32,
+        errors: &mut ConfigErrors,
+    ) -> Option<ChannelConfig> {
+        let name = match self.name.as_deref() {
+            Some(n) if !n.trim().is_empty() => Some(n.to_string()),
+            other => {
+                errors.push(ConfigError::new(
+                    "name",
+                    format!("{:?}", other.unwrap_or("(absent)")),
+                    "must be a non-empty name",
+                ));
+                None
+            }
+        };
+        let address = self.address(backend, default_chip, errors);
+        let Some(source_kind) = self.source else {
+            errors.push(ConfigError::new(
+                "source",
+                "(absent)",
+                "must be one of throttle, roll, pitch, yaw, mode, constant",
+            ));
+            return None;
+        };
+        let not_for = |errors: &mut ConfigErrors, keys: Vec<&'static str>, what: &str| {
+            for key in keys {
+                errors.push(ConfigError::new(
+                    key,
+                    "(given)",
+                    format!("does not apply to source = \"{what}\""),
+                ));
+            }
+        };
+        let source_name = format!("{source_kind:?}").to_lowercase();
+        // (source, lowest and highest pulse it can output, default failsafe)
+        let (source, lo, hi, default_failsafe) = match source_kind {
+            SourceKind::Throttle | SourceKind::Roll | SourceKind::Pitch | SourceKind::Yaw => {
+                let axis = match source_kind {
+                    SourceKind::Throttle => Axis::Throttle,
+                    SourceKind::Roll => Axis::Roll,
+                    SourceKind::Pitch => Axis::Pitch,
+                    _ => Axis::Yaw,
+                };
+                not_for(errors, self.level_keys(), &source_name);
+                if self.value_us.is_some() {
+                    not_for(errors, vec!["value_us"], &source_name);
+                }
+                match self.mapping().validate() {
+                    Ok(map) => (
+                        ChannelSource::Axis(axis, map),
+                        map.min_us(),
+                        map.max_us(),
+                        map.centre_us(),
+                    ),
+                    Err(rove_core::Error::Config(e)) => {
+                        errors.0.extend(e.0);
+                        return None;
+                    }
+                    Err(other) => {
+                        errors.push(ConfigError::new("min_us", "?", other.to_string()));
+                        return None;
+                    }
+                }
+            }
+            SourceKind::Mode => {
+                not_for(errors, self.mapping_keys(), &source_name);
+                if self.value_us.is_some() {
+                    not_for(errors, vec!["value_us"], &source_name);
+                }
+                let raw = ModeLevelsSettings {
+                    manual_us: self.manual_us,
+                    assisted_us: self.assisted_us,
+                    auto_us: self.auto_us,
+                };
+                match raw.validate(DEFAULT_MODE_LEVELS) {
+                    Ok(levels) => {
+                        let all = rove_core::msg::Mode::ALL.map(|m| levels.level(m));
+                        let lo = all.iter().copied().min().unwrap_or(0);
+                        let hi = all.iter().copied().max().unwrap_or(0);
+                        (
+                            ChannelSource::Mode(levels),
+                            lo,
+                            hi,
+                            levels.level(rove_core::msg::Mode::Assisted),
+                        )
+                    }
+                    Err(rove_core::Error::Config(e)) => {
+                        errors.0.extend(e.0);
+                        return None;
+                    }
+                    Err(other) => {
+                        errors.push(ConfigError::new("manual_us", "?", other.to_string()));
+                        return None;
+                    }
+                }
+            }
+            SourceKind::Constant => {
+                not_for(errors, self.mapping_keys(), &source_name);
+                not_for(errors, self.level_keys(), &source_name);
+                match self.value_us {
+                    Some(v) if PULSE_RANGE_US.contains(&v) => (ChannelSource::Constant(v), v, v, v),
+                    Some(v) => {
+                        errors.push(ConfigError::new("value_us", v, range_msg(&PULSE_RANGE_US)));
+                        return None;
+                    }
+                    None => {
+                        errors.push(ConfigError::new(
+                            "value_us",
+                            "(absent)",
+                            "must give the pulse for source = \"constant\"",
+                        ));
+                        return None;
+                    }
+                }
+            }
+        };
+        let failsafe_us = self.failsafe_us.unwrap_or(default_failsafe);
+        let (flo, fhi) = match source {
+            // A mode channel may fail safe to any level the device understands.
+            ChannelSource::Mode(_) => (*PULSE_RANGE_US.start(), *PULSE_RANGE_US.end()),
+            _ => (lo, hi),
+        };
+        if !(flo..=fhi).contains(&failsafe_us) {
+            errors.push(ConfigError::new(
+                "failsafe_us",
+                failsafe_us,
+                format!("must be within the channel's range {flo}..={fhi} µs"),
+            ));
+        }
+        let highest = hi.max(failsafe_us);
+        if u32::from(highest) >= period_us {
+            let key = if self.failsafe_us.is_some() && u32::from(failsafe_us) >= period_us {
+                "failsafe_us"
+            } else {
+                match source {
+                    ChannelSource::Axis(..) => "max_us",
+                    ChannelSource::Mode(_) => "auto_us",
+                    ChannelSource::Constant(_) => "value_us",
+                }
+            };
+            errors.push(ConfigError::new(
+                key,
+                highest,
+                format!("must be shorter than the PWM period ({period_us} µs)"),
+            ));
+        }
+        Some(ChannelConfig {
+            name: name?,
+            address: address?,
+            polarity: self.polarity,
+            source,
+            failsafe_us,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> PwmVehicleSettings {
+        toml::from_str(text).expect("parses")
+    }
+
+    fn errors(text: &str) -> String {
+        parse(text)
+            .validate()
+            .expect_err("must be rejected")
+            .to_string()
+    }
+
+    const SYSFS_TWO: &str = r#"
+        backend = "sysfs"
+        sysfs_root = "/tmp/pwm"
+        [[channels]]
+        name = "steering"
+        source = "roll"
+        channel = 0
+        [[channels]]
+        name = "throttle"
+        source = "throttle"
+        chip = 1
+        channel = 0
+        reverse = true
+        slew_us_per_s = 2000
+    "#;
+
+    #[test]
+    fn absent_keys_take_their_defaults() {
+        let cfg = parse(SYSFS_TWO).validate().expect("valid");
+        assert_eq!(cfg.period(), Duration::from_millis(20));
+        assert_eq!(
+            cfg.backend(),
+            &BackendConfig::Sysfs {
+                root: PathBuf::from("/tmp/pwm")
+            }
+        );
+        assert_eq!(
+            cfg.addresses(),
+            [
+                ChannelAddress::Sysfs {
+                    chip: 0,
+                    channel: 0
+                },
+                ChannelAddress::Sysfs {
+                    chip: 1,
+                    channel: 0
+                }
+            ]
+        );
+        let steering = &cfg.channels()[0];
+        assert_eq!(steering.failsafe_us(), 1500);
+        assert_eq!(steering.polarity(), None);
+        assert_eq!(cfg.channel_index("throttle"), Some(1));
+        match cfg.channels()[1].source() {
+            ChannelSource::Axis(Axis::Throttle, map) => {
+                assert_eq!(map.map(i16::MAX), 1000, "reversed");
+            }
+            other => panic!("unexpected source {other:?}"),
+        }
+    }
+
+    #[test]
+    fn sysfs_root_defaults_to_the_kernel_class() {
+        let cfg = parse(&SYSFS_TWO.replace("sysfs_root = \"/tmp/pwm\"", ""))
+            .validate()
+            .expect("valid");
+        assert_eq!(
+            cfg.backend(),
+            &BackendConfig::Sysfs {
+                root: PathBuf::from("/sys/class/pwm")
+            }
+        );
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_at_parse() {
+        let err = toml::from_str::<PwmVehicleSettings>(
+            "backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\nmax_uss = 3",
+        )
+        .expect_err("unknown key");
+        assert!(err.to_string().contains("max_uss"), "{err}");
+        let err = toml::from_str::<PwmVehicleSettings>("backend = \"sim\"\nperiod = 3")
+            .expect_err("unknown key");
+        assert!(err.to_string().contains("period"), "{err}");
+    }
+
+    #[test]
+    fn rejects_pin_out_of_range_and_names_the_channel() {
+        let err = errors(
+            "backend = \"rppal\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\npin = 12\n\
+             [[channels]]\nname = \"b\"\nsource = \"yaw\"\npin = 28\n\
+             [[channels]]\nname = \"c\"\nsource = \"yaw\"\npwm_channel = 2",
+        );
+        assert!(
+            err.contains("channels[1].pin = 28: must be 0..=27 (BCM GPIO number)"),
+            "{err}"
+        );
+        assert!(
+            err.contains("channels[2].pwm_channel = 2: must be 0..=1"),
+            "{err}"
+        );
+        assert_eq!(err.lines().count(), 2, "{err}");
+    }
+
+    #[test]
+    fn rejects_min_above_max_with_the_channel_key() {
+        let err = errors(
+            "backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\n\
+             [[channels]]\nname = \"b\"\nsource = \"roll\"\n\
+             [[channels]]\nname = \"c\"\nsource = \"roll\"\nmin_us = 2100\nmax_us = 1000",
+        );
+        assert!(
+            err.starts_with("channels[2].centre_us = 1500: centre_us + trim_us"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn rejects_duplicate_channel_and_duplicate_name() {
+        let err = errors(
+            "backend = \"sysfs\"\nchip = 2\n\
+             [[channels]]\nname = \"a\"\nsource = \"roll\"\nchannel = 1\n\
+             [[channels]]\nname = \"a\"\nsource = \"yaw\"\nchip = 2\nchannel = 1",
+        );
+        assert!(
+            err.contains("channels[1].name = \"a\": must be unique: channels[0] has the same name"),
+            "{err}"
+        );
+        assert!(
+            err.contains(
+                "channels[1].channel = pwmchip2/pwm1: must be unique: channels[0] drives the same output"
+            ),
+            "{err}"
+        );
+        let err = errors(
+            "backend = \"rppal\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\npin = 5\n\
+             [[channels]]\nname = \"b\"\nsource = \"yaw\"\npin = 5",
+        );
+        assert!(
+            err.contains("channels[1].pin = GPIO5: must be unique"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn rejects_failsafe_outside_the_range_and_empty_channel_list() {
+        let err = errors(
+            "backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"throttle\"\n\
+             min_us = 1100\nfailsafe_us = 1000",
+        );
+        assert_eq!(
+            err,
+            "channels[0].failsafe_us = 1000: must be within the channel's range 1100..=2000 µs"
+        );
+        assert_eq!(
+            errors("backend = \"sim\""),
+            "channels = []: must list at least one channel ([[output.channels]])"
+        );
+        assert!(errors("[[channels]]\nname = \"a\"\nsource = \"roll\"").starts_with("backend"));
+    }
+
+    #[test]
+    fn rejects_keys_meant_for_another_backend_or_source() {
+        let err = errors(
+            "backend = \"rppal\"\nsysfs_root = \"/x\"\n\
+             [[channels]]\nname = \"a\"\nsource = \"roll\"\nchannel = 3\n\
+             [[channels]]\nname = \"m\"\nsource = \"mode\"\npin = 4\nmax_us = 1900\n\
+             [[channels]]\nname = \"k\"\nsource = \"constant\"\npin = 6\n\
+             [[channels]]\nname = \"p\"\nsource = \"roll\"\npin = 7\npolarity = \"inversed\"",
+        );
+        for want in [
+            "sysfs_root = \"/x\": only applies to backend = \"sysfs\"",
+            "channels[0].channel = 3: only applies to backend = \"sysfs\"",
+            "channels[1].max_us = (given): does not apply to source = \"mode\"",
+            "channels[2].value_us = (absent): must give the pulse",
+            "channels[3].polarity = inversed: software PWM on a GPIO pin has no polarity",
+        ] {
+            assert!(err.contains(want), "missing {want:?} in\n{err}");
+        }
+        let err = errors(
+            "backend = \"sysfs\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\npin = 3\n\
+             [[channels]]\nname = \"b\"\nsource = \"roll\"",
+        );
+        assert!(
+            err.contains("channels[0].pin = 3: only applies to backend = \"rppal\""),
+            "{err}"
+        );
+        assert!(err.contains("channels[1].channel = (absent)"), "{err}");
+    }
+
+    #[test]
+    fn pulses_must_fit_in_the_period() {
+        let err = errors(
+            "backend = \"sim\"\nperiod_us = 2500\n[[channels]]\nname = \"a\"\nsource = \"roll\"\n\
+             [[channels]]\nname = \"b\"\nsource = \"constant\"\nvalue_us = 2600",
+        );
+        assert!(
+            err.contains(
+                "channels[1].value_us = 2600: must be shorter than the PWM period (2500 µs)"
+            ),
+            "{err}"
+        );
+        assert_eq!(err.lines().count(), 1, "{err}");
+        let err = errors(
+            "backend = \"sim\"\nperiod_us = 0\n[[channels]]\nname = \"a\"\nsource = \"roll\"",
+        );
+        assert!(
+            err.starts_with("period_us = 0: must be 2500..=100000"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn mode_and_constant_channels() {
+        let cfg = parse(
+            "backend = \"sim\"\n[[channels]]\nname = \"U\"\nsource = \"mode\"\nmanual_us = 1100\n\
+             [[channels]]\nname = \"k\"\nsource = \"constant\"\nvalue_us = 1234",
+        )
+        .validate()
+        .expect("valid");
+        let u = &cfg.channels()[0];
+        assert_eq!(u.address(), ChannelAddress::Unaddressed);
+        assert_eq!(u.failsafe_us(), 1500, "assisted level");
+        match u.source() {
+            ChannelSource::Mode(levels) => {
+                assert_eq!(levels.level(rove_core::msg::Mode::Manual), 1100);
+                assert_eq!(levels.level(rove_core::msg::Mode::Auto), 2000);
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+        assert_eq!(cfg.channels()[1].failsafe_us(), 1234);
+        assert_eq!(cfg.channels()[1].source(), ChannelSource::Constant(1234));
+        let err = errors(
+            "backend = \"sim\"\n[[channels]]\nname = \"U\"\nsource = \"mode\"\nmanual_us = 1500",
+        );
+        assert!(
+            err.starts_with("channels[0].assisted_us = 1500: must differ"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn collects_every_problem_at_once() {
+        let err = errors(
+            "backend = \"sysfs\"\nperiod_us = 1\n[[channels]]\nsource = \"roll\"\nchannel = -1\n\
+             expo = 2.0",
+        );
+        for want in [
+            "period_us = 1",
+            "channels[0].name",
+            "channels[0].channel = -1",
+            "channels[0].expo = 2",
+        ] {
+            assert!(err.contains(want), "missing {want:?} in\n{err}");
+        }
+    }
+}
