@@ -1,0 +1,40 @@
+//! `rove-eyedrive`: the Eyedrive UGV preset on [`rove_pwm`] — steering (from the roll axis) and
+//! throttle to the rover's servo controller and ESC, so that its config names only the
+//! outputs.
+//!
+//! **Safety.** The rover's wheels turn as soon as the ESC sees a pulse away from neutral. Test
+//! with the wheels off the ground, and check that neutral (1500 µs unless configured) stops
+//! the motor before first driving.
+//!
+//! # Layout
+//! - [`config`]: `[output]` for `adapter = "eyedrive"` ([`EyedriveSettings`]), validated into
+//!   the generic [`rove_pwm::PwmVehicleConfig`] that [`rove_pwm::PwmVehicle`] drives.
+//!
+//! No I/O here: the gateway opens the backend with [`rove_pwm::open_backend`].
+//!
+//! # Channels
+//!
+//! | table | source | default map | failsafe |
+//! |---|---|---|---|
+//! | `[output.steering]` | roll | 1000 / 1500 / 2000 µs | centre (straight) |
+//! | `[output.throttle]` | throttle | 1000 / 1500 / 2000 µs | centre (neutral: stopped) |
+//!
+//! Each table takes one address (`pin`, `pwm_channel`, or `chip`/`channel` by backend) and,
+//! optionally, `polarity` and the mapping keys of [`rove_core::mapping`] (`min_us`, `centre_us`,
+//! `max_us`, `trim_us`, `reverse`, `deadband_pct`, `expo`, `slew_us_per_s`). The section takes
+//! `backend` (required), `period_us`, `sysfs_root` and `chip` as for `adapter = "pwm"`.
+//!
+//! # Known limitations (intentional, not bugs)
+//! - The failsafe is always neutral (the trimmed centre); there is no `failsafe_us`: a rover
+//!   that rolls on in failsafe is never what is wanted.
+//! - Neutral is written once at start and held until the first command. An ESC that needs
+//!   neutral for longer than the operator takes to start driving arms late; the gateway does
+//!   not delay the first command.
+//! - No slew limit by default: a stop command must act at once. Set `slew_us_per_s` on
+//!   `throttle` for gentler starts (it slows stops too; only the failsafe bypasses it).
+
+#![deny(missing_docs)]
+
+pub mod config;
+
+pub use config::{EyedriveChannelSettings, EyedriveSettings};
