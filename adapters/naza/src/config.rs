@@ -1,0 +1,590 @@
+//! `[output]` for `adapter = "naza"`: the raw settings and their validation into a
+//! [`NazaConfig`] (a generic PWM vehicle plus the Naza's own policies). Errors name the Naza
+//! keys (`mode.atti_us`, `throttle.max_us`), not the generic channel list.
+
+use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::mapping::ModeLevels;
+use rove_core::msg::{Mode, MovementCommand};
+use rove_pwm::{
+    BackendKind, ChannelSettings, ChannelSource, Polarity, PwmVehicleConfig, PwmVehicleSettings,
+    SourceKind,
+};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Default U levels, µs: Manual low, ATTI middle, GPS high — what a Naza-M calibrated on a
+/// common 3-position switch reads (≈1100/1520/1850 µs reported by Naza-M Lite users). The
+/// Naza decides by thresholds between its calibrated end points, so round values inside each
+/// band work; a value near a threshold can flicker between two modes.
+pub const DEFAULT_LEVELS: ModeLevels = ModeLevels::new(1100, 1500, 1900);
+
+/// Default throttle slew, µs/s: the whole 1000 µs travel in one second, so a new operator's
+/// throttle takes ≥ 0.5 s to go from hover to an end. Faster lets a change of hands jerk
+/// the aircraft; slower makes the throttle feel laggy.
+pub const DEFAULT_THROTTLE_SLEW_US_PER_S: u32 = 1_000;
+
+/// Default CSC hold, ms. The Naza starts the motors once it sees the CSC (its manual gives no
+/// minimum); 1.5 s covers its input filtering and a frame or two of jitter from software PWM,
+/// and is short enough that the operator is not left waiting. Longer is harmless: the
+/// throttle is at minimum throughout.
+pub const DEFAULT_CSC_HOLD_MS: u64 = 1_500;
+
+/// Accepted CSC hold times, ms.
+pub const CSC_HOLD_RANGE_MS: std::ops::RangeInclusive<u64> = 200..=5_000;
+
+/// Default land ramp, ms: from hover throttle to the land floor. Gentle enough that the
+/// aircraft does not drop; quick enough that a lost link does not leave it hovering long.
+pub const DEFAULT_LAND_RAMP_MS: u64 = 3_000;
+
+/// Accepted land ramp times, ms.
+pub const LAND_RAMP_RANGE_MS: std::ops::RangeInclusive<u64> = 100..=60_000;
+
+/// The default land floor as a fraction of the way from the throttle centre down to its
+/// minimum: 40 % (1300 µs with the defaults) descends steadily in ATTI/GPS and stays well
+/// above the 10 % (1100 µs) at which the Naza's default "Immediately" stop type cuts motors.
+pub const DEFAULT_LAND_FRACTION: f64 = 0.4;
+
+/// Mode the U channel is put in by the failsafe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FailsafeMode {
+    /// ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.
+    Atti,
+    /// GPS: also holds position; needs a GPS lock.
+    Gps,
+}
+
+/// What the failsafe does with the throttle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FailsafePolicy {
+    /// Throttle centred: hold altitude.
+    Hover,
+    /// Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.
+    Land,
+}
+
+/// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
+/// pitch/roll; both always at the bottom).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CscPattern {
+    /// Left stick bottom-left, right stick bottom-right.
+    Outer,
+    /// Left stick bottom-right, right stick bottom-left.
+    Inner,
+    /// Both sticks bottom-left.
+    Left,
+    /// Both sticks bottom-right.
+    Right,
+}
+
+impl CscPattern {
+    /// The stick positions of the pattern.
+    pub fn movement(self) -> MovementCommand {
+        const FULL: i16 = i16::MAX;
+        let (yaw, roll) = match self {
+            CscPattern::Outer => (-FULL, FULL),
+            CscPattern::Inner => (FULL, -FULL),
+            CscPattern::Left => (-FULL, -FULL),
+            CscPattern::Right => (FULL, FULL),
+        };
+        MovementCommand {
+            throttle: -FULL,
+            roll,
+            pitch: -FULL,
+            yaw,
+        }
+    }
+}
+
+/// `[output.aileron]` … `[output.rudder]`: address and optional limits.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StickSettings {
+    /// sysfs: `pwmchipN` (absent: the section's `chip`).
+    pub chip: Option<i64>,
+    /// sysfs: channel within the chip.
+    pub channel: Option<i64>,
+    /// rppal: software PWM on this BCM GPIO.
+    pub pin: Option<i64>,
+    /// rppal: hardware PWM channel 0..=1.
+    pub pwm_channel: Option<i64>,
+    /// Output polarity (absent: untouched).
+    pub polarity: Option<Polarity>,
+    /// Pulse at stick −full, µs (absent: 1000).
+    pub min_us: Option<u16>,
+    /// Pulse at stick centre, µs (absent: 1500).
+    pub centre_us: Option<u16>,
+    /// Pulse at stick +full, µs (absent: 2000).
+    pub max_us: Option<u16>,
+    /// Centre shift, µs.
+    pub trim_us: Option<i16>,
+    /// Swap directions.
+    pub reverse: Option<bool>,
+    /// Dead zone, percent of full scale.
+    pub deadband_pct: Option<f64>,
+    /// Expo 0..=1.
+    pub expo: Option<f64>,
+    /// Slew limit, µs/s (absent: none; throttle: [`DEFAULT_THROTTLE_SLEW_US_PER_S`]).
+    pub slew_us_per_s: Option<u32>,
+}
+
+/// `[output.mode]`: the U channel's address and levels.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeChannelSettings {
+    /// sysfs: `pwmchipN`.
+    pub chip: Option<i64>,
+    /// sysfs: channel within the chip.
+    pub channel: Option<i64>,
+    /// rppal: software PWM on this BCM GPIO.
+    pub pin: Option<i64>,
+    /// rppal: hardware PWM channel.
+    pub pwm_channel: Option<i64>,
+    /// Output polarity.
+    pub polarity: Option<Polarity>,
+    /// Level for Manual (MANUAL), µs.
+    pub manual_us: Option<u16>,
+    /// Level for ATTI (ASSISTED), µs.
+    pub atti_us: Option<u16>,
+    /// Level for GPS (AUTO), µs.
+    pub gps_us: Option<u16>,
+}
+
+/// `[output]` for the Naza-M, as written.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NazaSettings {
+    /// `"sysfs"`, `"rppal"` or `"sim"` (required).
+    pub backend: Option<BackendKind>,
+    /// PWM period, µs (absent: 20000).
+    pub period_us: Option<u32>,
+    /// sysfs only: the PWM class directory.
+    pub sysfs_root: Option<PathBuf>,
+    /// sysfs only: default `pwmchipN`.
+    pub chip: Option<i64>,
+    /// A: roll.
+    pub aileron: Option<StickSettings>,
+    /// E: pitch.
+    pub elevator: Option<StickSettings>,
+    /// T: throttle.
+    pub throttle: Option<StickSettings>,
+    /// R: yaw.
+    pub rudder: Option<StickSettings>,
+    /// U: mode switch.
+    pub mode: Option<ModeChannelSettings>,
+    /// U level in failsafe (absent: atti).
+    pub failsafe_mode: Option<FailsafeMode>,
+    /// Throttle in failsafe (absent: hover).
+    pub failsafe_policy: Option<FailsafePolicy>,
+    /// `land`: throttle floor, µs (absent: see [`DEFAULT_LAND_FRACTION`]).
+    pub land_throttle_us: Option<u16>,
+    /// `land`: ramp time from centre to the floor, ms (absent: [`DEFAULT_LAND_RAMP_MS`]).
+    pub land_ramp_ms: Option<u64>,
+    /// CSC corners (absent: outer).
+    pub csc: Option<CscPattern>,
+    /// How long the CSC is held, ms (absent: [`DEFAULT_CSC_HOLD_MS`]).
+    pub csc_hold_ms: Option<u64>,
+}
+
+/// The throttle in failsafe, validated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FailsafeThrottle {
+    /// Centre.
+    Hover,
+    /// Linear ramp from centre to `floor_us` over `ramp`.
+    Land {
+        /// Final throttle pulse, µs.
+        floor_us: u16,
+        /// Ramp duration.
+        ramp: Duration,
+    },
+}
+
+/// A validated Naza-M output.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NazaConfig {
+    pwm: PwmVehicleConfig,
+    failsafe_mode: Mode,
+    failsafe_throttle: FailsafeThrottle,
+    csc: CscPattern,
+    csc_hold: Duration,
+}
+
+impl NazaConfig {
+    /// Index of each channel in the generic config.
+    pub const AILERON: usize = 0;
+    /// Elevator channel index.
+    pub const ELEVATOR: usize = 1;
+    /// Throttle channel index.
+    pub const THROTTLE: usize = 2;
+    /// Rudder channel index.
+    pub const RUDDER: usize = 3;
+    /// Mode (U) channel index.
+    pub const MODE: usize = 4;
+
+    /// The generic PWM vehicle (channels in the order A, E, T, R, U).
+    pub fn pwm(&self) -> &PwmVehicleConfig {
+        &self.pwm
+    }
+
+    /// The mode the failsafe selects (ASSISTED = ATTI, AUTO = GPS).
+    pub fn failsafe_mode(&self) -> Mode {
+        self.failsafe_mode
+    }
+
+    /// The throttle policy in failsafe.
+    pub fn failsafe_throttle(&self) -> FailsafeThrottle {
+        self.failsafe_throttle
+    }
+
+    /// The CSC corners.
+    pub fn csc(&self) -> CscPattern {
+        self.csc
+    }
+
+    /// How long the CSC is held.
+    pub fn csc_hold(&self) -> Duration {
+        self.csc_hold
+    }
+}
+
+/// (generic name, preset table name, source)
+const CHANNELS: [(&str, SourceKind); 5] = [
+    ("aileron", SourceKind::Roll),
+    ("elevator", SourceKind::Pitch),
+    ("throttle", SourceKind::Throttle),
+    ("rudder", SourceKind::Yaw),
+    ("mode", SourceKind::Mode),
+];
+
+impl StickSettings {
+    fn generic(&self, name: &str, source: SourceKind) -> ChannelSettings {
+        let slew = match source {
+            SourceKind::Throttle => self.slew_us_per_s.or(Some(DEFAULT_THROTTLE_SLEW_US_PER_S)),
+            _ => self.slew_us_per_s,
+        };
+        ChannelSettings {
+            name: Some(name.to_string()),
+            source: Some(source),
+            chip: self.chip,
+            channel: self.channel,
+            pin: self.pin,
+            pwm_channel: self.pwm_channel,
+            polarity: self.polarity,
+            min_us: self.min_us,
+            centre_us: self.centre_us,
+            max_us: self.max_us,
+            trim_us: self.trim_us,
+            reverse: self.reverse,
+            deadband_pct: self.deadband_pct,
+            expo: self.expo,
+            slew_us_per_s: slew,
+            ..ChannelSettings::default()
+        }
+    }
+}
+
+impl NazaSettings {
+    fn failsafe_mode(&self) -> Mode {
+        match self.failsafe_mode.unwrap_or(FailsafeMode::Atti) {
+            FailsafeMode::Atti => Mode::Assisted,
+            FailsafeMode::Gps => Mode::Auto,
+        }
+    }
+
+    /// The equivalent generic `adapter = "pwm"` settings (A, E, T, R, U; missing tables count
+    /// as empty so their address errors are reported too).
+    pub fn to_generic(&self) -> PwmVehicleSettings {
+        let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
+        let mut channels: Vec<ChannelSettings> = CHANNELS[..4]
+            .iter()
+            .zip(sticks)
+            .map(|((name, source), t)| t.clone().unwrap_or_default().generic(name, *source))
+            .collect();
+        let m = self.mode.clone().unwrap_or_default();
+        let level = |v: Option<u16>, d: Mode| v.unwrap_or(DEFAULT_LEVELS.level(d));
+        let levels = ModeLevels::new(
+            level(m.manual_us, Mode::Manual),
+            level(m.atti_us, Mode::Assisted),
+            level(m.gps_us, Mode::Auto),
+        );
+        channels.push(ChannelSettings {
+            name: Some("mode".into()),
+            source: Some(SourceKind::Mode),
+            chip: m.chip,
+            channel: m.channel,
+            pin: m.pin,
+            pwm_channel: m.pwm_channel,
+            polarity: m.polarity,
+            manual_us: Some(levels.level(Mode::Manual)),
+            assisted_us: Some(levels.level(Mode::Assisted)),
+            auto_us: Some(levels.level(Mode::Auto)),
+            failsafe_us: Some(levels.level(self.failsafe_mode())),
+            ..ChannelSettings::default()
+        });
+        PwmVehicleSettings {
+            backend: self.backend,
+            period_us: self.period_us,
+            sysfs_root: self.sysfs_root.clone(),
+            chip: self.chip,
+            channels,
+        }
+    }
+
+    /// Validates into a [`NazaConfig`].
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
+    /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…): a missing channel table, a land
+    /// floor not below the throttle centre or under its minimum, ramp or hold times out of
+    /// range, land keys without `failsafe_policy = "land"`, and everything
+    /// [`PwmVehicleSettings::validate`] rejects.
+    pub fn validate(&self) -> rove_core::Result<NazaConfig> {
+        let mut errors = ConfigErrors::default();
+        let present = [
+            self.aileron.is_some(),
+            self.elevator.is_some(),
+            self.throttle.is_some(),
+            self.rudder.is_some(),
+            self.mode.is_some(),
+        ];
+        for ((name, _), present) in CHANNELS.iter().zip(present) {
+            if !present {
+                errors.push(ConfigError::new(
+                    *name,
+                    "(absent)",
+                    format!("must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"),
+                ));
+            }
+        }
+        let hold_ms = self.csc_hold_ms.unwrap_or(DEFAULT_CSC_HOLD_MS);
+        if !CSC_HOLD_RANGE_MS.contains(&hold_ms) {
+            errors.push(ConfigError::new(
+                "csc_hold_ms",
+                hold_ms,
+                format!(
+                    "must be {}..={} ms",
+                    CSC_HOLD_RANGE_MS.start(),
+                    CSC_HOLD_RANGE_MS.end()
+                ),
+            ));
+        }
+        let policy = self.failsafe_policy.unwrap_or(FailsafePolicy::Hover);
+        if policy == FailsafePolicy::Hover {
+            for (key, given) in [
+                (
+                    "land_throttle_us",
+                    self.land_throttle_us.map(|v| v.to_string()),
+                ),
+                ("land_ramp_ms", self.land_ramp_ms.map(|v| v.to_string())),
+            ] {
+                if let Some(v) = given {
+                    errors.push(ConfigError::new(
+                        key,
+                        v,
+                        "only applies with failsafe_policy = \"land\"",
+                    ));
+                }
+            }
+        }
+        let ramp_ms = self.land_ramp_ms.unwrap_or(DEFAULT_LAND_RAMP_MS);
+        if !LAND_RAMP_RANGE_MS.contains(&ramp_ms) {
+            errors.push(ConfigError::new(
+                "land_ramp_ms",
+                ramp_ms,
+                format!(
+                    "must be {}..={} ms",
+                    LAND_RAMP_RANGE_MS.start(),
+                    LAND_RAMP_RANGE_MS.end()
+                ),
+            ));
+        }
+        let names = CHANNELS.map(|c| c.0);
+        let pwm = match self.to_generic().validate() {
+            Ok(pwm) => Some(pwm),
+            Err(rove_core::Error::Config(generic)) => {
+                errors
+                    .0
+                    .extend(generic.0.into_iter().map(|e| rename(e, &names)));
+                None
+            }
+            Err(other) => return Err(other),
+        };
+        let failsafe_throttle = match (policy, &pwm) {
+            (FailsafePolicy::Hover, _) | (_, None) => FailsafeThrottle::Hover,
+            (FailsafePolicy::Land, Some(pwm)) => {
+                let (min, centre) = match pwm.channels()[NazaConfig::THROTTLE].source() {
+                    ChannelSource::Axis(_, map) => (map.min_us(), map.centre_us()),
+                    // The throttle channel is built as an axis above.
+                    _ => (1000, 1500),
+                };
+                let default_floor =
+                    f64::from(centre) - DEFAULT_LAND_FRACTION * f64::from(centre - min);
+                let floor_us = self
+                    .land_throttle_us
+                    .unwrap_or(default_floor.round() as u16);
+                if !(min..centre).contains(&floor_us) {
+                    errors.push(ConfigError::new(
+                        "land_throttle_us",
+                        floor_us,
+                        format!(
+                            "must be at least throttle.min_us ({min}) and below the throttle \
+                             centre ({centre}), or the aircraft would not descend"
+                        ),
+                    ));
+                }
+                FailsafeThrottle::Land {
+                    floor_us,
+                    ramp: Duration::from_millis(ramp_ms),
+                }
+            }
+        };
+        match pwm {
+            Some(pwm) => errors.into_result(NazaConfig {
+                pwm,
+                failsafe_mode: self.failsafe_mode(),
+                failsafe_throttle,
+                csc: self.csc.unwrap_or(CscPattern::Outer),
+                csc_hold: Duration::from_millis(hold_ms),
+            }),
+            None => Err(rove_core::Error::Config(errors)),
+        }
+    }
+}
+
+/// Rewrites `channels[i]` to the preset's table name, and the U channel's generic level keys
+/// to the Naza's names.
+fn rename(mut e: ConfigError, names: &[&str]) -> ConfigError {
+    for (i, name) in names.iter().enumerate() {
+        let generic = format!("channels[{i}]");
+        if let Some(rest) = e.key.strip_prefix(&generic) {
+            e.key = format!("{name}{rest}");
+        }
+        e.rule = e.rule.replace(&generic, name);
+    }
+    for (generic, naza) in [
+        ("mode.assisted_us", "mode.atti_us"),
+        ("mode.auto_us", "mode.gps_us"),
+    ] {
+        if e.key == generic {
+            e.key = naza.into();
+        }
+    }
+    e.rule = e
+        .rule
+        .replace("assisted_us", "atti_us")
+        .replace("auto_us", "gps_us");
+    e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str =
+        "backend = \"sim\"\n[aileron]\n[elevator]\n[throttle]\n[rudder]\n[mode]\n";
+
+    fn parse(text: &str) -> NazaSettings {
+        toml::from_str(text).expect("parses")
+    }
+
+    fn errors(text: &str) -> String {
+        parse(text).validate().expect_err("invalid").to_string()
+    }
+
+    #[test]
+    fn defaults() {
+        let cfg = parse(MINIMAL).validate().expect("valid");
+        assert_eq!(cfg.failsafe_mode(), Mode::Assisted);
+        assert_eq!(cfg.failsafe_throttle(), FailsafeThrottle::Hover);
+        assert_eq!(cfg.csc(), CscPattern::Outer);
+        assert_eq!(cfg.csc_hold(), Duration::from_millis(1500));
+        let names: Vec<&str> = cfg.pwm().channels().iter().map(|c| c.name()).collect();
+        assert_eq!(names, ["aileron", "elevator", "throttle", "rudder", "mode"]);
+        assert_eq!(cfg.pwm().channels()[NazaConfig::MODE].failsafe_us(), 1500);
+        let cfg = parse(&MINIMAL.replace(
+            "backend = \"sim\"",
+            "backend = \"sim\"\nfailsafe_policy = \"land\"\nfailsafe_mode = \"gps\"",
+        ))
+        .validate()
+        .expect("valid");
+        assert_eq!(
+            cfg.failsafe_throttle(),
+            FailsafeThrottle::Land {
+                floor_us: 1300,
+                ramp: Duration::from_millis(3000)
+            }
+        );
+        assert_eq!(cfg.pwm().channels()[NazaConfig::MODE].failsafe_us(), 1900);
+    }
+
+    #[test]
+    fn errors_use_the_naza_key_names() {
+        let err = errors(
+            "backend = \"sim\"\n[aileron]\n[elevator]\n[throttle]\nmax_us = 900\n[rudder]\n\
+             [mode]\natti_us = 1100",
+        );
+        assert!(err.contains("throttle.centre_us = 1500"), "{err}");
+        assert!(
+            err.contains("mode.atti_us = 1100: must differ from manual_us"),
+            "{err}"
+        );
+        let err = errors(
+            "backend = \"rppal\"\n[aileron]\npin = 5\n[elevator]\npin = 5\n[throttle]\npin = 6\n[rudder]\npin = 7\n[mode]\npin = 99",
+        );
+        assert!(
+            err.contains("elevator.pin = GPIO5: must be unique: aileron drives the same output"),
+            "{err}"
+        );
+        assert!(err.contains("mode.pin = 99"), "{err}");
+    }
+
+    #[test]
+    fn rejects_bad_land_and_csc_settings_and_missing_tables() {
+        let err = errors(
+            "backend = \"sim\"\nfailsafe_policy = \"land\"\nland_throttle_us = 1500\nland_ramp_ms = 10\n\
+             csc_hold_ms = 0\n[aileron]\n[elevator]\n[throttle]\n[rudder]\n[mode]",
+        );
+        for want in [
+            "land_throttle_us = 1500: must be at least throttle.min_us (1000) and below the throttle centre (1500)",
+            "land_ramp_ms = 10: must be 100..=60000 ms",
+            "csc_hold_ms = 0: must be 200..=5000 ms",
+        ] {
+            assert!(err.contains(want), "missing {want:?} in\n{err}");
+        }
+        let err = errors(&format!("land_throttle_us = 1200\n{MINIMAL}"));
+        assert_eq!(
+            err,
+            "land_throttle_us = 1200: only applies with failsafe_policy = \"land\""
+        );
+        let err = errors("backend = \"sim\"\n[aileron]\n[elevator]\n[throttle]\n[rudder]");
+        assert_eq!(
+            err,
+            "mode = (absent): must give [output.mode] with its output (pin, pwm_channel or chip/channel)"
+        );
+        assert!(toml::from_str::<NazaSettings>("[mode]\nassisted_us = 1500").is_err());
+        assert!(toml::from_str::<NazaSettings>("failsafe_policy = \"drop\"").is_err());
+    }
+
+    #[test]
+    fn csc_patterns_put_both_sticks_at_the_bottom() {
+        for p in [
+            CscPattern::Outer,
+            CscPattern::Inner,
+            CscPattern::Left,
+            CscPattern::Right,
+        ] {
+            let m = p.movement();
+            assert_eq!((m.throttle, m.pitch), (-i16::MAX, -i16::MAX), "{p:?}");
+            assert_eq!(m.roll.abs(), i16::MAX);
+            assert_eq!(m.yaw.abs(), i16::MAX);
+        }
+        assert_eq!(CscPattern::Outer.movement().yaw, -i16::MAX);
+        assert_eq!(CscPattern::Outer.movement().roll, i16::MAX);
+        assert_eq!(CscPattern::Inner.movement().yaw, i16::MAX);
+        assert_eq!(CscPattern::Inner.movement().roll, -i16::MAX);
+    }
+}
