@@ -13,7 +13,7 @@
 //!
 //! All processes share one machine clock (wall time in microseconds), so no clock sync is needed.
 
-use crate::harness::{self, Out, Rig, records, wall_us};
+use crate::harness::{self, Follow, Out, Rig, records, wall_us};
 use serde::Serialize;
 use serde_json::Value;
 use std::fmt::Write as _;
@@ -148,15 +148,17 @@ pub fn run(
     let events_path = rig.procs[observer].log.clone();
     match options.scenario {
         Scenario::Latejoin => latejoin(&mut rig, options, progress),
-        Scenario::Graceful | Scenario::Crash => passive(&mut rig, options, &events_path, progress),
-        Scenario::Active => active(&mut rig, options, &events_path, progress),
+        Scenario::Graceful | Scenario::Crash => {
+            passive(&mut rig, options, &mut Follow::new(&events_path), progress)
+        }
+        Scenario::Active => active(&mut rig, options, &mut Follow::new(&events_path), progress),
     }
 }
 
 fn passive(
     rig: &mut Rig,
     options: &Options,
-    events: &Path,
+    events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let record = rig.vehicle(VEHICLE);
@@ -206,7 +208,7 @@ fn passive(
 fn active(
     rig: &mut Rig,
     options: &Options,
-    events: &Path,
+    events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let record = rig.vehicle(VEHICLE);
@@ -215,7 +217,7 @@ fn active(
     // when there are more bystanders than ranks) never take the vehicle themselves.
     // Its record gives the instant each ACCEPT leaves: the start of the measurement. (An
     // observer's arrival time is no substitute: the vehicle may hear the ACCEPT first.)
-    let sent = rig.dir.join("owner-sent.jsonl");
+    let sent_path = rig.dir.join("owner-sent.jsonl");
     rig.operator(
         11,
         "mobile",
@@ -223,8 +225,9 @@ fn active(
         &[VEHICLE],
         1000,
         "[handover]\nauto_accept = \"always\"\n",
-        &["--record", sent.to_str().unwrap_or_default()],
+        &["--record", sent_path.to_str().unwrap_or_default()],
     );
+    let mut sent = Follow::new(&sent_path);
     harness::wait_for_output(&record, Some(11), 0).map_err(anyhow::Error::msg)?;
     let bystanders = RANKS[..RANKS.len() - 1].iter().cycle();
     for (i, (level, class)) in bystanders
@@ -237,7 +240,7 @@ fn active(
     for run in 0..options.runs {
         let start = wall_us();
         let requester = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
-        let accept = wait_event(&sent, start, |e| {
+        let accept = wait_event(&mut sent, start, |e| {
             e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13 && e["current"] == 11
         })?;
         let out =
@@ -344,14 +347,17 @@ fn read_events(path: &Path) -> Vec<Value> {
         .collect()
 }
 
-/// The arrival time of the first observer event after `since` that matches.
-fn wait_event(path: &Path, since: u64, matches: impl Fn(&Value) -> bool) -> anyhow::Result<u64> {
+/// The arrival time of the first event after `since` that matches.
+fn wait_event(
+    follow: &mut Follow,
+    since: u64,
+    matches: impl Fn(&Value) -> bool,
+) -> anyhow::Result<u64> {
     let deadline = Instant::now() + harness::PATIENCE;
     loop {
-        if let Some(at) = read_events(path)
-            .iter()
-            .filter(|e| e["wall_us"].as_u64().is_some_and(|t| t >= since))
-            .find(|e| matches(e))
+        follow.poll();
+        if let Some(at) = follow
+            .find_since(since, &matches)
             .and_then(|e| e["wall_us"].as_u64())
         {
             return Ok(at);
@@ -359,7 +365,7 @@ fn wait_event(path: &Path, since: u64, matches: impl Fn(&Value) -> bool) -> anyh
         anyhow::ensure!(
             Instant::now() < deadline,
             "expected event never observed in {}",
-            path.display()
+            follow.path().display()
         );
         std::thread::sleep(Duration::from_millis(2));
     }

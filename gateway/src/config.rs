@@ -50,20 +50,62 @@ pub struct VehicleSection {
     pub command_timeout_ms: Option<u64>,
 }
 
-/// `[output]`.
+/// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OutputSection {
-    /// Which adapter drives the actuators. Only `sim` exists so far.
-    pub adapter: AdapterKind,
+#[serde(tag = "adapter", rename_all = "lowercase")]
+pub enum OutputSection {
+    /// Records outputs in memory, for tests, demos and benchmarks (`--record` writes them out).
+    Sim(SimSection),
+    /// A PWM vehicle described by its channel list (a new vehicle type needs only TOML).
+    Pwm(Box<rove_pwm::PwmVehicleSettings>),
+    /// The Eyedrive UGV: steering and throttle servos.
+    Eyedrive(Box<rove_eyedrive::EyedriveSettings>),
+    /// The DJI Naza-M multirotor autopilot: A/E/T/R/U channels.
+    Naza(Box<rove_naza::NazaSettings>),
 }
 
-/// Output adapters.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AdapterKind {
-    /// Records outputs in memory (and in the status), for tests, demos and benchmarks.
+/// `[output] adapter = "sim"` takes no other keys.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSection {}
+
+/// A validated output adapter choice.
+#[derive(Debug, Clone)]
+pub enum OutputConfig {
+    /// The core's recording sim output.
     Sim,
+    /// A config-defined PWM vehicle.
+    Pwm(rove_pwm::PwmVehicleConfig),
+    /// The Eyedrive preset (a PWM vehicle underneath).
+    Eyedrive(rove_pwm::PwmVehicleConfig),
+    /// The Naza-M.
+    Naza(rove_naza::NazaConfig),
+}
+
+impl OutputSection {
+    fn validate(&self, errors: &mut ConfigErrors) -> OutputConfig {
+        match self {
+            OutputSection::Sim(_) => OutputConfig::Sim,
+            OutputSection::Pwm(s) => collect(
+                s.validate().map(OutputConfig::Pwm),
+                "output",
+                errors,
+                OutputConfig::Sim,
+            ),
+            OutputSection::Eyedrive(s) => collect(
+                s.validate().map(OutputConfig::Eyedrive),
+                "output",
+                errors,
+                OutputConfig::Sim,
+            ),
+            OutputSection::Naza(s) => collect(
+                s.validate().map(OutputConfig::Naza),
+                "output",
+                errors,
+                OutputConfig::Sim,
+            ),
+        }
+    }
 }
 
 /// A vehicle's file as written.
@@ -188,7 +230,7 @@ pub struct VehicleConfig {
     /// Arbiter settings.
     pub arbiter: ArbiterConfig,
     /// Output adapter.
-    pub adapter: AdapterKind,
+    pub output: OutputConfig,
 }
 
 /// A validated operator configuration.
@@ -308,8 +350,20 @@ fn located(path: &Path, text: &str, error: rove_core::Error) -> anyhow::Error {
 pub fn key_line(text: &str, key: &str) -> Option<usize> {
     let mut table = String::new();
     let mut best = None;
+    // `[[a.b]]` headers: the n-th one (from 0) is table `a.b[n]`.
+    let mut arrays: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
+        if let Some(header) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
+            let name = header.trim().to_string();
+            let n = arrays.entry(name.clone()).or_insert(0);
+            table = format!("{name}[{n}]");
+            *n += 1;
+            if table == key || key.starts_with(&format!("{table}.")) {
+                best = Some(i + 1);
+            }
+            continue;
+        }
         if let Some(header) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
             table = header.trim().to_string();
             if table == key {
@@ -430,6 +484,7 @@ impl RawVehicle {
     pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &mut errors);
+        let output = self.output.validate(&mut errors);
         let timeout = collect(
             CommandTimeout::from_millis(
                 "vehicle.command_timeout_ms",
@@ -445,7 +500,7 @@ impl RawVehicle {
                 command_timeout: timeout,
                 ..ArbiterConfig::default()
             },
-            adapter: self.output.adapter,
+            output,
         })
     }
 }
@@ -562,6 +617,52 @@ mod tests {
     }
 
     #[test]
+    fn each_output_adapter_loads_from_its_shipped_example() {
+        let kind = |name: &str| match load_vehicle(&shipped(name)) {
+            Ok(c) => match c.output {
+                OutputConfig::Sim => "sim",
+                OutputConfig::Pwm(_) => "pwm",
+                OutputConfig::Eyedrive(_) => "eyedrive",
+                OutputConfig::Naza(_) => "naza",
+            },
+            Err(e) => panic!("{e:#}"),
+        };
+        assert_eq!(kind("vehicle-sim.toml"), "sim");
+        assert_eq!(kind("vehicle-custom-pwm.toml"), "pwm");
+        assert_eq!(kind("vehicle-eyedrive-pi.toml"), "eyedrive");
+        assert_eq!(kind("vehicle-naza-pi.toml"), "naza");
+    }
+
+    #[test]
+    fn output_errors_name_the_line_of_the_channel_key() {
+        let text = "[device]\nid = 7\n[output]\nadapter = \"pwm\"\nbackend = \"sim\"\n\
+                    [[output.channels]]\nname = \"a\"\nsource = \"roll\"\nchannel = 0\n\
+                    [[output.channels]]\nname = \"b\"\nsource = \"yaw\"\nchannel = 1\n\
+                    min_us = 2000\nmax_us = 1000\n";
+        let path = write("bad-channel.toml", text);
+        let message = format!("{:#}", load_vehicle(&path).expect_err("min > max"));
+        // min > max is reported on the centre (not written: the channel's header line).
+        assert!(
+            message.contains("bad-channel.toml:10: output.channels[1].centre_us"),
+            "{message}"
+        );
+        // The sim adapter takes no other keys.
+        let path = write(
+            "sim-extra.toml",
+            "[device]\nid = 7\n[output]\nadapter = \"sim\"\nbackend = \"sysfs\"\n",
+        );
+        let message = format!("{:#}", load_vehicle(&path).expect_err("unknown key"));
+        assert!(message.contains("backend"), "{message}");
+        // An unknown adapter is named.
+        let path = write(
+            "warp.toml",
+            "[device]\nid = 7\n[output]\nadapter = \"warp\"\n",
+        );
+        let message = format!("{:#}", load_vehicle(&path).expect_err("unknown adapter"));
+        assert!(message.contains("warp"), "{message}");
+    }
+
+    #[test]
     fn unknown_key_names_file_line_and_key() {
         let path = write(
             "unknown.toml",
@@ -628,5 +729,12 @@ mod tests {
         assert_eq!(key_line(text, "b.c.y.z"), Some(4));
         assert_eq!(key_line(text, "b.c"), Some(3));
         assert_eq!(key_line(text, "q"), None);
+        let text = "[output]\nadapter = \"pwm\"\n[[output.channels]]\nname = \"a\"\n\
+                    [[output.channels]]\nname = \"b\"\nmax_us = 3000\n";
+        assert_eq!(key_line(text, "output.channels[1].max_us"), Some(7));
+        assert_eq!(key_line(text, "output.channels[0].name"), Some(4));
+        // A key left to its default points at its table's header.
+        assert_eq!(key_line(text, "output.channels[1].min_us"), Some(5));
+        assert_eq!(key_line(text, "output.adapter"), Some(2));
     }
 }

@@ -87,6 +87,10 @@ pub fn control_command_qos(strength: Strength) -> QosPolicies {
         .build()
 }
 
+/// Samples per instance the vehicle's command reader holds until its loop takes them: more
+/// than the writers that can send in one loop turn.
+pub const COMMAND_READER_DEPTH: i32 = 64;
+
 /// RequestControl: the DDS default QoS, made reliable on our side (a writer's default) with a
 /// short history, so handover messages are not lost between rove peers.
 pub fn request_control_qos() -> QosPolicies {
@@ -215,10 +219,21 @@ impl Domain {
     pub fn command_reader(
         &self,
     ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedControlCommand>> {
+        // Every operator writes the same instance (key = the vehicle's id), and rustdds keeps
+        // one history per instance, not per writer: with the topic's KEEP_LAST 1, a sample from
+        // one writer is overwritten by the next writer's before the loop takes it. Measured:
+        // a new grant holder's first sample was lost to a standing-by owner's PROBE in ~10 %
+        // of handovers (applied 20 ms late, at the next keep-alive). The reader keeps more;
+        // history depth is not a request/offered QoS, so matching is unchanged.
+        let qos = QosPolicyBuilder::new()
+            .history(History::KeepLast {
+                depth: COMMAND_READER_DEPTH,
+            })
+            .build();
         self.subscriber
             .create_datareader_cdr(
                 &self.control_command,
-                Some(control_command_qos(Strength::FAILSAFE)),
+                Some(control_command_qos(Strength::FAILSAFE).modify_by(&qos)),
             )
             .context("cannot create ControlCommand reader")
     }

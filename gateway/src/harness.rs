@@ -153,9 +153,15 @@ impl Rig {
 
     /// Starts vehicle `id` (sim adapter) recording its outputs; returns the record path.
     pub fn vehicle(&mut self, id: i64) -> PathBuf {
+        self.vehicle_with_output(id, "[output]\nadapter = \"sim\"\n")
+    }
+
+    /// Starts vehicle `id` with `output_toml` as its `[output]` section, recording its outputs;
+    /// returns the record path.
+    pub fn vehicle_with_output(&mut self, id: i64, output_toml: &str) -> PathBuf {
         let config = self.write(
             &format!("vehicle-{id}.toml"),
-            &format!("[device]\nid = {id}\nname = \"v{id}\"\n[output]\nadapter = \"sim\"\n"),
+            &format!("[device]\nid = {id}\nname = \"v{id}\"\n{output_toml}"),
         );
         let record = self.dir.join(format!("vehicle-{id}.jsonl"));
         let args = [
@@ -260,36 +266,104 @@ pub struct Out {
 }
 
 pub fn records(path: &Path) -> Vec<Out> {
-    let text = std::fs::read_to_string(path).unwrap_or_default();
-    text.lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .map(|v| Out {
-            wall_us: v["wall_us"].as_u64().unwrap_or(0),
-            action: v["action"].as_str().unwrap_or("").to_string(),
-            owner: v["owner"].as_i64(),
-            throttle: v["throttle"].as_i64(),
-        })
-        .collect()
+    let mut follow = Follow::new(path);
+    follow.poll();
+    follow.lines.iter().map(out).collect()
+}
+
+fn out(v: &Value) -> Out {
+    Out {
+        wall_us: v["wall_us"].as_u64().unwrap_or(0),
+        action: v["action"].as_str().unwrap_or("").to_string(),
+        owner: v["owner"].as_i64(),
+        throttle: v["throttle"].as_i64(),
+    }
 }
 
 /// Waits until the vehicle applies a command from `owner` (or, for `None`, goes safe under the
 /// failsafe) after `since_us` (wall clock); returns that output.
 pub fn wait_for_output(record: &Path, owner: Option<i64>, since_us: u64) -> Result<Out, String> {
     let deadline = Instant::now() + PATIENCE;
+    let mut follow = Follow::new(record);
     loop {
-        let all = records(record);
-        if let Some(hit) = all.iter().find(|o| {
-            o.wall_us >= since_us && o.owner == owner && (o.action == "apply") == owner.is_some()
+        follow.poll();
+        if let Some(hit) = follow.find_since(since_us, |v| {
+            v["owner"].as_i64() == owner && (v["action"] == "apply") == owner.is_some()
         }) {
-            return Ok(hit.clone());
+            return Ok(out(hit));
         }
         if Instant::now() > deadline {
             return Err(format!(
                 "no output from {owner:?} after {since_us}; last outputs: {:?}",
-                all.iter().rev().take(5).collect::<Vec<_>>()
+                follow
+                    .lines
+                    .iter()
+                    .rev()
+                    .take(5)
+                    .map(out)
+                    .collect::<Vec<_>>()
             ));
         }
-        std::thread::sleep(Duration::from_millis(20));
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// Follows a JSON-lines file another process appends to, parsing each line once (re-reading a
+/// whole record every poll costs enough CPU to disturb what a benchmark measures).
+#[derive(Debug)]
+pub struct Follow {
+    path: PathBuf,
+    offset: u64,
+    partial: String,
+    /// Every complete line parsed so far, in file order.
+    pub lines: Vec<Value>,
+}
+
+impl Follow {
+    /// Follows `path` from its start (it need not exist yet).
+    pub fn new(path: &Path) -> Follow {
+        Follow {
+            path: path.to_path_buf(),
+            offset: 0,
+            partial: String::new(),
+            lines: Vec::new(),
+        }
+    }
+
+    /// The file followed.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Reads what was appended since the last poll.
+    pub fn poll(&mut self) {
+        use std::io::{Read, Seek, SeekFrom};
+        let Ok(mut file) = std::fs::File::open(&self.path) else {
+            return;
+        };
+        if file.seek(SeekFrom::Start(self.offset)).is_err() {
+            return;
+        }
+        let mut fresh = String::new();
+        let Ok(n) = file.read_to_string(&mut fresh) else {
+            return;
+        };
+        self.offset += n as u64;
+        self.partial.push_str(&fresh);
+        while let Some(end) = self.partial.find('\n') {
+            let line: String = self.partial.drain(..=end).collect();
+            if let Ok(v) = serde_json::from_str::<Value>(line.trim()) {
+                self.lines.push(v);
+            }
+        }
+    }
+
+    /// The first line at or after wall time `since_us` (lines are in time order) that matches.
+    pub fn find_since(&self, since_us: u64, matches: impl Fn(&Value) -> bool) -> Option<&Value> {
+        let start = self
+            .lines
+            .partition_point(|v| v["wall_us"].as_u64().unwrap_or(0) < since_us);
+        self.lines[start..].iter().find(|v| matches(v))
     }
 }
 

@@ -17,6 +17,7 @@ pub mod dds;
 pub mod demo;
 pub mod harness;
 pub mod operator;
+pub mod output;
 pub mod runtime;
 pub mod status;
 pub mod vehicle;

@@ -34,6 +34,13 @@ enum Command {
         #[arg(long)]
         record: Option<std::path::PathBuf>,
     },
+    /// Drive the vehicle's configured outputs to their safe state and exit (systemd's
+    /// ExecStopPost, or by hand after a crash).
+    Failsafe {
+        /// The vehicle's config file.
+        #[arg(short, long, default_value = "/etc/rove/vehicle.toml")]
+        config: std::path::PathBuf,
+    },
     /// Run the operator role: stream commands to the vehicles this operator drives.
     Operator {
         /// The operator's config file.
@@ -136,6 +143,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             runtime::init_logging();
             let config = config::load_vehicle(&config)?;
             tokio_runtime()?.block_on(vehicle::run(config, record))
+        }
+        Command::Failsafe { config } => {
+            let config = config::load_vehicle(&config)?;
+            let what = rove_gateway::output::failsafe(&config.output)
+                .map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
+            println!("rove failsafe: {what}: safe state written");
+            Ok(())
         }
         Command::Operator {
             config,

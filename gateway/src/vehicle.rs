@@ -10,14 +10,13 @@
 //! SIGINT): the arbiter's owner is dropped, the adapter goes safe, DeviceInfo shows the failsafe,
 //! and the participant leaves the domain cleanly.
 
-use crate::config::{AdapterKind, VehicleConfig};
+use crate::config::VehicleConfig;
 use crate::dds::{self, Domain, KeyedDeviceInfo};
+use crate::output::ManagedOutput;
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use futures::StreamExt;
-use rove_core::adapter::OutputAdapter;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
 use rove_core::msg::{Ack, DeviceInfo, DeviceType};
-use rove_core::sim::SimOutput;
 use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
@@ -32,12 +31,10 @@ use tracing::{info, warn};
 pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Result<()> {
     let clock = Clock::start();
     let me = config.common.id;
-    let mut output = match config.adapter {
-        AdapterKind::Sim => SimOutput::default(),
-    };
-    output
-        .safe_state(clock.now())
-        .map_err(|e| anyhow::anyhow!("output adapter: {e}"))?;
+    // Opening writes the safe state; a transient failure is retried from the loop.
+    let mut output = ManagedOutput::open(config.output.clone(), clock.now())
+        .map_err(|e| anyhow::anyhow!("output adapter: {}", e.detail))?;
+    output.tick(clock.now());
     let mut log = match &record {
         Some(path) => Some(OutputLog::create(path)?),
         None => None,
@@ -57,6 +54,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         domain = config.common.domain_id,
         interfaces = ?config.common.interfaces,
         adapter = %output.describe(),
+        output_health = %output.health(),
         command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
         "vehicle started"
     );
@@ -87,7 +85,11 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         RateLimited::new("ControlCommand from a writer whose ownership strength is unknown");
 
     loop {
-        let deadline = arbiter.next_deadline().map(|d| clock.instant(d));
+        let deadline = [arbiter.next_deadline(), output.next_deadline()]
+            .into_iter()
+            .flatten()
+            .min()
+            .map(|d| clock.instant(d));
         let event = tokio::select! {
             _ = &mut shutdown => break,
             sample = commands.next() => match sample {
@@ -153,9 +155,15 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
                 _ => None,
             },
             _ = heartbeat.tick() => { publish(arbiter.controller_id()); None }
-            _ = sleep_until(deadline) => Some(Event::Tick),
+            _ = sleep_until(deadline) => {
+                output.tick(clock.now());
+                Some(Event::Tick)
+            }
         };
         let Some(event) = event else { continue };
+        if tracing::enabled!(tracing::Level::TRACE) {
+            tracing::trace!(wall_us = clock.wall_micros(), ?event, "event");
+        }
         let now = clock.now();
         let decision = arbiter.step(now, event);
         carry_out(me, &decision, &mut output, log.as_mut(), &clock, &publish);
@@ -163,9 +171,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
 
     // Shutdown: outputs safe first, then tell everyone, then leave.
     info!("vehicle stopping: outputs to safe state");
-    if let Err(e) = output.safe_state(clock.now()) {
-        warn!(cause = %e, "safe state on shutdown failed");
-    }
+    output.safe_state(clock.now());
     if let Some(log) = log.as_mut() {
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
@@ -180,7 +186,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
 fn carry_out(
     me: i64,
     decision: &Decision,
-    output: &mut SimOutput,
+    output: &mut ManagedOutput,
     log: Option<&mut OutputLog>,
     clock: &Clock,
     publish: &impl Fn(i64),
@@ -198,17 +204,13 @@ fn carry_out(
     let now = clock.now();
     match decision.output {
         Some(Output::Apply { by, setpoint, .. }) => {
-            if let Err(e) = output.apply(now, &setpoint) {
-                warn!(cause = %e, "output failed");
-            }
+            output.apply(now, &setpoint);
             if let Some(log) = log {
                 log.record(clock, "apply", Owner::Controller(by), Some(setpoint));
             }
         }
         Some(Output::SafeState { owner, .. }) => {
-            if let Err(e) = output.safe_state(now) {
-                warn!(cause = %e, "safe state failed");
-            }
+            output.safe_state(now);
             if let Some(log) = log {
                 log.record(clock, "safe", owner, None);
             }

@@ -1,0 +1,129 @@
+//! Output adapters in the real gateway (issue 5): an operator process drives a vehicle process
+//! whose `[output]` is a PWM vehicle on the sysfs backend, over a temp directory standing in for
+//! `/sys/class/pwm`; and `rove failsafe` writes the safe state and exits.
+
+use rove_gateway::harness::{PATIENCE, Rig, wait_for_output, wall_us};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+const V: i64 = 100;
+const ROVE: &str = env!("CARGO_BIN_EXE_rove");
+
+/// A fake sysfs PWM class: `pwmchip0` with channels 0 and 1 already exported (the kernel
+/// creates `pwmM/` on export; the backend's own export step is covered in rove-pwm's tests).
+fn fake_sysfs(dir: &Path) -> PathBuf {
+    let root = dir.join("sys-class-pwm");
+    for ch in 0..2 {
+        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
+        std::fs::create_dir_all(&pwm).expect("fake sysfs");
+        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
+            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
+        }
+    }
+    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
+    root
+}
+
+fn eyedrive(root: &Path) -> String {
+    format!(
+        "[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\nsysfs_root = \"{}\"\n\
+         [output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
+        root.display()
+    )
+}
+
+fn duty(root: &Path, ch: u32) -> String {
+    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
+        .unwrap_or_default()
+        .trim()
+        .to_string()
+}
+
+/// Waits until channel `ch`'s duty cycle reads `want` (ns).
+fn wait_duty(root: &Path, ch: u32, want: &str) {
+    let deadline = Instant::now() + PATIENCE;
+    while duty(root, ch) != want {
+        assert!(
+            Instant::now() < deadline,
+            "pwm{ch}/duty_cycle is {:?}, never {want}",
+            duty(root, ch)
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn an_operator_drives_eyedrive_servos_through_sysfs_and_a_crash_brings_neutral() {
+    let mut rig = Rig::new(Path::new(ROVE), "pwm-e2e").unwrap_or_else(|e| panic!("{e}"));
+    let root = fake_sysfs(&rig.dir);
+    let record = rig.vehicle_with_output(V, &eyedrive(&root));
+    // Neutral at start (ESC arming), before anyone drives: 1500 µs, 20 ms period, enabled.
+    wait_duty(&root, 1, "1500000");
+    let period = std::fs::read_to_string(root.join("pwmchip0/pwm1/period")).unwrap_or_default();
+    assert_eq!(period.trim(), "20000000");
+    let enable = std::fs::read_to_string(root.join("pwmchip0/pwm1/enable")).unwrap_or_default();
+    assert_eq!(enable.trim(), "1");
+
+    // Full throttle forward, steering full left (roll −32767).
+    let op = rig.operator(11, "mobile", "phone", &[V], 32767, "roll = -32767\n", &[]);
+    wait_for_output(&record, Some(11), 0).expect("operator drives");
+    wait_duty(&root, 1, "2000000");
+    wait_duty(&root, 0, "1000000");
+
+    // The operator crashes: one command timeout later, neutral on both channels.
+    let crash = wall_us();
+    rig.procs[op].crash();
+    wait_for_output(&record, None, crash).expect("failsafe");
+    wait_duty(&root, 1, "1500000");
+    wait_duty(&root, 0, "1500000");
+}
+
+#[test]
+fn rove_failsafe_writes_the_safe_state_and_exits() {
+    let dir = std::env::temp_dir().join(format!("rove-failsafe-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let root = fake_sysfs(&dir);
+    // A crashed gateway left the throttle at full.
+    std::fs::write(root.join("pwmchip0/pwm1/duty_cycle"), "2000000").expect("duty");
+    std::fs::write(root.join("pwmchip0/pwm1/enable"), "1").expect("enable");
+    let config = dir.join("vehicle.toml");
+    std::fs::write(
+        &config,
+        format!("[device]\nid = {V}\nname = \"v\"\n{}", eyedrive(&root)),
+    )
+    .expect("config");
+    let out = Command::new(ROVE)
+        .args(["failsafe", "-c"])
+        .arg(&config)
+        .output()
+        .expect("run rove failsafe");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(duty(&root, 1), "1500000");
+    assert_eq!(duty(&root, 0), "1500000");
+
+    // Outputs that cannot be written: a clear error naming the path, and a failure exit.
+    let missing = dir.join("vehicle-missing.toml");
+    std::fs::write(
+        &missing,
+        format!(
+            "[device]\nid = {V}\nname = \"v\"\n{}",
+            eyedrive(&dir.join("no-such-pwm-class"))
+        ),
+    )
+    .expect("config");
+    let out = Command::new(ROVE)
+        .args(["failsafe", "-c"])
+        .arg(&missing)
+        .output()
+        .expect("run rove failsafe");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no-such-pwm-class"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
