@@ -27,61 +27,9 @@ pub struct EyedriveSettings {
     pub throttle: Option<EyedriveChannelSettings>,
 }
 
-/// `[output.steering]` / `[output.throttle]`: the address, and optional limits.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct EyedriveChannelSettings {
-    /// sysfs: `pwmchipN` (absent: the section's `chip`).
-    pub chip: Option<i64>,
-    /// sysfs: channel within the chip.
-    pub channel: Option<i64>,
-    /// rppal: software PWM on this BCM GPIO.
-    pub pin: Option<i64>,
-    /// rppal: hardware PWM channel 0..=1.
-    pub pwm_channel: Option<i64>,
-    /// Output polarity (absent: untouched).
-    pub polarity: Option<Polarity>,
-    /// Pulse at full left / full reverse, µs (absent: 1000).
-    pub min_us: Option<u16>,
-    /// Pulse at straight / neutral, µs (absent: 1500).
-    pub centre_us: Option<u16>,
-    /// Pulse at full right / full forward, µs (absent: 2000).
-    pub max_us: Option<u16>,
-    /// Centre shift, µs (absent: 0).
-    pub trim_us: Option<i16>,
-    /// Swap directions (absent: false).
-    pub reverse: Option<bool>,
-    /// Dead zone, percent of full scale (absent: 0).
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1 (absent: 0).
-    pub expo: Option<f64>,
-    /// Slew limit, µs/s (absent: none).
-    pub slew_us_per_s: Option<u32>,
-}
-
-impl EyedriveChannelSettings {
-    fn generic(&self, name: &str, source: SourceKind) -> ChannelSettings {
-        ChannelSettings {
-            name: Some(name.to_string()),
-            source: Some(source),
-            chip: self.chip,
-            channel: self.channel,
-            pin: self.pin,
-            pwm_channel: self.pwm_channel,
-            polarity: self.polarity,
-            min_us: self.min_us,
-            centre_us: self.centre_us,
-            max_us: self.max_us,
-            trim_us: self.trim_us,
-            reverse: self.reverse,
-            deadband_pct: self.deadband_pct,
-            expo: self.expo,
-            slew_us_per_s: self.slew_us_per_s,
-            // Neutral (the trimmed centre) is the failsafe: the generic default.
-            ..ChannelSettings::default()
-        }
-    }
-}
+/// `[output.steering]` / `[output.throttle]`: the address, and optional limits (defaults
+/// 1000/1500/2000 µs, neutral as failsafe).
+pub type EyedriveChannelSettings = rove_pwm::ServoChannelSettings;
 
 /// The generic channel order the preset builds; error keys are translated back by it.
 const CHANNELS: [(&str, SourceKind); 2] = [
@@ -102,7 +50,7 @@ impl EyedriveSettings {
             channels: CHANNELS
                 .iter()
                 .zip(tables)
-                .map(|((name, source), t)| t.clone().unwrap_or_default().generic(name, *source))
+                .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
                 .collect(),
         }
     }

@@ -99,37 +99,9 @@ impl CscPattern {
     }
 }
 
-/// `[output.aileron]` … `[output.rudder]`: address and optional limits.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StickSettings {
-    /// sysfs: `pwmchipN` (absent: the section's `chip`).
-    pub chip: Option<i64>,
-    /// sysfs: channel within the chip.
-    pub channel: Option<i64>,
-    /// rppal: software PWM on this BCM GPIO.
-    pub pin: Option<i64>,
-    /// rppal: hardware PWM channel 0..=1.
-    pub pwm_channel: Option<i64>,
-    /// Output polarity (absent: untouched).
-    pub polarity: Option<Polarity>,
-    /// Pulse at stick −full, µs (absent: 1000).
-    pub min_us: Option<u16>,
-    /// Pulse at stick centre, µs (absent: 1500).
-    pub centre_us: Option<u16>,
-    /// Pulse at stick +full, µs (absent: 2000).
-    pub max_us: Option<u16>,
-    /// Centre shift, µs.
-    pub trim_us: Option<i16>,
-    /// Swap directions.
-    pub reverse: Option<bool>,
-    /// Dead zone, percent of full scale.
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1.
-    pub expo: Option<f64>,
-    /// Slew limit, µs/s (absent: none; throttle: [`DEFAULT_THROTTLE_SLEW_US_PER_S`]).
-    pub slew_us_per_s: Option<u32>,
-}
+/// `[output.aileron]` … `[output.rudder]`: address and optional limits; the throttle's slew
+/// limit defaults to [`DEFAULT_THROTTLE_SLEW_US_PER_S`].
+pub type StickSettings = rove_pwm::ServoChannelSettings;
 
 /// `[output.mode]`: the U channel's address and levels.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -260,31 +232,14 @@ const CHANNELS: [(&str, SourceKind); 5] = [
     ("mode", SourceKind::Mode),
 ];
 
-impl StickSettings {
-    fn generic(&self, name: &str, source: SourceKind) -> ChannelSettings {
-        let slew = match source {
-            SourceKind::Throttle => self.slew_us_per_s.or(Some(DEFAULT_THROTTLE_SLEW_US_PER_S)),
-            _ => self.slew_us_per_s,
-        };
-        ChannelSettings {
-            name: Some(name.to_string()),
-            source: Some(source),
-            chip: self.chip,
-            channel: self.channel,
-            pin: self.pin,
-            pwm_channel: self.pwm_channel,
-            polarity: self.polarity,
-            min_us: self.min_us,
-            centre_us: self.centre_us,
-            max_us: self.max_us,
-            trim_us: self.trim_us,
-            reverse: self.reverse,
-            deadband_pct: self.deadband_pct,
-            expo: self.expo,
-            slew_us_per_s: slew,
-            ..ChannelSettings::default()
-        }
+/// A stick channel as a generic channel; the throttle gets a slew limit unless one is set, so
+/// it never jumps when control changes hands.
+fn stick_channel(stick: &StickSettings, name: &str, source: SourceKind) -> ChannelSettings {
+    let mut channel = stick.to_channel(name, source);
+    if source == SourceKind::Throttle && channel.slew_us_per_s.is_none() {
+        channel.slew_us_per_s = Some(DEFAULT_THROTTLE_SLEW_US_PER_S);
     }
+    channel
 }
 
 impl NazaSettings {
@@ -302,7 +257,7 @@ impl NazaSettings {
         let mut channels: Vec<ChannelSettings> = CHANNELS[..4]
             .iter()
             .zip(sticks)
-            .map(|((name, source), t)| t.clone().unwrap_or_default().generic(name, *source))
+            .map(|((name, source), t)| stick_channel(&t.clone().unwrap_or_default(), name, *source))
             .collect();
         let m = self.mode.clone().unwrap_or_default();
         let level = |v: Option<u16>, d: Mode| v.unwrap_or(DEFAULT_LEVELS.level(d));

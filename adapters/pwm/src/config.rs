@@ -103,6 +103,66 @@ pub struct PwmVehicleSettings {
     pub channels: Vec<ChannelSettings>,
 }
 
+/// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
+/// sticks): where it is wired, and optional limits. Presets turn it into a generic
+/// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
+/// the generic channel's.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServoChannelSettings {
+    /// sysfs: `pwmchipN` (absent: the section's `chip`).
+    pub chip: Option<i64>,
+    /// sysfs: channel within the chip.
+    pub channel: Option<i64>,
+    /// rppal: software PWM on this BCM GPIO.
+    pub pin: Option<i64>,
+    /// rppal: hardware PWM channel 0..=1.
+    pub pwm_channel: Option<i64>,
+    /// Output polarity (absent: untouched).
+    pub polarity: Option<Polarity>,
+    /// Pulse at −full scale, µs (absent: 1000).
+    pub min_us: Option<u16>,
+    /// Pulse at centre / neutral, µs (absent: 1500).
+    pub centre_us: Option<u16>,
+    /// Pulse at +full scale, µs (absent: 2000).
+    pub max_us: Option<u16>,
+    /// Centre shift, µs (absent: 0).
+    pub trim_us: Option<i16>,
+    /// Swap directions (absent: false).
+    pub reverse: Option<bool>,
+    /// Dead zone, percent of full scale (absent: 0).
+    pub deadband_pct: Option<f64>,
+    /// Expo 0..=1 (absent: 0).
+    pub expo: Option<f64>,
+    /// Slew limit, µs/s (absent: none, unless the preset sets one).
+    pub slew_us_per_s: Option<u32>,
+}
+
+impl ServoChannelSettings {
+    /// The generic channel `name` fed from `source`; its failsafe is the generic default (the
+    /// trimmed centre).
+    pub fn to_channel(&self, name: &str, source: SourceKind) -> ChannelSettings {
+        ChannelSettings {
+            name: Some(name.to_string()),
+            source: Some(source),
+            chip: self.chip,
+            channel: self.channel,
+            pin: self.pin,
+            pwm_channel: self.pwm_channel,
+            polarity: self.polarity,
+            min_us: self.min_us,
+            centre_us: self.centre_us,
+            max_us: self.max_us,
+            trim_us: self.trim_us,
+            reverse: self.reverse,
+            deadband_pct: self.deadband_pct,
+            expo: self.expo,
+            slew_us_per_s: self.slew_us_per_s,
+            ..ChannelSettings::default()
+        }
+    }
+}
+
 /// One `[[output.channels]]` table, as written.
 ///
 /// The mapping keys (`min_us` … `slew_us_per_s`) are those of

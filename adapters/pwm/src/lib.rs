@@ -58,7 +58,7 @@ pub mod vehicle;
 pub use backend::{PulseRecord, PwmBackend, SimBackend, SimLog, open_backend};
 pub use config::{
     BackendConfig, BackendKind, ChannelAddress, ChannelConfig, ChannelSettings, ChannelSource,
-    Polarity, PwmVehicleConfig, PwmVehicleSettings, SourceKind,
+    Polarity, PwmVehicleConfig, PwmVehicleSettings, ServoChannelSettings, SourceKind,
 };
 pub use sysfs::SysfsBackend;
 pub use vehicle::PwmVehicle;
