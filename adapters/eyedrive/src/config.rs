@@ -3,9 +3,7 @@
 //! channel list.
 
 use rove_core::error::{ConfigError, ConfigErrors};
-use rove_pwm::{
-    BackendKind, ChannelSettings, Polarity, PwmVehicleConfig, PwmVehicleSettings, SourceKind,
-};
+use rove_pwm::{BackendKind, PwmVehicleConfig, PwmVehicleSettings, SourceKind};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
