@@ -10,6 +10,7 @@
 //! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover`.
 //! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
+//! - [`sdnotify`]: systemd readiness, status, watchdog keep-alives and stopping.
 
 pub mod bench;
 pub mod config;
@@ -19,5 +20,6 @@ pub mod harness;
 pub mod operator;
 pub mod output;
 pub mod runtime;
+pub mod sdnotify;
 pub mod status;
 pub mod vehicle;

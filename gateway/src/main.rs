@@ -33,6 +33,10 @@ enum Command {
         /// Append every output (apply / safe, owner, values, times) as JSON lines to this file.
         #[arg(long)]
         record: Option<std::path::PathBuf>,
+        /// Test hook, hidden from --help: SIGUSR1 blocks the control loop for MS milliseconds
+        /// (as a hung device write would), so a test can see the watchdog keep-alives stop.
+        #[arg(long, hide = true, value_name = "MS")]
+        test_stall_on_sigusr1: Option<u64>,
     },
     /// Drive the vehicle's configured outputs to their safe state and exit (systemd's
     /// ExecStopPost, or by hand after a crash).
@@ -128,7 +132,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("rove: {err:#}");
-            if is_config {
+            if is_config || err.is::<BadConfig>() {
                 ExitCode::from(EXIT_CONFIG)
             } else {
                 ExitCode::FAILURE
@@ -137,28 +141,53 @@ fn main() -> ExitCode {
     }
 }
 
+/// A config file that cannot be used (unreadable, invalid): the role exits with [`EXIT_CONFIG`].
+#[derive(Debug)]
+struct BadConfig(String);
+
+impl std::fmt::Display for BadConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BadConfig {}
+
+fn bad_config(err: anyhow::Error) -> anyhow::Error {
+    BadConfig(format!("{err:#}")).into()
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Vehicle { config, record } => {
-            runtime::init_logging();
-            let config = config::load_vehicle(&config)?;
-            tokio_runtime()?.block_on(vehicle::run(config, record))
+        Command::Vehicle {
+            config: path,
+            record,
+            test_stall_on_sigusr1,
+        } => {
+            runtime::init_logging(None);
+            let config = config::load_vehicle(&path).map_err(bad_config)?;
+            let options = vehicle::Options {
+                config_path: path,
+                record,
+                stall_on_sigusr1: test_stall_on_sigusr1.map(std::time::Duration::from_millis),
+            };
+            tokio_runtime()?.block_on(vehicle::run(config, options))
         }
         Command::Failsafe { config } => {
-            let config = config::load_vehicle(&config)?;
+            let config = config::load_vehicle(&config).map_err(bad_config)?;
             let what = rove_gateway::output::failsafe(&config.output)
                 .map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
             println!("rove failsafe: {what}: safe state written");
             Ok(())
         }
         Command::Operator {
-            config,
+            config: path,
             request,
             record,
         } => {
-            runtime::init_logging();
-            let config = config::load_operator(&config)?;
-            tokio_runtime()?.block_on(operator::run(config, request, record.as_deref()))
+            runtime::init_logging(None);
+            let config = config::load_operator(&path).map_err(bad_config)?;
+            tokio_runtime()?.block_on(operator::run(config, &path, request, record.as_deref()))
         }
         Command::Status {
             domain,

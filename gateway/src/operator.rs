@@ -9,10 +9,15 @@
 //!
 //! Stop (SIGTERM, SIGINT): held grants are finished, every instance we drive is disposed (an
 //! explicit release, so the vehicle hands over at once), and the participant leaves.
+//!
+//! Under systemd (see [`crate::sdnotify`]): `READY=1` once the participant and every writer
+//! exist, `STATUS=` with what we drive, hold and stand by for, `WATCHDOG=1` from this loop, and
+//! `STOPPING=1` when the stop begins.
 
 use crate::config::OperatorConfig;
 use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
+use crate::sdnotify::Notifier;
 use futures::StreamExt;
 use rove_core::handover::{Action, Handover};
 use rove_core::hierarchy::Strength;
@@ -30,19 +35,22 @@ type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
 /// holding up a systemd stop noticeably. If it runs out, peers fall back to the command timeout.
 const SHUTDOWN_ACK_WAIT: std::time::Duration = std::time::Duration::from_millis(300);
 
-/// Runs the operator role until SIGTERM/SIGINT. `request`: ask this vehicle's owner for control
-/// as soon as the vehicle is seen. `record`: append every RequestControl this operator sends,
-/// with its send time, as JSON lines (the instant an ACCEPT leaves, for the benchmark).
+/// Runs the operator role until SIGTERM/SIGINT. `config_path` is named in the start-up line.
+/// `request`: ask this vehicle's owner for control as soon as the vehicle is seen. `record`:
+/// append every RequestControl this operator sends, with its send time, as JSON lines (the
+/// instant an ACCEPT leaves, for the benchmark).
 ///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, or the record cannot be
 /// opened.
 pub async fn run(
     config: OperatorConfig,
+    config_path: &std::path::Path,
     request: Option<DeviceId>,
     record: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
     let clock = Clock::start();
+    let mut notify = Notifier::from_env();
     let mut record = record.map(JsonLines::create).transpose()?;
     let me = config.common.id;
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
@@ -53,6 +61,7 @@ pub async fn run(
     let infos = domain.device_info_reader()?;
     let requests = domain.request_reader()?;
     info!(
+        config = %config_path.display(),
         device = me,
         name = %config.common.name,
         level = ?config.level,
@@ -61,6 +70,7 @@ pub async fn run(
         domain = config.common.domain_id,
         interfaces = ?config.common.interfaces,
         drive = ?config.drive,
+        watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "operator started"
     );
 
@@ -105,13 +115,26 @@ pub async fn run(
     let shutdown = shutdown_signal()?;
     tokio::pin!(shutdown);
     let mut malformed = RateLimited::new("malformed DeviceInfo or RequestControl sample");
+    let mut keepalive = notify.keepalive_timer();
+    let mut shown = state.status_line(vehicles.len());
+    notify.ready(&shown);
 
     loop {
         let deadline = handover.next_deadline().map(|d| clock.instant(d));
         let actions = tokio::select! {
             _ = &mut shutdown => break,
             _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
-            _ = heartbeat.tick() => { publish_info(); Vec::new() }
+            _ = heartbeat.tick() => {
+                publish_info();
+                let line = state.status_line(vehicles.len());
+                if line != shown {
+                    notify.status(&line);
+                    shown = line;
+                }
+                Vec::new()
+            }
+            // From this loop, so that a hung loop stops the keep-alives.
+            _ = keepalive.tick() => { notify.keepalive(); Vec::new() }
             sample = infos.next() => {
                 // A yielded vehicle's published owner can show that its grant is over.
                 let mut actions = Vec::new();
@@ -175,12 +198,21 @@ pub async fn run(
             },
             _ = sleep_until(deadline) => handover.tick(clock.now()),
         };
+        let changed = !actions.is_empty();
         for action in actions {
             carry_out(action, &mut state, &request_writer, &clock, record.as_mut());
+        }
+        if changed {
+            let line = state.status_line(vehicles.len());
+            if line != shown {
+                notify.status(&line);
+                shown = line;
+            }
         }
     }
 
     info!("operator stopping: finishing grants and releasing vehicles");
+    notify.stopping("stopping: finishing grants, releasing vehicles");
     let held: Vec<DeviceId> = state.priority.iter().copied().collect();
     for vehicle in held {
         if let Ok(actions) = handover.finish(vehicle) {
@@ -238,6 +270,11 @@ impl Streams {
         })
     }
 
+    /// The `STATUS=` line for what we stream now.
+    fn status_line(&self, vehicles_seen: usize) -> String {
+        status_line(&self.driving, &self.priority, &self.standby, vehicles_seen)
+    }
+
     fn streams_to(&self, vehicle: DeviceId) -> bool {
         self.driving.contains(&vehicle) || self.priority.contains(&vehicle)
     }
@@ -291,6 +328,39 @@ impl Streams {
             self.release(v, true);
         }
     }
+}
+
+/// The `STATUS=` line, e.g. `driving 100; holding a grant for 101; 3 vehicles seen`.
+fn status_line(
+    driving: &BTreeSet<DeviceId>,
+    priority: &BTreeSet<DeviceId>,
+    standby: &BTreeSet<DeviceId>,
+    vehicles_seen: usize,
+) -> String {
+    let list = |set: &BTreeSet<DeviceId>| {
+        set.iter()
+            .map(DeviceId::to_string)
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut parts = Vec::new();
+    if driving.is_empty() && priority.is_empty() && standby.is_empty() {
+        parts.push("driving nothing".to_string());
+    }
+    if !driving.is_empty() {
+        parts.push(format!("driving {}", list(driving)));
+    }
+    if !priority.is_empty() {
+        parts.push(format!("holding a grant for {}", list(priority)));
+    }
+    if !standby.is_empty() {
+        parts.push(format!("standing by for {}", list(standby)));
+    }
+    parts.push(match vehicles_seen {
+        1 => "1 vehicle seen".to_string(),
+        n => format!("{n} vehicles seen"),
+    });
+    parts.join("; ")
 }
 
 fn carry_out(
@@ -348,5 +418,31 @@ fn carry_out(
             state.driving.insert(vehicle);
             state.send(vehicle, false, CommandType::Movement, clock);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn set(ids: &[DeviceId]) -> BTreeSet<DeviceId> {
+        ids.iter().copied().collect()
+    }
+
+    #[test]
+    fn status_line_says_what_we_drive_hold_and_stand_by_for() {
+        let none = set(&[]);
+        assert_eq!(
+            status_line(&none, &none, &none, 0),
+            "driving nothing; 0 vehicles seen"
+        );
+        assert_eq!(
+            status_line(&set(&[100, 102]), &none, &none, 1),
+            "driving 100, 102; 1 vehicle seen"
+        );
+        assert_eq!(
+            status_line(&set(&[100]), &set(&[101]), &set(&[103]), 3),
+            "driving 100; holding a grant for 101; standing by for 103; 3 vehicles seen"
+        );
     }
 }

@@ -1,5 +1,5 @@
 //! Process plumbing shared by the roles: the monotonic clock handed to the core, shutdown
-//! signals, rate-limited warnings and logging set-up.
+//! signals, rate-limited warnings and logging set-up (terminal, file or systemd's journal).
 
 use rove_core::MonoTime;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -103,20 +103,128 @@ impl RateLimited {
     }
 }
 
-/// Logging: `RUST_LOG` (default: rove at `info`, rustdds at `warn` — its `info` level logs every
-/// discovery step), to stderr; without a terminal (systemd), no timestamps (journald adds its
-/// own) and no colours.
-pub fn init_logging() {
-    use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,rustdds=warn"));
+/// The filter used when `RUST_LOG` is not set: rove at `info`, rustdds at `warn` (its `info`
+/// level logs every discovery step).
+pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn";
+
+/// How log lines are written to stderr.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogStyle {
+    /// A person at a terminal: time stamps and colours.
+    Terminal,
+    /// systemd's journal (`JOURNAL_STREAM` names our stderr): each line starts with its syslog
+    /// priority (`<4>` for a warning), which journald takes as the entry's priority
+    /// (`journalctl -p warning`) and strips; no time stamps, since journald adds its own; no
+    /// colours.
+    Journal,
+    /// A file or pipe (tests, `2>log`): time stamps, no colours.
+    Plain,
+}
+
+impl LogStyle {
+    /// The style for a stderr that is (or is not) a terminal and is (or is not) the journal.
+    pub fn choose(is_terminal: bool, is_journal: bool) -> LogStyle {
+        match (is_journal, is_terminal) {
+            (true, _) => LogStyle::Journal,
+            (false, true) => LogStyle::Terminal,
+            (false, false) => LogStyle::Plain,
+        }
+    }
+
+    /// The style for this process's stderr.
+    pub fn detect() -> LogStyle {
+        use std::io::IsTerminal;
+        LogStyle::choose(std::io::stderr().is_terminal(), stderr_is_journal())
+    }
+}
+
+/// `JOURNAL_STREAM`'s value, `DEVICE:INODE` in decimal (systemd.exec(5)).
+pub fn parse_journal_stream(value: &std::ffi::OsStr) -> Option<(u64, u64)> {
+    let (dev, ino) = value.to_str()?.split_once(':')?;
+    let number = |s: &str| -> Option<u64> {
+        if s.is_empty() || !s.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        s.parse().ok()
+    };
+    Some((number(dev)?, number(ino)?))
+}
+
+/// True when stderr is the stream systemd connected to the journal. Checking the device and
+/// inode (rather than only that `JOURNAL_STREAM` is set) keeps a child whose stderr was
+/// redirected from prefixing its lines with priorities.
+fn stderr_is_journal() -> bool {
+    use std::os::fd::AsFd;
+    use std::os::unix::fs::MetadataExt;
+    let Some((dev, ino)) = std::env::var_os("JOURNAL_STREAM")
+        .as_deref()
+        .and_then(parse_journal_stream)
+    else {
+        return false;
+    };
+    let Ok(fd) = std::io::stderr().as_fd().try_clone_to_owned() else {
+        return false;
+    };
+    match std::fs::File::from(fd).metadata() {
+        Ok(meta) => meta.dev() == dev && meta.ino() == ino,
+        Err(_) => false,
+    }
+}
+
+/// The syslog priority journald reads from a `<N>` line prefix (sd-daemon(3)).
+pub fn syslog_priority(level: tracing::Level) -> u8 {
+    match level {
+        tracing::Level::ERROR => 3,
+        tracing::Level::WARN => 4,
+        tracing::Level::INFO => 6,
+        tracing::Level::DEBUG | tracing::Level::TRACE => 7,
+    }
+}
+
+/// Prefixes each event with its `<N>` syslog priority, then formats it as `inner` does.
+struct JournalFormat<F>(F);
+
+impl<S, N, F> tracing_subscriber::fmt::FormatEvent<S, N> for JournalFormat<F>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+    N: for<'a> tracing_subscriber::fmt::FormatFields<'a> + 'static,
+    F: tracing_subscriber::fmt::FormatEvent<S, N>,
+{
+    fn format_event(
+        &self,
+        ctx: &tracing_subscriber::fmt::FmtContext<'_, S, N>,
+        mut writer: tracing_subscriber::fmt::format::Writer<'_>,
+        event: &tracing::Event<'_>,
+    ) -> std::fmt::Result {
+        write!(writer, "<{}>", syslog_priority(*event.metadata().level()))?;
+        self.0.format_event(ctx, writer.by_ref(), event)
+    }
+}
+
+/// Logging to stderr, in the [`LogStyle`] that fits it. The filter is `RUST_LOG` when set
+/// (and valid), else `default_filter` (e.g. a level from the config), else
+/// [`DEFAULT_LOG_FILTER`]. Call once, in `main`.
+pub fn init_logging(default_filter: Option<&str>) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env()
+        .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
+        .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
-    if std::io::stderr().is_terminal() {
-        builder.init();
-    } else {
-        builder.without_time().with_ansi(false).init();
+    match LogStyle::detect() {
+        LogStyle::Terminal => builder.init(),
+        LogStyle::Plain => builder.with_ansi(false).init(),
+        LogStyle::Journal => {
+            let format = tracing_subscriber::fmt::format()
+                .without_time()
+                .with_ansi(false)
+                .with_level(false);
+            builder
+                .with_ansi(false)
+                .event_format(JournalFormat(format))
+                .init()
+        }
     }
 }
 
@@ -169,4 +277,49 @@ pub fn request_json(clock: &Clock, rc: &rove_core::msg::RequestControl) -> serde
         "dest": rc.dest_id, "current": rc.current_controller_id,
         "stamp": rc.timestamp.0,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ffi::OsStr;
+
+    #[test]
+    fn journal_stream_is_device_colon_inode() {
+        let cases: &[(&str, Option<(u64, u64)>)] = &[
+            ("8:12345", Some((8, 12345))),
+            ("0:0", Some((0, 0))),
+            ("", None),
+            ("8", None),
+            ("8:", None),
+            (":5", None),
+            ("8:5:1", None),
+            ("x:5", None),
+            ("-1:5", None),
+            ("99999999999999999999999:1", None),
+        ];
+        for (value, want) in cases {
+            assert_eq!(
+                parse_journal_stream(OsStr::new(value)),
+                *want,
+                "JOURNAL_STREAM={value:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_journal_wins_then_the_terminal() {
+        assert_eq!(LogStyle::choose(false, true), LogStyle::Journal);
+        assert_eq!(LogStyle::choose(true, true), LogStyle::Journal);
+        assert_eq!(LogStyle::choose(true, false), LogStyle::Terminal);
+        assert_eq!(LogStyle::choose(false, false), LogStyle::Plain);
+    }
+
+    #[test]
+    fn priorities_are_syslogs() {
+        assert_eq!(syslog_priority(tracing::Level::ERROR), 3);
+        assert_eq!(syslog_priority(tracing::Level::WARN), 4);
+        assert_eq!(syslog_priority(tracing::Level::INFO), 6);
+        assert_eq!(syslog_priority(tracing::Level::DEBUG), 7);
+    }
 }

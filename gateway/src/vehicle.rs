@@ -6,14 +6,25 @@
 //! The loop sleeps until the arbiter's next deadline, so a silent owner is dropped exactly one
 //! command timeout after its last sample, with no polling.
 //!
-//! Start: the adapter is put in its safe state before the participant joins. Stop (SIGTERM,
-//! SIGINT): the arbiter's owner is dropped, the adapter goes safe, DeviceInfo shows the failsafe,
-//! and the participant leaves the domain cleanly.
+//! Start: the adapter is put in its safe state before the participant joins; then systemd is
+//! told `READY=1`. Stop (SIGTERM, SIGINT): systemd is told `STOPPING=1`, the arbiter's owner is
+//! dropped, the adapter goes safe, DeviceInfo shows the failsafe, and the participant leaves the
+//! domain cleanly.
+//!
+//! Under systemd (see [`crate::sdnotify`]): `STATUS=` names the owner, how many operators are
+//! live and the output's health, and is updated on every owner change and every heartbeat;
+//! `WATCHDOG=1` keep-alives are sent by this loop itself, so a hung loop stops them.
+//!
+//! Test hook: with the hidden `--test-stall-on-sigusr1 MS`, SIGUSR1 blocks this loop (the
+//! whole thread) for MS milliseconds, the way a hung device write would, after saying so in
+//! `STATUS=`. The sd_notify test uses it to see keep-alives stop. Without the option SIGUSR1
+//! keeps its default action (the process ends; ExecStopPost makes the outputs safe).
 
 use crate::config::VehicleConfig;
 use crate::dds::{self, Domain, KeyedDeviceInfo};
 use crate::output::ManagedOutput;
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
+use crate::sdnotify::Notifier;
 use futures::StreamExt;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
 use rove_core::msg::{Ack, DeviceInfo, DeviceType};
@@ -21,16 +32,30 @@ use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
 use std::path::PathBuf;
+use std::time::Duration;
 use tracing::{info, warn};
+
+/// How `rove vehicle` was started, beyond its config.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// The config file, for the start-up line.
+    pub config_path: PathBuf,
+    /// Append every output to this JSON-lines file.
+    pub record: Option<PathBuf>,
+    /// Test hook: SIGUSR1 stalls the loop this long (see the module docs).
+    pub stall_on_sigusr1: Option<Duration>,
+}
 
 /// Runs the vehicle role until SIGTERM/SIGINT.
 ///
 /// # Errors
-/// The participant, a topic, a reader or writer cannot be created, or the output record file
-/// cannot be opened.
-pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Result<()> {
+/// The participant, a topic, a reader or writer cannot be created, the output record file
+/// cannot be opened, or a signal handler cannot be installed.
+pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> {
     let clock = Clock::start();
     let me = config.common.id;
+    let mut notify = Notifier::from_env();
+    let record = options.record;
     // Opening writes the safe state; a transient failure is retried from the loop.
     let mut output = ManagedOutput::open(config.output.clone(), clock.now())
         .map_err(|e| anyhow::anyhow!("output adapter: {}", e.detail))?;
@@ -49,6 +74,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
     let requests = domain.request_reader()?;
     let listener = domain.participant.status_listener();
     info!(
+        config = %options.config_path.display(),
         device = me,
         name = %config.common.name,
         domain = config.common.domain_id,
@@ -56,6 +82,7 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         adapter = %output.describe(),
         output_health = %output.health(),
         command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
+        watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "vehicle started"
     );
 
@@ -80,9 +107,15 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
     let mut heartbeat = tokio::time::interval(config.common.heartbeat);
     let shutdown = shutdown_signal()?;
     tokio::pin!(shutdown);
+    let mut keepalive = notify.keepalive_timer();
+    let mut stall = StallHook::new(options.stall_on_sigusr1)?;
     let mut malformed = RateLimited::new("malformed or unreadable ControlCommand sample");
     let mut unknown_strength =
         RateLimited::new("ControlCommand from a writer whose ownership strength is unknown");
+    // The outputs are safe (or held safe while their device is reopened), the participant is
+    // up and the signal handlers are in place: ready.
+    let mut shown = status_line(&arbiter, &output, clock.now());
+    notify.ready(&shown);
 
     loop {
         let deadline = [arbiter.next_deadline(), output.next_deadline()]
@@ -154,7 +187,25 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
                 }
                 _ => None,
             },
-            _ = heartbeat.tick() => { publish(arbiter.controller_id()); None }
+            _ = heartbeat.tick() => {
+                publish(arbiter.controller_id());
+                let line = status_line(&arbiter, &output, clock.now());
+                if line != shown {
+                    notify.status(&line);
+                    shown = line;
+                }
+                None
+            }
+            // From this loop, so that a hung loop stops the keep-alives.
+            _ = keepalive.tick() => { notify.keepalive(); None }
+            stall_for = stall.requested() => {
+                warn!(stall_ms = stall_for.as_millis() as u64, "test hook: stalling the control loop");
+                notify.status("control loop stalled by the SIGUSR1 test hook");
+                // Blocking on purpose: this is the hang the watchdog is there to catch.
+                std::thread::sleep(stall_for);
+                notify.status(&shown);
+                None
+            }
             _ = sleep_until(deadline) => {
                 output.tick(clock.now());
                 Some(Event::Tick)
@@ -167,10 +218,15 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         let now = clock.now();
         let decision = arbiter.step(now, event);
         carry_out(me, &decision, &mut output, log.as_mut(), &clock, &publish);
+        if decision.owner_change.is_some() {
+            shown = status_line(&arbiter, &output, clock.now());
+            notify.status(&shown);
+        }
     }
 
     // Shutdown: outputs safe first, then tell everyone, then leave.
     info!("vehicle stopping: outputs to safe state");
+    notify.stopping("stopping: outputs to safe state");
     output.safe_state(clock.now());
     if let Some(log) = log.as_mut() {
         log.record(&clock, "safe", Owner::Failsafe, None);
@@ -181,6 +237,53 @@ pub async fn run(config: VehicleConfig, record: Option<PathBuf>) -> anyhow::Resu
         warn!(cause = ?e, "cannot withdraw DeviceInfo");
     }
     Ok(())
+}
+
+/// The `STATUS=` line: who drives, how many operators are live, and the output's health.
+/// E.g. `driven by 11 (2 operators live); output ok` or
+/// `failsafe (no operator live); output down: …`.
+fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTime) -> String {
+    // Devices, not streams: an operator holding a grant may have two live writers.
+    let live = arbiter
+        .sources(now)
+        .filter(|s| s.live)
+        .map(|s| s.controller.device)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let operators = match live {
+        0 => "no operator live".to_string(),
+        1 => "1 operator live".to_string(),
+        n => format!("{n} operators live"),
+    };
+    let owner = match arbiter.owner().device() {
+        Some(id) => format!("driven by {id}"),
+        None => "failsafe".to_string(),
+    };
+    format!("{owner} ({operators}); output {}", output.health())
+}
+
+/// The SIGUSR1 stall test hook, when enabled.
+struct StallHook(Option<(tokio::signal::unix::Signal, Duration)>);
+
+impl StallHook {
+    fn new(stall: Option<Duration>) -> anyhow::Result<StallHook> {
+        use tokio::signal::unix::{SignalKind, signal};
+        Ok(StallHook(match stall {
+            Some(d) => Some((signal(SignalKind::user_defined1())?, d)),
+            None => None,
+        }))
+    }
+
+    /// Resolves with the stall length on SIGUSR1; never when the hook is off.
+    async fn requested(&mut self) -> Duration {
+        match &mut self.0 {
+            Some((signal, stall)) => match signal.recv().await {
+                Some(()) => *stall,
+                None => std::future::pending().await,
+            },
+            None => std::future::pending().await,
+        }
+    }
 }
 
 fn carry_out(
@@ -249,5 +352,61 @@ impl OutputLog {
             line["mode"] = (sp.mode as u32).into();
         }
         self.0.write(&line);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rove_core::MonoTime;
+    use rove_core::arbiter::{ArbiterConfig, ParticipantId, WriterId};
+    use rove_core::hierarchy::Strength;
+    use rove_core::msg::{CommandType, ControlCommand, Mode, MovementCommand, TimeT};
+
+    fn sample(writer: WriterId, device: i64, strength: u16, at: MonoTime) -> Event {
+        Event::Sample {
+            writer,
+            strength: Strength(strength),
+            command: ControlCommand {
+                src_id: device,
+                dest_id: 100,
+                command_type: CommandType::Movement,
+                movement_command: MovementCommand::default(),
+                mode: Mode::Manual,
+                timestamp: TimeT(0),
+            },
+            arrival: at,
+        }
+    }
+
+    #[test]
+    fn status_line_names_the_owner_counts_live_devices_and_shows_output_health() {
+        let output = ManagedOutput::open(crate::config::OutputConfig::Sim, MonoTime::ZERO)
+            .expect("sim output");
+        let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
+        let t = MonoTime::ZERO;
+        assert_eq!(
+            status_line(&arbiter, &output, t),
+            "failsafe (no operator live); output ok"
+        );
+        let writer = |p: u128, e: u32| WriterId {
+            participant: ParticipantId(p),
+            entity: e,
+        };
+        // Device 11 streams on two writers (regular and priority): one operator.
+        arbiter.step(t, sample(writer(1, 1), 11, 220, t));
+        arbiter.step(t, sample(writer(1, 2), 11, 65535, t));
+        arbiter.step(t, sample(writer(2, 1), 12, 100, t));
+        assert_eq!(
+            status_line(&arbiter, &output, t),
+            "driven by 11 (2 operators live); output ok"
+        );
+        // One command timeout later nobody is live.
+        let later = t + std::time::Duration::from_secs(1);
+        arbiter.step(later, Event::Tick);
+        assert_eq!(
+            status_line(&arbiter, &output, later),
+            "failsafe (no operator live); output ok"
+        );
     }
 }

@@ -1,0 +1,243 @@
+//! The Debian package (issue 8). `[package.metadata.deb]` in gateway/Cargo.toml must install
+//! the binary, every unit in systemd/, the configs the units name (as conffiles), the examples
+//! and the deployment guide. With `ROVE_DEB=path/to/rove_….deb` (`.ci/run` sets it after
+//! `cargo deb`), the built package itself is opened with `dpkg-deb` and checked: its file list,
+//! conffiles, maintainer scripts, and that its binary runs and accepts its own default config.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const GATEWAY: &str = env!("CARGO_MANIFEST_DIR");
+
+fn metadata() -> toml::Table {
+    let path = Path::new(GATEWAY).join("Cargo.toml");
+    let text = std::fs::read_to_string(&path).expect("gateway/Cargo.toml");
+    let manifest: toml::Table = toml::from_str(&text).expect("Cargo.toml parses");
+    manifest["package"]["metadata"]["deb"]
+        .as_table()
+        .expect("[package.metadata.deb]")
+        .clone()
+}
+
+/// `(source, dest, mode)` of every asset.
+fn assets(deb: &toml::Table) -> Vec<(String, String, String)> {
+    deb["assets"]
+        .as_array()
+        .expect("assets")
+        .iter()
+        .map(|a| {
+            let a = a.as_array().expect("an asset is [source, dest, mode]");
+            let s = |i: usize| a[i].as_str().expect("asset strings").to_string();
+            (s(0), s(1), s(2))
+        })
+        .collect()
+}
+
+fn unit_files() -> Vec<String> {
+    let mut units: Vec<String> = std::fs::read_dir(Path::new(GATEWAY).join("../systemd"))
+        .expect("systemd/")
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".service"))
+        .collect();
+    units.sort();
+    units
+}
+
+/// The `/etc/rove/…` files the (non-template) units run with.
+fn configs_named_by_units() -> BTreeSet<String> {
+    let mut configs = BTreeSet::new();
+    for unit in unit_files().iter().filter(|u| !u.contains('@')) {
+        let text = std::fs::read_to_string(Path::new(GATEWAY).join("../systemd").join(unit))
+            .expect("unit file");
+        let exec_lines = text.lines().filter(|l| l.trim_start().starts_with("Exec"));
+        for word in exec_lines.flat_map(str::split_whitespace) {
+            if word.starts_with("/etc/rove/") {
+                configs.insert(word.to_string());
+            }
+        }
+    }
+    configs
+}
+
+#[test]
+fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
+    let deb = metadata();
+    assert_eq!(deb["name"].as_str(), Some("rove"));
+    let assets = assets(&deb);
+    let installs = |dest: &str| assets.iter().find(|(_, d, _)| d == dest);
+
+    let binary = installs("usr/bin/").expect("the binary");
+    assert_eq!(
+        (binary.0.as_str(), binary.2.as_str()),
+        ("target/release/rove", "755")
+    );
+    let units = unit_files();
+    assert!(units.len() >= 3, "{units:?}");
+    for unit in &units {
+        let source = format!("../systemd/{unit}");
+        assert!(
+            assets
+                .iter()
+                .any(|(s, d, m)| *s == source && d == "lib/systemd/system/" && m == "644"),
+            "{unit} is not installed to lib/systemd/system/"
+        );
+    }
+    let conf_files: Vec<&str> = deb["conf-files"]
+        .as_array()
+        .expect("conf-files")
+        .iter()
+        .filter_map(|v| v.as_str())
+        .collect();
+    let configs = configs_named_by_units();
+    assert!(configs.contains("/etc/rove/vehicle.toml"), "{configs:?}");
+    for config in &configs {
+        let dest = config.trim_start_matches('/');
+        assert!(
+            installs(dest).is_some(),
+            "{config} is named by a unit but not installed"
+        );
+        assert!(
+            conf_files.contains(&config.as_str()),
+            "{config} is not a conffile"
+        );
+    }
+    assert!(installs("usr/share/doc/rove/examples/").is_some());
+    assert!(installs("usr/share/doc/rove/").is_some());
+
+    // Every source exists (globs: the directory has a match); the binary is built by cargo deb.
+    for (source, _, _) in &assets {
+        if source.starts_with("target/release/") {
+            continue;
+        }
+        let path = Path::new(GATEWAY).join(source);
+        match source.split_once('*') {
+            Some((dir, ext)) => {
+                let dir = Path::new(GATEWAY).join(dir);
+                let matches = std::fs::read_dir(&dir)
+                    .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+                    .filter_map(|e| e.ok()?.file_name().into_string().ok())
+                    .filter(|n| n.ends_with(ext))
+                    .count();
+                assert!(matches > 0, "{source} matches nothing");
+            }
+            None => assert!(path.is_file(), "{source} does not exist"),
+        }
+    }
+
+    // The maintainer scripts exist, are executable and are shell scripts that parse.
+    let scripts = Path::new(GATEWAY).join(deb["maintainer-scripts"].as_str().expect("dir"));
+    for script in ["postinst", "prerm", "postrm"] {
+        use std::os::unix::fs::PermissionsExt;
+        let path = scripts.join(script);
+        let mode = std::fs::metadata(&path)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o111, 0o111, "{script} is not executable");
+        let parsed = Command::new("sh")
+            .arg("-n")
+            .arg(&path)
+            .status()
+            .expect("sh");
+        assert!(parsed.success(), "{script} does not parse");
+    }
+}
+
+/// `dpkg-deb OPTION DEB REST…`'s output.
+fn dpkg_deb(option: &str, deb: &Path, rest: &[&str]) -> String {
+    let out = Command::new("dpkg-deb")
+        .arg(option)
+        .arg(deb)
+        .args(rest)
+        .output()
+        .expect("run dpkg-deb");
+    assert!(
+        out.status.success(),
+        "dpkg-deb {option} {} {rest:?}: {}",
+        deb.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn the_built_package_holds_binary_units_and_conffiles() {
+    let Some(deb) = std::env::var_os("ROVE_DEB").map(PathBuf::from) else {
+        eprintln!("skipped: set ROVE_DEB to a package built by `cargo deb -p rove-gateway`");
+        return;
+    };
+    // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
+    let listing = dpkg_deb("--contents", &deb, &[]);
+    let files: Vec<(&str, &str)> = listing
+        .lines()
+        .filter_map(|l| {
+            let mut words = l.split_whitespace();
+            Some((words.next()?, words.last()?))
+        })
+        .collect();
+    let mode = |path: &str| {
+        files
+            .iter()
+            .find(|(_, p)| *p == path)
+            .map(|(m, _)| *m)
+            .unwrap_or_else(|| panic!("{path} is not in the package:\n{listing}"))
+    };
+    assert_eq!(mode("./usr/bin/rove"), "-rwxr-xr-x");
+    for unit in unit_files() {
+        assert_eq!(mode(&format!("./lib/systemd/system/{unit}")), "-rw-r--r--");
+    }
+    for path in [
+        "./etc/rove/vehicle.toml",
+        "./etc/rove/operator.toml",
+        "./usr/share/doc/rove/deploy.md",
+        "./usr/share/doc/rove/examples/vehicle-sim.toml",
+        "./usr/share/doc/rove/examples/vehicle-eyedrive-pi.toml",
+    ] {
+        assert_eq!(mode(path), "-rw-r--r--", "{path}");
+    }
+
+    assert_eq!(dpkg_deb("--field", &deb, &["Package"]).trim(), "rove");
+    let depends = dpkg_deb("--field", &deb, &["Depends"]);
+    assert!(depends.contains("passwd"), "Depends: {depends}");
+
+    // Control files: conffiles and the maintainer scripts.
+    let dir = std::env::temp_dir().join(format!("rove-deb-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let control = dir.join("control");
+    dpkg_deb(
+        "--control",
+        &deb,
+        &[control.to_str().expect("utf-8 temp dir")],
+    );
+    let conffiles = std::fs::read_to_string(control.join("conffiles")).expect("conffiles");
+    let conffiles: BTreeSet<&str> = conffiles.lines().map(str::trim).collect();
+    for config in configs_named_by_units() {
+        assert!(
+            conffiles.contains(config.as_str()),
+            "{config}: {conffiles:?}"
+        );
+    }
+    let postinst = std::fs::read_to_string(control.join("postinst")).expect("postinst");
+    assert!(postinst.contains("useradd --system"), "{postinst}");
+    let prerm = std::fs::read_to_string(control.join("prerm")).expect("prerm");
+    assert!(prerm.contains("systemctl --system stop"), "{prerm}");
+
+    // The packaged binary runs and accepts the packaged default configs.
+    let root = dir.join("root");
+    dpkg_deb("--extract", &deb, &[root.to_str().expect("utf-8 temp dir")]);
+    for config in ["vehicle.toml", "operator.toml"] {
+        let out = Command::new(root.join("usr/bin/rove"))
+            .arg("check-config")
+            .arg(root.join("etc/rove").join(config))
+            .output()
+            .expect("run the packaged rove");
+        assert!(
+            out.status.success(),
+            "{config}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,635 @@
+//! The systemd integration (issue 8), tested without systemd (it is not PID 1 here and must
+//! never be started as PID 1): the test plays the service manager's side of sd_notify, runs the
+//! unit files' own `ExecStopPost=` command line after a SIGKILL, and checks what the unit files
+//! promise. `systemd-analyze verify` and `security` run from `systemd/check-units` in CI.
+//!
+//! Every vehicle runs in a network namespace of its own (the harness's [`Rig`]); its outputs are
+//! an Eyedrive rover on the sysfs PWM backend over a temp directory.
+
+use rove_gateway::harness::{PATIENCE, Rig, wait_for_output};
+use std::os::unix::net::UnixDatagram;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const ROVE: &str = env!("CARGO_BIN_EXE_rove");
+const UNITS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../systemd");
+const V: i64 = 100;
+/// Neutral (1500 µs) in sysfs's nanoseconds: the Eyedrive's safe state on both channels.
+const SAFE_NS: &str = "1500000";
+
+fn rig(test: &str) -> Rig {
+    Rig::new(Path::new(ROVE), test).unwrap_or_else(|e| panic!("{e}"))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Unit files
+
+/// A unit file's directives in order, as `(section, key, value)`; comments and blank lines are
+/// dropped. (No line continuations: the units do not use them, and this test would catch one as
+/// a key without `=`.)
+fn directives(text: &str) -> Vec<(String, String, String)> {
+    let mut section = String::new();
+    let mut out = Vec::new();
+    for (n, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with(';') {
+            continue;
+        }
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = name.to_string();
+            continue;
+        }
+        let (key, value) = line
+            .split_once('=')
+            .unwrap_or_else(|| panic!("line {}: not KEY=VALUE: {raw:?}", n + 1));
+        out.push((section.clone(), key.trim().into(), value.trim().into()));
+    }
+    out
+}
+
+fn unit(name: &str) -> Vec<(String, String, String)> {
+    let path = Path::new(UNITS).join(name);
+    let text = std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    directives(&text)
+}
+
+fn values<'a>(unit: &'a [(String, String, String)], key: &str) -> Vec<&'a str> {
+    unit.iter()
+        .filter(|(_, k, _)| k == key)
+        .map(|(_, _, v)| v.as_str())
+        .collect()
+}
+
+fn one<'a>(unit: &'a [(String, String, String)], key: &str) -> &'a str {
+    match values(unit, key).as_slice() {
+        [value] => value,
+        other => panic!("{key}= should be set once, is {other:?}"),
+    }
+}
+
+/// An `Exec*=` line as the argv systemd runs: the `-`/`+`/`!`/`@`/`:` prefixes dropped and `%i`
+/// expanded. Other specifiers and quoting are not supported (the test fails on them rather than
+/// run something else than systemd would).
+fn command_line(
+    unit: &[(String, String, String)],
+    key: &str,
+    instance: Option<&str>,
+) -> Vec<String> {
+    let line = one(unit, key).trim_start_matches(['-', '+', '!', '@', ':']);
+    let line = match instance {
+        Some(i) => line.replace("%i", i),
+        None => line.to_string(),
+    };
+    assert!(
+        !line.contains(['%', '"', '\'', '\\', '$']),
+        "{key}={line}: specifiers, quotes or variables this test cannot expand"
+    );
+    line.split_whitespace().map(String::from).collect()
+}
+
+fn arg_after<'a>(argv: &'a [String], flag: &str) -> &'a str {
+    let at = argv
+        .iter()
+        .position(|a| a == flag)
+        .unwrap_or_else(|| panic!("{argv:?} has no {flag}"));
+    argv.get(at + 1)
+        .unwrap_or_else(|| panic!("{argv:?}: nothing after {flag}"))
+}
+
+/// The argv with the installed paths replaced by this build's: `/usr/bin/rove` → the binary
+/// under test, `/etc/rove/FILE` → `dir/FILE`.
+fn localize(argv: &[String], dir: &Path) -> Vec<String> {
+    argv.iter()
+        .map(|a| match (a.as_str(), a.strip_prefix("/etc/rove/")) {
+            ("/usr/bin/rove", _) => ROVE.to_string(),
+            (_, Some(file)) => dir.join(file).to_string_lossy().into_owned(),
+            _ => a.clone(),
+        })
+        .collect()
+}
+
+struct UnitCase {
+    file: &'static str,
+    role: &'static str,
+    instance: Option<&'static str>,
+}
+
+const UNIT_FILES: [UnitCase; 3] = [
+    UnitCase {
+        file: "rove-vehicle.service",
+        role: "vehicle",
+        instance: None,
+    },
+    UnitCase {
+        file: "rove-vehicle@.service",
+        role: "vehicle",
+        instance: Some("front"),
+    },
+    UnitCase {
+        file: "rove-operator.service",
+        role: "operator",
+        instance: None,
+    },
+];
+
+#[test]
+fn every_unit_notifies_checks_its_config_first_and_restarts_with_a_limit() {
+    let on_disk: Vec<String> = std::fs::read_dir(UNITS)
+        .expect("systemd/")
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".service"))
+        .collect();
+    assert_eq!(
+        on_disk.len(),
+        UNIT_FILES.len(),
+        "units in systemd/: {on_disk:?}"
+    );
+    for case in &UNIT_FILES {
+        let u = unit(case.file);
+        let ctx = case.file;
+        for (key, want) in [
+            ("Type", "notify"),
+            ("Restart", "always"),
+            ("User", "rove"),
+            ("NoNewPrivileges", "yes"),
+            ("ProtectSystem", "strict"),
+            ("CapabilityBoundingSet", ""),
+        ] {
+            assert_eq!(one(&u, key), want, "{ctx}: {key}=");
+        }
+        assert!(!one(&u, "WatchdogSec").is_empty(), "{ctx}: WatchdogSec=");
+        assert!(one(&u, "StartLimitBurst").parse::<u32>().is_ok(), "{ctx}");
+        assert!(
+            one(&u, "RestartPreventExitStatus")
+                .split_whitespace()
+                .any(|s| s == "78"),
+            "{ctx}: a config error (exit 78) must not restart"
+        );
+        // The same file is checked, run and (for a vehicle) made safe.
+        let start = command_line(&u, "ExecStart", case.instance);
+        assert_eq!(&start[..2], ["/usr/bin/rove", case.role], "{ctx}");
+        let config = arg_after(&start, "-c");
+        assert!(config.starts_with("/etc/rove/"), "{ctx}: {config}");
+        let check = command_line(&u, "ExecStartPre", case.instance);
+        assert_eq!(check, ["/usr/bin/rove", "check-config", config], "{ctx}");
+        if case.role == "vehicle" {
+            let failsafe = command_line(&u, "ExecStopPost", case.instance);
+            assert_eq!(
+                failsafe,
+                ["/usr/bin/rove", "failsafe", "-c", config],
+                "{ctx}"
+            );
+        } else {
+            assert!(values(&u, "ExecStopPost").is_empty(), "{ctx}");
+        }
+    }
+}
+
+#[test]
+fn the_template_is_the_vehicle_unit_with_a_config_per_instance() {
+    let plain = unit("rove-vehicle.service");
+    let template: Vec<_> = unit("rove-vehicle@.service")
+        .into_iter()
+        .map(|(s, k, v)| {
+            let v = v
+                .replace("/etc/rove/vehicle-%i.toml", "/etc/rove/vehicle.toml")
+                .replace("gateway %i (", "gateway (");
+            (s, k, v)
+        })
+        .collect();
+    assert_eq!(
+        plain, template,
+        "rove-vehicle@.service must differ from rove-vehicle.service only in %i"
+    );
+}
+
+#[test]
+fn the_installed_default_configs_are_valid() {
+    for file in ["vehicle.toml", "operator.toml"] {
+        let path = Path::new(UNITS).join("etc").join(file);
+        let out = Command::new(ROVE)
+            .arg("check-config")
+            .arg(&path)
+            .output()
+            .expect("run rove check-config");
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            path.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+#[test]
+fn a_bad_config_exits_78_from_every_role_so_systemd_stops_restarting() {
+    let dir = std::env::temp_dir().join(format!("rove-service-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let bad = dir.join("bad.toml");
+    // The config fails to load before any role touches the network.
+    std::fs::write(&bad, "[device]\nid = 0\n[output]\nadapter = \"sim\"\n").expect("config");
+    for role in ["vehicle", "operator", "failsafe"] {
+        let out = Command::new(ROVE)
+            .args([role, "-c"])
+            .arg(&bad)
+            .stdin(Stdio::null())
+            .output()
+            .expect("run rove");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(78), "rove {role}: {stderr}");
+        assert!(stderr.contains("bad.toml"), "rove {role}: {stderr}");
+    }
+    let missing = dir.join("missing.toml");
+    let out = Command::new(ROVE)
+        .args(["vehicle", "-c"])
+        .arg(&missing)
+        .output()
+        .expect("run rove");
+    assert_eq!(out.status.code(), Some(78));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_stall_test_hook_is_hidden_from_help() {
+    let out = Command::new(ROVE)
+        .args(["vehicle", "--help"])
+        .output()
+        .expect("run rove");
+    let help = String::from_utf8_lossy(&out.stdout);
+    assert!(help.contains("--record"), "{help}");
+    assert!(!help.contains("stall"), "{help}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Outputs: a fake sysfs PWM class
+
+/// `pwmchip0` with channels 0 and 1 already exported (the kernel creates `pwmM/` on export).
+fn fake_sysfs(dir: &Path) -> PathBuf {
+    let root = dir.join("sys-class-pwm");
+    for ch in 0..2 {
+        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
+        std::fs::create_dir_all(&pwm).expect("fake sysfs");
+        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
+            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
+        }
+    }
+    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
+    root
+}
+
+fn vehicle_toml(root: &Path) -> String {
+    format!(
+        "[device]\nid = {V}\nname = \"v{V}\"\n[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\n\
+         sysfs_root = \"{}\"\n[output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
+        root.display()
+    )
+}
+
+fn duty(root: &Path, ch: u32) -> String {
+    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
+        .unwrap_or_default()
+        .trim()
+        .to_string()
+}
+
+/// Waits until channel `ch`'s duty cycle reads `want` (ns).
+fn wait_duty(root: &Path, ch: u32, want: &str) {
+    let deadline = Instant::now() + PATIENCE;
+    while duty(root, ch) != want {
+        assert!(
+            Instant::now() < deadline,
+            "pwm{ch}/duty_cycle is {:?}, never {want}",
+            duty(root, ch)
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// sd_notify: the test is the service manager
+
+/// systemd's end of `NOTIFY_SOCKET`: a datagram socket at a path. (An abstract `@name` would
+/// not do here: abstract names are per network namespace, and the vehicle runs in its own. The
+/// abstract form is covered by `sdnotify`'s unit tests.)
+struct Manager {
+    socket: UnixDatagram,
+    path: PathBuf,
+    seen: Vec<String>,
+}
+
+impl Manager {
+    fn bind(dir: &Path) -> Manager {
+        let path = dir.join("notify");
+        let socket = UnixDatagram::bind(&path).expect("bind the notify socket");
+        Manager {
+            socket,
+            path,
+            seen: Vec::new(),
+        }
+    }
+
+    /// The next notification within `within`, with its arrival time.
+    fn recv(&mut self, within: Duration) -> Option<(Instant, String)> {
+        self.socket
+            .set_read_timeout(Some(within.max(Duration::from_millis(1))))
+            .expect("timeout");
+        let mut buf = [0u8; 4096];
+        match self.socket.recv(&mut buf) {
+            Ok(n) => {
+                let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+                self.seen.push(text.clone());
+                Some((Instant::now(), text))
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                None
+            }
+            Err(e) => panic!("notify socket: {e}"),
+        }
+    }
+
+    /// Waits for a notification with the line `line` (or, ending in `…`, a line starting with
+    /// it), skipping others.
+    fn wait_for(&mut self, line: &str) -> (Instant, String) {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let Some((at, text)) = self.recv(left) else {
+                panic!(
+                    "no {line:?} within {PATIENCE:?}; received so far: {:#?}",
+                    self.seen
+                );
+            };
+            if has_line(&text, line) {
+                return (at, text);
+            }
+        }
+    }
+}
+
+fn has_line(text: &str, want: &str) -> bool {
+    match want.strip_suffix('…') {
+        Some(prefix) => text.lines().any(|l| l.starts_with(prefix)),
+        None => text.lines().any(|l| l == want),
+    }
+}
+
+/// A `rove vehicle` started the way systemd starts it (NOTIFY_SOCKET, WATCHDOG_USEC, and
+/// JOURNAL_STREAM naming its stderr), inside the rig's network namespace. Killed on drop; its
+/// log is printed if the test failed.
+struct Service {
+    child: Child,
+    log: PathBuf,
+}
+
+impl Service {
+    fn vehicle(
+        rig: &Rig,
+        config: &Path,
+        notify: &Path,
+        watchdog: Duration,
+        extra: &[&str],
+    ) -> Service {
+        use std::os::unix::fs::MetadataExt;
+        let log = rig.dir.join("service-vehicle.log");
+        let file = std::fs::File::create(&log).expect("log file");
+        // systemd names the journal stream it connects stderr to; here the "journal" is a file.
+        let meta = file.metadata().expect("log file metadata");
+        let journal_stream = format!("{}:{}", meta.dev(), meta.ino());
+        let child = Command::new("ip")
+            .args(["netns", "exec", rig.ns.as_str(), ROVE, "vehicle", "-c"])
+            .arg(config)
+            .args(extra)
+            .env_remove("WATCHDOG_PID")
+            .env("JOURNAL_STREAM", journal_stream)
+            .env("NOTIFY_SOCKET", notify)
+            .env("WATCHDOG_USEC", watchdog.as_micros().to_string())
+            .env("RUST_LOG", "info,rustdds=warn")
+            .stdin(Stdio::null())
+            .stdout(file.try_clone().expect("log"))
+            .stderr(file)
+            .spawn()
+            .expect("spawn rove vehicle");
+        Service { child, log }
+    }
+
+    fn signal(&self, name: &str) {
+        let status = Command::new("kill")
+            .args([&format!("-{name}"), &self.child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(status.success(), "kill -{name}");
+    }
+
+    fn wait_exit(&mut self) -> std::process::ExitStatus {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            if let Some(status) = self.child.try_wait().expect("wait") {
+                return status;
+            }
+            assert!(Instant::now() < deadline, "the vehicle did not exit");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if std::thread::panicking() {
+            let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+            eprintln!(
+                "===== service vehicle ({}) =====\n{log}",
+                self.log.display()
+            );
+        }
+    }
+}
+
+/// The watchdog timeout the test hands the vehicle: keep-alives are due every 500 ms.
+const WATCHDOG: Duration = Duration::from_secs(1);
+/// How long the SIGUSR1 test hook stalls the loop: longer than the watchdog timeout, so that
+/// systemd would have killed the gateway.
+const STALL: Duration = Duration::from_millis(1500);
+
+#[test]
+fn sd_notify_ready_status_keepalives_stall_and_stopping() {
+    let mut rig = rig("sdnotify");
+    let root = fake_sysfs(&rig.dir);
+    let config = rig.write("vehicle.toml", &vehicle_toml(&root));
+    let mut manager = Manager::bind(&rig.dir);
+    let stall_ms = STALL.as_millis().to_string();
+    let mut vehicle = Service::vehicle(
+        &rig,
+        &config,
+        &manager.path,
+        WATCHDOG,
+        &["--test-stall-on-sigusr1", &stall_ms],
+    );
+
+    // READY=1 is the first notification, and by then the outputs are in their safe state.
+    let (_, first) = manager.recv(PATIENCE).expect("a first notification");
+    assert!(has_line(&first, "READY=1"), "first notification: {first:?}");
+    assert!(
+        has_line(&first, "STATUS=failsafe (no operator live); output ok"),
+        "{first:?}"
+    );
+    assert_eq!(
+        (duty(&root, 0), duty(&root, 1)),
+        (SAFE_NS.to_string(), SAFE_NS.to_string())
+    );
+
+    // Keep-alives every half watchdog timeout, never as late as the timeout.
+    let mut beats = Vec::new();
+    while beats.len() < 6 {
+        beats.push(manager.wait_for("WATCHDOG=1").0);
+    }
+    let gaps: Vec<Duration> = beats.windows(2).map(|w| w[1] - w[0]).collect();
+    let mean = gaps.iter().sum::<Duration>() / gaps.len() as u32;
+    eprintln!("keep-alive gaps: {gaps:?}, mean {mean:?}");
+    for gap in &gaps {
+        assert!(
+            *gap > Duration::from_millis(250) && *gap < WATCHDOG,
+            "keep-alive gaps {gaps:?}: want about {:?}",
+            WATCHDOG / 2
+        );
+    }
+    assert!(
+        mean >= Duration::from_millis(400) && mean <= Duration::from_millis(700),
+        "mean keep-alive gap {mean:?}, want about {:?}",
+        WATCHDOG / 2
+    );
+
+    // STATUS follows the owner.
+    rig.operator(11, "mobile", "phone", &[V], 32767, "", &[]);
+    manager.wait_for("STATUS=driven by 11 (1 operator live); output ok");
+    wait_duty(&root, 1, "2000000");
+
+    // A stalled loop sends nothing at all, for longer than the watchdog timeout; then the
+    // keep-alives resume.
+    vehicle.signal("USR1");
+    let (stalled, _) = manager.wait_for("STATUS=control loop stalled by the SIGUSR1 test hook");
+    let margin = Duration::from_millis(200);
+    if let Some((at, text)) = manager.recv(STALL - margin) {
+        panic!(
+            "{text:?} {:?} into a {STALL:?} stall of the loop",
+            at - stalled
+        );
+    }
+    let (resumed, _) = manager.wait_for("WATCHDOG=1");
+    eprintln!("no notification for {:?} while stalled", resumed - stalled);
+    assert!(resumed - stalled > WATCHDOG);
+
+    // SIGTERM: STOPPING=1, a clean exit, the outputs safe (the operator still streams full
+    // throttle: nothing may apply it once the vehicle stops).
+    vehicle.signal("TERM");
+    manager.wait_for("STOPPING=1");
+    let status = vehicle.wait_exit();
+    assert!(status.success(), "exit status {status}");
+    assert_eq!(
+        (duty(&root, 0), duty(&root, 1)),
+        (SAFE_NS.to_string(), SAFE_NS.to_string())
+    );
+
+    // Journal-style logging: every line carries its syslog priority and no time stamp, and the
+    // start-up line names the config, device, domain, interfaces and adapter.
+    let log = std::fs::read_to_string(&vehicle.log).expect("log");
+    for line in log.lines().filter(|l| !l.is_empty()) {
+        let priority = line
+            .strip_prefix('<')
+            .and_then(|l| l.split_once('>'))
+            .and_then(|(p, _)| p.parse::<u8>().ok());
+        assert!(
+            matches!(priority, Some(0..=7)),
+            "no priority prefix: {line:?}"
+        );
+        assert!(
+            !line.contains(" INFO ") && !line[3..].starts_with("20"),
+            "{line:?}"
+        );
+    }
+    let started = log
+        .lines()
+        .find(|l| l.contains("vehicle started"))
+        .unwrap_or_else(|| panic!("no start-up line in:\n{log}"));
+    assert!(started.starts_with("<6>"), "{started}");
+    for field in [
+        format!("config={}", config.display()),
+        format!("device={V}"),
+        "domain=0".to_string(),
+        "interfaces=[127.0.0.1]".to_string(),
+        "adapter=".to_string(),
+        "watchdog_keepalive_ms=500".to_string(),
+    ] {
+        assert!(started.contains(&field), "{field} missing: {started}");
+    }
+    assert!(
+        log.lines()
+            .any(|l| l.starts_with("<4>") && l.contains("test hook")),
+        "the stall hook's warning is not at priority 4:\n{log}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// SIGKILL, then the unit's ExecStopPost=
+
+/// Starts the vehicle as `file`'s ExecStart= would (in the rig's namespace, with the config at
+/// `/etc/rove/…` moved into the rig's directory), lets an operator drive it to full throttle,
+/// kills it with SIGKILL, and runs the unit's ExecStopPost= command line.
+fn killed_vehicle_is_made_safe_by_exec_stop_post(file: &str, instance: Option<&str>) {
+    let mut rig = rig("stop-post");
+    let root = fake_sysfs(&rig.dir);
+    let u = unit(file);
+    let start = command_line(&u, "ExecStart", instance);
+    let stop_post = command_line(&u, "ExecStopPost", instance);
+    let installed_config = arg_after(&start, "-c").to_string();
+    assert_eq!(arg_after(&stop_post, "-c"), installed_config);
+    let start = localize(&start, &rig.dir);
+    let config = PathBuf::from(arg_after(&start, "-c"));
+    std::fs::write(&config, vehicle_toml(&root)).expect("config");
+
+    let record = rig.dir.join("outputs.jsonl");
+    let mut args: Vec<&str> = start[1..].iter().map(String::as_str).collect();
+    args.extend(["--record", record.to_str().expect("utf-8 path")]);
+    let vehicle = rig.spawn("vehicle", &args);
+    rig.operator(11, "mobile", "phone", &[V], 32767, "roll = -32767\n", &[]);
+    wait_for_output(&record, Some(11), 0).expect("the operator drives");
+    wait_duty(&root, 1, "2000000");
+    wait_duty(&root, 0, "1000000");
+
+    // SIGKILL: no shutdown code runs, so the servos keep the last command.
+    rig.procs[vehicle].crash();
+    assert_eq!(duty(&root, 1), "2000000", "full throttle after the kill");
+
+    let stop_post = localize(&stop_post, &rig.dir);
+    let out = Command::new(&stop_post[0])
+        .args(&stop_post[1..])
+        .output()
+        .expect("run ExecStopPost");
+    assert!(
+        out.status.success(),
+        "{stop_post:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        (duty(&root, 0), duty(&root, 1)),
+        (SAFE_NS.to_string(), SAFE_NS.to_string())
+    );
+}
+
+#[test]
+fn after_sigkill_the_vehicle_units_exec_stop_post_makes_the_outputs_safe() {
+    killed_vehicle_is_made_safe_by_exec_stop_post("rove-vehicle.service", None);
+}
+
+#[test]
+fn after_sigkill_a_template_instances_exec_stop_post_makes_its_outputs_safe() {
+    killed_vehicle_is_made_safe_by_exec_stop_post("rove-vehicle@.service", Some("front"));
+}
