@@ -1,8 +1,12 @@
 //! The Debian package (issue 8). `[package.metadata.deb]` in gateway/Cargo.toml must install
 //! the binary, every unit in systemd/, the configs the units name (as conffiles), the examples
-//! and the deployment guide. With `ROVE_DEB=path/to/rove_….deb` (`.ci/run` sets it after
-//! `cargo deb`), the built package itself is opened with `dpkg-deb` and checked: its file list,
-//! conffiles, maintainer scripts, and that its binary runs and accepts its own default config.
+//! and the deployment guide.
+//!
+//! With `ROVE_DEB=path/to/rove_….deb` (absolute, or relative to the workspace root; `.ci/run`
+//! sets it after `cargo deb`), the built package itself is opened with `dpkg-deb` and checked:
+//! its file list, conffiles and maintainer scripts, that its binary runs and accepts its own
+//! default configs, and (as root) that postinst creates the `rove` user, against a copy of
+//! `/etc` in a private mount namespace so the machine's own users are untouched.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -167,6 +171,9 @@ fn the_built_package_holds_binary_units_and_conffiles() {
         eprintln!("skipped: set ROVE_DEB to a package built by `cargo deb -p rove-gateway`");
         return;
     };
+    // Tests run in gateway/; a relative path is taken from the workspace root, where
+    // `cargo deb` is run.
+    let deb = Path::new(GATEWAY).join("..").join(deb);
     // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
     let listing = dpkg_deb("--contents", &deb, &[]);
     let files: Vec<(&str, &str)> = listing
@@ -219,10 +226,9 @@ fn the_built_package_holds_binary_units_and_conffiles() {
             "{config}: {conffiles:?}"
         );
     }
-    let postinst = std::fs::read_to_string(control.join("postinst")).expect("postinst");
-    assert!(postinst.contains("useradd --system"), "{postinst}");
     let prerm = std::fs::read_to_string(control.join("prerm")).expect("prerm");
     assert!(prerm.contains("systemctl --system stop"), "{prerm}");
+    postinst_creates_the_service_user(&control.join("postinst"), &dir);
 
     // The packaged binary runs and accepts the packaged default configs.
     let root = dir.join("root");
@@ -240,4 +246,57 @@ fn the_built_package_holds_binary_units_and_conffiles() {
         );
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs `postinst configure` twice (install, then as an upgrade) with a copy of `/etc` mounted
+/// over `/etc` in a private mount namespace, and checks that the system user `rove` exists
+/// with no login shell and is in `dialout` (a group every Debian has). Needs root and
+/// util-linux's `unshare`; skipped with a message otherwise.
+fn postinst_creates_the_service_user(postinst: &Path, scratch: &Path) {
+    let is_root = Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0");
+    if !is_root {
+        eprintln!("skipped running postinst: needs root (a private mount namespace)");
+        return;
+    }
+    let etc = scratch.join("etc");
+    let copied = Command::new("cp")
+        .args(["-a", "/etc"])
+        .arg(&etc)
+        .status()
+        .expect("cp");
+    assert!(copied.success(), "cannot copy /etc");
+    let script = format!(
+        "mount --bind '{etc}' /etc && sh -e '{postinst}' configure && \
+         sh -e '{postinst}' configure 0.1.0-1 && getent passwd rove && id -nG rove",
+        etc = etc.display(),
+        postinst = postinst.display()
+    );
+    let out = Command::new("unshare")
+        .args(["--mount", "sh", "-c", &script])
+        .output()
+        .expect("run unshare");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "postinst: {stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut lines = stdout.lines().rev();
+    let groups: Vec<&str> = lines
+        .next()
+        .unwrap_or_default()
+        .split_whitespace()
+        .collect();
+    let passwd = lines.next().unwrap_or_default();
+    assert!(
+        passwd.starts_with("rove:") && passwd.ends_with(":/nonexistent:/usr/sbin/nologin"),
+        "{passwd}"
+    );
+    assert!(
+        groups.contains(&"rove") && groups.contains(&"dialout"),
+        "{groups:?}"
+    );
 }
