@@ -380,7 +380,7 @@ fn has_line(text: &str, want: &str) -> bool {
     }
 }
 
-/// A `rove vehicle` started the way systemd starts it (NOTIFY_SOCKET, WATCHDOG_USEC, and
+/// A `rove vehicle` or `rove operator` started the way systemd starts it (NOTIFY_SOCKET, WATCHDOG_USEC, and
 /// JOURNAL_STREAM naming its stderr), inside the rig's network namespace. Killed on drop; its
 /// log is printed if the test failed.
 struct Service {
@@ -389,21 +389,23 @@ struct Service {
 }
 
 impl Service {
-    fn vehicle(
+    /// `rove ROLE -c CONFIG EXTRA…`.
+    fn start(
         rig: &Rig,
+        role: &str,
         config: &Path,
         notify: &Path,
         watchdog: Duration,
         extra: &[&str],
     ) -> Service {
         use std::os::unix::fs::MetadataExt;
-        let log = rig.dir.join("service-vehicle.log");
+        let log = rig.dir.join(format!("service-{role}.log"));
         let file = std::fs::File::create(&log).expect("log file");
         // systemd names the journal stream it connects stderr to; here the "journal" is a file.
         let meta = file.metadata().expect("log file metadata");
         let journal_stream = format!("{}:{}", meta.dev(), meta.ino());
         let child = Command::new("ip")
-            .args(["netns", "exec", rig.ns.as_str(), ROVE, "vehicle", "-c"])
+            .args(["netns", "exec", rig.ns.as_str(), ROVE, role, "-c"])
             .arg(config)
             .args(extra)
             .env_remove("WATCHDOG_PID")
@@ -415,7 +417,7 @@ impl Service {
             .stdout(file.try_clone().expect("log"))
             .stderr(file)
             .spawn()
-            .expect("spawn rove vehicle");
+            .expect("spawn rove");
         Service { child, log }
     }
 
@@ -433,7 +435,7 @@ impl Service {
             if let Some(status) = self.child.try_wait().expect("wait") {
                 return status;
             }
-            assert!(Instant::now() < deadline, "the vehicle did not exit");
+            assert!(Instant::now() < deadline, "the process did not exit");
             std::thread::sleep(Duration::from_millis(10));
         }
     }
@@ -466,8 +468,9 @@ fn sd_notify_ready_status_keepalives_stall_and_stopping() {
     let config = rig.write("vehicle.toml", &vehicle_toml(&root));
     let mut manager = Manager::bind(&rig.dir);
     let stall_ms = STALL.as_millis().to_string();
-    let mut vehicle = Service::vehicle(
+    let mut vehicle = Service::start(
         &rig,
+        "vehicle",
         &config,
         &manager.path,
         WATCHDOG,
@@ -575,6 +578,33 @@ fn sd_notify_ready_status_keepalives_stall_and_stopping() {
             .any(|l| l.starts_with("<4>") && l.contains("test hook")),
         "the stall hook's warning is not at priority 4:\n{log}"
     );
+}
+
+#[test]
+fn the_operator_notifies_ready_keepalives_status_and_stopping() {
+    let rig = rig("sdnotify-operator");
+    let config = rig.write(
+        "operator.toml",
+        &format!(
+            "[device]\nid = 11\nname = \"op11\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"laptop\"\ndrive = [{V}]\n"
+        ),
+    );
+    let mut manager = Manager::bind(&rig.dir);
+    let mut operator = Service::start(&rig, "operator", &config, &manager.path, WATCHDOG, &[]);
+    let (_, first) = manager.recv(PATIENCE).expect("a first notification");
+    assert!(has_line(&first, "READY=1"), "first notification: {first:?}");
+    assert!(
+        has_line(&first, &format!("STATUS=driving {V}; 0 vehicles seen")),
+        "{first:?}"
+    );
+    let (a, _) = manager.wait_for("WATCHDOG=1");
+    let (b, _) = manager.wait_for("WATCHDOG=1");
+    assert!(b - a < WATCHDOG, "keep-alives {:?} apart", b - a);
+    operator.signal("TERM");
+    manager.wait_for("STOPPING=1");
+    let status = operator.wait_exit();
+    assert!(status.success(), "exit status {status}");
 }
 
 // ---------------------------------------------------------------------------------------------
