@@ -373,3 +373,40 @@ pub fn wall_us() -> u64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
 }
+
+/// A fake sysfs PWM class under `dir`: `pwmchip0` with channels 0 and 1 already exported (the
+/// kernel creates `pwmM/` on export; rove-pwm's own tests cover the export step). Returns the
+/// class root to put in `sysfs_root`.
+pub fn fake_sysfs(dir: &Path) -> PathBuf {
+    let root = dir.join("sys-class-pwm");
+    for ch in 0..2 {
+        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
+        std::fs::create_dir_all(&pwm).expect("fake sysfs");
+        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
+            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
+        }
+    }
+    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
+    root
+}
+
+/// Channel `ch`'s duty cycle in a [`fake_sysfs`] tree, as written (ns).
+pub fn duty(root: &Path, ch: u32) -> String {
+    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
+        .unwrap_or_default()
+        .trim()
+        .to_string()
+}
+
+/// Waits until channel `ch`'s duty cycle reads `want` (ns); panics after [`PATIENCE`].
+pub fn wait_duty(root: &Path, ch: u32, want: &str) {
+    let deadline = Instant::now() + PATIENCE;
+    while duty(root, ch) != want {
+        assert!(
+            Instant::now() < deadline,
+            "pwm{ch}/duty_cycle is {:?}, never {want}",
+            duty(root, ch)
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}

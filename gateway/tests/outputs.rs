@@ -2,28 +2,12 @@
 //! whose `[output]` is a PWM vehicle on the sysfs backend, over a temp directory standing in for
 //! `/sys/class/pwm`; and `rove failsafe` writes the safe state and exits.
 
-use rove_gateway::harness::{PATIENCE, Rig, wait_for_output, wall_us};
-use std::path::{Path, PathBuf};
+use rove_gateway::harness::{Rig, duty, fake_sysfs, wait_duty, wait_for_output, wall_us};
+use std::path::Path;
 use std::process::Command;
-use std::time::{Duration, Instant};
 
 const V: i64 = 100;
 const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-
-/// A fake sysfs PWM class: `pwmchip0` with channels 0 and 1 already exported (the kernel
-/// creates `pwmM/` on export; the backend's own export step is covered in rove-pwm's tests).
-fn fake_sysfs(dir: &Path) -> PathBuf {
-    let root = dir.join("sys-class-pwm");
-    for ch in 0..2 {
-        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
-        std::fs::create_dir_all(&pwm).expect("fake sysfs");
-        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
-            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
-        }
-    }
-    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
-    root
-}
 
 fn eyedrive(root: &Path) -> String {
     format!(
@@ -31,26 +15,6 @@ fn eyedrive(root: &Path) -> String {
          [output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
         root.display()
     )
-}
-
-fn duty(root: &Path, ch: u32) -> String {
-    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
-        .unwrap_or_default()
-        .trim()
-        .to_string()
-}
-
-/// Waits until channel `ch`'s duty cycle reads `want` (ns).
-fn wait_duty(root: &Path, ch: u32, want: &str) {
-    let deadline = Instant::now() + PATIENCE;
-    while duty(root, ch) != want {
-        assert!(
-            Instant::now() < deadline,
-            "pwm{ch}/duty_cycle is {:?}, never {want}",
-            duty(root, ch)
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
 }
 
 #[test]

@@ -6,7 +6,7 @@
 //! Every vehicle runs in a network namespace of its own (the harness's [`Rig`]); its outputs are
 //! an Eyedrive rover on the sysfs PWM backend over a temp directory.
 
-use rove_gateway::harness::{PATIENCE, Rig, wait_for_output};
+use rove_gateway::harness::{PATIENCE, Rig, duty, fake_sysfs, wait_duty, wait_for_output};
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -265,46 +265,12 @@ fn the_stall_test_hook_is_hidden_from_help() {
 // ---------------------------------------------------------------------------------------------
 // Outputs: a fake sysfs PWM class
 
-/// `pwmchip0` with channels 0 and 1 already exported (the kernel creates `pwmM/` on export).
-fn fake_sysfs(dir: &Path) -> PathBuf {
-    let root = dir.join("sys-class-pwm");
-    for ch in 0..2 {
-        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
-        std::fs::create_dir_all(&pwm).expect("fake sysfs");
-        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
-            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
-        }
-    }
-    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
-    root
-}
-
 fn vehicle_toml(root: &Path) -> String {
     format!(
         "[device]\nid = {V}\nname = \"v{V}\"\n[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\n\
          sysfs_root = \"{}\"\n[output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
         root.display()
     )
-}
-
-fn duty(root: &Path, ch: u32) -> String {
-    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
-        .unwrap_or_default()
-        .trim()
-        .to_string()
-}
-
-/// Waits until channel `ch`'s duty cycle reads `want` (ns).
-fn wait_duty(root: &Path, ch: u32, want: &str) {
-    let deadline = Instant::now() + PATIENCE;
-    while duty(root, ch) != want {
-        assert!(
-            Instant::now() < deadline,
-            "pwm{ch}/duty_cycle is {:?}, never {want}",
-            duty(root, ch)
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
