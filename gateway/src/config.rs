@@ -42,6 +42,16 @@ pub struct NetworkSection {
     pub heartbeat_ms: Option<u64>,
 }
 
+/// `[log]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LogSection {
+    /// A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing filter directives such as
+    /// `"info,rove_gateway=debug"` (absent: `info`). rustdds stays at `warn` unless a directive
+    /// names it (its `info` is very chatty). `RUST_LOG`, when set, overrides all of this.
+    pub level: Option<String>,
+}
+
 /// `[vehicle]`.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -117,6 +127,9 @@ pub struct RawVehicle {
     /// `[network]`.
     #[serde(default)]
     pub network: NetworkSection,
+    /// `[log]`.
+    #[serde(default)]
+    pub log: LogSection,
     /// `[vehicle]`.
     #[serde(default)]
     pub vehicle: VehicleSection,
@@ -195,6 +208,9 @@ pub struct RawOperator {
     /// `[network]`.
     #[serde(default)]
     pub network: NetworkSection,
+    /// `[log]`.
+    #[serde(default)]
+    pub log: LogSection,
     /// `[operator]`.
     pub operator: OperatorSection,
     /// `[hierarchy]`: a custom strength table (absent: DESIGN.md §3).
@@ -220,6 +236,8 @@ pub struct Common {
     pub interfaces: Vec<Ipv4Addr>,
     /// Presence heartbeat period.
     pub heartbeat: Duration,
+    /// The log filter from `[log] level`, if any.
+    pub log_filter: Option<String>,
 }
 
 /// A validated vehicle configuration.
@@ -406,6 +424,7 @@ const DEFAULT_STREAM_HZ: u32 = 50;
 fn validate_common(
     device: &DeviceSection,
     network: &NetworkSection,
+    log: &LogSection,
     errors: &mut ConfigErrors,
 ) -> Common {
     let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
@@ -432,6 +451,16 @@ fn validate_common(
             "must be 0..=232 (RTPS port mapping)",
         ));
     }
+    if let Some(level) = &log.level
+        && !is_log_filter(level)
+    {
+        errors.push(ConfigError::new(
+            "log.level",
+            format!("{level:?}"),
+            "must be a level (off, error, warn, info, debug, trace) or comma-separated \
+             `target=level` directives",
+        ));
+    }
     let interfaces = network
         .interfaces
         .clone()
@@ -452,7 +481,27 @@ fn validate_common(
         domain_id,
         interfaces,
         heartbeat: Duration::from_millis(heartbeat_ms),
+        log_filter: log.level.as_ref().map(|level| {
+            if level.contains("rustdds") {
+                level.clone()
+            } else {
+                format!("{level},rustdds=warn")
+            }
+        }),
     }
+}
+
+/// A log filter as `[log] level` takes it: levels and `target=level` directives. Stricter than
+/// tracing's own parser, which takes a misspelt level for a target name and logs nothing.
+fn is_log_filter(filter: &str) -> bool {
+    const LEVELS: [&str; 6] = ["off", "error", "warn", "info", "debug", "trace"];
+    let is_level = |l: &str| LEVELS.contains(&l.trim().to_ascii_lowercase().as_str());
+    !filter.trim().is_empty()
+        && filter.split(',').all(|d| match d.split_once('=') {
+            Some((target, level)) => !target.trim().is_empty() && is_level(level),
+            None => is_level(d),
+        })
+        && tracing_subscriber::EnvFilter::try_new(filter).is_ok()
 }
 
 /// The value of a section's validation, or `fallback` with its problems filed under `prefix`
@@ -483,7 +532,7 @@ impl RawVehicle {
     /// [`rove_core::Error::Config`] listing every invalid key.
     pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &mut errors);
+        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
         let output = self.output.validate(&mut errors);
         let timeout = collect(
             CommandTimeout::from_millis(
@@ -512,7 +561,7 @@ impl RawOperator {
     /// [`rove_core::Error::Config`] listing every invalid key.
     pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &mut errors);
+        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
         let hierarchy = collect(
             Hierarchy::from_table(&self.hierarchy),
             "hierarchy",
@@ -660,6 +709,40 @@ mod tests {
         );
         let message = format!("{:#}", load_vehicle(&path).expect_err("unknown adapter"));
         assert!(message.contains("warp"), "{message}");
+    }
+
+    #[test]
+    fn log_level_is_checked_and_keeps_rustdds_quiet() {
+        let base = "[device]\nid = 7\n[output]\nadapter = \"sim\"\n[log]\n";
+        let path = write("log-ok.toml", &format!("{base}level = \"debug\"\n"));
+        let config = load_vehicle(&path).expect("valid level");
+        assert_eq!(
+            config.common.log_filter.as_deref(),
+            Some("debug,rustdds=warn")
+        );
+        let path = write(
+            "log-rtps.toml",
+            &format!("{base}level = \"info,rustdds=debug\"\n"),
+        );
+        let config = load_vehicle(&path).expect("valid directives");
+        assert_eq!(
+            config.common.log_filter.as_deref(),
+            Some("info,rustdds=debug")
+        );
+        for bad in ["debgu", "loud=", "rustdds=verbose", ""] {
+            let path = write("log-bad.toml", &format!("{base}level = \"{bad}\"\n"));
+            let message = format!("{:#}", load_vehicle(&path).expect_err("bad level"));
+            assert!(
+                message.contains("log-bad.toml:6: log.level"),
+                "{bad}: {message}"
+            );
+        }
+        assert_eq!(
+            load_vehicle(&shipped("vehicle-sim.toml"))
+                .map(|c| c.common.log_filter)
+                .ok(),
+            Some(None)
+        );
     }
 
     #[test]

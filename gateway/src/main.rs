@@ -164,8 +164,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             record,
             test_stall_on_sigusr1,
         } => {
-            runtime::init_logging(None);
             let config = config::load_vehicle(&path).map_err(bad_config)?;
+            runtime::init_logging(config.common.log_filter.as_deref());
             let options = vehicle::Options {
                 config_path: path,
                 record,
@@ -185,8 +185,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             request,
             record,
         } => {
-            runtime::init_logging(None);
             let config = config::load_operator(&path).map_err(bad_config)?;
+            runtime::init_logging(config.common.log_filter.as_deref());
             tokio_runtime()?.block_on(operator::run(config, &path, request, record.as_deref()))
         }
         Command::Status {
