@@ -1,0 +1,1076 @@
+//! The operator's `[input]` table: the raw serde structs ([`InputSettings`], which only parse and
+//! reject unknown keys) and `validate()`, which checks every key, collects every problem and
+//! returns the validated [`InputConfig`].
+//!
+//! Keys of errors are relative to the `[input]` table, e.g. `axes.throttle.deadzone_pct`; the
+//! gateway puts `input.` in front. The keys are listed in the crate README.
+
+use crate::codes::{Control, abs_name, parse_abs, parse_key};
+use rove_core::adapter::InputAction;
+use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::mapping::Axis;
+use rove_core::msg::Mode;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Default time between attempts to reopen an unplugged device, ms. Half a second feels
+/// immediate to an operator replugging a cable and costs one directory scan per attempt; much
+/// shorter only burns CPU while nothing is plugged in.
+pub const DEFAULT_REOPEN_INTERVAL_MS: u64 = 500;
+
+/// Accepted `reopen_interval_ms`.
+pub const REOPEN_INTERVAL_RANGE_MS: std::ops::RangeInclusive<u64> = 10..=60_000;
+
+/// Accepted `silence_timeout_ms`: from 50 ms (a few frames of a gamepad that streams at
+/// 100–250 Hz) to 10 minutes.
+pub const SILENCE_TIMEOUT_RANGE_MS: std::ops::RangeInclusive<u64> = 50..=600_000;
+
+/// Default keyboard ramp-up time (0 → full scale), ms: a quarter second is quick enough to
+/// steer and slow enough that a tap is a nudge, not a jerk.
+pub const DEFAULT_RAMP_UP_MS: u64 = 250;
+
+/// Default keyboard spring-back time (full scale → 0), ms: faster than the ramp-up, because
+/// letting go means "stop".
+pub const DEFAULT_SPRING_BACK_MS: u64 = 150;
+
+/// Longest accepted ramp-up or spring-back, ms; beyond ten seconds a key axis is unusable.
+pub const MAX_RAMP_MS: u64 = 10_000;
+
+/// Which kind of input `[input] source` selects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// An evdev joystick or gamepad (absent `device`/`name`: the first device with sticks).
+    Joystick,
+    /// An evdev keyboard (absent `device`/`name`: the first device with letter keys).
+    Keyboard,
+    /// A recorded event stream played from `file`.
+    Replay,
+}
+
+/// `[input]` as written.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputSettings {
+    /// What to read: `"joystick"`, `"keyboard"` or `"replay"`.
+    pub source: Option<SourceKind>,
+    /// Joystick/keyboard: device path, e.g. `/dev/input/event3` or a
+    /// `/dev/input/by-id/…-event-joystick` link (stable across replugs).
+    pub device: Option<PathBuf>,
+    /// Joystick/keyboard: device name pattern, case-insensitive, `*` matches any text.
+    pub name: Option<String>,
+    /// Joystick/keyboard: take the device exclusively (EVIOCGRAB) so other programs do not see
+    /// its events (absent: false).
+    pub grab: Option<bool>,
+    /// Joystick/keyboard: time between reopen attempts after an unplug, ms (absent: 500).
+    pub reopen_interval_ms: Option<u64>,
+    /// Replay: the recording to play.
+    pub file: Option<PathBuf>,
+    /// No event at all from the device for this long → lost (absent: off; see the crate docs).
+    pub silence_timeout_ms: Option<u64>,
+    /// `[input.axes.*]`: what drives each movement axis.
+    #[serde(default)]
+    pub axes: AxesSettings,
+    /// `[input.buttons]`: which button or key triggers each action.
+    #[serde(default)]
+    pub buttons: ButtonSettings,
+}
+
+/// `[input.axes]` as written: one optional table per movement axis.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxesSettings {
+    /// `[input.axes.throttle]`.
+    pub throttle: Option<AxisSettings>,
+    /// `[input.axes.roll]` (UGV steering).
+    pub roll: Option<AxisSettings>,
+    /// `[input.axes.pitch]`.
+    pub pitch: Option<AxisSettings>,
+    /// `[input.axes.yaw]`.
+    pub yaw: Option<AxisSettings>,
+}
+
+/// Where an axis must rest before driving starts or resumes (the no-jump rule).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Rest {
+    /// Within 5 % of centre (self-centring sticks, key axes).
+    #[default]
+    Centre,
+    /// Within 5 % of −full scale (a throttle lever at idle).
+    Low,
+    /// Within 5 % of +full scale.
+    High,
+}
+
+/// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
+/// keys) or a pair of keys (`negative`/`positive` with ramp keys).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisSettings {
+    /// The absolute axis, e.g. `"ABS_Y"`, `"ABS_HAT0X"`.
+    pub abs: Option<String>,
+    /// Key or button driving towards −full scale, e.g. `"KEY_S"`.
+    pub negative: Option<String>,
+    /// Key or button driving towards +full scale, e.g. `"KEY_W"`.
+    pub positive: Option<String>,
+    /// Negate the axis (absent: false).
+    pub invert: Option<bool>,
+    /// Abs: dead zone around centre, percent of the half range, 0..=50 (absent: the device's
+    /// `flat`).
+    pub deadzone_pct: Option<f64>,
+    /// Expo 0..=1 (absent: 0, linear).
+    pub expo: Option<f64>,
+    /// Output at full deflection, percent of full scale, >0..=100 (absent: 100).
+    pub scale_pct: Option<f64>,
+    /// Abs: raw value at −full scale (absent: the device's minimum).
+    pub min: Option<i32>,
+    /// Abs: raw value at centre (absent: midpoint of min and max).
+    pub centre: Option<i32>,
+    /// Abs: raw value at +full scale (absent: the device's maximum).
+    pub max: Option<i32>,
+    /// Keys: time from centre to full scale while a key is held, ms (absent: 250).
+    pub ramp_up_ms: Option<u64>,
+    /// Keys: time from full scale back to centre when released, ms (absent: 150).
+    pub spring_back_ms: Option<u64>,
+    /// Where the axis must be before driving resumes (absent: `"centre"`).
+    pub rest: Option<Rest>,
+}
+
+/// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
+/// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ButtonSettings {
+    /// Hold to drive; when set, axes are neutral unless it is held.
+    pub deadman: Option<String>,
+    /// Switch to MANUAL.
+    pub mode_manual: Option<String>,
+    /// Switch to ASSISTED.
+    pub mode_assisted: Option<String>,
+    /// Switch to AUTO.
+    pub mode_auto: Option<String>,
+    /// Ask the selected vehicle's owner for control.
+    pub request_control: Option<String>,
+    /// Accept an incoming request.
+    pub accept: Option<String>,
+    /// Refuse an incoming request.
+    pub refuse: Option<String>,
+    /// Give a grant back.
+    pub finish: Option<String>,
+    /// Stop driving the selected vehicle.
+    pub release: Option<String>,
+    /// Select the next vehicle.
+    pub next_vehicle: Option<String>,
+    /// Select the previous vehicle.
+    pub previous_vehicle: Option<String>,
+}
+
+/// How a device is chosen.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DeviceSelector {
+    /// A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same path.
+    Path(PathBuf),
+    /// The first device whose name matches the pattern (case-insensitive, `*` wildcard).
+    Name(String),
+    /// The first device that looks like a joystick or gamepad (has `ABS_X` and `ABS_Y`).
+    AnyJoystick,
+    /// The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).
+    AnyKeyboard,
+}
+
+impl std::fmt::Display for DeviceSelector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DeviceSelector::Path(p) => write!(f, "{}", p.display()),
+            DeviceSelector::Name(n) => write!(f, "name {n:?}"),
+            DeviceSelector::AnyJoystick => f.write_str("first joystick"),
+            DeviceSelector::AnyKeyboard => f.write_str("first keyboard"),
+        }
+    }
+}
+
+/// Validated source choice.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SourceConfig {
+    /// An evdev device.
+    Evdev {
+        /// Which device.
+        selector: DeviceSelector,
+        /// Take it exclusively.
+        grab: bool,
+        /// Time between reopen attempts.
+        reopen_interval: Duration,
+    },
+    /// A recording.
+    Replay {
+        /// The file (relative paths are relative to the process's working directory unless
+        /// [`InputConfig::resolve_relative_to`] was called).
+        file: PathBuf,
+    },
+}
+
+/// What drives a movement axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AxisInput {
+    /// An absolute axis with optional calibration overrides.
+    Abs {
+        /// `EV_ABS` code.
+        code: u16,
+        /// Raw value at −1 (absent: device minimum).
+        min: Option<i32>,
+        /// Raw value at 0 (absent: midpoint).
+        centre: Option<i32>,
+        /// Raw value at +1 (absent: device maximum).
+        max: Option<i32>,
+        /// Dead zone as a fraction of the half range (absent: from the device's `flat`).
+        deadzone: Option<f64>,
+    },
+    /// Two keys with a ramp.
+    Keys {
+        /// `EV_KEY` code towards −1.
+        negative: Option<u16>,
+        /// `EV_KEY` code towards +1.
+        positive: Option<u16>,
+        /// Time for 0 → ±1.
+        ramp_up: Duration,
+        /// Time for ±1 → 0.
+        spring_back: Duration,
+    },
+}
+
+/// A validated axis mapping.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisConfig {
+    /// The input.
+    pub input: AxisInput,
+    /// Negate.
+    pub invert: bool,
+    /// Expo 0..=1.
+    pub expo: f64,
+    /// Full-deflection output, fraction 0..=1.
+    pub scale: f64,
+    /// Resting position required by the no-jump rule.
+    pub rest: Rest,
+}
+
+/// The validated mapping: axes, deadman, action buttons and silence timeout.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MappingConfig {
+    /// Throttle, roll, pitch, yaw, in [`Axis`] order.
+    pub axes: [Option<AxisConfig>; 4],
+    /// The hold-to-drive control.
+    pub deadman: Option<Control>,
+    /// Action controls.
+    pub actions: Vec<(Control, InputAction)>,
+    /// No events for this long → lost.
+    pub silence_timeout: Option<Duration>,
+}
+
+/// The four axes in the order of [`MappingConfig::axes`].
+pub const AXES: [Axis; 4] = [Axis::Throttle, Axis::Roll, Axis::Pitch, Axis::Yaw];
+
+/// The config name of an axis.
+pub fn axis_key(axis: Axis) -> &'static str {
+    match axis {
+        Axis::Throttle => "throttle",
+        Axis::Roll => "roll",
+        Axis::Pitch => "pitch",
+        Axis::Yaw => "yaw",
+    }
+}
+
+/// A validated `[input]`: only this type crosses crate boundaries.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputConfig {
+    kind: SourceKind,
+    source: SourceConfig,
+    mapping: MappingConfig,
+}
+
+impl InputConfig {
+    /// A config from parts (tests, `rove inputs show`).
+    pub fn new(kind: SourceKind, source: SourceConfig, mapping: MappingConfig) -> Self {
+        InputConfig {
+            kind,
+            source,
+            mapping,
+        }
+    }
+
+    /// The kind of source.
+    pub fn kind(&self) -> SourceKind {
+        self.kind
+    }
+
+    /// Device or recording.
+    pub fn source(&self) -> &SourceConfig {
+        &self.source
+    }
+
+    /// The mapping.
+    pub fn mapping(&self) -> &MappingConfig {
+        &self.mapping
+    }
+
+    /// The same mapping read from another device (for `rove inputs show DEVICE`): the source
+    /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
+    /// when the source already was a device.
+    pub fn with_device(mut self, selector: DeviceSelector) -> Self {
+        self.source = match self.source {
+            SourceConfig::Evdev {
+                grab,
+                reopen_interval,
+                ..
+            } => SourceConfig::Evdev {
+                selector,
+                grab,
+                reopen_interval,
+            },
+            SourceConfig::Replay { .. } => SourceConfig::Evdev {
+                selector,
+                grab: false,
+                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS),
+            },
+        };
+        if self.kind == SourceKind::Replay {
+            self.kind = SourceKind::Joystick;
+        }
+        self
+    }
+
+    /// Makes a relative replay `file` or device path relative to `base` (the directory of the
+    /// config file), so a config works wherever the process was started.
+    pub fn resolve_relative_to(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        match &mut self.source {
+            SourceConfig::Replay { file } => fix(file),
+            SourceConfig::Evdev {
+                selector: DeviceSelector::Path(p),
+                ..
+            } => fix(p),
+            SourceConfig::Evdev { .. } => {}
+        }
+    }
+}
+
+impl InputSettings {
+    /// Validates, filling defaults; keys in errors are relative to `[input]`.
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every problem: a missing `source`; keys that do not
+    /// apply to the source (`file` for a device, `device`/`name`/`grab`/`reopen_interval_ms` for
+    /// a replay); both `device` and `name`; a replay without `file`; numbers out of range; no
+    /// axis mapped; per axis (`axes.NAME.key`): neither or both of `abs` and keys, unknown
+    /// code names, abs-only keys on a key axis and vice versa, `min`/`centre`/`max` out of
+    /// order; per button (`buttons.ACTION`): unknown control names; a control used twice.
+    pub fn validate(&self) -> rove_core::Result<InputConfig> {
+        let mut errors = ConfigErrors::default();
+        let kind = self.source.unwrap_or_else(|| {
+            errors.push(ConfigError::new(
+                "source",
+                "(absent)",
+                "must be one of \"joystick\", \"keyboard\", \"replay\"",
+            ));
+            SourceKind::Joystick
+        });
+        let config = self.validate_inner(kind, &mut errors);
+        errors.into_result(config)
+    }
+
+    /// As [`InputSettings::validate`] for a known `kind`, for callers whose own tagged enum
+    /// consumed the `source` key (serde's internally tagged enums remove the tag before the
+    /// variant's struct sees the table). A `source` key that is present must agree.
+    ///
+    /// # Errors
+    /// As [`InputSettings::validate`].
+    pub fn validate_as(&self, kind: SourceKind) -> rove_core::Result<InputConfig> {
+        let mut errors = ConfigErrors::default();
+        if let Some(s) = self.source {
+            if s != kind {
+                errors.push(ConfigError::new(
+                    "source",
+                    format!("{s:?}").to_lowercase(),
+                    format!("must be {:?}", format!("{kind:?}").to_lowercase()),
+                ));
+            }
+        }
+        let config = self.validate_inner(kind, &mut errors);
+        errors.into_result(config)
+    }
+
+    fn validate_inner(&self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
+        let source = self.validate_source(kind, errors);
+        let silence_timeout = self.silence_timeout_ms.and_then(|ms| {
+            if SILENCE_TIMEOUT_RANGE_MS.contains(&ms) {
+                Some(Duration::from_millis(ms))
+            } else {
+                errors.push(ConfigError::new(
+                    "silence_timeout_ms",
+                    ms,
+                    format!(
+                        "must be {}..={} ms (leave it out to turn silence detection off)",
+                        SILENCE_TIMEOUT_RANGE_MS.start(),
+                        SILENCE_TIMEOUT_RANGE_MS.end()
+                    ),
+                ));
+                None
+            }
+        });
+        let mut mapping = MappingConfig {
+            silence_timeout,
+            ..MappingConfig::default()
+        };
+        // Who uses which control, for the "used twice" check: control → key path.
+        let mut used: BTreeMap<Control, String> = BTreeMap::new();
+        let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
+            if let Some(first) = used.get(&control) {
+                errors.push(ConfigError::new(
+                    key,
+                    format!("{value:?}"),
+                    format!("is already used by {first}"),
+                ));
+            } else {
+                used.insert(control, key.to_string());
+            }
+        };
+        let raw_axes = [
+            &self.axes.throttle,
+            &self.axes.roll,
+            &self.axes.pitch,
+            &self.axes.yaw,
+        ];
+        for (slot, (axis, raw)) in AXES.iter().zip(raw_axes).enumerate() {
+            let Some(raw) = raw else { continue };
+            let prefix = format!("axes.{}", axis_key(*axis));
+            let mut axis_errors = ConfigErrors::default();
+            let config = raw.validate(&mut axis_errors);
+            if let Some(config) = &config {
+                match config.input {
+                    AxisInput::Abs { code, .. } => {
+                        // An axis used as a stick cannot also be a button, in either direction.
+                        for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
+                            claim(
+                                &mut axis_errors,
+                                c,
+                                &format!("{prefix}.abs"),
+                                &abs_name(code),
+                            );
+                        }
+                    }
+                    AxisInput::Keys {
+                        negative, positive, ..
+                    } => {
+                        for (key, code) in [("negative", negative), ("positive", positive)] {
+                            if let Some(code) = code {
+                                claim(
+                                    errors,
+                                    Control::Key(code),
+                                    &format!("{prefix}.{key}"),
+                                    &crate::codes::key_name(code),
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+            // Abs claims were recorded with the full key; keep errors' keys consistent.
+            for e in axis_errors.0 {
+                if e.key.starts_with("axes.") {
+                    errors.push(e);
+                } else {
+                    errors.push(e.within(&prefix));
+                }
+            }
+            mapping.axes[slot] = config;
+        }
+        if mapping.axes.iter().all(Option::is_none) {
+            errors.push(ConfigError::new(
+                "axes",
+                "(none)",
+                "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
+            ));
+        }
+        let b = &self.buttons;
+        let buttons: [(&str, &Option<String>, Option<InputAction>); 11] = [
+            ("deadman", &b.deadman, None),
+            (
+                "mode_manual",
+                &b.mode_manual,
+                Some(InputAction::Mode(Mode::Manual)),
+            ),
+            (
+                "mode_assisted",
+                &b.mode_assisted,
+                Some(InputAction::Mode(Mode::Assisted)),
+            ),
+            (
+                "mode_auto",
+                &b.mode_auto,
+                Some(InputAction::Mode(Mode::Auto)),
+            ),
+            (
+                "request_control",
+                &b.request_control,
+                Some(InputAction::RequestControl),
+            ),
+            ("accept", &b.accept, Some(InputAction::Accept)),
+            ("refuse", &b.refuse, Some(InputAction::Refuse)),
+            ("finish", &b.finish, Some(InputAction::Finish)),
+            ("release", &b.release, Some(InputAction::Release)),
+            (
+                "next_vehicle",
+                &b.next_vehicle,
+                Some(InputAction::NextVehicle),
+            ),
+            (
+                "previous_vehicle",
+                &b.previous_vehicle,
+                Some(InputAction::PreviousVehicle),
+            ),
+        ];
+        for (name, value, action) in buttons {
+            let Some(value) = value else { continue };
+            let key = format!("buttons.{name}");
+            let Some(control) = Control::parse(value) else {
+                errors.push(ConfigError::new(
+                    key,
+                    format!("{value:?}"),
+                    "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
+                     direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
+                ));
+                continue;
+            };
+            claim(errors, control, &key, value);
+            match action {
+                None => mapping.deadman = Some(control),
+                Some(a) => mapping.actions.push((control, a)),
+            }
+        }
+        InputConfig {
+            kind,
+            source,
+            mapping,
+        }
+    }
+
+    fn validate_source(&self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
+        match kind {
+            SourceKind::Replay => {
+                let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
+                if let Some(d) = &self.device {
+                    errors.push(ConfigError::new(
+                        "device",
+                        format!("{:?}", d.display().to_string()),
+                        only_devices,
+                    ));
+                }
+                if let Some(n) = &self.name {
+                    errors.push(ConfigError::new("name", format!("{n:?}"), only_devices));
+                }
+                if let Some(g) = self.grab {
+                    errors.push(ConfigError::new("grab", g, only_devices));
+                }
+                if let Some(r) = self.reopen_interval_ms {
+                    errors.push(ConfigError::new("reopen_interval_ms", r, only_devices));
+                }
+                let file = self.file.clone().unwrap_or_else(|| {
+                    errors.push(ConfigError::new(
+                        "file",
+                        "(absent)",
+                        "must name the recording to play for source = \"replay\"",
+                    ));
+                    PathBuf::new()
+                });
+                SourceConfig::Replay { file }
+            }
+            SourceKind::Joystick | SourceKind::Keyboard => {
+                if let Some(f) = &self.file {
+                    errors.push(ConfigError::new(
+                        "file",
+                        format!("{:?}", f.display().to_string()),
+                        "only applies to source = \"replay\"",
+                    ));
+                }
+                let selector = match (&self.device, &self.name) {
+                    (Some(d), Some(n)) => {
+                        errors.push(ConfigError::new(
+                            "name",
+                            format!("{n:?}"),
+                            "give either device or name, not both",
+                        ));
+                        DeviceSelector::Path(d.clone())
+                    }
+                    (Some(d), None) => {
+                        if d.as_os_str().is_empty() {
+                            errors.push(ConfigError::new("device", "\"\"", "must be a path"));
+                        }
+                        DeviceSelector::Path(d.clone())
+                    }
+                    (None, Some(n)) => {
+                        if n.trim().is_empty() {
+                            errors.push(ConfigError::new(
+                                "name",
+                                format!("{n:?}"),
+                                "must be a non-empty pattern",
+                            ));
+                        }
+                        DeviceSelector::Name(n.clone())
+                    }
+                    (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
+                    (None, None) => DeviceSelector::AnyJoystick,
+                };
+                let reopen_ms = self
+                    .reopen_interval_ms
+                    .unwrap_or(DEFAULT_REOPEN_INTERVAL_MS);
+                if !REOPEN_INTERVAL_RANGE_MS.contains(&reopen_ms) {
+                    errors.push(ConfigError::new(
+                        "reopen_interval_ms",
+                        reopen_ms,
+                        format!(
+                            "must be {}..={} ms",
+                            REOPEN_INTERVAL_RANGE_MS.start(),
+                            REOPEN_INTERVAL_RANGE_MS.end()
+                        ),
+                    ));
+                }
+                SourceConfig::Evdev {
+                    selector,
+                    grab: self.grab.unwrap_or(false),
+                    reopen_interval: Duration::from_millis(reopen_ms),
+                }
+            }
+        }
+    }
+}
+
+impl AxisSettings {
+    /// Validates one axis; keys in errors are relative to the axis table.
+    fn validate(&self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
+        let before = errors.0.len();
+        let expo = self.expo.unwrap_or(0.0);
+        if !(0.0..=1.0).contains(&expo) {
+            errors.push(ConfigError::new("expo", expo, "must be 0..=1"));
+        }
+        let scale_pct = self.scale_pct.unwrap_or(100.0);
+        if !(scale_pct > 0.0 && scale_pct <= 100.0) {
+            errors.push(ConfigError::new(
+                "scale_pct",
+                scale_pct,
+                "must be greater than 0 and at most 100",
+            ));
+        }
+        let has_keys = self.negative.is_some() || self.positive.is_some();
+        let input = match (&self.abs, has_keys) {
+            (Some(_), true) => {
+                errors.push(ConfigError::new(
+                    "abs",
+                    format!("{:?}", self.abs.as_deref().unwrap_or_default()),
+                    "give either abs or negative/positive keys, not both",
+                ));
+                None
+            }
+            (None, false) => {
+                errors.push(ConfigError::new(
+                    "abs",
+                    "(absent)",
+                    "must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
+                ));
+                None
+            }
+            (Some(name), false) => self.validate_abs(name, errors),
+            (None, true) => self.validate_keys(errors),
+        };
+        let input = input?;
+        (errors.0.len() == before).then_some(AxisConfig {
+            input,
+            invert: self.invert.unwrap_or(false),
+            expo,
+            scale: scale_pct / 100.0,
+            rest: self.rest.unwrap_or_default(),
+        })
+    }
+
+    fn validate_abs(&self, name: &str, errors: &mut ConfigErrors) -> Option<AxisInput> {
+        let not_for_abs = "only applies to key axes (negative/positive)";
+        if let Some(v) = self.ramp_up_ms {
+            errors.push(ConfigError::new("ramp_up_ms", v, not_for_abs));
+        }
+        if let Some(v) = self.spring_back_ms {
+            errors.push(ConfigError::new("spring_back_ms", v, not_for_abs));
+        }
+        let code = parse_abs(name);
+        if code.is_none() {
+            errors.push(ConfigError::new(
+                "abs",
+                format!("{name:?}"),
+                "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
+            ));
+        }
+        let deadzone = self.deadzone_pct.and_then(|d| {
+            if (0.0..=50.0).contains(&d) {
+                Some(d / 100.0)
+            } else {
+                errors.push(ConfigError::new("deadzone_pct", d, "must be 0..=50"));
+                None
+            }
+        });
+        if let (Some(min), Some(max)) = (self.min, self.max) {
+            if min >= max {
+                errors.push(ConfigError::new(
+                    "max",
+                    max,
+                    format!("must be greater than min ({min})"),
+                ));
+            }
+        }
+        if let Some(centre) = self.centre {
+            if let Some(min) = self.min.filter(|m| centre <= *m) {
+                errors.push(ConfigError::new(
+                    "centre",
+                    centre,
+                    format!("must be greater than min ({min})"),
+                ));
+            }
+            if let Some(max) = self.max.filter(|m| centre >= *m) {
+                errors.push(ConfigError::new(
+                    "centre",
+                    centre,
+                    format!("must be less than max ({max})"),
+                ));
+            }
+        }
+        Some(AxisInput::Abs {
+            code: code?,
+            min: self.min,
+            centre: self.centre,
+            max: self.max,
+            deadzone,
+        })
+    }
+
+    fn validate_keys(&self, errors: &mut ConfigErrors) -> Option<AxisInput> {
+        let not_for_keys = "only applies to abs axes";
+        if let Some(v) = self.deadzone_pct {
+            errors.push(ConfigError::new("deadzone_pct", v, not_for_keys));
+        }
+        for (key, v) in [("min", self.min), ("centre", self.centre), ("max", self.max)] {
+            if let Some(v) = v {
+                errors.push(ConfigError::new(key, v, not_for_keys));
+            }
+        }
+        let mut key = |field: &str, value: &Option<String>| -> Option<Option<u16>> {
+            match value {
+                None => Some(None),
+                Some(name) => match parse_key(name) {
+                    Some(code) => Some(Some(code)),
+                    None => {
+                        errors.push(ConfigError::new(
+                            field,
+                            format!("{name:?}"),
+                            "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
+                        ));
+                        None
+                    }
+                },
+            }
+        };
+        let negative = key("negative", &self.negative);
+        let positive = key("positive", &self.positive);
+        if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
+            if n == p {
+                errors.push(ConfigError::new(
+                    "positive",
+                    format!("{:?}", self.positive.as_deref().unwrap_or_default()),
+                    "must differ from negative",
+                ));
+            }
+        }
+        let mut ms = |field: &str, value: Option<u64>, default: u64| {
+            let v = value.unwrap_or(default);
+            if v > MAX_RAMP_MS {
+                errors.push(ConfigError::new(
+                    field,
+                    v,
+                    format!("must be 0..={MAX_RAMP_MS} ms"),
+                ));
+            }
+            Duration::from_millis(v)
+        };
+        let ramp_up = ms("ramp_up_ms", self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
+        let spring_back = ms("spring_back_ms", self.spring_back_ms, DEFAULT_SPRING_BACK_MS);
+        Some(AxisInput::Keys {
+            negative: negative?,
+            positive: positive?,
+            ramp_up,
+            spring_back,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> InputSettings {
+        toml::from_str(text).expect("test TOML parses")
+    }
+
+    fn errors_of(text: &str) -> Vec<String> {
+        match parse(text).validate() {
+            Ok(_) => Vec::new(),
+            Err(rove_core::Error::Config(errors)) => {
+                errors.0.iter().map(ToString::to_string).collect()
+            }
+            Err(e) => vec![e.to_string()],
+        }
+    }
+
+    #[test]
+    fn minimal_joystick_takes_defaults() {
+        let c = parse(
+            r#"
+            source = "joystick"
+            [axes.roll]
+            abs = "ABS_X"
+            "#,
+        )
+        .validate()
+        .expect("valid");
+        assert_eq!(c.kind(), SourceKind::Joystick);
+        assert_eq!(
+            c.source(),
+            &SourceConfig::Evdev {
+                selector: DeviceSelector::AnyJoystick,
+                grab: false,
+                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS),
+            }
+        );
+        let roll = c.mapping().axes[1].expect("roll mapped");
+        assert_eq!(
+            roll.input,
+            AxisInput::Abs {
+                code: 0,
+                min: None,
+                centre: None,
+                max: None,
+                deadzone: None
+            }
+        );
+        assert_eq!((roll.invert, roll.expo, roll.scale), (false, 0.0, 1.0));
+        assert_eq!(roll.rest, Rest::Centre);
+        assert_eq!(c.mapping().silence_timeout, None);
+        assert_eq!(c.mapping().deadman, None);
+    }
+
+    #[test]
+    fn keyboard_axes_take_ramp_defaults() {
+        let c = parse(
+            r#"
+            source = "keyboard"
+            [axes.throttle]
+            negative = "KEY_S"
+            positive = "KEY_W"
+            [buttons]
+            deadman = "KEY_SPACE"
+            release = "KEY_ESC"
+            "#,
+        )
+        .validate()
+        .expect("valid");
+        assert!(matches!(
+            c.source(),
+            SourceConfig::Evdev {
+                selector: DeviceSelector::AnyKeyboard,
+                ..
+            }
+        ));
+        assert_eq!(
+            c.mapping().axes[0].map(|a| a.input),
+            Some(AxisInput::Keys {
+                negative: Some(31),
+                positive: Some(17),
+                ramp_up: Duration::from_millis(DEFAULT_RAMP_UP_MS),
+                spring_back: Duration::from_millis(DEFAULT_SPRING_BACK_MS),
+            })
+        );
+        assert_eq!(c.mapping().deadman, Some(Control::Key(57)));
+        assert_eq!(
+            c.mapping().actions,
+            vec![(Control::Key(1), InputAction::Release)]
+        );
+    }
+
+    #[test]
+    fn rejects_unknown_keys() {
+        let err = toml::from_str::<InputSettings>("source = \"joystick\"\ndeadzone = 3\n")
+            .expect_err("unknown key");
+        assert!(err.to_string().contains("deadzone"), "{err}");
+        let err = toml::from_str::<InputSettings>("[axes.throttle]\nabs = \"ABS_Y\"\ndz = 1\n")
+            .expect_err("unknown key");
+        assert!(err.to_string().contains("dz"), "{err}");
+    }
+
+    #[test]
+    fn errors_name_every_bad_key_relative_to_input() {
+        let got = errors_of(
+            r#"
+            source = "joystick"
+            device = "/dev/input/event3"
+            name = "Xbox*"
+            file = "x.txt"
+            reopen_interval_ms = 1
+            silence_timeout_ms = 5
+            [axes.throttle]
+            abs = "ABS_Q"
+            deadzone_pct = 60.0
+            expo = 1.5
+            scale_pct = 0.0
+            ramp_up_ms = 10
+            [axes.roll]
+            abs = "ABS_X"
+            min = 10
+            max = 5
+            centre = 20
+            [axes.yaw]
+            negative = "KEY_Q"
+            positive = "KEY_NOPE"
+            deadzone_pct = 5.0
+            [axes.pitch]
+            [buttons]
+            deadman = "BTN_TL"
+            release = "BTN_TL"
+            accept = "ABS_HAT0X+"
+            finish = "BTN_WHAT"
+            refuse = "KEY_Q"
+            "#,
+        );
+        let expected = [
+            "file = \"x.txt\": only applies to source = \"replay\"",
+            "name = \"Xbox*\": give either device or name, not both",
+            "reopen_interval_ms = 1: must be 10..=60000 ms",
+            "silence_timeout_ms = 5: must be 50..=600000 ms (leave it out to turn silence detection off)",
+            "axes.throttle.expo = 1.5: must be 0..=1",
+            "axes.throttle.scale_pct = 0: must be greater than 0 and at most 100",
+            "axes.throttle.ramp_up_ms = 10: only applies to key axes (negative/positive)",
+            "axes.throttle.abs = \"ABS_Q\": must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
+            "axes.throttle.deadzone_pct = 60: must be 0..=50",
+            "axes.roll.max = 5: must be greater than min (10)",
+            "axes.roll.centre = 20: must be less than max (5)",
+            "axes.pitch.abs = (absent): must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
+            "axes.yaw.deadzone_pct = 5: only applies to abs axes",
+            "axes.yaw.positive = \"KEY_NOPE\": must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
+            "buttons.release = \"BTN_TL\": is already used by buttons.deadman",
+            "buttons.finish = \"BTN_WHAT\": must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
+        ];
+        for e in expected {
+            assert!(got.iter().any(|g| g == e), "missing {e:?} in:\n{got:#?}");
+        }
+        // The valid roll mapping is still rejected for its bad calibration, and the yaw axis's
+        // valid KEY_Q was claimed: a button on it is an error too.
+        assert!(
+            got.iter().all(|g| !g.starts_with("buttons.refuse")),
+            "yaw was invalid, so KEY_Q was not claimed: {got:#?}"
+        );
+        assert_eq!(got.len(), expected.len(), "{got:#?}");
+    }
+
+    #[test]
+    fn replay_requires_file_and_rejects_device_keys() {
+        let got = errors_of(
+            r#"
+            source = "replay"
+            device = "/dev/input/event0"
+            grab = true
+            [axes.roll]
+            abs = "ABS_X"
+            "#,
+        );
+        assert_eq!(
+            got,
+            [
+                "device = \"/dev/input/event0\": only applies to source = \"joystick\" or \"keyboard\"",
+                "grab = true: only applies to source = \"joystick\" or \"keyboard\"",
+                "file = (absent): must name the recording to play for source = \"replay\"",
+            ]
+        );
+    }
+
+    #[test]
+    fn missing_source_and_axes_are_errors() {
+        assert_eq!(
+            errors_of(""),
+            [
+                "source = (absent): must be one of \"joystick\", \"keyboard\", \"replay\"",
+                "axes = (none): must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
+            ]
+        );
+    }
+
+    #[test]
+    fn keys_shared_between_an_axis_and_a_button_are_errors() {
+        let got = errors_of(
+            r#"
+            source = "keyboard"
+            [axes.yaw]
+            negative = "KEY_A"
+            positive = "KEY_D"
+            [axes.roll]
+            negative = "KEY_A"
+            [axes.throttle]
+            abs = "ABS_Z"
+            [buttons]
+            release = "KEY_D"
+            deadman = "ABS_Z+"
+            "#,
+        );
+        assert_eq!(
+            got,
+            [
+                "axes.roll.negative = \"KEY_A\": is already used by axes.yaw.negative",
+                "buttons.deadman = \"ABS_Z+\": is already used by axes.throttle.abs",
+                "buttons.release = \"KEY_D\": is already used by axes.yaw.positive",
+            ]
+        );
+    }
+
+    #[test]
+    fn validate_as_accepts_a_consumed_tag_and_rejects_a_contradiction() {
+        let s = parse("file = \"r.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n");
+        let c = s.validate_as(SourceKind::Replay).expect("valid replay");
+        assert_eq!(
+            c.source(),
+            &SourceConfig::Replay {
+                file: "r.txt".into()
+            }
+        );
+        let contradicting = InputSettings {
+            source: Some(SourceKind::Joystick),
+            ..s
+        };
+        assert!(contradicting.validate_as(SourceKind::Replay).is_err());
+    }
+
+    #[test]
+    fn relative_paths_resolve_against_the_config_dir() {
+        let mut c = parse("source = \"replay\"\nfile = \"rec.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n")
+            .validate()
+            .expect("valid");
+        c.resolve_relative_to(Path::new("/etc/rove"));
+        assert_eq!(
+            c.source(),
+            &SourceConfig::Replay {
+                file: "/etc/rove/rec.txt".into()
+            }
+        );
+        let c = c.with_device(DeviceSelector::Path("/dev/input/event7".into()));
+        assert_eq!(c.kind(), SourceKind::Joystick);
+        assert!(matches!(c.source(), SourceConfig::Evdev { .. }));
+    }
+}
