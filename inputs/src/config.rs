@@ -490,7 +490,7 @@ impl InputSettings {
             }
             mapping.axes[slot] = config;
         }
-        if mapping.axes.iter().all(Option::is_none) {
+        if raw_axes.iter().all(|a| a.is_none()) {
             errors.push(ConfigError::new(
                 "axes",
                 "(none)",
@@ -1033,7 +1033,7 @@ mod tests {
         assert_eq!(
             got,
             [
-                "axes.roll.negative = \"KEY_A\": is already used by axes.yaw.negative",
+                "axes.yaw.negative = \"KEY_A\": is already used by axes.roll.negative",
                 "buttons.deadman = \"ABS_Z+\": is already used by axes.throttle.abs",
                 "buttons.release = \"KEY_D\": is already used by axes.yaw.positive",
             ]

@@ -23,6 +23,7 @@
 //!   is held. The first `Axes` after that is always emitted, even if centred: it is the
 //!   "live again" signal. [`Mapper::status`] names the axes still awaited so a UI can say
 //!   "centre the sticks".
+//! - **Stale keys.** A key a snapshot reports held drives no ramp until released.
 //! - **Press edges only.** Actions and the deadman fire on a press seen as an event, never on a
 //!   state snapshot (a button held through a replug must be pressed again); auto-repeat
 //!   (`value 2`) is no press.
@@ -186,6 +187,9 @@ pub struct Mapper {
     absinfo: HashMap<u16, AbsState>,
     abs: BTreeMap<u16, i32>,
     keys: BTreeSet<u16>,
+    /// Keys reported held by a snapshot: they drive no ramp until released (a key held through
+    /// a replug or re-sync is stale input).
+    stale_keys: BTreeSet<u16>,
     /// Bound controls' state as of the last evaluated frame.
     controls: BTreeMap<Control, bool>,
     ramps: [Option<Ramp>; 4],
@@ -194,6 +198,8 @@ pub struct Mapper {
     deadman_held: bool,
     last_emitted: Option<MovementCommand>,
     last_activity: Option<MonoTime>,
+    /// Whether the first device event was seen: the no-jump rule is first evaluated then.
+    started: bool,
     out: VecDeque<InputEvent>,
 }
 
@@ -220,6 +226,8 @@ impl Mapper {
             absinfo: HashMap::new(),
             abs: BTreeMap::new(),
             keys: BTreeSet::new(),
+            stale_keys: BTreeSet::new(),
+            started: false,
             controls: BTreeMap::new(),
             ramps,
             ramp_at: None,
@@ -239,6 +247,12 @@ impl Mapper {
     /// Processes one device event that happened at `at` (after advancing time to `at`).
     pub fn feed(&mut self, at: MonoTime, event: DeviceEvent) {
         self.tick(at);
+        if !self.started {
+            // Key axes are at rest before anything is pressed: a keyboard is live from its
+            // first event, and a key already held then is held from before (stale).
+            self.started = true;
+            self.evaluate(false);
+        }
         match event {
             DeviceEvent::Raw(e) => self.raw(at, e),
             DeviceEvent::AbsState { code, state } => {
@@ -252,8 +266,10 @@ impl Mapper {
                 if !self.is_gone() {
                     if pressed {
                         self.keys.insert(code);
+                        self.stale_keys.insert(code);
                     } else {
                         self.keys.remove(&code);
+                        self.stale_keys.remove(&code);
                     }
                     self.evaluate(false);
                 }
@@ -405,6 +421,7 @@ impl Mapper {
             EV_KEY => match e.value {
                 0 => {
                     self.keys.remove(&e.code);
+                    self.stale_keys.remove(&e.code);
                 }
                 1 => {
                     self.keys.insert(e.code);
@@ -444,6 +461,7 @@ impl Mapper {
     fn clear_values(&mut self) {
         self.abs.clear();
         self.keys.clear();
+        self.stale_keys.clear();
         self.controls.clear();
         for ramp in self.ramps.iter_mut().flatten() {
             ramp.reset();
@@ -492,7 +510,9 @@ impl Mapper {
                 Some(ramp),
             ) = (axis, &mut self.ramps[slot])
             {
-                let held = |k: &Option<u16>| k.is_some_and(|k| self.keys.contains(&k));
+                let held = |k: &Option<u16>| {
+                    k.is_some_and(|k| self.keys.contains(&k) && !self.stale_keys.contains(&k))
+                };
                 ramp.set_keys(held(negative), held(positive));
             }
         }
@@ -651,3 +671,7 @@ impl Mapper {
         self.out.push_back(event);
     }
 }
+
+#[cfg(test)]
+#[path = "mapper_tests.rs"]
+mod tests;

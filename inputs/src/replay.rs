@@ -165,7 +165,10 @@ impl Recording {
                     format!("keystate {} {}", crate::codes::key_name(*code), u8::from(*pressed))
                 }
                 DeviceEvent::Connected { name } => format!("replug {name}"),
-                DeviceEvent::Unplugged { reason } => format!("unplug {reason}"),
+                DeviceEvent::Unplugged { reason } => {
+                    // The parser puts "replay: " in front; do not double it.
+                    format!("unplug {}", reason.strip_prefix("replay: ").unwrap_or(reason))
+                }
             };
             let _ = writeln!(s, "{ms} {what}");
         }
