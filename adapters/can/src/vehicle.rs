@@ -251,7 +251,8 @@ impl CanVehicle {
             transfers.push((RAW_COMMAND, priority, payload, &mut self.escs, period));
         }
         if now + early >= self.status.next_due {
-            let uptime = now.saturating_since(self.started).as_secs();
+            // Rounded to the nearest second, as pydronecan's node does.
+            let uptime = (now.saturating_since(self.started) + Duration::from_millis(500)).as_secs();
             let health = if movement.is_some() {
                 NodeHealth::Ok
             } else {
@@ -338,5 +339,325 @@ impl Drop for CanVehicle {
         // one. Errors have nowhere to go from here; a down link is skipped by `cycle`.
         let now = self.last_now;
         let _ = self.safe_state(now);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::{FakeBus, FakeBusHandle, FakeFault, SentFrame, errno};
+    use crate::config::CanSettings;
+    use rove_core::error::Disposition;
+    use rove_core::msg::Mode;
+
+    /// Two motors on one frame (0x201, 20 ms) and a light on a slow frame (0x300, 100 ms).
+    const SKID: &str = r#"
+        interface = "can0"
+        [[frames]]
+        id = 0x201
+        [[frames.outputs]]
+        name = "left"
+        source = { mix = [["throttle", 1.0], ["roll", 1.0]] }
+        offset = 0
+        min = -1000
+        max = 1000
+        [[frames.outputs]]
+        name = "right"
+        source = { mix = [["throttle", 1.0], ["roll", -1.0]] }
+        offset = 2
+        min = -1000
+        max = 1000
+        failsafe = 7
+        [[frames]]
+        id = 0x300
+        rate_hz = 10
+        [[frames.outputs]]
+        name = "beacon"
+        source = "yaw"
+        offset = 0
+        width = 8
+        signed = false
+    "#;
+
+    const DRONECAN: &str = r#"
+        interface = "can0"
+        rate_hz = 50
+        [dronecan]
+        node_id = 100
+        [[dronecan.servos]]
+        actuator_id = 0
+        source = "roll"
+        [[dronecan.servos]]
+        actuator_id = 1
+        source = "pitch"
+        failsafe = 0.5
+        [[dronecan.escs]]
+        index = 0
+        source = "throttle"
+    "#;
+
+    fn vehicle(text: &str) -> (CanVehicle, FakeBusHandle) {
+        let config = toml::from_str::<CanSettings>(text)
+            .expect("parses")
+            .validate()
+            .expect("valid");
+        let (bus, handle) = FakeBus::new("fake0", false);
+        let v = CanVehicle::new(config, Box::new(bus), MonoTime::ZERO).expect("starts");
+        (v, handle)
+    }
+
+    fn ms(t: u64) -> MonoTime {
+        MonoTime::from_millis(t)
+    }
+
+    fn sp(throttle: i16, roll: i16) -> Setpoint {
+        Setpoint {
+            movement: MovementCommand {
+                throttle,
+                roll,
+                ..MovementCommand::CENTRED
+            },
+            mode: Mode::Manual,
+        }
+    }
+
+    /// `(ms, id, bytes)` of each frame.
+    fn summary(frames: &[SentFrame]) -> Vec<(u64, u32, Vec<u8>)> {
+        frames
+            .iter()
+            .map(|s| {
+                (
+                    s.at.as_nanos() / 1_000_000,
+                    s.frame.id().raw(),
+                    s.frame.data().to_vec(),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn new_sends_the_safe_state() {
+        let (v, bus) = vehicle(SKID);
+        assert!(v.in_failsafe());
+        // left centre 0, right failsafe 7; beacon centre 127.
+        assert_eq!(
+            summary(&bus.take()),
+            [(0, 0x201, vec![0, 0, 7, 0]), (0, 0x300, vec![127])]
+        );
+        assert_eq!(v.keepalive_period(), Some(Duration::from_millis(20)));
+        assert_eq!(v.health(), Health::Ok);
+        assert_eq!(
+            v.describe(),
+            "can vehicle [left, right, beacon] on fake CAN bus fake0"
+        );
+    }
+
+    #[test]
+    fn apply_mixes_skid_steer_and_sends_changes_at_once() {
+        let (mut v, bus) = vehicle(SKID);
+        bus.take();
+        // Half throttle, quarter right: left 750, right 250.
+        v.apply(ms(5), &sp(16384, 8192)).expect("sent");
+        assert_eq!(
+            summary(&bus.take()),
+            [(5, 0x201, vec![0xEE, 0x02, 0xFA, 0x00])]
+        );
+        // The same values again: nothing new until due.
+        v.apply(ms(10), &sp(16384, 8192)).expect("ok");
+        assert!(bus.take().is_empty());
+        // Full throttle, full right: left clamps to 1000, right 0.
+        v.apply(ms(12), &sp(i16::MAX, i16::MAX)).expect("sent");
+        assert_eq!(
+            summary(&bus.take()),
+            [(12, 0x201, vec![0xE8, 0x03, 0x00, 0x00])]
+        );
+        assert!(!v.in_failsafe());
+    }
+
+    #[test]
+    fn keepalive_repeats_each_frame_at_its_rate_driving_and_in_failsafe() {
+        let (mut v, bus) = vehicle(SKID);
+        v.apply(ms(0), &sp(1000, 0)).expect("sent");
+        bus.take();
+        // The gateway calls keepalive every 20 ms (with a little jitter).
+        for i in 1..=10u64 {
+            v.keepalive(ms(20 * i - (i % 2))).expect("sent");
+        }
+        let sent = summary(&bus.take());
+        let fast = sent.iter().filter(|f| f.1 == 0x201).count();
+        let slow = sent.iter().filter(|f| f.1 == 0x300).count();
+        assert_eq!((fast, slow), (10, 2), "{sent:?}");
+        assert!(sent.iter().all(|f| f.1 != 0x201 || f.2 == [31, 0, 31, 0]));
+        v.safe_state(ms(200)).expect("sent");
+        assert_eq!(
+            summary(&bus.take()),
+            [(200, 0x201, vec![0, 0, 7, 0]), (200, 0x300, vec![127])]
+        );
+        for i in 1..=5u64 {
+            v.keepalive(ms(200 + 20 * i)).expect("sent");
+        }
+        let sent = summary(&bus.take());
+        assert_eq!(sent.iter().filter(|f| f.1 == 0x201).count(), 5);
+        assert!(sent.iter().all(|f| f.1 != 0x201 || f.2 == [0, 0, 7, 0]));
+        // 0x300 last went out at 200 ms: once more at 300 ms.
+        assert_eq!(
+            sent.iter()
+                .filter(|f| f.1 == 0x300)
+                .map(|f| f.0)
+                .collect::<Vec<_>>(),
+            [300]
+        );
+    }
+
+    #[test]
+    fn bus_off_goes_down_in_failsafe_and_recovers_without_restart() {
+        let (mut v, bus) = vehicle(SKID);
+        v.apply(ms(0), &sp(16384, 0)).expect("sent");
+        bus.take();
+        bus.fail(FakeFault::BusOff);
+        let err = v.keepalive(ms(20)).expect_err("bus-off");
+        assert_eq!(err.disposition, Disposition::Transient);
+        assert!(err.detail.contains("bus-off"), "{}", err.detail);
+        assert!(matches!(v.health(), Health::Down(d) if d.contains("bus-off")));
+        assert!(v.in_failsafe());
+        // Still down, and still an error, before and after the retry while bus-off.
+        assert!(v.keepalive(ms(40)).is_err());
+        assert!(v.apply(ms(50), &sp(16384, 0)).is_err());
+        assert!(v.keepalive(ms(130)).is_err());
+        assert!(bus.take().is_empty());
+        // The controller restarts: at the next retry the safe state goes out, not the old
+        // command, and the bus needed no reopen.
+        bus.heal();
+        assert!(v.keepalive(ms(200)).is_err(), "retry not due until 230 ms");
+        v.keepalive(ms(240)).expect("back");
+        assert_eq!(v.health(), Health::Ok);
+        assert_eq!(
+            summary(&bus.take()),
+            [(240, 0x201, vec![0, 0, 7, 0]), (240, 0x300, vec![127])]
+        );
+        assert_eq!(bus.reopens(), 0);
+        v.apply(ms(250), &sp(16384, 0)).expect("drives again");
+        assert_eq!(
+            summary(&bus.take()),
+            [(250, 0x201, vec![0xF4, 0x01, 0xF4, 0x01])]
+        );
+    }
+
+    #[test]
+    fn interface_loss_reopens_by_name_once_it_is_back() {
+        let (mut v, bus) = vehicle(SKID);
+        bus.take();
+        bus.fail(FakeFault::InterfaceGone);
+        let err = v.keepalive(ms(20)).expect_err("down");
+        assert_eq!(
+            err,
+            LinkError::transient("fake0: send: interface down (errno 100)")
+        );
+        // Reopen fails while the interface is gone; the error says so.
+        let err = v.keepalive(ms(120)).expect_err("still gone");
+        assert_eq!(
+            err.detail,
+            "fake0: open: no such interface (errno 19)"
+        );
+        assert_eq!(v.health(), Health::Down(err.detail.clone()));
+        bus.heal();
+        v.safe_state(ms(220)).expect("reopened");
+        assert_eq!(bus.reopens(), 1);
+        assert_eq!(v.health(), Health::Ok);
+        assert_eq!(summary(&bus.take()).len(), 2);
+    }
+
+    #[test]
+    fn a_fatal_errno_is_reported_fatal() {
+        let (mut v, bus) = vehicle(SKID);
+        bus.fail(FakeFault::Errno(errno::EPERM));
+        let err = v.apply(ms(1), &sp(0, 0)).expect_err("refused");
+        assert_eq!(err.disposition, Disposition::Fatal);
+        assert!(matches!(v.health(), Health::Down(_)));
+    }
+
+    #[test]
+    fn degraded_bus_still_sends_and_says_why() {
+        let (mut v, bus) = vehicle(SKID);
+        bus.take();
+        bus.set_degraded(Some("ERROR PASSIVE (transmit)"));
+        v.apply(ms(1), &sp(100, 0)).expect("sent");
+        assert_eq!(
+            v.health(),
+            Health::Degraded("ERROR PASSIVE (transmit)".into())
+        );
+        assert_eq!(bus.take().len(), 1);
+        bus.set_degraded(None);
+        v.keepalive(ms(21)).expect("sent");
+        assert_eq!(v.health(), Health::Ok);
+    }
+
+    #[test]
+    fn a_failing_start_is_an_error() {
+        let config = toml::from_str::<CanSettings>(SKID)
+            .expect("parses")
+            .validate()
+            .expect("valid");
+        let (bus, handle) = FakeBus::new("fake0", false);
+        handle.fail(FakeFault::InterfaceGone);
+        let err = CanVehicle::new(config, Box::new(bus), MonoTime::ZERO).expect_err("down");
+        assert_eq!(err.disposition, Disposition::Transient);
+    }
+
+    #[test]
+    fn drop_sends_the_safe_state_at_the_last_time_seen() {
+        let (mut v, bus) = vehicle(SKID);
+        v.apply(ms(500), &sp(i16::MAX, 0)).expect("sent");
+        bus.take();
+        drop(v);
+        assert_eq!(
+            summary(&bus.take()),
+            [(500, 0x201, vec![0, 0, 7, 0]), (500, 0x300, vec![127])]
+        );
+    }
+
+    #[test]
+    fn dronecan_commands_heartbeat_and_transfer_ids() {
+        let (mut v, bus) = vehicle(DRONECAN);
+        let start = bus.take();
+        // Safe state at start: ArrayCommand (2 servos, 8 bytes → 2 frames), RawCommand (one
+        // ESC, 1 frame), NodeStatus (1 frame).
+        let ids: Vec<u32> = start.iter().map(|s| s.frame.id().raw()).collect();
+        assert_eq!(ids, [0x1003_F264, 0x1003_F264, 0x1004_0664, 0x1801_5564]);
+        // ArrayCommand payload [0, 0, 0.0, 1, 0, 0.5]: CRC first, transfer id 0.
+        assert_eq!(start[0].frame.data()[2..7], [0x00, 0x00, 0x00, 0x00, 0x01]);
+        assert_eq!(start[0].frame.data()[7], 0x80);
+        assert_eq!(start[1].frame.data(), [0x00, 0x00, 0x38, 0x60]);
+        // RawCommand: ESC failsafe 0.
+        assert_eq!(start[2].frame.data(), [0x00, 0x00, 0xC0]);
+        // NodeStatus in failsafe: uptime 0, health WARNING.
+        assert_eq!(start[3].frame.data(), [0, 0, 0, 0, 0x40, 0, 0, 0xC0]);
+        // Driving: full throttle → ESC 8191; servos roll −1 → −1.0.
+        v.apply(ms(10), &sp(i16::MAX, -i16::MAX)).expect("sent");
+        let sent = bus.take();
+        assert_eq!(sent.len(), 3);
+        // Transfer id 1 now (tail of the last ArrayCommand frame: end, toggle, tid 1).
+        assert_eq!(sent[1].frame.data().last(), Some(&0x61));
+        assert_eq!(sent[2].frame.data(), [0xFF, 0x7C, 0xC1]);
+        // Keep-alives for 2 s at 50 Hz: commands every 20 ms, NodeStatus once a second.
+        for i in 1..=100u64 {
+            v.keepalive(ms(10 + 20 * i)).expect("sent");
+        }
+        let sent = bus.take();
+        let status: Vec<&SentFrame> = sent
+            .iter()
+            .filter(|s| s.frame.id().raw() == 0x1801_5564)
+            .collect();
+        let at: Vec<u64> = status.iter().map(|s| s.at.as_nanos() / 1_000_000).collect();
+        // Due at 1000 ms; half a keep-alive period early counts.
+        assert_eq!(at, [990, 1990]);
+        // Uptime 1 s then 2 s, health OK while driving; transfer ids 1, 2.
+        assert_eq!(status[0].frame.data(), [1, 0, 0, 0, 0, 0, 0, 0xC1]);
+        assert_eq!(status[1].frame.data(), [2, 0, 0, 0, 0, 0, 0, 0xC2]);
+        let esc = sent
+            .iter()
+            .filter(|s| s.frame.id().raw() == 0x1004_0664)
+            .count();
+        assert_eq!(esc, 100);
     }
 }
