@@ -1,0 +1,55 @@
+//! Every example `[input]` file parses and validates (they move to configs/ with the gateway).
+
+use rove_inputs::config::{AXES, SourceConfig};
+use rove_inputs::{InputSettings, SourceKind};
+use serde::Deserialize;
+use std::path::Path;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    input: InputSettings,
+}
+
+fn load(name: &str) -> rove_inputs::InputConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples").join(name);
+    let text = std::fs::read_to_string(&path).expect("example readable");
+    let file: File = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+    file.input
+        .validate()
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+#[test]
+fn every_example_in_the_directory_is_valid() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .expect("examples dir")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".toml"))
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        ["flight-stick.toml", "gamepad-xbox.toml", "keyboard.toml"]
+    );
+    for name in names {
+        let config = load(&name);
+        // Every example maps all four axes, a deadman and all ten actions.
+        for (slot, axis) in AXES.iter().enumerate() {
+            assert!(config.mapping().axes[slot].is_some(), "{name}: {axis:?}");
+        }
+        assert!(config.mapping().deadman.is_some(), "{name}: deadman");
+        assert_eq!(config.mapping().actions.len(), 10, "{name}: actions");
+    }
+}
+
+#[test]
+fn examples_choose_their_source_kind() {
+    assert_eq!(load("gamepad-xbox.toml").kind(), SourceKind::Joystick);
+    assert_eq!(load("flight-stick.toml").kind(), SourceKind::Joystick);
+    let keyboard = load("keyboard.toml");
+    assert_eq!(keyboard.kind(), SourceKind::Keyboard);
+    assert!(matches!(keyboard.source(), SourceConfig::Evdev { grab: false, .. }));
+}
