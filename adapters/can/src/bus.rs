@@ -476,7 +476,16 @@ mod tests {
     #[test]
     fn classify_errno_separates_transient_from_fatal() {
         use errno::*;
-        for e in [ENETDOWN, ENODEV, ENOBUFS, EAGAIN, ENXIO, EIO, ENETUNREACH, 12345] {
+        for e in [
+            ENETDOWN,
+            ENODEV,
+            ENOBUFS,
+            EAGAIN,
+            ENXIO,
+            EIO,
+            ENETUNREACH,
+            12345,
+        ] {
             assert_eq!(classify_errno(e), Disposition::Transient, "errno {e}");
         }
         for e in [EPERM, EACCES, EINVAL, EMSGSIZE, EAFNOSUPPORT] {

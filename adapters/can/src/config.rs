@@ -6,7 +6,9 @@
 //! the gateway puts `output.` in front. Integers are read as `i64` so that a negative or huge
 //! value is reported against its key instead of failing the parse.
 
-use crate::bus::{CLASSIC_MAX_LEN, CanId, EXTENDED_ID_MAX, FD_LENGTHS, FD_MAX_LEN, STANDARD_ID_MAX};
+use crate::bus::{
+    CLASSIC_MAX_LEN, CanId, EXTENDED_ID_MAX, FD_LENGTHS, FD_MAX_LEN, STANDARD_ID_MAX,
+};
 use crate::dronecan::{
     self, ARRAY_COMMAND, MAX_ESCS, MAX_SERVOS, NODE_ID_RANGE, NODE_STATUS, NODE_STATUS_PRIORITY,
     PRIORITY_RANGE, RAW_COMMAND, RAW_COMMAND_RANGE,
@@ -366,10 +368,7 @@ impl CanConfig {
             .dronecan
             .iter()
             .flat_map(|d| [d.period, NODE_STATUS_PERIOD]);
-        frames
-            .chain(dronecan)
-            .min()
-            .unwrap_or(NODE_STATUS_PERIOD)
+        frames.chain(dronecan).min().unwrap_or(NODE_STATUS_PERIOD)
     }
 
     /// Every output's name, in config order (raw, then servos, then ESCs).
@@ -726,7 +725,9 @@ fn validate_frame(
         } else {
             STANDARD_ID_MAX
         };
-        let fits = u32::try_from(id).ok().and_then(|id| CanId::new(id, extended).ok());
+        let fits = u32::try_from(id)
+            .ok()
+            .and_then(|id| CanId::new(id, extended).ok());
         if fits.is_none() {
             let hint = if !extended && (0..=i64::from(EXTENDED_ID_MAX)).contains(&id) {
                 " (set extended = true for a 29-bit identifier)"
@@ -1053,7 +1054,10 @@ impl ServoSettings {
             return None;
         }
         Some(ServoConfig {
-            name: self.name.clone().unwrap_or_else(|| default_name.to_string()),
+            name: self
+                .name
+                .clone()
+                .unwrap_or_else(|| default_name.to_string()),
             actuator_id: actuator_id?,
             source: source?,
             scale: UnitScale {
@@ -1074,7 +1078,10 @@ impl EscSettings {
                 errors.push(ConfigError::new(
                     "index",
                     i,
-                    format!("must be 0..={} (RawCommand has {MAX_ESCS} channels)", MAX_ESCS - 1),
+                    format!(
+                        "must be 0..={} (RawCommand has {MAX_ESCS} channels)",
+                        MAX_ESCS - 1
+                    ),
                 ));
             }
             ok
@@ -1092,7 +1099,10 @@ impl EscSettings {
             errors,
         )?;
         Some(EscConfig {
-            name: self.name.clone().unwrap_or_else(|| default_name.to_string()),
+            name: self
+                .name
+                .clone()
+                .unwrap_or_else(|| default_name.to_string()),
             index: index?,
             source: source?,
             scale,
@@ -1261,14 +1271,19 @@ mod tests {
         assert_eq!(c.frames()[0].length(), 64);
         let text = "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\n\
                     [[frames.outputs]]\nsource = \"roll\"\noffset = 8\nwidth = 16";
-        assert_eq!(parse(text).validate().expect("valid").frames()[0].length(), 12);
+        assert_eq!(
+            parse(text).validate().expect("valid").frames()[0].length(),
+            12
+        );
         let err = errors_of(
             "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\n[[frames.outputs]]\n\
              source = \"roll\"\noffset = 62\nwidth = 32",
         );
         assert_has(
             &err,
-            &["frames[0].outputs[0].offset = 62: offset + width (62 + 4 bytes) reaches past the frame's 64 bytes"],
+            &[
+                "frames[0].outputs[0].offset = 62: offset + width (62 + 4 bytes) reaches past the frame's 64 bytes",
+            ],
         );
         let err = errors_of(
             "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\nlength = 13\n\
@@ -1389,7 +1404,10 @@ mod tests {
             ],
         );
         let err = errors_of("interface = \"can0\"\n[dronecan]\nnode_id = 10");
-        assert_has(&err, &["dronecan.servos = []: [output.dronecan] needs at least one"]);
+        assert_has(
+            &err,
+            &["dronecan.servos = []: [output.dronecan] needs at least one"],
+        );
     }
 
     #[test]
@@ -1402,7 +1420,9 @@ mod tests {
         );
         assert_has(
             &errors_of(&text),
-            &["frames[0].id = 0x1003F20A: must differ from our DroneCAN uavcan.equipment.actuator.ArrayCommand"],
+            &[
+                "frames[0].id = 0x1003F20A: must differ from our DroneCAN uavcan.equipment.actuator.ArrayCommand",
+            ],
         );
     }
 

@@ -117,7 +117,9 @@ pub fn transfer_crc(data_type: &DataType, payload: &[u8]) -> u16 {
 /// The 29-bit CAN id of a message of type `data_type_id` from `source_node` at `priority`
 /// (both masked to their field widths).
 pub fn message_id(priority: u8, data_type_id: u16, source_node: u8) -> u32 {
-    (u32::from(priority & 0x1F) << 24) | (u32::from(data_type_id) << 8) | u32::from(source_node & 0x7F)
+    (u32::from(priority & 0x1F) << 24)
+        | (u32::from(data_type_id) << 8)
+        | u32::from(source_node & 0x7F)
 }
 
 /// The frames of one transfer: `payload` of `data_type` as transfer `transfer_id`.
@@ -204,7 +206,7 @@ impl BitWriter {
         if self.bits % 8 == 0 {
             self.bytes.push(0);
         }
-        if bit && let Some(last) = self.bytes.last_mut() {
+        if let (true, Some(last)) = (bit, self.bytes.last_mut()) {
             *last |= 0x80 >> (self.bits % 8);
         }
         self.bits += 1;
@@ -349,9 +351,15 @@ mod tests {
         let frames = transfer_frames(&ARRAY_COMMAND, 16, 100, 5, &payload).expect("frames");
         let expected: &[Golden] = &[
             // CRC 0x129C (little-endian 9C 12), 5 payload bytes, tail 0x85: start, tid 5.
-            (0x1003_F264, &[0x9C, 0x12, 0x00, 0x00, 0x00, 0xBC, 0x01, 0x85]),
+            (
+                0x1003_F264,
+                &[0x9C, 0x12, 0x00, 0x00, 0x00, 0xBC, 0x01, 0x85],
+            ),
             // 7 payload bytes, tail 0x65: end, toggle, tid 5.
-            (0x1003_F264, &[0x00, 0x55, 0x35, 0x02, 0x00, 0x00, 0x34, 0x65]),
+            (
+                0x1003_F264,
+                &[0x00, 0x55, 0x35, 0x02, 0x00, 0x00, 0x34, 0x65],
+            ),
         ];
         assert_eq!(frames_of(&frames), golden(expected));
         assert_eq!(transfer_crc(&ARRAY_COMMAND, &payload), 0x129C);
@@ -372,7 +380,10 @@ mod tests {
         let payload = raw_command(&[100, -100, 4000, -4000, 0, 8191]);
         let frames = transfer_frames(&RAW_COMMAND, 16, 100, 30, &payload).expect("frames");
         let expected: &[Golden] = &[
-            (0x1004_0664, &[0xE2, 0xA0, 0x64, 0x02, 0x73, 0xFA, 0x03, 0x9E]),
+            (
+                0x1004_0664,
+                &[0xE2, 0xA0, 0x64, 0x02, 0x73, 0xFA, 0x03, 0x9E],
+            ),
             (0x1004_0664, &[0xD8, 0x30, 0x00, 0x03, 0xFD, 0xF0, 0x7E]),
         ];
         assert_eq!(frames_of(&frames), golden(expected));

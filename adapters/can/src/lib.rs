@@ -14,7 +14,7 @@
 //! - [`bus`]: the [`CanBus`] trait, frames, errno classification, the in-memory [`FakeBus`].
 //! - `socket` (feature `socketcan`, default): [`SocketCanBus`], the Linux SocketCAN bus.
 //! - [`vehicle`]: [`CanVehicle`], the [`rove_core::adapter::OutputAdapter`].
-//! - [`error`]: [`FrameError`].
+//! - [`error`]: the crate's error, [`FrameError`] (a frame that cannot be built).
 //!
 //! This crate does no arbitration and reads no clock: time comes in as `now`. It never depends
 //! on the gateway. The pure modules do no I/O.
@@ -89,7 +89,9 @@ pub mod scale;
 pub mod socket;
 pub mod vehicle;
 
-pub use bus::{BusState, CanBus, CanFrameData, CanId, FakeBus, FakeBusHandle, FakeFault, SentFrame};
+pub use bus::{
+    BusState, CanBus, CanFrameData, CanId, FakeBus, FakeBusHandle, FakeFault, SentFrame,
+};
 pub use config::{CanConfig, CanSettings};
 pub use error::FrameError;
 #[cfg(feature = "socketcan")]
@@ -107,7 +109,10 @@ use rove_core::error::LinkError;
 pub fn open_bus(config: &CanConfig) -> Result<Box<dyn CanBus + Send>, LinkError> {
     #[cfg(feature = "socketcan")]
     {
-        Ok(Box::new(SocketCanBus::open(config.interface(), config.fd())?))
+        Ok(Box::new(SocketCanBus::open(
+            config.interface(),
+            config.fd(),
+        )?))
     }
     #[cfg(not(feature = "socketcan"))]
     {

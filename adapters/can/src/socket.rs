@@ -16,8 +16,8 @@ use rove_core::MonoTime;
 use rove_core::error::LinkError;
 use socketcan::errors::ControllerProblem;
 use socketcan::{
-    CanAnyFrame, CanError, CanFdFrame, CanFdSocket, CanFrame, CanSocket, EmbeddedFrame,
-    ExtendedId, Id, Socket, SocketOptions, StandardId,
+    CanAnyFrame, CanError, CanFdFrame, CanFdSocket, CanFrame, CanSocket, EmbeddedFrame, ExtendedId,
+    Id, Socket, SocketOptions, StandardId,
 };
 use std::io;
 
@@ -91,8 +91,7 @@ impl SocketCanBus {
                 self.state = BusState::BusOff;
                 None
             }
-            CanError::Restarted
-            | CanError::ControllerProblem(ControllerProblem::Active) => {
+            CanError::Restarted | CanError::ControllerProblem(ControllerProblem::Active) => {
                 self.state = BusState::Active;
                 None
             }

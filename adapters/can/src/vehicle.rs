@@ -191,15 +191,19 @@ impl CanVehicle {
             Err(e) => return Err(self.fail(now, e, true)),
             Ok(_) => {}
         }
-        if down.reopen
-            && let Err(e) = self.bus.reopen()
-        {
-            return Err(self.fail(now, e, true));
+        if down.reopen {
+            if let Err(e) = self.bus.reopen() {
+                return Err(self.fail(now, e, true));
+            }
         }
         self.down = None;
         self.drive = Drive::Failsafe;
         // Nothing sent before the failure counts: everything goes out again.
-        for slot in self.raw.iter_mut().chain([&mut self.servos, &mut self.escs]) {
+        for slot in self
+            .raw
+            .iter_mut()
+            .chain([&mut self.servos, &mut self.escs])
+        {
             *slot = Slot::default();
         }
         Ok(true)
@@ -252,7 +256,8 @@ impl CanVehicle {
         }
         if now + early >= self.status.next_due {
             // Rounded to the nearest second, as pydronecan's node does.
-            let uptime = (now.saturating_since(self.started) + Duration::from_millis(500)).as_secs();
+            let uptime =
+                (now.saturating_since(self.started) + Duration::from_millis(500)).as_secs();
             let health = if movement.is_some() {
                 NodeHealth::Ok
             } else {
@@ -299,10 +304,7 @@ impl OutputAdapter for CanVehicle {
             .dronecan()
             .map(|d| format!(", DroneCAN node {}", d.node_id()))
             .unwrap_or_default();
-        format!(
-            "can vehicle [{names}] on {}{dronecan}",
-            self.bus.describe()
-        )
+        format!("can vehicle [{names}] on {}{dronecan}", self.bus.describe())
     }
 
     fn apply(&mut self, now: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError> {
@@ -555,10 +557,7 @@ mod tests {
         );
         // Reopen fails while the interface is gone; the error says so.
         let err = v.keepalive(ms(120)).expect_err("still gone");
-        assert_eq!(
-            err.detail,
-            "fake0: open: no such interface (errno 19)"
-        );
+        assert_eq!(err.detail, "fake0: open: no such interface (errno 19)");
         assert_eq!(v.health(), Health::Down(err.detail.clone()));
         bus.heal();
         v.safe_state(ms(220)).expect("reopened");

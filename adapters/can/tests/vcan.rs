@@ -113,10 +113,7 @@ fn raw_frames_round_trip_on_vcan() {
     };
     v.apply(MonoTime::from_millis(10), &setpoint).expect("sent");
     // left 750 little-endian, right 250 big-endian.
-    assert_eq!(
-        read_frames(&rx, 1),
-        [(0x100, vec![0xEE, 0x02, 0x00, 0xFA])]
-    );
+    assert_eq!(read_frames(&rx, 1), [(0x100, vec![0xEE, 0x02, 0x00, 0xFA])]);
     v.keepalive(MonoTime::from_millis(30)).expect("sent");
     assert_eq!(read_frames(&rx, 1).len(), 1);
 }
