@@ -257,7 +257,10 @@ mod tests {
     #[test]
     fn controls_parse_keys_and_signed_axes() {
         assert_eq!(Control::parse("BTN_TL"), Some(Control::Key(0x136)));
-        assert_eq!(Control::parse("ABS_HAT0Y-"), Some(Control::AbsNegative(0x11)));
+        assert_eq!(
+            Control::parse("ABS_HAT0Y-"),
+            Some(Control::AbsNegative(0x11))
+        );
         assert_eq!(Control::parse("ABS_Z+"), Some(Control::AbsPositive(0x02)));
         assert_eq!(Control::parse("ABS_Z"), None);
         assert_eq!(Control::parse("ABS_NOPE+"), None);

@@ -760,7 +760,11 @@ impl AxisSettings {
         if let Some(v) = self.deadzone_pct {
             errors.push(ConfigError::new("deadzone_pct", v, not_for_keys));
         }
-        for (key, v) in [("min", self.min), ("centre", self.centre), ("max", self.max)] {
+        for (key, v) in [
+            ("min", self.min),
+            ("centre", self.centre),
+            ("max", self.max),
+        ] {
             if let Some(v) = v {
                 errors.push(ConfigError::new(key, v, not_for_keys));
             }
@@ -804,7 +808,11 @@ impl AxisSettings {
             Duration::from_millis(v)
         };
         let ramp_up = ms("ramp_up_ms", self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
-        let spring_back = ms("spring_back_ms", self.spring_back_ms, DEFAULT_SPRING_BACK_MS);
+        let spring_back = ms(
+            "spring_back_ms",
+            self.spring_back_ms,
+            DEFAULT_SPRING_BACK_MS,
+        );
         Some(AxisInput::Keys {
             negative: negative?,
             positive: positive?,
@@ -1059,9 +1067,10 @@ mod tests {
 
     #[test]
     fn relative_paths_resolve_against_the_config_dir() {
-        let mut c = parse("source = \"replay\"\nfile = \"rec.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n")
-            .validate()
-            .expect("valid");
+        let mut c =
+            parse("source = \"replay\"\nfile = \"rec.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n")
+                .validate()
+                .expect("valid");
         c.resolve_relative_to(Path::new("/etc/rove"));
         assert_eq!(
             c.source(),

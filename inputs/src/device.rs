@@ -101,7 +101,9 @@ impl EvdevSource {
         std::thread::Builder::new()
             .name("rove-evdev".into())
             .spawn(move || reader.run())
-            .map_err(|e| LinkError::fatal(format!("{describe}: cannot start reader thread: {e}")))?;
+            .map_err(|e| {
+                LinkError::fatal(format!("{describe}: cannot start reader thread: {e}"))
+            })?;
         Ok(EvdevSource {
             mapper: Mapper::new(mapping, describe.clone()),
             rx,
@@ -180,7 +182,9 @@ fn needed_codes(mapping: &MappingConfig) -> Needs {
             AxisInput::Abs { code, .. } => needs.abs.push(code),
             AxisInput::Keys {
                 negative, positive, ..
-            } => needs.keys.extend([negative, positive].into_iter().flatten()),
+            } => needs
+                .keys
+                .extend([negative, positive].into_iter().flatten()),
         }
     }
     let controls = mapping
@@ -390,18 +394,19 @@ impl Reader {
         let mut announced_gone = false;
         while !self.stop.load(Ordering::Relaxed) {
             match find(&self.selector, &self.needs) {
-                Ok((path, dev)) => {
-                    match self.serve(&path, dev) {
-                        Ok(reason) => {
-                            if self.send(Feed::Event(DeviceEvent::Unplugged { reason })).is_err() {
-                                return;
-                            }
-                            announced_gone = true;
-                            self.wake();
+                Ok((path, dev)) => match self.serve(&path, dev) {
+                    Ok(reason) => {
+                        if self
+                            .send(Feed::Event(DeviceEvent::Unplugged { reason }))
+                            .is_err()
+                        {
+                            return;
                         }
-                        Err(Closed) => return,
+                        announced_gone = true;
+                        self.wake();
                     }
-                }
+                    Err(Closed) => return,
+                },
                 Err(Found::Mismatch(why)) => {
                     let _ = self.send(Feed::Fatal(why));
                     self.wake();
@@ -505,7 +510,13 @@ pub struct DeviceSummary {
 impl fmt::Display for DeviceSummary {
     /// Several lines: path and name, links, axes with ranges, buttons.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "{}  {:?}  ({})", self.path.display(), self.name, self.kind)?;
+        writeln!(
+            f,
+            "{}  {:?}  ({})",
+            self.path.display(),
+            self.name,
+            self.kind
+        )?;
         for link in &self.links {
             writeln!(f, "  link: {}", link.display())?;
         }

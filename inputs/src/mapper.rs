@@ -34,7 +34,9 @@
 //! stream continuously (many gamepads report motion sensors or noisy sticks at 100+ Hz), where
 //! silence means a frozen device or a dead wireless link.
 
-use crate::codes::{Control, EV_ABS, EV_KEY, RawEvent, SYN_DROPPED, SYN_REPORT, abs_name, key_name};
+use crate::codes::{
+    Control, EV_ABS, EV_KEY, RawEvent, SYN_DROPPED, SYN_REPORT, abs_name, key_name,
+};
 use crate::config::{AXES, AxisConfig, AxisInput, MappingConfig, Rest, axis_key};
 use crate::curve::{AbsState, Calibration, Ramp, Shaping, to_axis};
 use rove_core::adapter::InputEvent;
@@ -302,7 +304,9 @@ impl Mapper {
                 self.lose(LostCause::Silent, reason);
             }
         }
-        let dt = self.ramp_at.map_or(Duration::ZERO, |t| now.saturating_since(t));
+        let dt = self
+            .ramp_at
+            .map_or(Duration::ZERO, |t| now.saturating_since(t));
         if self.ramp_at.is_none_or(|t| now > t) {
             self.ramp_at = Some(now);
         }
@@ -366,8 +370,8 @@ impl Mapper {
                 reason: reason.clone(),
             },
         };
-        let driving = self.link == Link::Live
-            && (self.mapping.deadman.is_none() || self.deadman_held);
+        let driving =
+            self.link == Link::Live && (self.mapping.deadman.is_none() || self.deadman_held);
         InputStatus {
             device: self.device.clone(),
             link,

@@ -60,12 +60,8 @@ impl Rig {
     }
 
     fn connect(&mut self, t: u64, x: i32, y: i32) {
-        self.m.feed(
-            ms(t),
-            DeviceEvent::Connected {
-                name: "Pad".into(),
-            },
-        );
+        self.m
+            .feed(ms(t), DeviceEvent::Connected { name: "Pad".into() });
         for (code, value) in [(ABS_X, x), (ABS_Y, y)] {
             self.absinfo(t, code, value, 0, 255);
         }
@@ -237,7 +233,10 @@ fn an_axis_without_calibration_never_drives() {
     rig.abs(0, ABS_Y, 128);
     rig.syn(0);
     assert_eq!(rig.drain(), []);
-    assert!(matches!(rig.m.status().link, LinkState::AwaitingRest { .. }));
+    assert!(matches!(
+        rig.m.status().link,
+        LinkState::AwaitingRest { .. }
+    ));
 }
 
 const DEADMAN_PAD: &str = r#"
@@ -263,10 +262,7 @@ fn deadman_gates_axes_and_its_release_says_stop() {
     assert_eq!(rig.m.status().sticks.roll, 32767);
     rig.key(2, BTN_TL, 1);
     rig.syn(2);
-    assert_eq!(
-        rig.drain(),
-        [InputEvent::Deadman(true), axes(0, 32767)]
-    );
+    assert_eq!(rig.drain(), [InputEvent::Deadman(true), axes(0, 32767)]);
     rig.abs(3, ABS_X, 128);
     rig.syn(3);
     assert_eq!(rig.drain(), [axes(0, 0)]);
@@ -277,10 +273,7 @@ fn deadman_gates_axes_and_its_release_says_stop() {
     // Pressing again resumes with the current values.
     rig.key(5, BTN_TL, 1);
     rig.syn(5);
-    assert_eq!(
-        rig.drain(),
-        [InputEvent::Deadman(true), axes(0, -32767)]
-    );
+    assert_eq!(rig.drain(), [InputEvent::Deadman(true), axes(0, -32767)]);
 }
 
 #[test]
@@ -454,7 +447,10 @@ fn syn_dropped_is_lost_until_resync_and_values_are_reread() {
     rig.syn(2);
     // Re-synced but the values are unknown until re-read.
     assert_eq!(rig.drain(), []);
-    assert!(matches!(rig.m.status().link, LinkState::AwaitingRest { .. }));
+    assert!(matches!(
+        rig.m.status().link,
+        LinkState::AwaitingRest { .. }
+    ));
     // The device layer's snapshot: X centred, Y pushed → still waiting for throttle.
     rig.absinfo(2, ABS_X, 128, 0, 255);
     rig.absinfo(2, ABS_Y, 0, 0, 255);
@@ -555,7 +551,8 @@ fn throttle(v: i16) -> InputEvent {
 #[test]
 fn keyboard_ramps_up_and_springs_back_with_deadlines() {
     let mut rig = Rig::new(KEYBOARD);
-    rig.m.feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
     assert_eq!(rig.drain(), [throttle(0)], "keyboard is live at once");
     rig.key(0, KEY_W, 1);
     rig.syn(0);
@@ -585,7 +582,8 @@ fn keyboard_ramps_up_and_springs_back_with_deadlines() {
 #[test]
 fn keyboard_reversal_springs_back_first() {
     let mut rig = Rig::new(KEYBOARD);
-    rig.m.feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
     rig.key(0, KEY_W, 1);
     rig.syn(0);
     rig.m.tick(ms(200));
@@ -600,7 +598,8 @@ fn keyboard_reversal_springs_back_first() {
 #[test]
 fn a_key_held_through_a_replug_is_stale_until_released() {
     let mut rig = Rig::new(KEYBOARD);
-    rig.m.feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
     rig.m.feed(
         ms(0),
         DeviceEvent::KeyState {
@@ -621,7 +620,8 @@ fn a_key_held_through_a_replug_is_stale_until_released() {
 #[test]
 fn a_keyboard_unplugged_mid_ramp_replugs_centred() {
     let mut rig = Rig::new(KEYBOARD);
-    rig.m.feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
     rig.key(0, KEY_W, 1);
     rig.syn(0);
     rig.m.tick(ms(100));
@@ -632,9 +632,15 @@ fn a_keyboard_unplugged_mid_ramp_replugs_centred() {
         },
     );
     let events = rig.drain();
-    assert_eq!(events.last(), Some(&InputEvent::Lost { reason: "gone".into() }));
+    assert_eq!(
+        events.last(),
+        Some(&InputEvent::Lost {
+            reason: "gone".into()
+        })
+    );
     assert_eq!(rig.m.next_deadline(), None);
-    rig.m.feed(ms(500), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(500), DeviceEvent::Connected { name: "kbd".into() });
     assert_eq!(rig.drain(), [throttle(0)]);
     assert_eq!(rig.m.status().sticks, MovementCommand::CENTRED);
 }
@@ -649,7 +655,11 @@ fn a_throttle_lever_can_rest_low() {
         "#;
     let mut rig = Rig::new(text);
     rig.absinfo(0, 0x06, 128, 0, 255);
-    assert_eq!(rig.drain(), [], "a lever at mid-travel must go to idle first");
+    assert_eq!(
+        rig.drain(),
+        [],
+        "a lever at mid-travel must go to idle first"
+    );
     rig.raw(1, EV_ABS, 0x06, 0);
     rig.syn(1);
     assert_eq!(rig.drain(), [throttle(-32767)]);
@@ -658,7 +668,8 @@ fn a_throttle_lever_can_rest_low() {
 #[test]
 fn a_key_axis_and_actions_on_the_same_keyboard() {
     let mut rig = Rig::new(KEYBOARD);
-    rig.m.feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
+    rig.m
+        .feed(ms(0), DeviceEvent::Connected { name: "kbd".into() });
     rig.drain();
     rig.key(1, 1, 1);
     rig.syn(1);

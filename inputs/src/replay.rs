@@ -22,7 +22,9 @@
 //! little-endian); times are relative to the first record. A capture carries no absinfo, so
 //! the mapping must give `min`/`max` for its axes.
 
-use crate::codes::{EV_KEY, EV_SYN, RawEvent, parse_abs, parse_code, parse_key, parse_type, type_of_code_name};
+use crate::codes::{
+    EV_KEY, EV_SYN, RawEvent, parse_abs, parse_code, parse_key, parse_type, type_of_code_name,
+};
 use crate::config::MappingConfig;
 use crate::curve::AbsState;
 use crate::error::{Error, Result};
@@ -162,12 +164,19 @@ impl Recording {
                     state.flat
                 ),
                 DeviceEvent::KeyState { code, pressed } => {
-                    format!("keystate {} {}", crate::codes::key_name(*code), u8::from(*pressed))
+                    format!(
+                        "keystate {} {}",
+                        crate::codes::key_name(*code),
+                        u8::from(*pressed)
+                    )
                 }
                 DeviceEvent::Connected { name } => format!("replug {name}"),
                 DeviceEvent::Unplugged { reason } => {
                     // The parser puts "replay: " in front; do not double it.
-                    format!("unplug {}", reason.strip_prefix("replay: ").unwrap_or(reason))
+                    format!(
+                        "unplug {}",
+                        reason.strip_prefix("replay: ").unwrap_or(reason)
+                    )
                 }
             };
             let _ = writeln!(s, "{ms} {what}");
@@ -207,7 +216,7 @@ fn decode_record(r: &[u8]) -> (i64, i64, u16, u16, i32) {
 
 fn parse_ms(s: &str) -> Option<Duration> {
     let ms: f64 = s.parse().ok()?;
-    (ms.is_finite() && ms >= 0.0 && ms < 1e15).then(|| Duration::from_secs_f64(ms / 1e3))
+    (0.0..1e15).contains(&ms).then(|| Duration::from_secs_f64(ms / 1e3))
 }
 
 fn parse_int(s: &str, what: &str) -> Result<i32, String> {
@@ -273,7 +282,8 @@ fn parse_entry(tokens: &[&str]) -> Result<DeviceEvent, String> {
 
 fn parse_raw(head: &str, args: &[&str]) -> Result<RawEvent, String> {
     // Full form: TYPE CODE VALUE; short form: CODE [VALUE] with the type from the prefix.
-    let (kind, code, value) = if head.starts_with("EV_") || head.bytes().all(|b| b.is_ascii_digit()) {
+    let (kind, code, value) = if head.starts_with("EV_") || head.bytes().all(|b| b.is_ascii_digit())
+    {
         let kind =
             parse_type(head).ok_or_else(|| format!("{head:?} is not an event type (EV_ABS, 3)"))?;
         match args {
@@ -453,7 +463,10 @@ mod tests {
                     DeviceEvent::Raw(RawEvent::syn_report())
                 ),
                 (ms(20), DeviceEvent::Raw(RawEvent::new(EV_ABS, 0, 128))),
-                (ms(20), DeviceEvent::Raw(RawEvent::new(EV_SYN, SYN_REPORT, 0))),
+                (
+                    ms(20),
+                    DeviceEvent::Raw(RawEvent::new(EV_SYN, SYN_REPORT, 0))
+                ),
                 (
                     ms(500),
                     DeviceEvent::Unplugged {
@@ -511,7 +524,10 @@ mod tests {
         assert_eq!(
             r.entries(),
             &[
-                (Duration::ZERO, DeviceEvent::Raw(RawEvent::new(EV_ABS, 1, 77))),
+                (
+                    Duration::ZERO,
+                    DeviceEvent::Raw(RawEvent::new(EV_ABS, 1, 77))
+                ),
                 (
                     Duration::from_micros(2_500),
                     DeviceEvent::Raw(RawEvent::syn_report())

@@ -12,7 +12,9 @@ struct File {
 }
 
 fn load(name: &str) -> rove_inputs::InputConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples").join(name);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples")
+        .join(name);
     let text = std::fs::read_to_string(&path).expect("example readable");
     let file: File = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
     file.input
@@ -51,5 +53,8 @@ fn examples_choose_their_source_kind() {
     assert_eq!(load("flight-stick.toml").kind(), SourceKind::Joystick);
     let keyboard = load("keyboard.toml");
     assert_eq!(keyboard.kind(), SourceKind::Keyboard);
-    assert!(matches!(keyboard.source(), SourceConfig::Evdev { grab: false, .. }));
+    assert!(matches!(
+        keyboard.source(),
+        SourceConfig::Evdev { grab: false, .. }
+    ));
 }

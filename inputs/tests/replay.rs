@@ -164,7 +164,10 @@ fn syn_dropped_discards_the_frame_and_resyncs_without_a_jump() {
                 20,
                 InputEvent::Lost {
                     reason: "replay rec: events dropped (SYN_DROPPED), state unknown until re-sync"
-                        .replace("replay rec", &format!("replay {}", recording("gamepad_syn_dropped.txt").display()))
+                        .replace(
+                            "replay rec",
+                            &format!("replay {}", recording("gamepad_syn_dropped.txt").display())
+                        )
                 }
             ),
             // The BTN_SOUTH press inside the dropped frame fired nothing; roll still pushed
@@ -196,7 +199,10 @@ fn keyboard_ramps_smoothly_and_springs_back() {
     };
     let near = |ms: u64, want: i16| {
         let got = at(ms).expect("a value by then");
-        assert!((got - want).abs() <= 1, "at {ms} ms: {got}, want {want} ± 1");
+        assert!(
+            (got - want).abs() <= 1,
+            "at {ms} ms: {got}, want {want} ± 1"
+        );
     };
     // ramp_up_ms = 400: half way 200 ms after the press, full at 400 ms (10 ms steps add up
     // in floating point: ±1).
@@ -213,10 +219,7 @@ fn keyboard_ramps_smoothly_and_springs_back() {
     }
     // Nothing emitted while held at full scale (auto-repeat at 350 ms included).
     assert!(throttle.iter().all(|(t, _)| !(501..700).contains(t)));
-    assert_eq!(
-        got.last(),
-        Some(&(1000, action(InputAction::Release)))
-    );
+    assert_eq!(got.last(), Some(&(1000, action(InputAction::Release))));
 }
 
 #[test]
@@ -277,7 +280,10 @@ fn open_plays_a_replay_config_as_a_boxed_source() {
     // Before the first poll the source asks to be polled at once.
     assert_eq!(source.next_deadline(), Some(MonoTime::ZERO));
     let got = play(source.as_mut(), 300);
-    assert!(matches!(got.last(), Some((200, InputEvent::Lost { .. }))), "{got:?}");
+    assert!(
+        matches!(got.last(), Some((200, InputEvent::Lost { .. }))),
+        "{got:?}"
+    );
 }
 
 #[test]
