@@ -216,7 +216,9 @@ fn decode_record(r: &[u8]) -> (i64, i64, u16, u16, i32) {
 
 fn parse_ms(s: &str) -> Option<Duration> {
     let ms: f64 = s.parse().ok()?;
-    (0.0..1e15).contains(&ms).then(|| Duration::from_secs_f64(ms / 1e3))
+    (0.0..1e15)
+        .contains(&ms)
+        .then(|| Duration::from_secs_f64(ms / 1e3))
 }
 
 fn parse_int(s: &str, what: &str) -> Result<i32, String> {
