@@ -1,1 +1,30 @@
-//! (being written)
+//! `rove-mavlink`: drives an ArduPilot or PX4 autopilot as a well-behaved ground station.
+//!
+//! Selected by `[output] adapter = "mavlink"`. The gateway hands it setpoints; it sends
+//! RC_CHANNELS_OVERRIDE (ArduPilot) or MANUAL_CONTROL (PX4, ArduPilot) at once and again at
+//! `rate_hz` (autopilots time an override out), a GCS HEARTBEAT at 1 Hz with our own ids (255/190
+//! by default, ArduPilot's `MAV_GCS_SYSID`), mode changes with MAV_CMD_DO_SET_MODE confirmed from
+//! COMMAND_ACK or HEARTBEAT, and on failsafe the release values (or neutral sticks) plus the
+//! configured safe mode. It never arms.
+//!
+//! # Layout
+//! - [`config`]: the `[output]` keys, validation, per-autopilot mode tables.
+//! - [`encode`]: sticks → override pulses / MANUAL_CONTROL fields; release and ignore values (pure).
+//! - [`mode`]: the mode-command machine with retries (pure, stepped with `now`).
+//! - [`link`]: the transport (udpin/udpout/tcpout/serial) with its reader thread and reconnect.
+//! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
+//!
+//! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
+//! `../shared/notes/ardupilot.md`; the project's pymavlink test autopilot
+//! (`adapters/mavlink/tests/fake_autopilot.py`) behaves the same way.
+
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod encode;
+pub mod link;
+pub mod mode;
+pub mod vehicle;
+
+pub use config::{MavlinkConfig, MavlinkSettings};
+pub use vehicle::{MavlinkVehicle, failsafe};

@@ -1,0 +1,574 @@
+//! The MAVLink adapter against a real MAVLink peer: `fake_autopilot.py` (pymavlink), playing an
+//! ArduPilot (or PX4) autopilot on loopback UDP/TCP and on a pty pair (socat).
+//!
+//! Needs `python3` with `pymavlink` (and `socat` for the serial test); `.ci/run` installs them.
+//! Timing assertions use wide bounds: they catch a wrong rate (2×, ½×), not scheduler jitter.
+
+#![allow(clippy::unwrap_used)]
+
+use rove_core::MonoTime;
+use rove_core::adapter::{Health, OutputAdapter};
+use rove_core::arbiter::Setpoint;
+use rove_core::msg::{Mode, MovementCommand};
+use rove_mavlink::mode::ModeState;
+use rove_mavlink::{MavlinkSettings, MavlinkVehicle};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const WAIT: Duration = Duration::from_secs(10);
+
+fn script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fake_autopilot.py")
+}
+
+/// A running fake autopilot and its record.
+struct Peer {
+    child: Child,
+    record: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Peer {
+    fn start(args: &[&str]) -> Peer {
+        let dir = tempfile::tempdir().unwrap();
+        Peer::start_in(dir, args)
+    }
+
+    fn start_in(dir: tempfile::TempDir, args: &[&str]) -> Peer {
+        let record = dir.path().join("record.jsonl");
+        let child = Command::new("python3")
+            .arg(script())
+            .arg("--record")
+            .arg(&record)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("python3 runs (install pymavlink: python3 -m pip install pymavlink)");
+        let peer = Peer {
+            child,
+            record,
+            _dir: dir,
+        };
+        peer.wait_for("peer ready", |e| e["event"] == "ready");
+        peer
+    }
+
+    fn events(&self) -> Vec<Value> {
+        std::fs::read_to_string(&self.record)
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    }
+
+    fn of(&self, event: &str) -> Vec<Value> {
+        self.events()
+            .into_iter()
+            .filter(|e| e["event"] == event)
+            .collect()
+    }
+
+    /// Waits until an event matches, failing the test after [`WAIT`].
+    fn wait_for(&self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        loop {
+            if let Some(e) = self.events().into_iter().find(|e| pred(e)) {
+                return e;
+            }
+            assert!(
+                start.elapsed() < WAIT,
+                "{what}: not seen in {WAIT:?}; record:\n{:#?}",
+                self.events()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn free_port() -> u16 {
+    let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let t = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    // One port free for both UDP and TCP is not guaranteed; the UDP one is what most tests use.
+    drop(t);
+    s.local_addr().unwrap().port()
+}
+
+fn vehicle(toml: &str, clock: &Clock) -> MavlinkVehicle {
+    let settings: MavlinkSettings = toml::from_str(toml).unwrap();
+    MavlinkVehicle::new(settings.validate().unwrap(), clock.now()).unwrap()
+}
+
+/// Wall time as the gateway passes it.
+struct Clock(Instant);
+
+impl Clock {
+    fn new() -> Clock {
+        Clock(Instant::now())
+    }
+    fn now(&self) -> MonoTime {
+        MonoTime::ZERO + self.0.elapsed()
+    }
+}
+
+/// Runs the adapter as the gateway would for `span`: keep-alive every period, and `apply` of
+/// `setpoint` (if any) whenever `apply_every` has passed.
+fn run(v: &mut MavlinkVehicle, clock: &Clock, span: Duration, setpoint: Option<Setpoint>) {
+    let end = Instant::now() + span;
+    let period = v.keepalive_period().unwrap();
+    let mut next = Instant::now();
+    while Instant::now() < end {
+        let now = clock.now();
+        let _ = v.keepalive(now);
+        if let Some(s) = setpoint {
+            let _ = v.apply(now, &s);
+        }
+        next += period;
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+    }
+}
+
+/// Keep-alives until `cond` holds (bounded by [`WAIT`]).
+fn run_until(
+    v: &mut MavlinkVehicle,
+    clock: &Clock,
+    what: &str,
+    cond: impl Fn(&MavlinkVehicle) -> bool,
+) {
+    let start = Instant::now();
+    while !cond(v) {
+        assert!(start.elapsed() < WAIT, "{what}: not reached in {WAIT:?}");
+        let _ = v.keepalive(clock.now());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn discovered(v: &MavlinkVehicle) -> bool {
+    v.link_status().autopilot.is_some()
+}
+
+fn setpoint(throttle: i16, roll: i16, mode: Mode) -> Setpoint {
+    Setpoint {
+        movement: MovementCommand {
+            throttle,
+            roll,
+            pitch: 0,
+            yaw: 0,
+        },
+        mode,
+    }
+}
+
+fn raw(e: &Value) -> Vec<u64> {
+    e["raw"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect()
+}
+
+#[test]
+fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
+    let port = free_port();
+    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!("connection = \"udpout:127.0.0.1:{port}\"\nsystem_id = 250\ncomponent_id = 191"),
+        &clock,
+    );
+    run(&mut v, &clock, Duration::from_millis(3300), None);
+    let beats: Vec<Value> = peer
+        .of("heartbeat")
+        .into_iter()
+        .filter(|e| e["src"] == 250)
+        .collect();
+    assert!(beats.len() >= 3, "{beats:#?}");
+    for b in &beats {
+        assert_eq!(b["comp"], 191);
+        assert_eq!(b["type"], 6, "MAV_TYPE_GCS");
+        assert_eq!(b["autopilot"], 8, "MAV_AUTOPILOT_INVALID");
+        assert_eq!(b["version"], 2, "MAVLink 2 by default");
+    }
+    let times: Vec<f64> = beats.iter().map(|b| b["t"].as_f64().unwrap()).collect();
+    for gap in times.windows(2).map(|w| w[1] - w[0]) {
+        assert!(
+            (0.8..1.3).contains(&gap),
+            "heartbeat gap {gap:.3} s, times {times:?}"
+        );
+    }
+    assert!(discovered(&v), "the autopilot's HEARTBEAT was heard");
+    assert_eq!(v.health(), Health::Ok);
+}
+
+#[test]
+fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
+    let port = free_port();
+    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!(
+            "connection = \"udpout:127.0.0.1:{port}\"\nrate_hz = 25\n[modes]\nset_mode = false"
+        ),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    // Full right steering at half scale, full throttle: ch1 1750, ch3 2000.
+    v.apply(clock.now(), &setpoint(32767, 16384, Mode::Manual))
+        .unwrap();
+    let first = peer.wait_for("override", |e| e["event"] == "rc_override");
+    let values = raw(&first);
+    assert_eq!((values[0], values[2]), (1750, 2000), "{first}");
+    for ch in [2usize, 4, 5, 6, 7, 8] {
+        assert_eq!(values[ch - 1], 65535, "ch{ch} must be 'ignore'");
+    }
+    assert_eq!(&values[8..], &[0; 10], "ch9-18: 0 = ignore");
+    assert_eq!(first["accepted"], true, "sysid 255 → accepted");
+    assert_eq!(first["target"], 1);
+    assert_eq!(first["target_comp"], 1);
+
+    // Resend while only keep-alives run (no new samples): 25 Hz.
+    let before = peer.of("rc_override").len();
+    let t = Instant::now();
+    run(&mut v, &clock, Duration::from_secs(2), None);
+    let elapsed = t.elapsed().as_secs_f64();
+    let sent = peer.of("rc_override").len() - before;
+    let rate = sent as f64 / elapsed;
+    assert!(
+        (18.0..=32.0).contains(&rate),
+        "{sent} overrides in {elapsed:.2} s = {rate:.1} Hz"
+    );
+    assert!(
+        peer.of("rc_override").iter().all(|e| raw(e)[0] == 1750),
+        "the resends repeat the last values"
+    );
+}
+
+#[test]
+fn manual_control_is_scaled_for_px4() {
+    let port = free_port();
+    let peer = Peer::start(&[
+        "--connection",
+        &format!("udpin:127.0.0.1:{port}"),
+        "--autopilot",
+        "px4",
+        "--vehicle",
+        "copter",
+    ]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!(
+            "connection = \"udpout:127.0.0.1:{port}\"\nautopilot = \"px4\"\nvehicle = \"copter\"\n\
+             [modes]\nset_mode = false"
+        ),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    let sp = Setpoint {
+        movement: MovementCommand {
+            throttle: 32767,
+            roll: -16384,
+            pitch: 16384,
+            yaw: 0,
+        },
+        mode: Mode::Assisted,
+    };
+    v.apply(clock.now(), &sp).unwrap();
+    let e = peer.wait_for("manual control", |e| e["event"] == "manual_control");
+    let xyzr: Vec<i64> = ["x", "y", "z", "r"]
+        .iter()
+        .map(|k| e[k].as_i64().unwrap())
+        .collect();
+    // x = pitch, y = roll, z = throttle on PX4's 0..1000 (500 at centre), r = yaw.
+    assert_eq!(xyzr, vec![500, -500, 1000, 0], "{e}");
+    assert_eq!(e["target"], 1);
+    assert_eq!(e["accepted"], true);
+}
+
+#[test]
+fn mode_command_is_resent_until_acknowledged() {
+    let port = free_port();
+    let peer = Peer::start(&[
+        "--connection",
+        &format!("udpin:127.0.0.1:{port}"),
+        "--ignore-mode-commands",
+        "2",
+    ]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 200"),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    v.apply(clock.now(), &setpoint(0, 0, Mode::Manual)).unwrap();
+    let sp = setpoint(0, 0, Mode::Manual);
+    let start = Instant::now();
+    while !matches!(v.mode_state(), ModeState::Confirmed(_)) {
+        assert!(
+            start.elapsed() < WAIT,
+            "mode never confirmed: {:?}",
+            v.mode_state()
+        );
+        let _ = v.keepalive(clock.now());
+        let _ = v.apply(clock.now(), &sp);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let sends = peer.of("set_mode");
+    assert_eq!(
+        sends.len(),
+        3,
+        "two unanswered + one acknowledged: {sends:#?}"
+    );
+    assert!(
+        sends
+            .iter()
+            .all(|s| s["custom_mode"] == 0 && s["param1"] == 1.0),
+        "MANUAL, custom flag"
+    );
+    let t: Vec<f64> = sends.iter().map(|s| s["t"].as_f64().unwrap()).collect();
+    for gap in t.windows(2).map(|w| w[1] - w[0]) {
+        assert!(
+            (0.15..0.6).contains(&gap),
+            "resend after the 200 ms timeout, got {gap:.3} s"
+        );
+    }
+    assert_eq!(sends[2]["answered"], true);
+}
+
+#[test]
+fn a_refused_mode_is_reported_not_retried() {
+    let port = free_port();
+    let peer = Peer::start(&[
+        "--connection",
+        &format!("udpin:127.0.0.1:{port}"),
+        "--deny-modes",
+    ]);
+    let clock = Clock::new();
+    let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    v.apply(clock.now(), &setpoint(0, 0, Mode::Auto)).unwrap();
+    run_until(&mut v, &clock, "refusal seen", |v| {
+        matches!(v.mode_state(), ModeState::Failed { .. })
+    });
+    run(&mut v, &clock, Duration::from_millis(500), None);
+    assert_eq!(peer.of("set_mode").len(), 1, "no resend after DENIED");
+    assert!(matches!(v.health(), Health::Degraded(why) if why.contains("DENIED")));
+}
+
+#[test]
+fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
+    let port = free_port();
+    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 300"),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    let sp = setpoint(20000, 0, Mode::Manual);
+    v.apply(clock.now(), &sp).unwrap();
+    peer.wait_for("driving in MANUAL", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 0
+    });
+    run(&mut v, &clock, Duration::from_millis(200), Some(sp));
+
+    // The owner vanished: the gateway calls safe_state.
+    let t_safe = peer.events().last().unwrap()["t"].as_f64().unwrap();
+    v.safe_state(clock.now()).unwrap();
+    let release = peer.wait_for("release", |e| {
+        e["event"] == "rc_override" && e["t"].as_f64().unwrap() >= t_safe && raw(e)[0] == 0
+    });
+    let r = raw(&release);
+    assert_eq!((r[0], r[2]), (0, 0), "ch1 and ch3 released");
+    assert_eq!(r[1], 65535, "unmapped channels untouched");
+    assert_eq!(
+        release["active"],
+        serde_json::json!({}),
+        "no override left in the autopilot"
+    );
+    let hold = peer.wait_for("HOLD", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 4
+    });
+    let delay = hold["t"].as_f64().unwrap() - t_safe;
+    assert!(
+        delay < 0.3,
+        "safe mode within one command timeout (took {delay:.3} s)"
+    );
+    run(&mut v, &clock, Duration::from_millis(400), None);
+    let releases = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| e["t"].as_f64().unwrap() >= t_safe && raw(e)[0] == 0)
+        .count();
+    assert_eq!(
+        releases, 3,
+        "release sent 3 times (UDP may lose one), then nothing"
+    );
+    assert!(matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == "HOLD"));
+}
+
+#[test]
+fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
+    let port = free_port();
+    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let clock = Clock::new();
+    let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    run(
+        &mut v,
+        &clock,
+        Duration::from_millis(200),
+        Some(setpoint(20000, 0, Mode::Manual)),
+    );
+    drop(v);
+    let events = peer.events();
+    let hold = events
+        .iter()
+        .position(|e| e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true);
+    let release = events
+        .iter()
+        .position(|e| e["event"] == "rc_override" && raw(e)[0] == 0);
+    assert!(release.is_some() && hold.is_some(), "{events:#?}");
+}
+
+#[test]
+fn reconnects_after_the_autopilot_restarts_over_tcp() {
+    let port = free_port();
+    let addr = format!("tcpin:127.0.0.1:{port}");
+    let mut peer = Peer::start(&["--connection", &addr]);
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!("connection = \"tcpout:127.0.0.1:{port}\"\n[modes]\nset_mode = false"),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    let sp = setpoint(10000, 0, Mode::Manual);
+    run(&mut v, &clock, Duration::from_millis(200), Some(sp));
+    assert!(!peer.of("rc_override").is_empty());
+    peer.stop();
+    run_until(&mut v, &clock, "link loss noticed", |v| {
+        !v.link_status().connected
+    });
+    assert!(matches!(v.health(), Health::Down(_)));
+    let peer2 = Peer::start(&["--connection", &addr]);
+    let start = Instant::now();
+    while peer2.of("rc_override").is_empty() {
+        assert!(
+            start.elapsed() < WAIT,
+            "no override reached the restarted autopilot"
+        );
+        let _ = v.keepalive(clock.now());
+        let _ = v.apply(clock.now(), &sp);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(v.link_status().connects >= 2);
+    run_until(&mut v, &clock, "healthy again", |v| {
+        v.health() == Health::Ok
+    });
+}
+
+#[test]
+fn garbage_and_other_systems_change_nothing() {
+    let port = free_port();
+    let peer = Peer::start(&[
+        "--connection",
+        &format!("udpin:127.0.0.1:{port}"),
+        "--garbage",
+        "--foreign-sysid",
+        "42",
+        "--heartbeat-hz",
+        "20",
+    ]);
+    let clock = Clock::new();
+    let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    let sp = setpoint(0, 32767, Mode::Manual);
+    run(&mut v, &clock, Duration::from_millis(1500), Some(sp));
+    let status = v.link_status();
+    assert_eq!(status.autopilot.map(|a| a.system_id), Some(1), "{status:?}");
+    assert!(
+        status.foreign > 0,
+        "sysid 42's messages were seen and dropped: {status:?}"
+    );
+    // sysid 42 answers DENIED to every mode command; our mode still confirms from sysid 1.
+    assert!(
+        matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == "MANUAL"),
+        "{:?}",
+        v.mode_state()
+    );
+    let overrides = peer.of("rc_override");
+    // The releases of the start-up safe state, then the driven values.
+    assert!(
+        overrides
+            .iter()
+            .all(|e| e["target"] == 1 && [0, 2000].contains(&raw(e)[0]))
+    );
+    let driven = overrides.iter().filter(|e| raw(e)[0] == 2000).count();
+    assert!(driven > 20, "{driven} overrides while driving");
+}
+
+#[test]
+fn drives_over_a_serial_pty_pair() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("ttyA"), dir.path().join("ttyB"));
+    let socat = Command::new("socat")
+        .args([
+            format!("pty,raw,echo=0,link={}", a.display()),
+            format!("pty,raw,echo=0,link={}", b.display()),
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("socat runs (apt-get install socat)");
+    let _socat = KillOnDrop(socat);
+    let start = Instant::now();
+    while !(a.exists() && b.exists()) {
+        assert!(start.elapsed() < WAIT, "socat made no ptys");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let peer = Peer::start_in(
+        tempfile::tempdir().unwrap(),
+        &["--connection", a.to_str().unwrap(), "--baud", "57600"],
+    );
+    let clock = Clock::new();
+    let mut v = vehicle(
+        &format!(
+            "connection = \"serial:{}:57600\"\n[modes]\nset_mode = false",
+            b.display()
+        ),
+        &clock,
+    );
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    v.apply(clock.now(), &setpoint(-32767, 0, Mode::Manual))
+        .unwrap();
+    let e = peer.wait_for("override over serial", |e| e["event"] == "rc_override");
+    assert_eq!((raw(&e)[0], raw(&e)[2]), (1500, 1000));
+    run(&mut v, &clock, Duration::from_millis(1200), None);
+    peer.wait_for("GCS heartbeat over serial", |e| {
+        e["event"] == "heartbeat" && e["src"] == 255
+    });
+}
+
+/// Kills a helper process however the test ends.
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}

@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""A pymavlink autopilot for rove's MAVLink tests: behaves like ArduPilot as a GCS sees it.
+
+What it copies from a real ArduPilot (../shared/notes/ardupilot.md):
+- RC_CHANNELS_OVERRIDE is taken only from the GCS system id (--gcs-sysid, ArduPilot's
+  MAV_GCS_SYSID, default 255) and only when target_system is ours; others are recorded as ignored.
+- ch1-8: 0 releases the channel, 65535 ignores it; ch9-18: 0 and 65535 ignore, 65534 releases.
+- An override expires --override-timeout seconds after the last one for that channel
+  (RC_OVERRIDE_TIME, 3 s by default).
+- MANUAL_CONTROL is taken when its target is ours; it expires like an override.
+- MAV_CMD_DO_SET_MODE (param1 = custom mode flag, param2 = custom_mode; PX4: param2 main mode,
+  param3 sub mode) switches the mode and is answered with COMMAND_ACK; the HEARTBEAT reports it.
+- HEARTBEAT at --heartbeat-hz (1 Hz like the real one).
+- Optional GCS failsafe (--gcs-failsafe S): no GCS traffic for S seconds -> the safe mode.
+
+Test knobs: --ignore-mode-commands N (drop the first N mode commands: no ACK), --deny-modes,
+--garbage (random bytes between messages), --foreign-sysid N (a second system that also sends
+HEARTBEATs and COMMAND_ACKs).
+
+Everything it receives and does is written to --record as JSON lines with a monotonic time `t`.
+The first line is {"event": "ready"} once the link is open.
+"""
+
+import argparse
+import json
+import os
+import random
+import sys
+import time
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+ROVER_HOLD = 4
+PX4_AUTO_LOITER = (4 << 16) | (3 << 24)
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--connection", required=True,
+                   help="pymavlink address: udpin:HOST:PORT, udpout:HOST:PORT, tcpin:HOST:PORT, or a serial device")
+    p.add_argument("--baud", type=int, default=57600)
+    p.add_argument("--record", required=True)
+    p.add_argument("--sysid", type=int, default=1)
+    p.add_argument("--compid", type=int, default=1)
+    p.add_argument("--gcs-sysid", type=int, default=255)
+    p.add_argument("--autopilot", choices=["ardupilot", "px4"], default="ardupilot")
+    p.add_argument("--vehicle", choices=["rover", "copter"], default="rover")
+    p.add_argument("--mode", type=int, default=None, help="initial custom_mode (default: the safe mode)")
+    p.add_argument("--heartbeat-hz", type=float, default=1.0)
+    p.add_argument("--override-timeout", type=float, default=3.0)
+    p.add_argument("--gcs-failsafe", type=float, default=0.0)
+    p.add_argument("--ignore-mode-commands", type=int, default=0)
+    p.add_argument("--deny-modes", action="store_true")
+    p.add_argument("--garbage", action="store_true")
+    p.add_argument("--foreign-sysid", type=int, default=0)
+    p.add_argument("--duration", type=float, default=120.0, help="exit after this long (bounded)")
+    a = p.parse_args()
+
+    safe_mode = PX4_AUTO_LOITER if a.autopilot == "px4" else ROVER_HOLD
+    mode = safe_mode if a.mode is None else a.mode
+    out = open(a.record, "a", buffering=1)
+    t0 = time.monotonic()
+
+    def record(event, **fields):
+        fields.update(event=event, t=time.monotonic())
+        out.write(json.dumps(fields) + "\n")
+
+    m = mavutil.mavlink_connection(a.connection, baud=a.baud, source_system=a.sysid,
+                                   source_component=a.compid, autoreconnect=True)
+    foreign = None
+    if a.foreign_sysid:
+        foreign = mavutil.mavlink.MAVLink(m, srcSystem=a.foreign_sysid, srcComponent=1)
+    record("ready", pid=os.getpid())
+
+    mav_type = (mavutil.mavlink.MAV_TYPE_GROUND_ROVER if a.vehicle == "rover"
+                else mavutil.mavlink.MAV_TYPE_QUADROTOR)
+    ap = (mavutil.mavlink.MAV_AUTOPILOT_PX4 if a.autopilot == "px4"
+          else mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    overrides = {}  # channel -> (value, time)
+    ignore_modes = a.ignore_mode_commands
+    next_hb = time.monotonic()
+    last_gcs = None
+    failsafe_fired = False
+
+    def send_raw(data):
+        try:
+            m.write(data)
+        except OSError:
+            pass  # udpin before the GCS spoke; a closed tcp peer
+
+    while time.monotonic() - t0 < a.duration:
+        now = time.monotonic()
+        if now >= next_hb:
+            next_hb = now + 1.0 / a.heartbeat_hz
+            base = mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            try:
+                m.mav.heartbeat_send(mav_type, ap, base, mode, mavutil.mavlink.MAV_STATE_ACTIVE)
+                if foreign is not None:
+                    send_raw(foreign.heartbeat_encode(mav_type, ap, base, 99,
+                                                      mavutil.mavlink.MAV_STATE_ACTIVE).pack(foreign))
+                    send_raw(foreign.command_ack_encode(mavutil.mavlink.MAV_CMD_DO_SET_MODE,
+                                                        mavutil.mavlink.MAV_RESULT_DENIED).pack(foreign))
+                if a.garbage:
+                    send_raw(bytes(random.getrandbits(8) for _ in range(40)) + b"\xfd\x09\x00")
+            except OSError:
+                pass
+        for ch in [c for c, (_, at) in overrides.items() if now - at > a.override_timeout]:
+            del overrides[ch]
+            record("override_expired", channel=ch)
+        if a.gcs_failsafe and last_gcs is not None and not failsafe_fired and now - last_gcs > a.gcs_failsafe:
+            failsafe_fired = True
+            overrides.clear()
+            mode = safe_mode
+            record("gcs_failsafe", mode=mode)
+
+        msg = m.recv_match(blocking=True, timeout=0.02)
+        if msg is None:
+            continue
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            record("bad_data")
+            continue
+        src, srccomp = msg.get_srcSystem(), msg.get_srcComponent()
+        if src == a.gcs_sysid:
+            last_gcs = time.monotonic()
+            if failsafe_fired:
+                failsafe_fired = False
+                record("gcs_failsafe_cleared")
+        if kind == "HEARTBEAT":
+            record("heartbeat", src=src, comp=srccomp, type=msg.type, autopilot=msg.autopilot,
+                   version=msg.get_msgbuf()[0] == 0xFD and 2 or 1)
+        elif kind == "RC_CHANNELS_OVERRIDE":
+            raw = [getattr(msg, "chan%d_raw" % i, 0) for i in range(1, 19)]
+            accepted = src == a.gcs_sysid and msg.target_system == a.sysid
+            if accepted:
+                for i, v in enumerate(raw, start=1):
+                    if i <= 8:
+                        if v == 0:
+                            overrides.pop(i, None)
+                        elif v != 65535:
+                            overrides[i] = (v, time.monotonic())
+                    else:
+                        if v == 65534:
+                            overrides.pop(i, None)
+                        elif v not in (0, 65535):
+                            overrides[i] = (v, time.monotonic())
+            record("rc_override", src=src, comp=srccomp, target=msg.target_system,
+                   target_comp=msg.target_component, raw=raw, accepted=accepted,
+                   active={str(c): v for c, (v, _) in sorted(overrides.items())})
+        elif kind == "MANUAL_CONTROL":
+            accepted = msg.target == a.sysid and src == a.gcs_sysid
+            record("manual_control", src=src, target=msg.target, x=msg.x, y=msg.y, z=msg.z, r=msg.r,
+                   accepted=accepted)
+        elif kind == "COMMAND_LONG":
+            if msg.command != mavutil.mavlink.MAV_CMD_DO_SET_MODE or msg.target_system != a.sysid:
+                record("command", src=src, command=msg.command, target=msg.target_system)
+                continue
+            if a.autopilot == "px4":
+                wanted = (int(msg.param2) << 16) | (int(msg.param3) << 24)
+            else:
+                wanted = int(msg.param2)
+            if ignore_modes > 0:
+                ignore_modes -= 1
+                record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=False)
+                continue
+            result = (mavutil.mavlink.MAV_RESULT_DENIED if a.deny_modes
+                      else mavutil.mavlink.MAV_RESULT_ACCEPTED)
+            if not a.deny_modes:
+                mode = wanted
+            record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=True,
+                   result=result)
+            m.mav.command_ack_send(mavutil.mavlink.MAV_CMD_DO_SET_MODE, result)
+            next_hb = time.monotonic()  # like ArduPilot: the new mode shows in the next heartbeat soon
+        else:
+            record("other", type=kind, src=src)
+    record("exit")
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except KeyboardInterrupt:
+        sys.exit(0)
