@@ -71,6 +71,12 @@ pub trait OutputAdapter {
 
     /// Current health of the link.
     fn health(&self) -> Health;
+
+    /// What the device reports about itself, for status lines (an autopilot's mode and armed
+    /// state); `None` when there is nothing beyond [`OutputAdapter::health`].
+    fn detail(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Operator actions bound to buttons or keys.

@@ -72,6 +72,10 @@ pub enum OutputSection {
     Eyedrive(Box<rove_eyedrive::EyedriveSettings>),
     /// The DJI Naza-M multirotor autopilot: A/E/T/R/U channels.
     Naza(Box<rove_naza::NazaSettings>),
+    /// An ArduPilot or PX4 autopilot over MAVLink (RC override or MANUAL_CONTROL).
+    Mavlink(Box<rove_mavlink::MavlinkSettings>),
+    /// CAN servos and ESCs: raw frames defined by config, DroneCAN actuator commands.
+    Can(Box<rove_can::CanSettings>),
 }
 
 /// `[output] adapter = "sim"` takes no other keys.
@@ -90,6 +94,10 @@ pub enum OutputConfig {
     Eyedrive(rove_pwm::PwmVehicleConfig),
     /// The Naza-M.
     Naza(rove_naza::NazaConfig),
+    /// A MAVLink autopilot.
+    Mavlink(Box<rove_mavlink::MavlinkConfig>),
+    /// A CAN bus.
+    Can(Box<rove_can::CanConfig>),
 }
 
 impl OutputSection {
@@ -110,6 +118,18 @@ impl OutputSection {
             ),
             OutputSection::Naza(s) => collect(
                 s.validate().map(OutputConfig::Naza),
+                "output",
+                errors,
+                OutputConfig::Sim,
+            ),
+            OutputSection::Mavlink(s) => collect(
+                s.validate().map(|c| OutputConfig::Mavlink(Box::new(c))),
+                "output",
+                errors,
+                OutputConfig::Sim,
+            ),
+            OutputSection::Can(s) => collect(
+                s.validate().map(|c| OutputConfig::Can(Box::new(c))),
                 "output",
                 errors,
                 OutputConfig::Sim,
@@ -154,7 +174,8 @@ pub struct OperatorSection {
     pub drive: Vec<DeviceId>,
 }
 
-/// `[input]`: until the evdev adapters land, a scripted source.
+/// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
+/// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
 pub enum InputSection {
@@ -175,6 +196,21 @@ pub enum InputSection {
         /// Mode (absent: manual).
         mode: Option<ModeName>,
     },
+    /// An evdev joystick or gamepad.
+    Joystick(Box<rove_inputs::InputSettings>),
+    /// An evdev keyboard.
+    Keyboard(Box<rove_inputs::InputSettings>),
+    /// A recorded event stream (tests, demos, benchmarks).
+    Replay(Box<rove_inputs::InputSettings>),
+}
+
+/// A validated `[input]`.
+#[derive(Debug, Clone)]
+pub enum InputChoice {
+    /// The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving starts at once.
+    Constant(MovementCommand, Mode),
+    /// A device or recording; driving waits until it reports live, centred sticks.
+    Device(Box<rove_inputs::InputConfig>),
 }
 
 /// Mode names in config.
@@ -268,8 +304,8 @@ pub struct OperatorConfig {
     pub drive: Vec<DeviceId>,
     /// Active-handover settings.
     pub handover: HandoverConfig,
-    /// Stick values and mode streamed while driving.
-    pub input: (MovementCommand, Mode),
+    /// Where stick values and mode come from.
+    pub input: InputChoice,
 }
 
 /// Reads and validates a vehicle config.
@@ -290,7 +326,19 @@ pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
 pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
     let text = read(path)?;
     let raw: RawOperator = parse(path, &text)?;
-    raw.validate().map_err(|e| located(path, &text, e))
+    let mut config = raw.validate().map_err(|e| located(path, &text, e))?;
+    config.resolve_paths(path);
+    Ok(config)
+}
+
+impl OperatorConfig {
+    /// Makes relative paths in the config (a replay `file`) relative to the file's directory.
+    pub fn resolve_paths(&mut self, config_path: &Path) {
+        if let InputChoice::Device(input) = &mut self.input {
+            let dir = config_path.parent().unwrap_or(Path::new("."));
+            input.resolve_relative_to(dir);
+        }
+    }
 }
 
 /// A config file, either role, for `rove check-config`.
@@ -599,15 +647,28 @@ impl RawOperator {
                 ));
             }
         }
+        let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
+        let device = |settings: &rove_inputs::InputSettings,
+                      kind: rove_inputs::SourceKind,
+                      errors: &mut ConfigErrors| {
+            collect(
+                settings
+                    .validate_as(kind)
+                    .map(|c| InputChoice::Device(Box::new(c))),
+                "input",
+                errors,
+                constant.clone(),
+            )
+        };
         let input = match &self.input {
-            None => (MovementCommand::CENTRED, Mode::Manual),
+            None => constant.clone(),
             Some(InputSection::Constant {
                 throttle,
                 roll,
                 pitch,
                 yaw,
                 mode,
-            }) => (
+            }) => InputChoice::Constant(
                 MovementCommand {
                     throttle: *throttle,
                     roll: *roll,
@@ -616,6 +677,13 @@ impl RawOperator {
                 },
                 mode.map_or(Mode::Manual, Mode::from),
             ),
+            Some(InputSection::Joystick(s)) => {
+                device(s, rove_inputs::SourceKind::Joystick, &mut errors)
+            }
+            Some(InputSection::Keyboard(s)) => {
+                device(s, rove_inputs::SourceKind::Keyboard, &mut errors)
+            }
+            Some(InputSection::Replay(s)) => device(s, rove_inputs::SourceKind::Replay, &mut errors),
         };
         errors.into_result(OperatorConfig {
             common,

@@ -7,6 +7,15 @@
 //! for. Consent: the config's auto-accept policy decides; a request that needs a person waits
 //! for the console (a later issue) and is refused at the consent timeout meanwhile.
 //!
+//! Input (`[input]`): constant sticks drive the configured vehicles from the start. A device or
+//! recording (rove-inputs) drives only while it is live: every stick change is sent at once
+//! (not on the next keep-alive tick); when the device is lost (unplugged, SYN_DROPPED, silent) or
+//! the deadman is let go, every vehicle we drive is released explicitly (disposed, grants
+//! finished), so the hierarchy hands over at once, and driving resumes on the device's next
+//! stick report, which rove-inputs holds back until the sticks are centred. Buttons: mode,
+//! request (drive a free vehicle, or ask its owner), accept / refuse the open prompt, finish a
+//! grant, release, select the next / previous vehicle.
+//!
 //! Stop (SIGTERM, SIGINT): held grants are finished, every instance we drive is disposed (an
 //! explicit release, so the vehicle hands over at once), and the participant leaves.
 //!
@@ -14,11 +23,12 @@
 //! exist, `STATUS=` with what we drive, hold and stand by for, `WATCHDOG=1` from this loop, and
 //! `STOPPING=1` when the stop begins.
 
-use crate::config::OperatorConfig;
+use crate::config::{InputChoice, OperatorConfig};
 use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
+use rove_core::adapter::{InputAction, InputEvent, InputSource};
 use rove_core::handover::{Action, Handover};
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{
@@ -26,6 +36,7 @@ use rove_core::msg::{
 };
 use rustdds::with_key::Sample;
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 use tracing::{info, warn};
 
 type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
@@ -74,12 +85,32 @@ pub async fn run(
         "operator started"
     );
 
+    let wake = Arc::new(tokio::sync::Notify::new());
+    let (input, mut device) = match &config.input {
+        InputChoice::Constant(movement, mode) => ((*movement, *mode), None),
+        InputChoice::Device(input) => {
+            let mut source = rove_inputs::open_mapped(input)
+                .map_err(|e| anyhow::anyhow!("[input]: {e}"))?;
+            let waker = Arc::clone(&wake);
+            source.set_waker(Arc::new(move || waker.notify_one()));
+            info!(input = %source.describe(), "input opened: driving starts when its sticks are live and centred");
+            (
+                (rove_core::msg::MovementCommand::CENTRED, rove_core::msg::Mode::Manual),
+                Some(source),
+            )
+        }
+    };
+    let configured: BTreeSet<DeviceId> = config.drive.iter().copied().collect();
     let mut state = Streams {
         me,
-        input: config.input,
-        driving: config.drive.iter().copied().collect(),
+        input,
+        input_live: device.is_none(),
+        driving: if device.is_none() { configured.clone() } else { BTreeSet::new() },
+        paused: if device.is_none() { BTreeSet::new() } else { configured },
         priority: BTreeSet::new(),
         standby: BTreeSet::new(),
+        selected: config.drive.first().copied(),
+        prompt: None,
         regular,
         priority_writer: priority,
         failed: RateLimited::new("ControlCommand write failed"),
@@ -121,8 +152,18 @@ pub async fn run(
 
     loop {
         let deadline = handover.next_deadline().map(|d| clock.instant(d));
+        let input_deadline = device
+            .as_ref()
+            .and_then(InputSource::next_deadline)
+            .map(|d| clock.instant(d));
         let actions = tokio::select! {
             _ = &mut shutdown => break,
+            _ = wake.notified(), if device.is_some() => {
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock)
+            }
+            _ = sleep_until(input_deadline), if input_deadline.is_some() => {
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock)
+            }
             _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
             _ = heartbeat.tick() => {
                 publish_info();
@@ -242,12 +283,171 @@ pub async fn run(
     Ok(())
 }
 
+/// Reads every event the input has now and acts on it; returns the handover's actions.
+fn poll_input(
+    device: Option<&mut rove_inputs::MappedSource>,
+    state: &mut Streams,
+    handover: &mut Handover,
+    vehicles: &BTreeMap<DeviceId, DeviceInfo>,
+    clock: &Clock,
+) -> Vec<Action> {
+    let Some(device) = device else {
+        return Vec::new();
+    };
+    let mut actions = Vec::new();
+    let mut moved = false;
+    // Bounded: a source cannot keep this loop from the rest of the operator.
+    for _ in 0..256 {
+        let event = match device.poll(clock.now()) {
+            Ok(Some(e)) => e,
+            Ok(None) => break,
+            Err(e) => InputEvent::Lost {
+                reason: e.to_string(),
+            },
+        };
+        match event {
+            InputEvent::Axes(movement) => {
+                state.input.0 = movement;
+                if !state.input_live {
+                    state.input_live = true;
+                    let resumed: Vec<DeviceId> = std::mem::take(&mut state.paused).into_iter().collect();
+                    info!(vehicles = ?resumed, "input live: driving");
+                    state.driving.extend(resumed);
+                }
+                moved = true;
+            }
+            InputEvent::Deadman(true) => {}
+            InputEvent::Deadman(false) => {
+                actions.extend(state.stop_driving(handover, "deadman released"));
+            }
+            InputEvent::Lost { reason } => {
+                actions.extend(state.stop_driving(handover, &reason));
+            }
+            InputEvent::Action(action) => {
+                actions.extend(on_action(action, state, handover, vehicles, clock));
+            }
+        }
+    }
+    if moved {
+        // Event-driven: the change leaves now, not on the next keep-alive tick.
+        state.send_driven(clock);
+    }
+    actions
+}
+
+/// A button or key.
+fn on_action(
+    action: InputAction,
+    state: &mut Streams,
+    handover: &mut Handover,
+    vehicles: &BTreeMap<DeviceId, DeviceInfo>,
+    clock: &Clock,
+) -> Vec<Action> {
+    let now = clock.now();
+    match action {
+        InputAction::Mode(mode) => {
+            info!(?mode, "mode selected");
+            state.input.1 = mode;
+            state.send_driven(clock);
+            Vec::new()
+        }
+        InputAction::NextVehicle | InputAction::PreviousVehicle => {
+            let ids: Vec<DeviceId> = vehicles.keys().copied().collect();
+            let at = state.selected.and_then(|s| ids.iter().position(|&v| v == s));
+            let next = match (action, at) {
+                (_, None) => ids.first().copied(),
+                (InputAction::NextVehicle, Some(i)) => ids.get((i + 1) % ids.len()).copied(),
+                (_, Some(i)) => ids.get((i + ids.len() - 1) % ids.len()).copied(),
+            };
+            state.selected = next;
+            info!(vehicle = ?next, "vehicle selected");
+            Vec::new()
+        }
+        InputAction::RequestControl => {
+            let Some(v) = state.selected.and_then(|s| vehicles.get(&s)) else {
+                warn!("request: no vehicle selected (or not seen yet)");
+                return Vec::new();
+            };
+            let (vehicle, owner) = (v.device_id, v.controller_id);
+            if state.streams_to(vehicle) {
+                return Vec::new();
+            }
+            if owner == vehicle || owner == state.me {
+                info!(vehicle, "vehicle is free: driving it");
+                state.paused.remove(&vehicle);
+                if state.input_live {
+                    state.driving.insert(vehicle);
+                    state.send(vehicle, false, CommandType::Movement, clock);
+                } else {
+                    state.paused.insert(vehicle);
+                }
+                return Vec::new();
+            }
+            match handover.request(now, vehicle, owner, clock.stamp()) {
+                Ok(actions) => {
+                    info!(vehicle, owner, "requesting control");
+                    actions
+                }
+                Err(e) => {
+                    warn!(vehicle, owner, cause = %e, "cannot request control");
+                    Vec::new()
+                }
+            }
+        }
+        InputAction::Accept | InputAction::Refuse => {
+            let accept = action == InputAction::Accept;
+            let Some(vehicle) = state.prompt else {
+                warn!("no control request is waiting for an answer");
+                return Vec::new();
+            };
+            handover.decide(now, vehicle, accept).unwrap_or_else(|e| {
+                warn!(vehicle, cause = %e, "answer not taken");
+                Vec::new()
+            })
+        }
+        InputAction::Finish => {
+            let held: Vec<DeviceId> = state.priority.iter().copied().collect();
+            let target = state.selected.filter(|s| held.contains(s)).or(held.first().copied());
+            let Some(vehicle) = target else {
+                warn!("finish: no grant held");
+                return Vec::new();
+            };
+            handover.finish(vehicle).unwrap_or_else(|e| {
+                warn!(vehicle, cause = %e, "cannot finish");
+                Vec::new()
+            })
+        }
+        InputAction::Release => {
+            let Some(vehicle) = state.selected else {
+                return Vec::new();
+            };
+            info!(vehicle, "released by the operator");
+            state.paused.remove(&vehicle);
+            if state.driving.remove(&vehicle) {
+                state.release(vehicle, false);
+            }
+            if state.priority.contains(&vehicle) {
+                return handover.finish(vehicle).unwrap_or_default();
+            }
+            Vec::new()
+        }
+    }
+}
+
 /// What this operator streams, and its writers.
 struct Streams {
     me: DeviceId,
     input: (rove_core::msg::MovementCommand, rove_core::msg::Mode),
+    /// The input may drive (constant input: always; a device: live and deadman held).
+    input_live: bool,
     /// Vehicles driven with the regular writer.
     driving: BTreeSet<DeviceId>,
+    /// Vehicles released while the input is not live; driven again when it is.
+    paused: BTreeSet<DeviceId>,
+    /// The vehicle that buttons act on.
+    selected: Option<DeviceId>,
+    /// The vehicle whose control request waits for our answer.
+    prompt: Option<DeviceId>,
     /// Vehicles driven with the priority writer (grants held).
     priority: BTreeSet<DeviceId>,
     /// Vehicles yielded to a grant holder: PROBEs on the regular writer keep us the vehicle's
@@ -289,6 +489,39 @@ impl Streams {
         if let Err(e) = writer.write(sample, None) {
             self.failed.warn(&e);
         }
+    }
+
+    /// A fresh sample to every vehicle we drive (not the standby PROBEs).
+    fn send_driven(&mut self, clock: &Clock) {
+        let regular: Vec<_> = self.driving.iter().copied().collect();
+        for v in regular {
+            self.send(v, false, CommandType::Movement, clock);
+        }
+        let held: Vec<_> = self.priority.iter().copied().collect();
+        for v in held {
+            self.send(v, true, CommandType::Movement, clock);
+        }
+    }
+
+    /// The input cannot be trusted: release everything we drive, explicitly, so the vehicles
+    /// hand over at once; grants are finished. Driving resumes on live input.
+    fn stop_driving(&mut self, handover: &mut Handover, why: &str) -> Vec<Action> {
+        if !self.input_live {
+            return Vec::new();
+        }
+        self.input_live = false;
+        let regular: Vec<DeviceId> = std::mem::take(&mut self.driving).into_iter().collect();
+        warn!(reason = why, vehicles = ?regular, "input not live: releasing control");
+        for &v in &regular {
+            self.release(v, false);
+        }
+        self.paused.extend(regular);
+        let mut actions = Vec::new();
+        let held: Vec<DeviceId> = self.priority.iter().copied().collect();
+        for v in held {
+            actions.extend(handover.finish(v).unwrap_or_default());
+        }
+        actions
     }
 
     fn send_all(&mut self, clock: &Clock) {
@@ -384,11 +617,19 @@ fn carry_out(
             requester,
             src_priority,
             ..
-        } => info!(
-            vehicle,
-            requester, src_priority, "control requested: consent needed (refused at timeout)"
-        ),
+        } => {
+            state.prompt = Some(vehicle);
+            info!(
+                vehicle,
+                requester,
+                src_priority,
+                "control requested: consent needed (accept / refuse button; refused at timeout)"
+            )
+        }
         Action::PromptClosed { vehicle, outcome } => {
+            if state.prompt == Some(vehicle) {
+                state.prompt = None;
+            }
             info!(vehicle, ?outcome, "consent prompt closed")
         }
         Action::RequestEnded { vehicle, outcome } => info!(vehicle, ?outcome, "request ended"),
@@ -413,10 +654,15 @@ fn carry_out(
             state.standby.remove(&vehicle);
         }
         Action::Resume { vehicle } => {
-            info!(vehicle, "grant over: driving again");
             state.standby.remove(&vehicle);
-            state.driving.insert(vehicle);
-            state.send(vehicle, false, CommandType::Movement, clock);
+            if state.input_live {
+                info!(vehicle, "grant over: driving again");
+                state.driving.insert(vehicle);
+                state.send(vehicle, false, CommandType::Movement, clock);
+            } else {
+                info!(vehicle, "grant over: driving again once the input is live");
+                state.paused.insert(vehicle);
+            }
         }
     }
 }

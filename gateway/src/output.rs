@@ -39,6 +39,11 @@ pub fn open(config: &OutputConfig, now: MonoTime) -> Result<Box<dyn OutputAdapte
             let backend = rove_pwm::open_backend(c.pwm())?;
             Box::new(rove_naza::NazaVehicle::new(c.clone(), backend, now)?)
         }
+        OutputConfig::Mavlink(c) => Box::new(rove_mavlink::MavlinkVehicle::new((**c).clone(), now)?),
+        OutputConfig::Can(c) => {
+            let bus = rove_can::open_bus(c)?;
+            Box::new(rove_can::CanVehicle::new((**c).clone(), bus, now)?)
+        }
     })
 }
 
@@ -101,6 +106,11 @@ impl ManagedOutput {
         }
     }
 
+    /// What the device reports about itself (an autopilot's mode and armed state).
+    pub fn detail(&self) -> Option<String> {
+        self.adapter.as_ref().and_then(|a| a.detail())
+    }
+
     /// When [`ManagedOutput::tick`] has work: the end of a hold, or the adapter's keep-alive.
     pub fn next_deadline(&self) -> Option<MonoTime> {
         let keepalive = self.adapter.as_ref().and(self.next_keepalive);
@@ -132,8 +142,9 @@ impl ManagedOutput {
         let Some(adapter) = self.adapter.as_mut() else {
             return;
         };
-        if let Err(e) = adapter.safe_state(now) {
-            self.failed(now, &e);
+        match adapter.safe_state(now) {
+            Ok(()) => self.recovered_if_healthy(),
+            Err(e) => self.failed(now, &e),
         }
     }
 
@@ -160,8 +171,9 @@ impl ManagedOutput {
             && due
         {
             self.next_keepalive = Some(now + period);
-            if let Err(e) = adapter.keepalive(now) {
-                self.failed(now, &e);
+            match adapter.keepalive(now) {
+                Ok(()) => self.recovered_if_healthy(),
+                Err(e) => self.failed(now, &e),
             }
         }
     }
@@ -181,6 +193,15 @@ impl ManagedOutput {
         self.hold_until = Some(now + RETRY);
     }
 
+    /// A keep-alive or safe-state write worked: the device is back if it says so (a CAN bus
+    /// that left bus-off while nobody drives would otherwise show its old error until the
+    /// next command).
+    fn recovered_if_healthy(&mut self) {
+        if self.adapter.as_ref().is_some_and(|a| a.health() == Health::Ok) {
+            self.recovered();
+        }
+    }
+
     fn recovered(&mut self) {
         if let Some(e) = self.last_error.take() {
             info!(previous_error = %e, "output working again");
@@ -194,6 +215,8 @@ fn kind(config: &OutputConfig) -> &'static str {
         OutputConfig::Pwm(_) => "pwm",
         OutputConfig::Eyedrive(_) => "eyedrive",
         OutputConfig::Naza(_) => "naza",
+        OutputConfig::Mavlink(_) => "mavlink",
+        OutputConfig::Can(_) => "can",
     }
 }
 
@@ -203,6 +226,10 @@ fn kind(config: &OutputConfig) -> &'static str {
 /// # Errors
 /// The outputs cannot be opened or written.
 pub fn failsafe(config: &OutputConfig) -> Result<String, LinkError> {
+    if let OutputConfig::Mavlink(c) = config {
+        // An autopilot must be found first, and its safe mode confirmed.
+        return rove_mavlink::failsafe(c);
+    }
     let now = MonoTime::ZERO;
     let mut adapter = open(config, now)?;
     adapter.safe_state(now)?;

@@ -259,7 +259,10 @@ fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTi
         Some(id) => format!("driven by {id}"),
         None => "failsafe".to_string(),
     };
-    format!("{owner} ({operators}); output {}", output.health())
+    match output.detail() {
+        Some(detail) => format!("{owner} ({operators}); output {} ({detail})", output.health()),
+        None => format!("{owner} ({operators}); output {}", output.health()),
+    }
 }
 
 /// The SIGUSR1 stall test hook, when enabled.

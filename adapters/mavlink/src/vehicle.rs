@@ -358,11 +358,15 @@ impl OutputAdapter for MavlinkVehicle {
             _ => Health::Ok,
         }
     }
+
+    fn detail(&self) -> Option<String> {
+        Some(self.autopilot_summary())
+    }
 }
 
 impl MavlinkVehicle {
     /// A line for status displays: the autopilot, its mode and armed state.
-    pub fn detail(&self) -> String {
+    pub fn autopilot_summary(&self) -> String {
         let status = self.link.status();
         match status.autopilot {
             None => "no autopilot heard".into(),
@@ -433,6 +437,6 @@ pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
             "{} not confirmed in time",
             mode.name
         ))),
-        _ => Ok(format!("{} — {}", v.describe(), v.detail())),
+        _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
     }
 }

@@ -63,7 +63,7 @@ def main():
     t0 = time.monotonic()
 
     def record(event, **fields):
-        fields.update(event=event, t=time.monotonic())
+        fields.update(event=event, t=time.monotonic(), wall_us=int(time.time() * 1e6))
         out.write(json.dumps(fields) + "\n")
 
     m = mavutil.mavlink_connection(a.connection, baud=a.baud, source_system=a.sysid,

@@ -1,0 +1,160 @@
+//! End to end with an autopilot (issue 6): operator process → vehicle process with the MAVLink
+//! adapter → the pymavlink autopilot of `adapters/mavlink/tests/fake_autopilot.py`, all inside a
+//! network namespace of the test's own (DDS on its loopback, MAVLink on UDP loopback).
+//!
+//! Needs `python3` with `pymavlink` (installed by `.ci/run`).
+
+use rove_gateway::harness::{Rig, wait_for_output, wall_us};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const V: i64 = 100;
+const ROVE: &str = env!("CARGO_BIN_EXE_rove");
+const WAIT: Duration = Duration::from_secs(15);
+/// The vehicle's MAVLink mode command timeout in these tests.
+const COMMAND_TIMEOUT_MS: u64 = 300;
+
+/// The fake autopilot, in the rig's namespace.
+struct Autopilot {
+    child: Child,
+    record: PathBuf,
+}
+
+impl Autopilot {
+    fn start(rig: &Rig, port: u16) -> Autopilot {
+        let record = rig.dir.join("autopilot.jsonl");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../adapters/mavlink/tests/fake_autopilot.py");
+        let child = Command::new("ip")
+            .args(["netns", "exec", &rig.ns, "python3"])
+            .arg(script)
+            .args(["--connection", &format!("udpin:127.0.0.1:{port}"), "--record"])
+            .arg(&record)
+            .stdin(Stdio::null())
+            .spawn()
+            .expect("python3 with pymavlink (python3 -m pip install pymavlink)");
+        let ap = Autopilot { child, record };
+        ap.wait_for("ready", |e| e["event"] == "ready");
+        ap
+    }
+
+    fn events(&self) -> Vec<Value> {
+        std::fs::read_to_string(&self.record)
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    }
+
+    fn wait_for(&self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        loop {
+            if let Some(e) = self.events().into_iter().find(|e| pred(e)) {
+                return e;
+            }
+            assert!(
+                start.elapsed() < WAIT,
+                "autopilot: {what} not seen in {WAIT:?}; last events: {:#?}",
+                self.events().iter().rev().take(8).collect::<Vec<_>>()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for Autopilot {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn raw(e: &Value) -> Vec<u64> {
+    e["raw"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_u64).collect())
+        .unwrap_or_default()
+}
+
+fn wall(e: &Value) -> u64 {
+    e["wall_us"].as_u64().unwrap_or(0)
+}
+
+fn mavlink_output(port: u16) -> String {
+    format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:{port}\"\n\
+         command_timeout_ms = {COMMAND_TIMEOUT_MS}\n"
+    )
+}
+
+#[test]
+fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
+    let mut rig = Rig::new(Path::new(ROVE), "mavlink-e2e").unwrap_or_else(|e| panic!("{e}"));
+    let ap = Autopilot::start(&rig, 14550);
+    let record = rig.vehicle_with_output(V, &mavlink_output(14550));
+    ap.wait_for("GCS heartbeat from the vehicle", |e| {
+        e["event"] == "heartbeat" && e["src"] == 255 && e["comp"] == 190
+    });
+
+    // Full throttle, steering half right: ch3 2000, ch1 1750; MANUAL commanded.
+    let op = rig.operator(11, "mobile", "phone", &[V], 32767, "roll = 16384\n", &[]);
+    wait_for_output(&record, Some(11), 0).expect("operator drives");
+    let driven = ap.wait_for("override with the operator's sticks", |e| {
+        e["event"] == "rc_override" && raw(e).first() == Some(&1750)
+    });
+    let r = raw(&driven);
+    assert_eq!((r[0], r[2]), (1750, 2000), "{driven}");
+    assert!(r[3..8].iter().all(|&v| v == 65535), "unmapped ch4-8 ignored: {r:?}");
+    assert_eq!(driven["accepted"], true);
+    ap.wait_for("MANUAL", |e| e["event"] == "set_mode" && e["custom_mode"] == 0);
+
+    // The operator crashes: after the 100 ms command timeout the vehicle releases the channels
+    // and commands HOLD.
+    let crash = wall_us();
+    rig.procs[op].crash();
+    let release = ap.wait_for("release", |e| {
+        e["event"] == "rc_override" && wall(e) > crash && raw(e).first() == Some(&0)
+    });
+    let hold = ap.wait_for("HOLD", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 4 && wall(e) > crash
+    });
+    let to_release_ms = (wall(&release) - crash) as f64 / 1000.0;
+    let to_hold_ms = (wall(&hold) - crash) as f64 / 1000.0;
+    eprintln!("owner crash → release {to_release_ms:.1} ms, → HOLD command {to_hold_ms:.1} ms");
+    // The owner timeout (100 ms) plus one command timeout bounds both, with slack for a busy
+    // machine's process scheduling.
+    let bound = 100.0 + COMMAND_TIMEOUT_MS as f64 + 200.0;
+    assert!(to_release_ms < bound && to_hold_ms < bound, "{to_release_ms} / {to_hold_ms} ms");
+    assert_eq!(release["active"], serde_json::json!({}), "no channel left overridden");
+}
+
+#[test]
+fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
+    let mut rig = Rig::new(Path::new(ROVE), "mavlink-stop").unwrap_or_else(|e| panic!("{e}"));
+    let ap = Autopilot::start(&rig, 14550);
+    let record = rig.vehicle_with_output(V, &mavlink_output(14550));
+    rig.operator(11, "mobile", "phone", &[V], 20000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("operator drives");
+    ap.wait_for("driving", |e| {
+        e["event"] == "rc_override" && raw(e).get(2) == Some(&1805)
+    });
+    let vehicle = 0;
+    let stop = wall_us();
+    rig.procs[vehicle].terminate();
+    let status = rig.procs[vehicle].wait_exit(WAIT);
+    assert!(status.is_some_and(|s| s.success()), "vehicle exits cleanly: {status:?}");
+    let events = ap.events();
+    let after: Vec<&Value> = events.iter().filter(|e| wall(e) > stop).collect();
+    assert!(
+        after.iter().any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0)),
+        "release before exit: {after:#?}"
+    );
+    assert!(
+        after
+            .iter()
+            .any(|e| e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true),
+        "HOLD commanded and acknowledged before exit: {after:#?}"
+    );
+}
