@@ -741,6 +741,8 @@ mod tests {
                 OutputConfig::Pwm(_) => "pwm",
                 OutputConfig::Eyedrive(_) => "eyedrive",
                 OutputConfig::Naza(_) => "naza",
+                OutputConfig::Mavlink(_) => "mavlink",
+                OutputConfig::Can(_) => "can",
             },
             Err(e) => panic!("{e:#}"),
         };
@@ -748,6 +750,11 @@ mod tests {
         assert_eq!(kind("vehicle-custom-pwm.toml"), "pwm");
         assert_eq!(kind("vehicle-eyedrive-pi.toml"), "eyedrive");
         assert_eq!(kind("vehicle-naza-pi.toml"), "naza");
+        assert_eq!(kind("vehicle-ardupilot-rover-sitl.toml"), "mavlink");
+        assert_eq!(kind("vehicle-ardupilot-copter-serial.toml"), "mavlink");
+        assert_eq!(kind("vehicle-px4-udp.toml"), "mavlink");
+        assert_eq!(kind("vehicle-can-skid-steer.toml"), "can");
+        assert_eq!(kind("vehicle-dronecan-servos.toml"), "can");
     }
 
     #[test]

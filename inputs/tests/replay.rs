@@ -1,5 +1,5 @@
 //! The sources driven with recorded evdev streams (tests/recordings/) through the example
-//! mappings (examples/*.toml), the way `rove operator` polls them: at every deadline.
+//! mappings (configs/operator-*.toml), the way `rove operator` polls them: at every deadline.
 
 use rove_core::adapter::{InputAction, InputEvent, InputSource};
 use rove_core::msg::{Mode, MovementCommand};
@@ -11,7 +11,6 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
 struct File {
     input: InputSettings,
 }
@@ -21,7 +20,7 @@ fn crate_path(rel: &str) -> PathBuf {
 }
 
 fn example(name: &str) -> InputSettings {
-    let path = crate_path(&format!("examples/{name}.toml"));
+    let path = crate_path(&format!("../configs/operator-{name}.toml"));
     let text = std::fs::read_to_string(&path).expect("example readable");
     toml::from_str::<File>(&text).expect("example parses").input
 }
@@ -77,7 +76,7 @@ fn action(a: InputAction) -> InputEvent {
 
 #[test]
 fn gamepad_drive_deadman_and_every_action() {
-    let got = replay("gamepad_drive.txt", "gamepad-xbox", 10_000);
+    let got = replay("gamepad_drive.txt", "gamepad", 10_000);
     let expected = vec![
         (200, InputEvent::Deadman(true)),
         (200, mv(32767, 0, 0, 0)),
@@ -100,7 +99,7 @@ fn gamepad_drive_deadman_and_every_action() {
 
 #[test]
 fn gamepad_unplug_is_lost_and_replug_waits_for_centre_and_a_new_deadman_press() {
-    let mut source = ReplaySource::open(&recording("gamepad_unplug.txt"), mapping("gamepad-xbox"))
+    let mut source = ReplaySource::open(&recording("gamepad_unplug.txt"), mapping("gamepad"))
         .expect("loads");
     let got = play(&mut source, 1_150);
     assert_eq!(
@@ -154,7 +153,7 @@ fn play_from(source: &mut ReplaySource, from_ms: u64, until_ms: u64) -> Vec<(u64
 
 #[test]
 fn syn_dropped_discards_the_frame_and_resyncs_without_a_jump() {
-    let got = replay("gamepad_syn_dropped.txt", "gamepad-xbox", 10_000);
+    let got = replay("gamepad_syn_dropped.txt", "gamepad", 10_000);
     assert_eq!(
         got,
         vec![
