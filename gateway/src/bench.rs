@@ -24,6 +24,94 @@ const VEHICLE: i64 = 100;
 /// The window in which a return to the previous owner counts as ping-pong.
 const PING_PONG_WINDOW_US: u64 = 1_000_000;
 
+/// `rove bench input`: input event → vehicle output. A replayed joystick (rove-inputs' replay
+/// source) moves the throttle `events` times at `rate_hz`, each to a value of its own; the
+/// operator records the instant it reads each value (`--record`), the vehicle the instant its
+/// adapter applies it. Latency = applied − read, matched by value, in ms. What it leaves out:
+/// the kernel's evdev delivery (there is no input device here).
+///
+/// # Errors
+/// The rig cannot be built or the processes do not produce the records in time.
+pub fn input_latency(
+    rove: &Path,
+    events: usize,
+    rate_hz: f64,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<(Stats, usize)> {
+    let mut rig = Rig::new(rove, "bench-input").map_err(anyhow::Error::msg)?;
+    let vehicle_record = rig.vehicle(VEHICLE);
+    // Start after DDS discovery (~1 s here); centred first (rove-inputs' no-jump rule).
+    let start_ms = 3000.0;
+    let period_ms = 1000.0 / rate_hz.clamp(1.0, 1000.0);
+    let mut text = String::from("0 replug Bench Pad\n0 absinfo ABS_Y 0 -32768 32767 0 0\n");
+    let mut expected = Vec::with_capacity(events);
+    for i in 0..events {
+        let t = start_ms + i as f64 * period_ms;
+        // 0, 16, 32 … then back down: distinct values, no jump larger than a real stick's.
+        let raw = ((i % 2000) as i64 * 16).min(32_000);
+        let _ = writeln!(text, "{t:.3} ABS_Y {raw}\n{t:.3} SYN_REPORT");
+        expected.push(raw);
+    }
+    let end_ms = start_ms + events as f64 * period_ms + 500.0;
+    let _ = writeln!(text, "{end_ms:.3} unplug end of the benchmark");
+    let recording = rig.write("bench-pad.txt", &text);
+    let config = rig.write(
+        "operator-bench.toml",
+        &format!(
+            "[device]\nid = 11\nname = \"bench-pad\"\n[operator]\nlevel = \"mobile\"\n\
+             device_class = \"phone\"\ndrive = [{VEHICLE}]\n[input]\nsource = \"replay\"\n\
+             file = \"{}\"\n[input.axes.throttle]\nabs = \"ABS_Y\"\ndeadzone_pct = 0\n",
+            recording.display()
+        ),
+    );
+    let op_record = rig.dir.join("operator-bench.jsonl");
+    rig.spawn(
+        "operator-bench",
+        &[
+            "operator",
+            "-c",
+            config.to_str().unwrap_or_default(),
+            "--record",
+            op_record.to_str().unwrap_or_default(),
+        ],
+    );
+    progress(&format!(
+        "{events} input events at {rate_hz} Hz after a 3 s start"
+    ));
+    let deadline = Instant::now() + Duration::from_secs_f64(end_ms / 1000.0 + 20.0);
+    let mut inputs: Vec<(u64, i64)>;
+    loop {
+        std::thread::sleep(Duration::from_millis(200));
+        inputs = read_events(&op_record)
+            .iter()
+            .filter(|e| e["kind"] == "input")
+            .filter_map(|e| Some((e["wall_us"].as_u64()?, e["throttle"].as_i64()?)))
+            .collect();
+        let done = records(&vehicle_record)
+            .iter()
+            .any(|o| o.action != "apply" && o.wall_us > inputs.last().map_or(u64::MAX, |i| i.0));
+        if (inputs.len() >= events && done) || Instant::now() > deadline {
+            break;
+        }
+    }
+    let outputs = records(&vehicle_record);
+    let mut latencies = Vec::new();
+    let mut unmatched = 0;
+    for (read_us, throttle) in &inputs {
+        match outputs
+            .iter()
+            .find(|o| o.owner == Some(11) && o.throttle == Some(*throttle) && o.wall_us >= *read_us)
+        {
+            Some(o) => latencies.push(ms(o.wall_us - read_us)),
+            None => unmatched += 1,
+        }
+    }
+    let stats = Stats::of(&latencies).ok_or_else(|| {
+        anyhow::anyhow!("no input reached the vehicle; see {}", rig.dir.display())
+    })?;
+    Ok((stats, unmatched))
+}
+
 /// Which experiment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]

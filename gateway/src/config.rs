@@ -683,7 +683,9 @@ impl RawOperator {
             Some(InputSection::Keyboard(s)) => {
                 device(s, rove_inputs::SourceKind::Keyboard, &mut errors)
             }
-            Some(InputSection::Replay(s)) => device(s, rove_inputs::SourceKind::Replay, &mut errors),
+            Some(InputSection::Replay(s)) => {
+                device(s, rove_inputs::SourceKind::Replay, &mut errors)
+            }
         };
         errors.into_result(OperatorConfig {
             common,

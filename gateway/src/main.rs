@@ -96,6 +96,15 @@ enum Command {
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
+    /// Input event → vehicle output latency through DDS, with a replayed joystick (needs root).
+    Input {
+        /// Stick events to replay.
+        #[arg(long, default_value_t = 2000)]
+        events: usize,
+        /// Their rate.
+        #[arg(long, default_value_t = 200.0)]
+        rate_hz: f64,
+    },
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
@@ -225,6 +234,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
             }
             demo::run(!fast, |line| println!("{line}"))?;
+            Ok(())
+        }
+        Command::Bench {
+            what: BenchCommand::Input { events, rate_hz },
+        } => {
+            let rove = std::env::current_exe()?;
+            let (s, unmatched) =
+                bench::input_latency(&rove, events, rate_hz, &mut |line| eprintln!("  {line}"))?;
+            println!(
+                "input read → vehicle output (ms), {events} events at {rate_hz} Hz: \
+                 mean {:.3} stdev {:.3} min {:.3} p50 {:.3} p99 {:.3} max {:.3}; unmatched {unmatched}",
+                s.mean, s.stdev, s.min, s.p50, s.p99, s.max
+            );
             Ok(())
         }
         Command::Bench {

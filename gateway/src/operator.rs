@@ -89,13 +89,16 @@ pub async fn run(
     let (input, mut device) = match &config.input {
         InputChoice::Constant(movement, mode) => ((*movement, *mode), None),
         InputChoice::Device(input) => {
-            let mut source = rove_inputs::open_mapped(input)
-                .map_err(|e| anyhow::anyhow!("[input]: {e}"))?;
+            let mut source =
+                rove_inputs::open_mapped(input).map_err(|e| anyhow::anyhow!("[input]: {e}"))?;
             let waker = Arc::clone(&wake);
             source.set_waker(Arc::new(move || waker.notify_one()));
             info!(input = %source.describe(), "input opened: driving starts when its sticks are live and centred");
             (
-                (rove_core::msg::MovementCommand::CENTRED, rove_core::msg::Mode::Manual),
+                (
+                    rove_core::msg::MovementCommand::CENTRED,
+                    rove_core::msg::Mode::Manual,
+                ),
                 Some(source),
             )
         }
@@ -105,8 +108,16 @@ pub async fn run(
         me,
         input,
         input_live: device.is_none(),
-        driving: if device.is_none() { configured.clone() } else { BTreeSet::new() },
-        paused: if device.is_none() { BTreeSet::new() } else { configured },
+        driving: if device.is_none() {
+            configured.clone()
+        } else {
+            BTreeSet::new()
+        },
+        paused: if device.is_none() {
+            BTreeSet::new()
+        } else {
+            configured
+        },
         priority: BTreeSet::new(),
         standby: BTreeSet::new(),
         selected: config.drive.first().copied(),
@@ -159,10 +170,10 @@ pub async fn run(
         let actions = tokio::select! {
             _ = &mut shutdown => break,
             _ = wake.notified(), if device.is_some() => {
-                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock)
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut())
             }
             _ = sleep_until(input_deadline), if input_deadline.is_some() => {
-                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock)
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut())
             }
             _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
             _ = heartbeat.tick() => {
@@ -290,6 +301,7 @@ fn poll_input(
     handover: &mut Handover,
     vehicles: &BTreeMap<DeviceId, DeviceInfo>,
     clock: &Clock,
+    mut record: Option<&mut JsonLines>,
 ) -> Vec<Action> {
     let Some(device) = device else {
         return Vec::new();
@@ -307,10 +319,18 @@ fn poll_input(
         };
         match event {
             InputEvent::Axes(movement) => {
+                if let Some(record) = record.as_deref_mut() {
+                    // For `rove bench input`: when each stick value was read.
+                    record.write(&serde_json::json!({
+                        "wall_us": clock.wall_micros(), "kind": "input",
+                        "throttle": movement.throttle, "roll": movement.roll,
+                    }));
+                }
                 state.input.0 = movement;
                 if !state.input_live {
                     state.input_live = true;
-                    let resumed: Vec<DeviceId> = std::mem::take(&mut state.paused).into_iter().collect();
+                    let resumed: Vec<DeviceId> =
+                        std::mem::take(&mut state.paused).into_iter().collect();
                     info!(vehicles = ?resumed, "input live: driving");
                     state.driving.extend(resumed);
                 }
@@ -353,7 +373,9 @@ fn on_action(
         }
         InputAction::NextVehicle | InputAction::PreviousVehicle => {
             let ids: Vec<DeviceId> = vehicles.keys().copied().collect();
-            let at = state.selected.and_then(|s| ids.iter().position(|&v| v == s));
+            let at = state
+                .selected
+                .and_then(|s| ids.iter().position(|&v| v == s));
             let next = match (action, at) {
                 (_, None) => ids.first().copied(),
                 (InputAction::NextVehicle, Some(i)) => ids.get((i + 1) % ids.len()).copied(),
@@ -407,7 +429,10 @@ fn on_action(
         }
         InputAction::Finish => {
             let held: Vec<DeviceId> = state.priority.iter().copied().collect();
-            let target = state.selected.filter(|s| held.contains(s)).or(held.first().copied());
+            let target = state
+                .selected
+                .filter(|s| held.contains(s))
+                .or(held.first().copied());
             let Some(vehicle) = target else {
                 warn!("finish: no grant held");
                 return Vec::new();

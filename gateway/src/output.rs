@@ -39,7 +39,9 @@ pub fn open(config: &OutputConfig, now: MonoTime) -> Result<Box<dyn OutputAdapte
             let backend = rove_pwm::open_backend(c.pwm())?;
             Box::new(rove_naza::NazaVehicle::new(c.clone(), backend, now)?)
         }
-        OutputConfig::Mavlink(c) => Box::new(rove_mavlink::MavlinkVehicle::new((**c).clone(), now)?),
+        OutputConfig::Mavlink(c) => {
+            Box::new(rove_mavlink::MavlinkVehicle::new((**c).clone(), now)?)
+        }
         OutputConfig::Can(c) => {
             let bus = rove_can::open_bus(c)?;
             Box::new(rove_can::CanVehicle::new((**c).clone(), bus, now)?)
@@ -197,7 +199,11 @@ impl ManagedOutput {
     /// that left bus-off while nobody drives would otherwise show its old error until the
     /// next command).
     fn recovered_if_healthy(&mut self) {
-        if self.adapter.as_ref().is_some_and(|a| a.health() == Health::Ok) {
+        if self
+            .adapter
+            .as_ref()
+            .is_some_and(|a| a.health() == Health::Ok)
+        {
             self.recovered();
         }
     }

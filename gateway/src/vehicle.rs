@@ -260,7 +260,10 @@ fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTi
         None => "failsafe".to_string(),
     };
     match output.detail() {
-        Some(detail) => format!("{owner} ({operators}); output {} ({detail})", output.health()),
+        Some(detail) => format!(
+            "{owner} ({operators}); output {} ({detail})",
+            output.health()
+        ),
         None => format!("{owner} ({operators}); output {}", output.health()),
     }
 }

@@ -42,7 +42,10 @@ fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator(
             recording.display()
         ),
     );
-    let pad = rig.spawn("operator-11", &["operator", "-c", config.to_str().unwrap_or("")]);
+    let pad = rig.spawn(
+        "operator-11",
+        &["operator", "-c", config.to_str().unwrap_or("")],
+    );
 
     // Full stick: throttle +32767; then half: the value the mapping gives for −16384.
     let full = wait_for_output(&record, Some(11), 0).expect("the joystick drives");
@@ -86,5 +89,8 @@ fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator(
     );
     let log = std::fs::read_to_string(&rig.procs[pad].log).unwrap_or_default();
     assert!(log.contains("input not live: releasing control"), "{log}");
-    assert!(rig.procs[pad].is_running(), "a lost input does not stop the operator");
+    assert!(
+        rig.procs[pad].is_running(),
+        "a lost input does not stop the operator"
+    );
 }

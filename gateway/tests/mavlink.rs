@@ -30,7 +30,11 @@ impl Autopilot {
         let child = Command::new("ip")
             .args(["netns", "exec", &rig.ns, "python3"])
             .arg(script)
-            .args(["--connection", &format!("udpin:127.0.0.1:{port}"), "--record"])
+            .args([
+                "--connection",
+                &format!("udpin:127.0.0.1:{port}"),
+                "--record",
+            ])
             .arg(&record)
             .stdin(Stdio::null())
             .spawn()
@@ -106,9 +110,14 @@ fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
     });
     let r = raw(&driven);
     assert_eq!((r[0], r[2]), (1750, 2000), "{driven}");
-    assert!(r[3..8].iter().all(|&v| v == 65535), "unmapped ch4-8 ignored: {r:?}");
+    assert!(
+        r[3..8].iter().all(|&v| v == 65535),
+        "unmapped ch4-8 ignored: {r:?}"
+    );
     assert_eq!(driven["accepted"], true);
-    ap.wait_for("MANUAL", |e| e["event"] == "set_mode" && e["custom_mode"] == 0);
+    ap.wait_for("MANUAL", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 0
+    });
 
     // The operator crashes: after the 100 ms command timeout the vehicle releases the channels
     // and commands HOLD.
@@ -126,8 +135,15 @@ fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
     // The owner timeout (100 ms) plus one command timeout bounds both, with slack for a busy
     // machine's process scheduling.
     let bound = 100.0 + COMMAND_TIMEOUT_MS as f64 + 200.0;
-    assert!(to_release_ms < bound && to_hold_ms < bound, "{to_release_ms} / {to_hold_ms} ms");
-    assert_eq!(release["active"], serde_json::json!({}), "no channel left overridden");
+    assert!(
+        to_release_ms < bound && to_hold_ms < bound,
+        "{to_release_ms} / {to_hold_ms} ms"
+    );
+    assert_eq!(
+        release["active"],
+        serde_json::json!({}),
+        "no channel left overridden"
+    );
 }
 
 #[test]
@@ -144,11 +160,16 @@ fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
     let stop = wall_us();
     rig.procs[vehicle].terminate();
     let status = rig.procs[vehicle].wait_exit(WAIT);
-    assert!(status.is_some_and(|s| s.success()), "vehicle exits cleanly: {status:?}");
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "vehicle exits cleanly: {status:?}"
+    );
     let events = ap.events();
     let after: Vec<&Value> = events.iter().filter(|e| wall(e) > stop).collect();
     assert!(
-        after.iter().any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0)),
+        after
+            .iter()
+            .any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0)),
         "release before exit: {after:#?}"
     );
     assert!(
