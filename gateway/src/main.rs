@@ -38,6 +38,11 @@ enum Command {
         #[arg(long, hide = true, value_name = "MS")]
         test_stall_on_sigusr1: Option<u64>,
     },
+    /// Input devices for operators: list them, or show a device's mapped values live.
+    Inputs {
+        #[command(subcommand)]
+        what: InputsCommand,
+    },
     /// Drive the vehicle's configured outputs to their safe state and exit (systemd's
     /// ExecStopPost, or by hand after a crash).
     Failsafe {
@@ -91,6 +96,21 @@ enum Command {
         /// Print the effective configuration (defaults filled in).
         #[arg(long)]
         print: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum InputsCommand {
+    /// Input devices (/dev/input/event*) with their axes, buttons and keys.
+    List,
+    /// Live mapped values of a device under an operator config's `[input]` mapping, so a
+    /// mapping can be set up by looking (Ctrl-C ends).
+    Show {
+        /// Device path, by-id link, or name pattern (`*xbox*`).
+        device: String,
+        /// Operator config whose `[input]` mapping to use.
+        #[arg(short, long)]
+        config: std::path::PathBuf,
     },
 }
 
@@ -236,6 +256,24 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             demo::run(!fast, |line| println!("{line}"))?;
             Ok(())
         }
+        Command::Inputs {
+            what: InputsCommand::List,
+        } => {
+            let devices = rove_inputs::device::list_devices();
+            if devices.is_empty() {
+                println!("no input devices in /dev/input (none plugged in, or no evdev here)");
+            }
+            for d in devices {
+                match d.summary {
+                    Ok(summary) => println!("{}\n{summary}\n", d.path.display()),
+                    Err(e) => println!("{}: cannot open: {e}\n", d.path.display()),
+                }
+            }
+            Ok(())
+        }
+        Command::Inputs {
+            what: InputsCommand::Show { device, config },
+        } => show_input(&device, &config),
         Command::Bench {
             what: BenchCommand::Input { events, rate_hz },
         } => {
@@ -311,4 +349,36 @@ fn tokio_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?)
+}
+
+/// `rove inputs show`: the device under the config's mapping, one status line per change.
+fn show_input(device: &str, config: &std::path::Path) -> anyhow::Result<()> {
+    use rove_core::adapter::InputSource;
+    let operator = config::load_operator(config)?;
+    let config::InputChoice::Device(input) = operator.input else {
+        anyhow::bail!(
+            "{}: [input] has no device mapping (source = \"joystick\" or \"keyboard\")",
+            config.display()
+        );
+    };
+    let selector = if device.starts_with('/') {
+        rove_inputs::config::DeviceSelector::Path(device.into())
+    } else {
+        rove_inputs::config::DeviceSelector::Name(device.to_string())
+    };
+    let mut source = rove_inputs::open_mapped(&input.with_device(selector))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    eprintln!("{} (Ctrl-C ends)", source.describe());
+    let start = std::time::Instant::now();
+    let mut shown = String::new();
+    loop {
+        let now = rove_core::MonoTime::ZERO + start.elapsed();
+        while let Ok(Some(_)) = source.poll(now) {}
+        let line = source.status().to_string();
+        if line != shown {
+            println!("{line}");
+            shown = line;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
 }
