@@ -30,7 +30,7 @@ fn every_example_in_the_directory_is_valid() {
         "operator-keyboard.toml",
     ];
     for name in names {
-        let config = load(&name);
+        let config = load(name);
         // Every example maps all four axes, a deadman and all ten actions.
         for (slot, axis) in AXES.iter().enumerate() {
             assert!(config.mapping().axes[slot].is_some(), "{name}: {axis:?}");
@@ -43,7 +43,10 @@ fn every_example_in_the_directory_is_valid() {
 #[test]
 fn examples_choose_their_source_kind() {
     assert_eq!(load("operator-gamepad.toml").kind(), SourceKind::Joystick);
-    assert_eq!(load("operator-flight-stick.toml").kind(), SourceKind::Joystick);
+    assert_eq!(
+        load("operator-flight-stick.toml").kind(),
+        SourceKind::Joystick
+    );
     let keyboard = load("operator-keyboard.toml");
     assert_eq!(keyboard.kind(), SourceKind::Keyboard);
     assert!(matches!(

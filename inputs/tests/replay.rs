@@ -99,8 +99,8 @@ fn gamepad_drive_deadman_and_every_action() {
 
 #[test]
 fn gamepad_unplug_is_lost_and_replug_waits_for_centre_and_a_new_deadman_press() {
-    let mut source = ReplaySource::open(&recording("gamepad_unplug.txt"), mapping("gamepad"))
-        .expect("loads");
+    let mut source =
+        ReplaySource::open(&recording("gamepad_unplug.txt"), mapping("gamepad")).expect("loads");
     let got = play(&mut source, 1_150);
     assert_eq!(
         got,
