@@ -257,6 +257,17 @@ pub struct RawOperator {
     pub handover: HandoverSettings,
     /// `[input]` (absent: centred sticks).
     pub input: Option<InputSection>,
+    /// `[console]`.
+    #[serde(default)]
+    pub console: ConsoleSection,
+}
+
+/// `[console]`: the local API for other front ends (docs/api.md).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConsoleSection {
+    /// Unix socket path of the local API, created with mode 0660 (absent: no API).
+    pub api_socket: Option<std::path::PathBuf>,
 }
 
 /// Validated identity and network settings, shared by both roles.
@@ -306,6 +317,8 @@ pub struct OperatorConfig {
     pub handover: HandoverConfig,
     /// Where stick values and mode come from.
     pub input: InputChoice,
+    /// The local API's socket, if any.
+    pub api_socket: Option<std::path::PathBuf>,
 }
 
 /// Reads and validates a vehicle config.
@@ -334,9 +347,14 @@ pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
 impl OperatorConfig {
     /// Makes relative paths in the config (a replay `file`) relative to the file's directory.
     pub fn resolve_paths(&mut self, config_path: &Path) {
+        let dir = config_path.parent().unwrap_or(Path::new("."));
         if let InputChoice::Device(input) = &mut self.input {
-            let dir = config_path.parent().unwrap_or(Path::new("."));
             input.resolve_relative_to(dir);
+        }
+        if let Some(socket) = &mut self.api_socket
+            && socket.is_relative()
+        {
+            *socket = dir.join(&*socket);
         }
     }
 }
@@ -696,6 +714,7 @@ impl RawOperator {
             drive: self.operator.drive.clone(),
             handover,
             input,
+            api_socket: self.console.api_socket.clone(),
         })
     }
 }

@@ -61,6 +61,12 @@ enum Command {
         /// Append every RequestControl sent (with its send time) as JSON lines to this file.
         #[arg(long)]
         record: Option<std::path::PathBuf>,
+        /// No console even on a terminal (services; the local API still runs if configured).
+        #[arg(long)]
+        headless: bool,
+        /// Where the log goes while the console owns the terminal.
+        #[arg(long, value_name = "FILE")]
+        log_file: Option<std::path::PathBuf>,
     },
     /// Show the devices on the network and who drives each vehicle.
     Status {
@@ -213,10 +219,33 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             config: path,
             request,
             record,
+            headless,
+            log_file,
         } => {
+            use std::io::IsTerminal;
             let config = config::load_operator(&path).map_err(bad_config)?;
-            runtime::init_logging(config.common.log_filter.as_deref());
-            tokio_runtime()?.block_on(operator::run(config, &path, request, record.as_deref()))
+            let console =
+                !headless && std::io::stdin().is_terminal() && std::io::stdout().is_terminal();
+            if console {
+                // The console owns the screen: the log goes to a file.
+                let log = log_file.unwrap_or_else(|| {
+                    std::env::temp_dir().join(format!("rove-operator-{}.log", config.common.id))
+                });
+                eprintln!(
+                    "rove operator: console on this terminal; log in {}",
+                    log.display()
+                );
+                runtime::init_logging_to_file(config.common.log_filter.as_deref(), &log)?;
+            } else {
+                runtime::init_logging(config.common.log_filter.as_deref());
+            }
+            tokio_runtime()?.block_on(operator::run(
+                config,
+                &path,
+                request,
+                record.as_deref(),
+                console,
+            ))
         }
         Command::Status {
             domain,

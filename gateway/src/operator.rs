@@ -28,6 +28,8 @@ use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
+use rove_console::model::{DeviceKind, InputStatus as UiInput};
+use rove_console::{Command as UiCommand, CommandRequest, ConsoleState, Event, Identity, Stamped};
 use rove_core::adapter::{InputAction, InputEvent, InputSource};
 use rove_core::handover::{Action, Handover};
 use rove_core::hierarchy::Strength;
@@ -59,6 +61,7 @@ pub async fn run(
     config_path: &std::path::Path,
     request: Option<DeviceId>,
     record: Option<&std::path::Path>,
+    console: bool,
 ) -> anyhow::Result<()> {
     let clock = Clock::start();
     let mut notify = Notifier::from_env();
@@ -127,6 +130,59 @@ pub async fn run(
         failed: RateLimited::new("ControlCommand write failed"),
     };
     let mut handover = Handover::new(me, config.strength, config.handover);
+
+    // The console and the local API see the operator through events and act through commands
+    // (rove-console); both are optional.
+    let identity = Identity {
+        id: me,
+        name: config.common.name.clone(),
+        level: config.level,
+        class: config.device_class,
+        strength: config.strength,
+    };
+    let mirror = ConsoleState::new(identity.clone(), config.common.heartbeat * 3);
+    let (events_tx, _) = tokio::sync::broadcast::channel::<Stamped>(1024);
+    let (commands_tx, mut commands) = tokio::sync::mpsc::channel::<CommandRequest>(64);
+    let (actions_tx, actions_rx) = tokio::sync::mpsc::channel::<InputAction>(64);
+    let ui = Ui {
+        tx: events_tx.clone(),
+        clock,
+        console,
+        actions: actions_tx,
+    };
+    if let Some(path) = &config.api_socket {
+        let socket = rove_console::ApiSocket::bind(path)
+            .map_err(|e| anyhow::anyhow!("local API socket: {e}"))?;
+        info!(path = %path.display(), "local API listening");
+        let serve = socket.serve(mirror.clone(), events_tx.subscribe(), commands_tx.clone());
+        tokio::spawn(async move {
+            if let Err(e) = serve.await {
+                warn!(cause = %e, "local API stopped");
+            }
+        });
+    }
+    let terminal = console.then(|| {
+        let clock = clock;
+        rove_console::run_terminal(
+            mirror.clone(),
+            move || clock.now(),
+            events_tx.subscribe(),
+            commands_tx.clone(),
+            actions_rx,
+        )
+    });
+    let terminal_on = terminal.is_some();
+    let terminal = async move {
+        match terminal {
+            Some(t) => t.await,
+            None => std::future::pending().await,
+        }
+    };
+    tokio::pin!(terminal);
+    ui.emit(Event::Identity(identity));
+    ui.input(&state, device.as_ref());
+    let mut shown_driving = state.driving_event();
+    ui.emit(shown_driving.clone());
     let mut vehicles: BTreeMap<DeviceId, DeviceInfo> = BTreeMap::new();
     // A request waits until the vehicle's owner is known. A vehicle that still looks ownerless
     // after two heartbeats is free: we drive it instead (the first DeviceInfo a late joiner
@@ -169,15 +225,31 @@ pub async fn run(
             .map(|d| clock.instant(d));
         let actions = tokio::select! {
             _ = &mut shutdown => break,
+            ended = &mut terminal, if terminal_on => {
+                if let Err(e) = ended {
+                    warn!(cause = %e, "console failed");
+                }
+                info!("console closed: stopping");
+                break;
+            }
+            Some(req) = commands.recv() => {
+                let (result, actions) = on_command(req.command, &mut state, &mut handover, &vehicles, &clock, &ui);
+                if let Err(why) = &result {
+                    ui.emit(Event::Notice { text: why.clone() });
+                }
+                let _ = req.reply.send(result);
+                actions
+            }
             _ = wake.notified(), if device.is_some() => {
-                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut())
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut(), &ui)
             }
             _ = sleep_until(input_deadline), if input_deadline.is_some() => {
-                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut())
+                poll_input(device.as_mut(), &mut state, &mut handover, &vehicles, &clock, record.as_mut(), &ui)
             }
             _ = stream_timer.tick() => { state.send_all(&clock); Vec::new() }
             _ = heartbeat.tick() => {
                 publish_info();
+                ui.emit(Event::Tick);
                 let line = state.status_line(vehicles.len());
                 if line != shown {
                     notify.status(&line);
@@ -191,14 +263,27 @@ pub async fn run(
                 // A yielded vehicle's published owner can show that its grant is over.
                 let mut actions = Vec::new();
                 match sample {
-                    Some(Ok(s)) => {
-                        if let Sample::Value(KeyedDeviceInfo(info)) = s.into_value()
-                            && info.device_type == DeviceType::Vehicle
-                        {
-                            actions = handover.on_vehicle_owner(info.device_id, info.controller_id);
-                            vehicles.insert(info.device_id, info);
+                    Some(Ok(s)) => match s.into_value() {
+                        Sample::Value(KeyedDeviceInfo(info)) => {
+                            ui.emit(Event::DeviceSeen {
+                                id: info.device_id,
+                                name: info.name.clone(),
+                                kind: if info.device_type == DeviceType::Vehicle {
+                                    DeviceKind::Vehicle
+                                } else {
+                                    DeviceKind::Controller
+                                },
+                                owner: info.controller_id,
+                            });
+                            if info.device_type == DeviceType::Vehicle {
+                                actions = handover.on_vehicle_owner(info.device_id, info.controller_id);
+                                vehicles.insert(info.device_id, info);
+                            }
                         }
-                    }
+                        Sample::Dispose(id) => {
+                            ui.emit(Event::DeviceGone { id });
+                        }
+                    },
                     Some(Err(e)) => malformed.warn(&e),
                     None => anyhow::bail!("DeviceInfo stream ended"),
                 }
@@ -230,6 +315,7 @@ pub async fn run(
                         match handover.request(clock.now(), vehicle, owner, clock.stamp()) {
                             Ok(more) => {
                                 info!(vehicle, owner, "requesting control");
+                                ui.emit(Event::RequestSent { vehicle, owner });
                                 actions.extend(more);
                             }
                             Err(e) => warn!(vehicle, owner, cause = %e, "cannot request control"),
@@ -252,7 +338,19 @@ pub async fn run(
         };
         let changed = !actions.is_empty();
         for action in actions {
-            carry_out(action, &mut state, &request_writer, &clock, record.as_mut());
+            carry_out(
+                action,
+                &mut state,
+                &request_writer,
+                &clock,
+                record.as_mut(),
+                &ui,
+            );
+        }
+        let driving = state.driving_event();
+        if driving != shown_driving {
+            ui.emit(driving.clone());
+            shown_driving = driving;
         }
         if changed {
             let line = state.status_line(vehicles.len());
@@ -269,7 +367,14 @@ pub async fn run(
     for vehicle in held {
         if let Ok(actions) = handover.finish(vehicle) {
             for action in actions {
-                carry_out(action, &mut state, &request_writer, &clock, record.as_mut());
+                carry_out(
+                    action,
+                    &mut state,
+                    &request_writer,
+                    &clock,
+                    record.as_mut(),
+                    &ui,
+                );
             }
         }
     }
@@ -294,6 +399,42 @@ pub async fn run(
     Ok(())
 }
 
+/// The console's and the local API's view of the operator: events out, button presses to the
+/// console (which asks for confirmation) when one runs.
+struct Ui {
+    tx: tokio::sync::broadcast::Sender<Stamped>,
+    clock: Clock,
+    console: bool,
+    actions: tokio::sync::mpsc::Sender<InputAction>,
+}
+
+impl Ui {
+    fn emit(&self, event: Event) {
+        // No receiver (no console, no API client) is not an error.
+        let _ = self.tx.send(Stamped {
+            at: self.clock.now(),
+            event,
+        });
+    }
+
+    fn input(&self, state: &Streams, device: Option<&rove_inputs::MappedSource>) {
+        let (deadman, link) = match device {
+            Some(d) => {
+                let status = d.status();
+                (status.deadman, status.to_string())
+            }
+            None => (None, "constant sticks (config)".to_string()),
+        };
+        self.emit(Event::Input(UiInput {
+            movement: state.input.0,
+            mode: state.input.1,
+            deadman,
+            live: state.input_live,
+            link,
+        }));
+    }
+}
+
 /// Reads every event the input has now and acts on it; returns the handover's actions.
 fn poll_input(
     device: Option<&mut rove_inputs::MappedSource>,
@@ -302,12 +443,14 @@ fn poll_input(
     vehicles: &BTreeMap<DeviceId, DeviceInfo>,
     clock: &Clock,
     mut record: Option<&mut JsonLines>,
+    ui: &Ui,
 ) -> Vec<Action> {
     let Some(device) = device else {
         return Vec::new();
     };
     let mut actions = Vec::new();
     let mut moved = false;
+    let mut seen = false;
     // Bounded: a source cannot keep this loop from the rest of the operator.
     for _ in 0..256 {
         let event = match device.poll(clock.now()) {
@@ -317,6 +460,7 @@ fn poll_input(
                 reason: e.to_string(),
             },
         };
+        seen = true;
         match event {
             InputEvent::Axes(movement) => {
                 if let Some(record) = record.as_deref_mut() {
@@ -343,8 +487,18 @@ fn poll_input(
             InputEvent::Lost { reason } => {
                 actions.extend(state.stop_driving(handover, &reason));
             }
+            InputEvent::Action(action) if ui.console => {
+                // The console confirms what would move a vehicle, then sends the command back.
+                let _ = ui.actions.try_send(action);
+            }
             InputEvent::Action(action) => {
-                actions.extend(on_action(action, state, handover, vehicles, clock));
+                if let Some(command) = action_to_command(action, state, vehicles, ui) {
+                    let (result, more) = on_command(command, state, handover, vehicles, clock, ui);
+                    if let Err(why) = result {
+                        warn!(?action, "{why}");
+                    }
+                    actions.extend(more);
+                }
             }
         }
     }
@@ -352,30 +506,28 @@ fn poll_input(
         // Event-driven: the change leaves now, not on the next keep-alive tick.
         state.send_driven(clock);
     }
+    if seen {
+        ui.input(state, Some(device));
+    }
     actions
 }
 
-/// A button or key.
-fn on_action(
+/// A button or key without the console: the command it means for the selected vehicle.
+fn action_to_command(
     action: InputAction,
     state: &mut Streams,
-    handover: &mut Handover,
     vehicles: &BTreeMap<DeviceId, DeviceInfo>,
-    clock: &Clock,
-) -> Vec<Action> {
-    let now = clock.now();
+    ui: &Ui,
+) -> Option<UiCommand> {
+    let selected = state.selected;
     match action {
-        InputAction::Mode(mode) => {
-            info!(?mode, "mode selected");
-            state.input.1 = mode;
-            state.send_driven(clock);
-            Vec::new()
-        }
+        InputAction::Mode(mode) => Some(UiCommand::Mode {
+            vehicle: None,
+            mode,
+        }),
         InputAction::NextVehicle | InputAction::PreviousVehicle => {
             let ids: Vec<DeviceId> = vehicles.keys().copied().collect();
-            let at = state
-                .selected
-                .and_then(|s| ids.iter().position(|&v| v == s));
+            let at = selected.and_then(|s| ids.iter().position(|&v| v == s));
             let next = match (action, at) {
                 (_, None) => ids.first().copied(),
                 (InputAction::NextVehicle, Some(i)) => ids.get((i + 1) % ids.len()).copied(),
@@ -383,79 +535,139 @@ fn on_action(
             };
             state.selected = next;
             info!(vehicle = ?next, "vehicle selected");
-            Vec::new()
+            ui.emit(Event::Selected { vehicle: next });
+            None
         }
-        InputAction::RequestControl => {
-            let Some(v) = state.selected.and_then(|s| vehicles.get(&s)) else {
-                warn!("request: no vehicle selected (or not seen yet)");
-                return Vec::new();
-            };
-            let (vehicle, owner) = (v.device_id, v.controller_id);
+        InputAction::RequestControl => selected.map(|vehicle| UiCommand::Request { vehicle }),
+        InputAction::Accept => state.prompt.map(|vehicle| UiCommand::Accept { vehicle }),
+        InputAction::Refuse => state.prompt.map(|vehicle| UiCommand::Refuse { vehicle }),
+        InputAction::Finish => {
+            let held = selected.filter(|s| state.priority.contains(s)).or(state
+                .priority
+                .iter()
+                .next()
+                .copied());
+            held.map(|vehicle| UiCommand::Finish { vehicle })
+        }
+        InputAction::Release => Some(UiCommand::Release { vehicle: selected }),
+    }
+}
+
+/// A command from the console, the local API or (headless) a button: the single path by which
+/// a person changes what this operator does.
+fn on_command(
+    command: UiCommand,
+    state: &mut Streams,
+    handover: &mut Handover,
+    vehicles: &BTreeMap<DeviceId, DeviceInfo>,
+    clock: &Clock,
+    ui: &Ui,
+) -> (Result<(), String>, Vec<Action>) {
+    let now = clock.now();
+    let owner_of = |v: DeviceId| vehicles.get(&v).map(|i| i.controller_id);
+    match command {
+        UiCommand::Select { vehicle } => {
+            state.selected = Some(vehicle);
+            ui.emit(Event::Selected {
+                vehicle: Some(vehicle),
+            });
+            (Ok(()), Vec::new())
+        }
+        UiCommand::Mode { mode, .. } => {
+            info!(?mode, "mode selected");
+            state.input.1 = mode;
+            state.send_driven(clock);
+            ui.input(state, None);
+            (Ok(()), Vec::new())
+        }
+        UiCommand::Drive { vehicle } => {
             if state.streams_to(vehicle) {
-                return Vec::new();
+                return (Ok(()), Vec::new());
             }
-            if owner == vehicle || owner == state.me {
-                info!(vehicle, "vehicle is free: driving it");
-                state.paused.remove(&vehicle);
-                if state.input_live {
-                    state.driving.insert(vehicle);
-                    state.send(vehicle, false, CommandType::Movement, clock);
-                } else {
-                    state.paused.insert(vehicle);
+            match owner_of(vehicle) {
+                None => (
+                    Err(format!("vehicle {vehicle} has not been seen")),
+                    Vec::new(),
+                ),
+                Some(owner) if owner != vehicle && owner != state.me => (
+                    Err(format!(
+                        "vehicle {vehicle} is driven by {owner}: request control instead"
+                    )),
+                    Vec::new(),
+                ),
+                Some(_) => {
+                    info!(vehicle, "driving it");
+                    state.selected = Some(vehicle);
+                    if state.input_live {
+                        state.driving.insert(vehicle);
+                        state.send(vehicle, false, CommandType::Movement, clock);
+                    } else {
+                        state.paused.insert(vehicle);
+                    }
+                    (Ok(()), Vec::new())
                 }
-                return Vec::new();
             }
-            match handover.request(now, vehicle, owner, clock.stamp()) {
+        }
+        UiCommand::Release { vehicle } => {
+            let targets: Vec<DeviceId> = match vehicle {
+                Some(v) => vec![v],
+                None => state
+                    .driving
+                    .iter()
+                    .chain(&state.paused)
+                    .chain(&state.priority)
+                    .copied()
+                    .collect(),
+            };
+            let mut actions = Vec::new();
+            for v in targets {
+                info!(vehicle = v, "released by the operator");
+                state.paused.remove(&v);
+                if state.driving.remove(&v) {
+                    state.release(v, false);
+                }
+                if state.priority.contains(&v) {
+                    actions.extend(handover.finish(v).unwrap_or_default());
+                }
+            }
+            (Ok(()), actions)
+        }
+        UiCommand::Request { vehicle } => match owner_of(vehicle) {
+            None => (
+                Err(format!("vehicle {vehicle} has not been seen")),
+                Vec::new(),
+            ),
+            Some(owner) if owner == vehicle || owner == state.me => on_command(
+                UiCommand::Drive { vehicle },
+                state,
+                handover,
+                vehicles,
+                clock,
+                ui,
+            ),
+            Some(owner) => match handover.request(now, vehicle, owner, clock.stamp()) {
                 Ok(actions) => {
                     info!(vehicle, owner, "requesting control");
-                    actions
+                    ui.emit(Event::RequestSent { vehicle, owner });
+                    (Ok(()), actions)
                 }
-                Err(e) => {
-                    warn!(vehicle, owner, cause = %e, "cannot request control");
-                    Vec::new()
-                }
+                Err(e) => (Err(format!("cannot request {vehicle}: {e}")), Vec::new()),
+            },
+        },
+        UiCommand::Accept { vehicle } | UiCommand::Refuse { vehicle } => {
+            let accept = matches!(command, UiCommand::Accept { .. });
+            match handover.decide(now, vehicle, accept) {
+                Ok(actions) => (Ok(()), actions),
+                Err(e) => (
+                    Err(format!("no answer taken for {vehicle}: {e}")),
+                    Vec::new(),
+                ),
             }
         }
-        InputAction::Accept | InputAction::Refuse => {
-            let accept = action == InputAction::Accept;
-            let Some(vehicle) = state.prompt else {
-                warn!("no control request is waiting for an answer");
-                return Vec::new();
-            };
-            handover.decide(now, vehicle, accept).unwrap_or_else(|e| {
-                warn!(vehicle, cause = %e, "answer not taken");
-                Vec::new()
-            })
-        }
-        InputAction::Finish => {
-            let held: Vec<DeviceId> = state.priority.iter().copied().collect();
-            let target = state
-                .selected
-                .filter(|s| held.contains(s))
-                .or(held.first().copied());
-            let Some(vehicle) = target else {
-                warn!("finish: no grant held");
-                return Vec::new();
-            };
-            handover.finish(vehicle).unwrap_or_else(|e| {
-                warn!(vehicle, cause = %e, "cannot finish");
-                Vec::new()
-            })
-        }
-        InputAction::Release => {
-            let Some(vehicle) = state.selected else {
-                return Vec::new();
-            };
-            info!(vehicle, "released by the operator");
-            state.paused.remove(&vehicle);
-            if state.driving.remove(&vehicle) {
-                state.release(vehicle, false);
-            }
-            if state.priority.contains(&vehicle) {
-                return handover.finish(vehicle).unwrap_or_default();
-            }
-            Vec::new()
-        }
+        UiCommand::Finish { vehicle } => match handover.finish(vehicle) {
+            Ok(actions) => (Ok(()), actions),
+            Err(e) => (Err(format!("cannot finish {vehicle}: {e}")), Vec::new()),
+        },
     }
 }
 
@@ -513,6 +725,16 @@ impl Streams {
         };
         if let Err(e) = writer.write(sample, None) {
             self.failed.warn(&e);
+        }
+    }
+
+    /// What the console shows as "you drive".
+    fn driving_event(&self) -> Event {
+        Event::Driving {
+            driving: self.driving.iter().copied().collect(),
+            holding: self.priority.iter().copied().collect(),
+            standby: self.standby.iter().copied().collect(),
+            paused: self.paused.iter().copied().collect(),
         }
     }
 
@@ -627,6 +849,7 @@ fn carry_out(
     requests: &rustdds::no_key::DataWriterCdr<RequestControl>,
     clock: &Clock,
     record: Option<&mut JsonLines>,
+    ui: &Ui,
 ) {
     match action {
         Action::Send(msg) => {
@@ -641,9 +864,15 @@ fn carry_out(
             vehicle,
             requester,
             src_priority,
-            ..
+            deadline,
         } => {
             state.prompt = Some(vehicle);
+            ui.emit(Event::RequestIncoming {
+                vehicle,
+                from: requester,
+                src_priority,
+                deadline,
+            });
             info!(
                 vehicle,
                 requester,
@@ -655,9 +884,19 @@ fn carry_out(
             if state.prompt == Some(vehicle) {
                 state.prompt = None;
             }
+            ui.emit(Event::PromptClosed {
+                vehicle,
+                outcome: outcome.into(),
+            });
             info!(vehicle, ?outcome, "consent prompt closed")
         }
-        Action::RequestEnded { vehicle, outcome } => info!(vehicle, ?outcome, "request ended"),
+        Action::RequestEnded { vehicle, outcome } => {
+            ui.emit(Event::RequestEnded {
+                vehicle,
+                outcome: outcome.into(),
+            });
+            info!(vehicle, ?outcome, "request ended")
+        }
         Action::StartPriorityDriving { vehicle } => {
             info!(vehicle, "grant received: driving with the priority writer");
             state.priority.insert(vehicle);

@@ -228,6 +228,31 @@ pub fn init_logging(default_filter: Option<&str>) {
     }
 }
 
+/// Logging into `path` (appended), for when a console owns the terminal.
+///
+/// # Errors
+/// The file cannot be opened.
+pub fn init_logging_to_file(
+    default_filter: Option<&str>,
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    use tracing_subscriber::EnvFilter;
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(|e| anyhow::anyhow!("log file {}: {e}", path.display()))?;
+    let filter = EnvFilter::try_from_default_env()
+        .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
+        .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(false)
+        .with_writer(std::sync::Mutex::new(file))
+        .init();
+    Ok(())
+}
+
 /// Sleeps until `deadline`, or forever when there is none (a `select!` branch that never fires).
 pub async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {

@@ -1,0 +1,241 @@
+//! The operator's local API end to end (issue 10): two operators and a vehicle as processes, in
+//! a network namespace of the test's own; the operators are driven only through their Unix
+//! sockets (newline-delimited JSON, docs/api.md), as a web or mobile front end would.
+
+use rove_gateway::harness::{Rig, records, wait_for_output, wall_us};
+use serde_json::{Value, json};
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const V: i64 = 100;
+const A: i64 = 11;
+const B: i64 = 21;
+const ROVE: &str = env!("CARGO_BIN_EXE_rove");
+const WAIT: Duration = Duration::from_secs(20);
+
+/// A client of one operator's API: every line it has read, in order.
+struct Api {
+    writer: UnixStream,
+    reader: BufReader<UnixStream>,
+    lines: Vec<Value>,
+}
+
+impl Api {
+    fn connect(path: &Path) -> Api {
+        let start = Instant::now();
+        let stream = loop {
+            match UnixStream::connect(path) {
+                Ok(s) => break s,
+                Err(e) => {
+                    assert!(start.elapsed() < WAIT, "{}: {e}", path.display());
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            }
+        };
+        stream
+            .set_read_timeout(Some(Duration::from_millis(100)))
+            .expect("timeout");
+        Api {
+            writer: stream.try_clone().expect("clone"),
+            reader: BufReader::new(stream),
+            lines: Vec::new(),
+        }
+    }
+
+    /// Reads what has arrived; returns whether a line came.
+    fn pump(&mut self) -> bool {
+        let mut line = String::new();
+        match self.reader.read_line(&mut line) {
+            Ok(n) if n > 0 => {
+                let v: Value = serde_json::from_str(line.trim())
+                    .unwrap_or_else(|e| panic!("API line is not JSON ({e}): {line}"));
+                self.lines.push(v);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn wait(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        let mut seen = 0;
+        loop {
+            while seen < self.lines.len() {
+                if pred(&self.lines[seen]) {
+                    return self.lines[seen].clone();
+                }
+                seen += 1;
+            }
+            assert!(
+                start.elapsed() < WAIT,
+                "{what}: not seen in {WAIT:?}; lines: {:#?}",
+                self.lines
+            );
+            self.pump();
+        }
+    }
+
+    /// Sends one command line and returns its reply (`ok` or `error`).
+    fn send(&mut self, line: &str) -> Value {
+        let from = self.lines.len();
+        self.writer
+            .write_all(format!("{line}\n").as_bytes())
+            .expect("write");
+        let start = Instant::now();
+        loop {
+            if let Some(reply) = self.lines[from..]
+                .iter()
+                .find(|v| v.get("ok").is_some() || v.get("error").is_some())
+            {
+                return reply.clone();
+            }
+            assert!(start.elapsed() < WAIT, "no reply to {line}");
+            self.pump();
+        }
+    }
+}
+
+/// The vehicle (driven by A), A (asks its person: auto_accept never, 3 s consent timeout)
+/// and B (weaker, drives nothing), each operator with an API socket.
+fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
+    let mut rig = Rig::new(Path::new(ROVE), test).unwrap_or_else(|e| panic!("{e}"));
+    let record = rig.vehicle(V);
+    rig.operator(
+        A,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        "[handover]\nauto_accept = \"never\"\nconsent_timeout_ms = 3000\n\
+         [console]\napi_socket = \"a.sock\"\n",
+        &[],
+    );
+    rig.operator(
+        B,
+        "remote",
+        "desktop",
+        &[],
+        2000,
+        "[console]\napi_socket = \"b.sock\"\n",
+        &[],
+    );
+    wait_for_output(&record, Some(A), 0).expect("A drives");
+    let a = Api::connect(&rig.dir.join("a.sock"));
+    let mut b = Api::connect(&rig.dir.join("b.sock"));
+    b.wait("B sees the vehicle driven by A", |v| {
+        v["event"] == "device" && v["id"] == V && v["owner"] == A
+    });
+    (rig, record, a, b)
+}
+
+#[test]
+fn b_requests_a_accepts_b_drives_then_finish_gives_it_back() {
+    let (_rig, record, mut a, mut b) = rig("api-accept");
+    assert_eq!(
+        b.send(&json!({"cmd": "request", "vehicle": V}).to_string())["ok"],
+        true
+    );
+    let prompt = a.wait("the request reaches A", |v| {
+        v["event"] == "request_incoming"
+    });
+    assert_eq!(
+        (prompt["vehicle"].as_i64(), prompt["from"].as_i64()),
+        (Some(V), Some(B))
+    );
+    assert!(
+        prompt["timeout_ms"].as_u64().is_some_and(|t| t <= 3000),
+        "{prompt}"
+    );
+
+    let t = wall_us();
+    assert_eq!(
+        a.send(&json!({"cmd": "accept", "vehicle": V}).to_string())["ok"],
+        true
+    );
+    let driven = wait_for_output(&record, Some(B), t).expect("B drives after the ACCEPT");
+    assert_eq!(driven.throttle, Some(2000));
+    b.wait("B's request ended accepted", |v| {
+        v["event"] == "request_ended" && v["outcome"] == "accepted"
+    });
+    b.wait("B holds the grant", |v| {
+        v["event"] == "driving" && v["holding"] == json!([V])
+    });
+
+    let t = wall_us();
+    assert_eq!(
+        b.send(&json!({"cmd": "finish", "vehicle": V}).to_string())["ok"],
+        true
+    );
+    wait_for_output(&record, Some(A), t).expect("FINISH gives the vehicle back to A");
+}
+
+#[test]
+fn a_refuses_and_the_vehicle_stays_with_a() {
+    let (_rig, record, mut a, mut b) = rig("api-refuse");
+    let t = wall_us();
+    assert_eq!(b.send(r#"{"cmd":"request","vehicle":100}"#)["ok"], true);
+    a.wait("prompt", |v| v["event"] == "request_incoming");
+    assert_eq!(a.send(r#"{"cmd":"refuse","vehicle":100}"#)["ok"], true);
+    b.wait("B hears the refusal", |v| {
+        v["event"] == "request_ended" && v["outcome"] == "refused"
+    });
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.wall_us < t || o.owner != Some(B)),
+        "B never drove"
+    );
+}
+
+#[test]
+fn an_unanswered_request_times_out_as_refused() {
+    let (_rig, record, mut a, mut b) = rig("api-timeout");
+    let t = wall_us();
+    assert_eq!(b.send(r#"{"cmd":"request","vehicle":100}"#)["ok"], true);
+    a.wait("prompt", |v| v["event"] == "request_incoming");
+    let closed = a.wait("A's prompt closes at the consent timeout", |v| {
+        v["event"] == "prompt_closed"
+    });
+    assert_eq!(closed["outcome"], "timed_out", "{closed}");
+    b.wait("B is refused", |v| {
+        v["event"] == "request_ended" && v["outcome"] == "refused"
+    });
+    let waited_ms = (wall_us() - t) / 1000;
+    assert!(
+        waited_ms >= 2500,
+        "refused only after the 3 s consent timeout ({waited_ms} ms)"
+    );
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.wall_us < t || o.owner != Some(B))
+    );
+}
+
+#[test]
+fn malformed_api_input_gets_json_errors_and_the_operator_keeps_working() {
+    let (mut rig, record, mut a, _b) = rig("api-malformed");
+    for bad in [
+        "not json",
+        "{}",
+        r#"{"cmd":"fly"}"#,
+        r#"{"cmd":"accept"}"#,
+        r#"{"cmd":"drive","vehicle":"x"}"#,
+        r#"{"cmd":"accept","vehicle":100}"#,
+        "[1,2,3]",
+    ] {
+        let reply = a.send(bad);
+        assert!(reply["error"].is_string(), "{bad} → {reply}");
+        assert!(reply["code"].is_string(), "{bad} → {reply}");
+    }
+    let long = "x".repeat(70_000);
+    let reply = a.send(&long);
+    assert!(reply["error"].is_string(), "over-long line → {reply}");
+    // Still alive and still driving.
+    assert!(rig.procs[1].is_running(), "operator A survived");
+    let t = wall_us();
+    wait_for_output(&record, Some(A), t).expect("A still drives");
+    assert_eq!(a.send(r#"{"cmd":"mode","mode":"assisted"}"#)["ok"], true);
+}
