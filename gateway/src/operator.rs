@@ -162,7 +162,6 @@ pub async fn run(
         });
     }
     let terminal = console.then(|| {
-        let clock = clock;
         rove_console::run_terminal(
             mirror.clone(),
             move || clock.now(),
