@@ -165,24 +165,27 @@ fn snapshot(seen: &BTreeMap<DeviceId, Seen>, offline_after: Duration) -> Snapsho
     }
 }
 
-/// The human table: one row per device, vehicles showing who drives them.
+/// The human table: one row per device, vehicles showing who drives them. The same rendering
+/// as the operator console's device table (rove-console), printed as text.
 pub fn table(snap: &Snapshot) -> String {
-    let mut out = format!(
-        "{:>8}  {:<16} {:<10} {:<7} {}\n",
-        "ID", "NAME", "TYPE", "STATE", "DRIVEN BY"
-    );
-    for d in &snap.devices {
-        let driven = match d.kind {
-            "vehicle" if d.controller_id == d.id => "failsafe".to_string(),
-            "vehicle" => d.controller_id.to_string(),
-            _ => String::new(),
-        };
-        let state = if d.online { "online" } else { "offline" };
-        out.push_str(&format!(
-            "{:>8}  {:<16} {:<10} {:<7} {}\n",
-            d.id, d.name, d.kind, state, driven
-        ));
-    }
+    use rove_console::model::DeviceKind;
+    let rows: Vec<rove_console::DeviceRow> = snap
+        .devices
+        .iter()
+        .map(|d| {
+            let kind = DeviceKind::from_name(d.kind).unwrap_or(DeviceKind::Controller);
+            rove_console::DeviceRow::from_status(
+                d.id,
+                &d.name,
+                kind,
+                d.controller_id,
+                d.online,
+                Duration::from_millis(d.last_seen_ms),
+            )
+        })
+        .collect();
+    let mut out = rove_console::view::status_text(&rows, 100);
+    out.push('\n');
     for id in &snap.duplicates {
         out.push_str(&format!(
             "warning: device id {id} is used by more than one process\n"
