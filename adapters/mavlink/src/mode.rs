@@ -266,6 +266,72 @@ mod tests {
         assert_eq!(m.poll(ms(30)), Some(4), "new wish sent at once");
     }
 
+    #[derive(Debug, Clone)]
+    enum Step {
+        Poll(u64),
+        Ack(u8),
+        Heartbeat(u32),
+        Wish(bool),
+        Reassert,
+    }
+
+    fn step() -> impl proptest::strategy::Strategy<Value = Step> {
+        use proptest::prelude::*;
+        prop_oneof![
+            4 => (0u64..400).prop_map(Step::Poll),
+            1 => (0u8..4).prop_map(Step::Ack),
+            1 => prop_oneof![Just(0u32), Just(4), Just(7)].prop_map(Step::Heartbeat),
+            1 => any::<bool>().prop_map(Step::Wish),
+            1 => Just(Step::Reassert),
+        ]
+    }
+
+    proptest::proptest! {
+        /// Whatever the autopilot answers, a wish is sent at most 1 + retries times between two
+        /// (re)starts, never after it is settled, and only the wished mode is ever sent.
+        #[test]
+        fn sends_are_bounded_and_only_for_the_wish(steps in proptest::collection::vec(step(), 0..200)) {
+            let mut m = machine();
+            let mut now = 0u64;
+            let mut sends_since_start = 0u32;
+            for s in steps {
+                match s {
+                    Step::Poll(dt) => {
+                        now += dt;
+                        if let Some(mode) = m.poll(ms(now)) {
+                            sends_since_start += 1;
+                            proptest::prop_assert_eq!(Some(mode), m.wished().map(|w| w.custom_mode));
+                            proptest::prop_assert!(sends_since_start <= 4, "{} sends", sends_since_start);
+                        }
+                    }
+                    Step::Ack(k) => m.on_ack(ms(now), match k {
+                        0 => AckResult::Accepted,
+                        1 => AckResult::InProgress,
+                        2 => AckResult::TemporarilyRejected,
+                        _ => AckResult::Refused("MAV_RESULT_DENIED"),
+                    }),
+                    Step::Heartbeat(mode) => m.on_heartbeat(mode),
+                    Step::Wish(hold_wanted) => {
+                        let wish = if hold_wanted { hold() } else { manual() };
+                        if m.wished() != Some(&wish) {
+                            sends_since_start = 0;
+                        }
+                        m.request(ms(now), &wish);
+                    }
+                    Step::Reassert => {
+                        if m.wished().is_some() {
+                            sends_since_start = 0;
+                        }
+                        m.reassert(ms(now));
+                    }
+                }
+                if matches!(m.state(), ModeState::Confirmed(_) | ModeState::Failed { .. }) {
+                    proptest::prop_assert_eq!(m.poll(ms(now + 10_000)), None);
+                }
+            }
+        }
+    }
+
     #[test]
     fn acks_without_a_pending_wish_change_nothing() {
         let mut m = machine();
