@@ -97,15 +97,32 @@ pub fn input_latency(
     let outputs = records(&vehicle_record);
     let mut latencies = Vec::new();
     let mut unmatched = 0;
-    for (read_us, throttle) in &inputs {
+    let mut slow = Vec::new();
+    for (i, (read_us, throttle)) in inputs.iter().enumerate() {
         match outputs
             .iter()
             .find(|o| o.owner == Some(11) && o.throttle == Some(*throttle) && o.wall_us >= *read_us)
         {
-            Some(o) => latencies.push(ms(o.wall_us - read_us)),
+            Some(o) => {
+                let l = ms(o.wall_us - read_us);
+                if l > 2.0 {
+                    slow.push(format!("#{i} {l:.1}"));
+                }
+                latencies.push(l);
+            }
+            // The vehicle applies the newest sample it holds: a value it never saw alone was
+            // superseded, not lost.
             None => unmatched += 1,
         }
     }
+    // #0 is the first value after the input went live: the vehicle changes owner (failsafe →
+    // this operator) with it, so it measures a takeover, not the steady input path.
+    progress(&format!(
+        "over 2 ms: {} of {} (#0 starts driving): {}",
+        slow.len(),
+        inputs.len(),
+        slow.iter().take(40).cloned().collect::<Vec<_>>().join(", ")
+    ));
     let stats = Stats::of(&latencies).ok_or_else(|| {
         anyhow::anyhow!("no input reached the vehicle; see {}", rig.dir.display())
     })?;
