@@ -27,7 +27,8 @@ const PING_PONG_WINDOW_US: u64 = 1_000_000;
 /// `rove bench input`: input event → vehicle output. A replayed joystick (rove-inputs' replay
 /// source) moves the throttle `events` times at `rate_hz`, each to a value of its own; the
 /// operator records the instant it reads each value (`--record`), the vehicle the instant its
-/// adapter applies it. Latency = applied − read, matched by value, in ms. What it leaves out:
+/// adapter applies it. Latency = applied − read, matched by value, in ms (the first value, the
+/// device's state at start-up, is sent before discovery ends and is skipped). What it leaves out:
 /// the kernel's evdev delivery (there is no input device here).
 ///
 /// # Errors
@@ -98,7 +99,9 @@ pub fn input_latency(
     let mut latencies = Vec::new();
     let mut unmatched = 0;
     let mut slow = Vec::new();
-    for (i, (read_us, throttle)) in inputs.iter().enumerate() {
+    // The first value is the device's centred state at start-up (replug), read and sent before
+    // DDS discovery has finished; it measures discovery, not the input path: skipped.
+    for (i, (read_us, throttle)) in inputs.iter().enumerate().skip(1) {
         match outputs
             .iter()
             .find(|o| o.owner == Some(11) && o.throttle == Some(*throttle) && o.wall_us >= *read_us)
@@ -115,10 +118,8 @@ pub fn input_latency(
             None => unmatched += 1,
         }
     }
-    // #0 is the first value after the input went live: the vehicle changes owner (failsafe →
-    // this operator) with it, so it measures a takeover, not the steady input path.
     progress(&format!(
-        "over 2 ms: {} of {} (#0 starts driving): {}",
+        "over 2 ms: {} of {}: {}",
         slow.len(),
         inputs.len(),
         slow.iter().take(40).cloned().collect::<Vec<_>>().join(", ")
