@@ -111,6 +111,13 @@ pub async fn run(
         me,
         input,
         input_live: device.is_none(),
+        input_status: match &device {
+            Some(d) => {
+                let status = d.status();
+                (status.deadman, status.to_string())
+            }
+            None => (None, "constant sticks (config)".to_string()),
+        },
         driving: if device.is_none() {
             configured.clone()
         } else {
@@ -179,7 +186,7 @@ pub async fn run(
     };
     tokio::pin!(terminal);
     ui.emit(Event::Identity(identity));
-    ui.input(&state, device.as_ref());
+    ui.input(&state);
     let mut shown_driving = state.driving_event();
     ui.emit(shown_driving.clone());
     let mut vehicles: BTreeMap<DeviceId, DeviceInfo> = BTreeMap::new();
@@ -416,20 +423,21 @@ impl Ui {
         });
     }
 
-    fn input(&self, state: &Streams, device: Option<&rove_inputs::MappedSource>) {
-        let (deadman, link) = match device {
-            Some(d) => {
-                let status = d.status();
-                (status.deadman, status.to_string())
-            }
-            None => (None, "constant sticks (config)".to_string()),
-        };
+    /// Whether anyone listens: the console and the API subscribe at start or never.
+    fn watched(&self) -> bool {
+        self.tx.receiver_count() > 0
+    }
+
+    fn input(&self, state: &Streams) {
+        if !self.watched() {
+            return;
+        }
         self.emit(Event::Input(UiInput {
             movement: state.input.0,
             mode: state.input.1,
-            deadman,
+            deadman: state.input_status.0,
             live: state.input_live,
-            link,
+            link: state.input_status.1.clone(),
         }));
     }
 }
@@ -505,8 +513,10 @@ fn poll_input(
         // Event-driven: the change leaves now, not on the next keep-alive tick.
         state.send_driven(clock);
     }
-    if seen {
-        ui.input(state, Some(device));
+    if seen && ui.watched() {
+        let status = device.status();
+        state.input_status = (status.deadman, status.to_string());
+        ui.input(state);
     }
     actions
 }
@@ -576,7 +586,7 @@ fn on_command(
             info!(?mode, "mode selected");
             state.input.1 = mode;
             state.send_driven(clock);
-            ui.input(state, None);
+            ui.input(state);
             (Ok(()), Vec::new())
         }
         UiCommand::Drive { vehicle } => {
@@ -676,6 +686,8 @@ struct Streams {
     input: (rove_core::msg::MovementCommand, rove_core::msg::Mode),
     /// The input may drive (constant input: always; a device: live and deadman held).
     input_live: bool,
+    /// The deadman (`None`: none configured) and the input's one-line state, for the console.
+    input_status: (Option<bool>, String),
     /// Vehicles driven with the regular writer.
     driving: BTreeSet<DeviceId>,
     /// Vehicles released while the input is not live; driven again when it is.
@@ -770,18 +782,12 @@ impl Streams {
         actions
     }
 
+    /// The keep-alive: every driven vehicle, and PROBEs to those we stand by for.
     fn send_all(&mut self, clock: &Clock) {
-        let regular: Vec<_> = self.driving.iter().copied().collect();
-        for v in regular {
-            self.send(v, false, CommandType::Movement, clock);
-        }
+        self.send_driven(clock);
         let standby: Vec<_> = self.standby.iter().copied().collect();
         for v in standby {
             self.send(v, false, CommandType::Probe, clock);
-        }
-        let held: Vec<_> = self.priority.iter().copied().collect();
-        for v in held {
-            self.send(v, true, CommandType::Movement, clock);
         }
     }
 
