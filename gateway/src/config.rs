@@ -757,14 +757,7 @@ mod tests {
     #[test]
     fn each_output_adapter_loads_from_its_shipped_example() {
         let kind = |name: &str| match load_vehicle(&shipped(name)) {
-            Ok(c) => match c.output {
-                OutputConfig::Sim => "sim",
-                OutputConfig::Pwm(_) => "pwm",
-                OutputConfig::Eyedrive(_) => "eyedrive",
-                OutputConfig::Naza(_) => "naza",
-                OutputConfig::Mavlink(_) => "mavlink",
-                OutputConfig::Can(_) => "can",
-            },
+            Ok(c) => crate::output::kind(&c.output),
             Err(e) => panic!("{e:#}"),
         };
         assert_eq!(kind("vehicle-sim.toml"), "sim");

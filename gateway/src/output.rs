@@ -215,7 +215,8 @@ impl ManagedOutput {
     }
 }
 
-fn kind(config: &OutputConfig) -> &'static str {
+/// The adapter's name as `[output] adapter` spells it.
+pub(crate) fn kind(config: &OutputConfig) -> &'static str {
     match config {
         OutputConfig::Sim => "sim",
         OutputConfig::Pwm(_) => "pwm",

@@ -4,9 +4,9 @@
 //!
 //! Needs `python3` with `pymavlink` (installed by `.ci/run`).
 
-use rove_gateway::harness::{Rig, wait_for_output, wall_us};
+use rove_gateway::harness::{Follow, Rig, wait_for_output, wall_us};
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -19,7 +19,7 @@ const COMMAND_TIMEOUT_MS: u64 = 300;
 /// The fake autopilot, in the rig's namespace.
 struct Autopilot {
     child: Child,
-    record: PathBuf,
+    record: Follow,
 }
 
 impl Autopilot {
@@ -39,29 +39,30 @@ impl Autopilot {
             .stdin(Stdio::null())
             .spawn()
             .expect("python3 with pymavlink (python3 -m pip install pymavlink)");
-        let ap = Autopilot { child, record };
+        let mut ap = Autopilot {
+            child,
+            record: Follow::new(&record),
+        };
         ap.wait_for("ready", |e| e["event"] == "ready");
         ap
     }
 
-    fn events(&self) -> Vec<Value> {
-        std::fs::read_to_string(&self.record)
-            .unwrap_or_default()
-            .lines()
-            .filter_map(|l| serde_json::from_str(l).ok())
-            .collect()
+    /// Everything the autopilot recorded so far.
+    fn events(&mut self) -> &[Value] {
+        self.record.poll();
+        &self.record.lines
     }
 
-    fn wait_for(&self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+    fn wait_for(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
         let start = Instant::now();
         loop {
-            if let Some(e) = self.events().into_iter().find(|e| pred(e)) {
-                return e;
+            if let Some(e) = self.events().iter().find(|e| pred(e)) {
+                return e.clone();
             }
             assert!(
                 start.elapsed() < WAIT,
                 "autopilot: {what} not seen in {WAIT:?}; last events: {:#?}",
-                self.events().iter().rev().take(8).collect::<Vec<_>>()
+                self.record.lines.iter().rev().take(8).collect::<Vec<_>>()
             );
             std::thread::sleep(Duration::from_millis(10));
         }
@@ -96,7 +97,7 @@ fn mavlink_output(port: u16) -> String {
 #[test]
 fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
     let mut rig = Rig::new(Path::new(ROVE), "mavlink-e2e").unwrap_or_else(|e| panic!("{e}"));
-    let ap = Autopilot::start(&rig, 14550);
+    let mut ap = Autopilot::start(&rig, 14550);
     let record = rig.vehicle_with_output(V, &mavlink_output(14550));
     ap.wait_for("GCS heartbeat from the vehicle", |e| {
         e["event"] == "heartbeat" && e["src"] == 255 && e["comp"] == 190
@@ -149,7 +150,7 @@ fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
 #[test]
 fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
     let mut rig = Rig::new(Path::new(ROVE), "mavlink-stop").unwrap_or_else(|e| panic!("{e}"));
-    let ap = Autopilot::start(&rig, 14550);
+    let mut ap = Autopilot::start(&rig, 14550);
     let record = rig.vehicle_with_output(V, &mavlink_output(14550));
     rig.operator(11, "mobile", "phone", &[V], 20000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("operator drives");
@@ -164,8 +165,7 @@ fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
         status.is_some_and(|s| s.success()),
         "vehicle exits cleanly: {status:?}"
     );
-    let events = ap.events();
-    let after: Vec<&Value> = events.iter().filter(|e| wall(e) > stop).collect();
+    let after: Vec<&Value> = ap.events().iter().filter(|e| wall(e) > stop).collect();
     assert!(
         after
             .iter()

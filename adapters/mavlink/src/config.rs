@@ -893,7 +893,7 @@ mod tests {
             "tcpout::5760",
             "serial:/dev/ttyS0",
             "serial:/dev/ttyS0:fast",
-            "tcpin:0.0.0.0:5760",
+            "tcpin:127.0.0.1:5760",
         ] {
             assert!(Endpoint::parse(bad).is_err(), "{bad} accepted");
         }

@@ -191,7 +191,7 @@ impl MavlinkVehicle {
     }
 
     fn send_mode_if_due(&mut self, now: MonoTime) -> Result<(), LinkError> {
-        let Ok((sys, comp)) = self.link.target().ok_or(()) else {
+        let Some((sys, comp)) = self.link.target() else {
             return Ok(()); // the first send waits for the autopilot
         };
         let Some(custom_mode) = self.mode.poll(now) else {
