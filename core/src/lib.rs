@@ -16,6 +16,7 @@
 //! - [`hierarchy`]: level × device class → ownership strength.
 //! - [`arbiter`]: the per-vehicle ownership state machine (DESIGN.md §4).
 //! - [`handover`]: REQUEST / ACCEPT / REFUSE / FINISH for requester and replier.
+//! - [`session`]: the operator's decisions (streaming, input liveness, commands, handover).
 //! - [`watchdog`]: the command timeout and liveness watchdog.
 //! - [`mapping`]: axis → µs (min/centre/max, trim, reverse, deadband, expo, slew), mode levels.
 //! - [`adapter`]: output-adapter and input-source traits.
@@ -32,6 +33,7 @@ pub mod handover;
 pub mod hierarchy;
 pub mod mapping;
 pub mod msg;
+pub mod session;
 pub mod sim;
 pub mod time;
 pub mod watchdog;

@@ -1,0 +1,582 @@
+//! Unit tests of the operator session: one behaviour each, effects compared in full.
+
+use super::*;
+use crate::handover::AutoAccept;
+use crate::msg::Ack;
+
+const ME: DeviceId = 11;
+const OTHER: DeviceId = 12;
+const V: DeviceId = 100;
+const W: DeviceId = 101;
+
+fn ms(t: u64) -> MonoTime {
+    MonoTime::from_millis(t)
+}
+
+fn stamp(t: u64) -> TimeT {
+    TimeT(1_000_000 + t)
+}
+
+fn sticks(throttle: i16) -> MovementCommand {
+    MovementCommand {
+        throttle,
+        ..MovementCommand::CENTRED
+    }
+}
+
+fn config(input: SessionInput) -> SessionConfig {
+    SessionConfig {
+        me: ME,
+        strength: Strength(220),
+        handover: HandoverConfig::default(),
+        drive: vec![V],
+        input,
+        heartbeat: Duration::from_millis(500),
+        confirm_actions: false,
+        request: None,
+    }
+}
+
+fn constant() -> OperatorSession {
+    OperatorSession::new(
+        config(SessionInput::Constant(sticks(100), Mode::Manual)),
+        ms(0),
+    )
+}
+
+fn device() -> OperatorSession {
+    OperatorSession::new(config(SessionInput::Device), ms(0))
+}
+
+fn vehicle(id: DeviceId, owner: DeviceId) -> SessionEvent {
+    SessionEvent::DeviceInfo(DeviceInfo {
+        device_id: id,
+        name: format!("v{id}"),
+        device_type: DeviceType::Vehicle,
+        controller_id: owner,
+    })
+}
+
+fn sample(
+    vehicle: DeviceId,
+    kind: CommandType,
+    throttle: i16,
+    mode: Mode,
+    t: u64,
+) -> ControlCommand {
+    ControlCommand {
+        src_id: ME,
+        dest_id: vehicle,
+        command_type: kind,
+        movement_command: sticks(throttle),
+        mode,
+        timestamp: stamp(t),
+    }
+}
+
+fn writes(effects: &[Effect]) -> Vec<(Writer, ControlCommand)> {
+    effects
+        .iter()
+        .filter_map(|e| match e {
+            Effect::Write { writer, command } => Some((*writer, *command)),
+            _ => None,
+        })
+        .collect()
+}
+
+fn releases(effects: &[Effect]) -> Vec<(Writer, DeviceId)> {
+    effects
+        .iter()
+        .filter_map(|e| match e {
+            Effect::Release { writer, vehicle } => Some((*writer, *vehicle)),
+            _ => None,
+        })
+        .collect()
+}
+
+fn sent(effects: &[Effect]) -> Vec<RequestControl> {
+    effects
+        .iter()
+        .filter_map(|e| match e {
+            Effect::Send(m) => Some(*m),
+            _ => None,
+        })
+        .collect()
+}
+
+fn refused(effects: &[Effect]) -> Option<&str> {
+    effects.iter().find_map(|e| match e {
+        Effect::Refused(why) => Some(why.as_str()),
+        _ => None,
+    })
+}
+
+fn step(s: &mut OperatorSession, t: u64, event: SessionEvent) -> Vec<Effect> {
+    s.step(ms(t), stamp(t), event)
+}
+
+fn request_from(requester: DeviceId, priority: i32, t: u64) -> SessionEvent {
+    SessionEvent::RequestControl(RequestControl {
+        src_id: requester,
+        dest_id: V,
+        current_controller_id: ME,
+        src_priority: priority,
+        ack: Ack::Request,
+        timestamp: stamp(t),
+    })
+}
+
+#[test]
+fn constant_sticks_stream_to_the_configured_vehicles_on_every_keepalive() {
+    let mut s = constant();
+    let out = step(&mut s, 20, SessionEvent::StreamTick);
+    assert_eq!(
+        out,
+        vec![Effect::Write {
+            writer: Writer::Regular,
+            command: sample(V, CommandType::Movement, 100, Mode::Manual, 20),
+        }]
+    );
+    assert_eq!(s.status_line(), "driving 100; 0 vehicles seen");
+}
+
+#[test]
+fn a_device_drives_only_once_it_reports_sticks_and_sends_each_change_at_once() {
+    let mut s = device();
+    assert!(step(&mut s, 20, SessionEvent::StreamTick).is_empty());
+    assert_eq!(s.streams().paused, vec![V]);
+    let out = step(&mut s, 25, SessionEvent::Input(InputEvent::Axes(sticks(5))));
+    assert_eq!(
+        out,
+        vec![
+            Effect::Report(Report::InputLive { vehicles: vec![V] }),
+            Effect::Write {
+                writer: Writer::Regular,
+                command: sample(V, CommandType::Movement, 5, Mode::Manual, 25),
+            },
+        ]
+    );
+    let out = step(&mut s, 26, SessionEvent::Input(InputEvent::Axes(sticks(6))));
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Regular,
+            sample(V, CommandType::Movement, 6, Mode::Manual, 26)
+        )]
+    );
+}
+
+#[test]
+fn a_lost_device_or_released_deadman_releases_everything_and_resumes_on_live_sticks() {
+    for lost in [
+        InputEvent::Lost {
+            reason: "unplugged".into(),
+        },
+        InputEvent::Deadman(false),
+    ] {
+        let mut s = device();
+        step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(5))));
+        let out = step(&mut s, 2, SessionEvent::Input(lost.clone()));
+        assert_eq!(releases(&out), vec![(Writer::Regular, V)], "{lost:?}");
+        assert!(writes(&out).is_empty());
+        assert!(step(&mut s, 20, SessionEvent::StreamTick).is_empty());
+        // A second loss releases nothing more.
+        assert!(step(&mut s, 21, SessionEvent::Input(lost)).is_empty());
+        let out = step(&mut s, 30, SessionEvent::Input(InputEvent::Axes(sticks(0))));
+        assert_eq!(
+            writes(&out),
+            vec![(
+                Writer::Regular,
+                sample(V, CommandType::Movement, 0, Mode::Manual, 30)
+            )]
+        );
+    }
+}
+
+#[test]
+fn drive_is_refused_for_an_unseen_or_owned_vehicle_and_done_for_a_free_one() {
+    let mut s = constant();
+    let out = step(
+        &mut s,
+        1,
+        SessionEvent::Command(Command::Drive { vehicle: W }),
+    );
+    assert_eq!(refused(&out), Some("vehicle 101 has not been seen"));
+    step(&mut s, 2, vehicle(W, OTHER));
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Drive { vehicle: W }),
+    );
+    assert_eq!(
+        refused(&out),
+        Some("vehicle 101 is driven by 12: request control instead")
+    );
+    assert!(!s.streams_to(W));
+    step(&mut s, 4, vehicle(W, W));
+    let out = step(
+        &mut s,
+        5,
+        SessionEvent::Command(Command::Drive { vehicle: W }),
+    );
+    assert_eq!(refused(&out), None);
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Regular,
+            sample(W, CommandType::Movement, 100, Mode::Manual, 5)
+        )]
+    );
+    assert_eq!(s.selected(), Some(W));
+}
+
+#[test]
+fn request_asks_the_owner_and_drives_a_free_vehicle_instead() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(W, OTHER));
+    let out = step(
+        &mut s,
+        2,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    let msgs = sent(&out);
+    assert_eq!(msgs.len(), 1);
+    assert_eq!(
+        (
+            msgs[0].ack,
+            msgs[0].src_id,
+            msgs[0].dest_id,
+            msgs[0].current_controller_id
+        ),
+        (Ack::Request, ME, W, OTHER)
+    );
+    assert!(out.contains(&Effect::Report(Report::RequestSent {
+        vehicle: W,
+        owner: OTHER
+    })));
+    // A second request while one is open is refused.
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    assert!(refused(&out).is_some_and(|w| w.starts_with("cannot request 101")));
+
+    let mut s = constant();
+    step(&mut s, 1, vehicle(W, W));
+    let out = step(
+        &mut s,
+        2,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    assert!(sent(&out).is_empty());
+    assert!(s.streams_to(W));
+}
+
+#[test]
+fn a_stronger_requester_is_auto_accepted_and_we_stand_by_with_probes() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    let msgs = sent(&out);
+    assert_eq!(msgs.len(), 1);
+    assert_eq!((msgs[0].ack, msgs[0].src_id), (Ack::Accept, OTHER));
+    assert!(out.contains(&Effect::Report(Report::Yielded { vehicle: V })));
+    // Standing by: PROBEs only, never a MOVEMENT.
+    let out = step(&mut s, 20, SessionEvent::StreamTick);
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Regular,
+            sample(V, CommandType::Probe, 100, Mode::Manual, 20)
+        )]
+    );
+    assert_eq!(s.status_line(), "standing by for 100; 1 vehicle seen");
+    // The holder's FINISH: we drive again at once.
+    let finish = SessionEvent::RequestControl(RequestControl {
+        ack: Ack::Finish,
+        ..msgs[0]
+    });
+    let out = step(&mut s, 30, finish);
+    assert!(out.contains(&Effect::Report(Report::Resumed {
+        vehicle: V,
+        live: true
+    })));
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Regular,
+            sample(V, CommandType::Movement, 100, Mode::Manual, 30)
+        )]
+    );
+}
+
+#[test]
+fn a_weaker_requester_prompts_and_the_person_decides() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    let out = step(&mut s, 2, request_from(OTHER, 130, 2));
+    assert!(sent(&out).is_empty());
+    assert!(matches!(
+        out.as_slice(),
+        [Effect::Report(Report::Prompt {
+            vehicle: V,
+            requester: OTHER,
+            src_priority: 130,
+            ..
+        })]
+    ));
+    // The accept button acts on the open prompt.
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Input(InputEvent::Action(InputAction::Accept)),
+    );
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Accept));
+    assert!(out.contains(&Effect::Report(Report::PromptClosed {
+        vehicle: V,
+        outcome: Outcome::Accepted
+    })));
+    // Nothing left to answer.
+    let out = step(
+        &mut s,
+        4,
+        SessionEvent::Command(Command::Refuse { vehicle: V }),
+    );
+    assert!(refused(&out).is_some());
+}
+
+#[test]
+fn with_a_console_buttons_go_to_it_for_confirmation() {
+    let mut c = config(SessionInput::Device);
+    c.confirm_actions = true;
+    let mut s = OperatorSession::new(c, ms(0));
+    let out = step(
+        &mut s,
+        1,
+        SessionEvent::Input(InputEvent::Action(InputAction::Release)),
+    );
+    assert_eq!(out, vec![Effect::Confirm(InputAction::Release)]);
+}
+
+#[test]
+fn a_grant_is_driven_with_the_priority_writer_and_finished_when_the_input_is_lost() {
+    let mut s = device();
+    step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(7))));
+    step(&mut s, 2, vehicle(W, OTHER));
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    let req = sent(&out)[0];
+    let accept = RequestControl {
+        ack: Ack::Accept,
+        ..req
+    };
+    let out = step(&mut s, 4, SessionEvent::RequestControl(accept));
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Priority,
+            sample(W, CommandType::Movement, 7, Mode::Manual, 4)
+        )]
+    );
+    let out = step(&mut s, 20, SessionEvent::StreamTick);
+    assert!(writes(&out).contains(&(
+        Writer::Priority,
+        sample(W, CommandType::Movement, 7, Mode::Manual, 20)
+    )));
+    let out = step(
+        &mut s,
+        21,
+        SessionEvent::Input(InputEvent::Lost {
+            reason: "gone".into(),
+        }),
+    );
+    assert_eq!(
+        sent(&out)
+            .iter()
+            .map(|m| (m.ack, m.dest_id))
+            .collect::<Vec<_>>(),
+        vec![(Ack::Finish, W)]
+    );
+    assert_eq!(
+        releases(&out),
+        vec![(Writer::Regular, V), (Writer::Priority, W)]
+    );
+    assert!(!s.streams_to(W) && !s.streams_to(V));
+}
+
+#[test]
+fn mode_changes_go_out_at_once_and_stay() {
+    let mut s = constant();
+    let out = step(
+        &mut s,
+        1,
+        SessionEvent::Command(Command::Mode {
+            vehicle: None,
+            mode: Mode::Auto,
+        }),
+    );
+    assert_eq!(
+        writes(&out),
+        vec![(
+            Writer::Regular,
+            sample(V, CommandType::Movement, 100, Mode::Auto, 1)
+        )]
+    );
+    assert_eq!(s.input().1, Mode::Auto);
+}
+
+#[test]
+fn release_all_stops_every_stream_and_finishes_grants() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(W, OTHER));
+    let req = sent(&step(
+        &mut s,
+        2,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    ))[0];
+    step(
+        &mut s,
+        3,
+        SessionEvent::RequestControl(RequestControl {
+            ack: Ack::Accept,
+            ..req
+        }),
+    );
+    let out = step(
+        &mut s,
+        4,
+        SessionEvent::Command(Command::Release { vehicle: None }),
+    );
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Finish));
+    assert_eq!(
+        releases(&out),
+        vec![(Writer::Regular, V), (Writer::Priority, W)]
+    );
+    assert!(step(&mut s, 20, SessionEvent::StreamTick).is_empty());
+}
+
+#[test]
+fn stop_finishes_grants_then_releases_every_instance() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(W, OTHER));
+    let req = sent(&step(
+        &mut s,
+        2,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    ))[0];
+    step(
+        &mut s,
+        3,
+        SessionEvent::RequestControl(RequestControl {
+            ack: Ack::Accept,
+            ..req
+        }),
+    );
+    let out = s.stop(stamp(5));
+    let kinds: Vec<&str> = out
+        .iter()
+        .filter_map(|e| match e {
+            Effect::Send(_) => Some("send"),
+            Effect::Release { .. } => Some("release"),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(kinds, vec!["send", "release", "release"]);
+    assert_eq!(sent(&out)[0].ack, Ack::Finish);
+    assert!(step(&mut s, 20, SessionEvent::StreamTick).is_empty());
+}
+
+#[test]
+fn request_when_seen_waits_for_live_info_then_asks_or_drives_a_free_vehicle() {
+    let mut c = config(SessionInput::Constant(sticks(1), Mode::Manual));
+    c.drive = vec![];
+    c.request = Some(W);
+    // Owned by another: asked once the DeviceInfo is live (a heartbeat after start).
+    let mut s = OperatorSession::new(c.clone(), ms(0));
+    assert!(sent(&step(&mut s, 100, vehicle(W, OTHER))).is_empty());
+    let out = step(&mut s, 600, vehicle(W, OTHER));
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
+    assert!(sent(&step(&mut s, 1100, vehicle(W, OTHER))).is_empty());
+    // Ownerless: free only after two heartbeats.
+    let mut s = OperatorSession::new(c.clone(), ms(0));
+    assert!(step(&mut s, 600, vehicle(W, W)).is_empty());
+    assert!(!s.streams_to(W));
+    let out = step(&mut s, 1000, vehicle(W, W));
+    assert!(s.streams_to(W));
+    assert!(out.contains(&Effect::Report(Report::Driving {
+        vehicle: W,
+        why: DriveReason::Free
+    })));
+    // Names us without our stream: an old sample; wait.
+    let mut s = OperatorSession::new(c, ms(0));
+    step(&mut s, 600, vehicle(W, ME));
+    assert!(!s.streams_to(W));
+    let out = step(&mut s, 1100, vehicle(W, OTHER));
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
+}
+
+#[test]
+fn buttons_cycle_the_selected_vehicle_through_those_seen() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, V));
+    step(&mut s, 1, vehicle(W, W));
+    let next = SessionEvent::Input(InputEvent::Action(InputAction::NextVehicle));
+    let prev = SessionEvent::Input(InputEvent::Action(InputAction::PreviousVehicle));
+    assert_eq!(s.selected(), Some(V));
+    step(&mut s, 2, next.clone());
+    assert_eq!(s.selected(), Some(W));
+    step(&mut s, 3, next);
+    assert_eq!(s.selected(), Some(V));
+    let out = step(&mut s, 4, prev);
+    assert_eq!(s.selected(), Some(W));
+    assert_eq!(
+        out,
+        vec![Effect::Report(Report::Selected { vehicle: Some(W) })]
+    );
+}
+
+#[test]
+fn auto_accept_never_always_asks() {
+    let mut c = config(SessionInput::Constant(sticks(1), Mode::Manual));
+    c.handover.auto_accept = AutoAccept::Never;
+    let mut s = OperatorSession::new(c, ms(0));
+    step(&mut s, 1, vehicle(V, ME));
+    let out = step(&mut s, 2, request_from(OTHER, 65_000, 2));
+    assert!(sent(&out).is_empty());
+    // Refused at the consent timeout.
+    let deadline = s.next_deadline().expect("a consent deadline");
+    let out = s.step(deadline, stamp(20_000), SessionEvent::Tick);
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Refuse));
+}
+
+#[test]
+fn status_line_says_what_we_drive_hold_and_stand_by_for() {
+    let mut s = device();
+    assert_eq!(s.status_line(), "driving nothing; 0 vehicles seen");
+    step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(1))));
+    step(&mut s, 2, vehicle(V, ME));
+    assert_eq!(s.status_line(), "driving 100; 1 vehicle seen");
+    step(&mut s, 3, request_from(OTHER, 340, 3));
+    step(&mut s, 4, vehicle(W, OTHER));
+    let req = sent(&step(
+        &mut s,
+        5,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    ))[0];
+    step(
+        &mut s,
+        6,
+        SessionEvent::RequestControl(RequestControl {
+            ack: Ack::Accept,
+            ..req
+        }),
+    );
+    assert_eq!(
+        s.status_line(),
+        "holding a grant for 101; standing by for 100; 2 vehicles seen"
+    );
+}

@@ -1,0 +1,385 @@
+//! Property tests of operator sessions together with the vehicle's arbiter.
+//!
+//! Three operator sessions (strengths 130, 220, 340; each with a device input that can go live
+//! and be lost) and one vehicle's arbiter are joined by a perfect, in-order network: every
+//! effect a session produces is delivered at once — ControlCommand writes and releases to the
+//! arbiter, RequestControl to the arbiter (ACCEPT / FINISH) and to every session — and the
+//! vehicle's owner is published back to the sessions after every step, as its DeviceInfo does.
+//! Random operations drive them: sticks, lost inputs, deadman releases, every console command,
+//! graceful quits, crashes and time. (Loss, duplication and reordering of RequestControl are
+//! covered by `handover_properties`.)
+//!
+//! Checked after every operation:
+//! - the arbiter never applies values from an operator that is not driving the vehicle (live
+//!   input on its regular writer, a held grant, or standing by for a grant that just ended);
+//! - a session never writes MOVEMENT on its regular writer without live input, nor to a
+//!   vehicle it has yielded;
+//! - at most one session holds a grant, and a holder with live input whose grant the vehicle
+//!   honours owns the vehicle;
+//! - the owner is the failsafe, a crashed operator not yet timed out, or a session that streams
+//!   to the vehicle or stands by for it;
+//! - with no grant and no standby, the strongest operator that drives owns the vehicle.
+
+use proptest::prelude::*;
+use rove_core::MonoTime;
+use rove_core::adapter::InputEvent;
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId, WriterId};
+use rove_core::handover::{AutoAccept, HandoverConfig};
+use rove_core::hierarchy::Strength;
+use rove_core::msg::{Ack, CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
+use rove_core::session::{
+    Command, Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
+};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+const V: DeviceId = 1000;
+const IDS: [DeviceId; 3] = [1, 2, 3];
+const STRENGTHS: [u16; 3] = [130, 220, 340];
+/// The operators' keep-alive period (50 Hz).
+const STREAM_MS: u64 = 20;
+/// The arbiter's command timeout (default).
+const TIMEOUT_MS: u64 = 100;
+
+#[derive(Debug, Clone)]
+enum Op {
+    Sticks(usize, i16),
+    Lost(usize),
+    DeadmanReleased(usize),
+    Cmd(usize, Command),
+    Quit(usize),
+    Crash(usize),
+    /// Advance by this many keep-alive periods.
+    Advance(u64),
+}
+
+fn who() -> impl Strategy<Value = usize> {
+    0usize..3
+}
+
+fn command() -> impl Strategy<Value = Command> {
+    prop_oneof![
+        Just(Command::Drive { vehicle: V }),
+        Just(Command::Request { vehicle: V }),
+        Just(Command::Accept { vehicle: V }),
+        Just(Command::Refuse { vehicle: V }),
+        Just(Command::Finish { vehicle: V }),
+        Just(Command::Release { vehicle: Some(V) }),
+        Just(Command::Release { vehicle: None }),
+    ]
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        4 => (who(), any::<i16>()).prop_map(|(i, t)| Op::Sticks(i, t)),
+        1 => who().prop_map(Op::Lost),
+        1 => who().prop_map(Op::DeadmanReleased),
+        6 => (who(), command()).prop_map(|(i, c)| Op::Cmd(i, c)),
+        1 => who().prop_map(Op::Quit),
+        1 => who().prop_map(Op::Crash),
+        4 => prop_oneof![1u64..8, 10u64..40].prop_map(Op::Advance),
+    ]
+}
+
+fn policy() -> impl Strategy<Value = AutoAccept> {
+    prop::sample::select(vec![
+        AutoAccept::Never,
+        AutoAccept::HigherPriority,
+        AutoAccept::Always,
+    ])
+}
+
+fn writer(i: usize, w: Writer) -> WriterId {
+    WriterId {
+        participant: ParticipantId(u128::from(IDS[i].unsigned_abs())),
+        entity: match w {
+            Writer::Regular => 1,
+            Writer::Priority => 2,
+        },
+    }
+}
+
+struct World {
+    now: MonoTime,
+    sessions: Vec<OperatorSession>,
+    /// When each operator crashed or quit (it takes no more events).
+    gone: [Option<MonoTime>; 3],
+    vehicle: Arbiter,
+}
+
+impl World {
+    fn new(policies: [AutoAccept; 3], drive: [bool; 3]) -> Self {
+        let now = MonoTime::ZERO;
+        let sessions = (0..3)
+            .map(|i| {
+                let handover = HandoverConfig {
+                    auto_accept: policies[i],
+                    consent_timeout: Duration::from_millis(300),
+                    reply_timeout: Duration::from_millis(400),
+                    resend: Duration::from_millis(100),
+                };
+                OperatorSession::new(
+                    SessionConfig {
+                        me: IDS[i],
+                        strength: Strength(STRENGTHS[i]),
+                        handover,
+                        drive: if drive[i] { vec![V] } else { vec![] },
+                        input: SessionInput::Device,
+                        heartbeat: Duration::from_millis(500),
+                        confirm_actions: false,
+                        request: None,
+                    },
+                    now,
+                )
+            })
+            .collect();
+        World {
+            now,
+            sessions,
+            gone: [None; 3],
+            vehicle: Arbiter::new(V, ArbiterConfig::default()),
+        }
+    }
+
+    fn stamp(&self) -> TimeT {
+        TimeT(1_000_000 + self.now.as_nanos() / 100)
+    }
+
+    fn live(&self, i: usize) -> bool {
+        self.gone[i].is_none()
+    }
+
+    /// Steps session `i` and delivers everything that follows, to quiescence.
+    fn step(&mut self, i: usize, event: SessionEvent) -> Result<(), TestCaseError> {
+        if !self.live(i) {
+            return Ok(());
+        }
+        let (now, stamp) = (self.now, self.stamp());
+        let effects = self.sessions[i].step(now, stamp, event);
+        self.deliver(i, effects)
+    }
+
+    fn deliver(&mut self, from: usize, effects: Vec<Effect>) -> Result<(), TestCaseError> {
+        let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
+        let mut budget = 10_000;
+        while let Some((i, effect)) = queue.pop_front() {
+            budget -= 1;
+            prop_assert!(budget > 0, "effects never settle");
+            match effect {
+                Effect::Write { writer: w, command } => {
+                    let s = &self.sessions[i];
+                    if w == Writer::Regular && command.command_type == CommandType::Movement {
+                        prop_assert!(s.input().2, "op {i} drives without live input");
+                        prop_assert!(
+                            !s.handover().has_yielded(V),
+                            "op {i} drives a vehicle it yielded"
+                        );
+                    }
+                    let strength = match w {
+                        Writer::Regular => Strength(STRENGTHS[i]),
+                        Writer::Priority => Strength::PRIORITY,
+                    };
+                    let d = self.vehicle.step(
+                        self.now,
+                        Event::Sample {
+                            writer: writer(i, w),
+                            strength,
+                            command,
+                            arrival: self.now,
+                        },
+                    );
+                    self.check_output(d.output)?;
+                }
+                Effect::Release { writer: w, .. } => {
+                    let d = self.vehicle.step(
+                        self.now,
+                        Event::Released {
+                            writer: writer(i, w),
+                        },
+                    );
+                    self.check_output(d.output)?;
+                }
+                Effect::Send(msg) => {
+                    let grant = match msg.ack {
+                        Ack::Accept => Some(Event::GrantAccepted {
+                            holder: msg.src_id,
+                            granted_by: msg.current_controller_id,
+                            stamp: msg.timestamp,
+                        }),
+                        Ack::Finish => Some(Event::GrantFinished {
+                            holder: msg.src_id,
+                            stamp: msg.timestamp,
+                        }),
+                        Ack::Request | Ack::Refuse => None,
+                    };
+                    if let Some(event) = grant.filter(|_| msg.dest_id == V) {
+                        let d = self.vehicle.step(self.now, event);
+                        self.check_output(d.output)?;
+                    }
+                    for j in 0..3 {
+                        if self.live(j) {
+                            let (now, stamp) = (self.now, self.stamp());
+                            let more = self.sessions[j].step(
+                                now,
+                                stamp,
+                                SessionEvent::RequestControl(msg),
+                            );
+                            queue.extend(more.into_iter().map(|e| (j, e)));
+                        }
+                    }
+                }
+                Effect::Report(_) | Effect::Confirm(_) | Effect::Refused(_) => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Values are applied only from an operator that drives the vehicle.
+    fn check_output(&self, output: Option<Output>) -> Result<(), TestCaseError> {
+        if let Some(Output::Apply { by, .. }) = output {
+            let i = IDS
+                .iter()
+                .position(|&d| d == by.device)
+                .ok_or_else(|| TestCaseError::fail("applied from an unknown device"))?;
+            if self.live(i) {
+                let s = &self.sessions[i];
+                let streams = s.streams();
+                // A replier standing by may see its own last values (fresh for one timeout)
+                // applied when the grant returns, just before its FINISH reaches it.
+                let drives = (streams.driving.contains(&V) && s.input().2)
+                    || streams.holding.contains(&V)
+                    || streams.standby.contains(&V);
+                prop_assert!(
+                    drives,
+                    "applied values from op {i}, which does not drive: {streams:?}"
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The vehicle's DeviceInfo to every session, as its heartbeat and owner changes send it.
+    fn publish_owner(&mut self) -> Result<(), TestCaseError> {
+        let info = DeviceInfo {
+            device_id: V,
+            name: "v".into(),
+            device_type: DeviceType::Vehicle,
+            controller_id: self.vehicle.controller_id(),
+        };
+        for i in 0..3 {
+            self.step(i, SessionEvent::DeviceInfo(info.clone()))?;
+        }
+        Ok(())
+    }
+
+    fn advance(&mut self, periods: u64) -> Result<(), TestCaseError> {
+        for _ in 0..periods {
+            self.now = self.now + Duration::from_millis(STREAM_MS);
+            let d = self.vehicle.step(self.now, Event::Tick);
+            self.check_output(d.output)?;
+            for i in 0..3 {
+                self.step(i, SessionEvent::Tick)?;
+                self.step(i, SessionEvent::StreamTick)?;
+            }
+            self.publish_owner()?;
+        }
+        Ok(())
+    }
+
+    fn check_ownership(&self) -> Result<(), TestCaseError> {
+        let owner = self.vehicle.owner().device();
+        let holders: Vec<usize> = (0..3)
+            .filter(|&i| self.live(i) && self.sessions[i].streams().holding.contains(&V))
+            .collect();
+        prop_assert!(holders.len() <= 1, "two grant holders: {holders:?}");
+        if let Some(d) = owner {
+            let i = IDS.iter().position(|&x| x == d).unwrap_or(usize::MAX);
+            prop_assert!(i < 3, "owned by unknown device {d}");
+            if self.live(i) {
+                let s = &self.sessions[i];
+                prop_assert!(
+                    s.streams_to(V) || s.handover().has_yielded(V),
+                    "owner {d} neither streams nor stands by: {:?}",
+                    s.streams()
+                );
+            }
+        }
+        if let Some(&h) = holders.first() {
+            // Only a grant the vehicle honours: a person may still accept a prompt for a
+            // vehicle released more than a command timeout ago; the vehicle then refuses the
+            // consent (not from its owner) and the requester's priority stream drives nothing.
+            if self.sessions[h].input().2 && self.vehicle.grant_holder() == Some(IDS[h]) {
+                prop_assert_eq!(owner, Some(IDS[h]), "a live grant holder does not own");
+            }
+            return Ok(());
+        }
+        let recently_gone = self.gone.iter().flatten().any(|&t| {
+            self.now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS + STREAM_MS)
+        });
+        let standby =
+            (0..3).any(|i| self.live(i) && !self.sessions[i].streams().standby.is_empty());
+        if recently_gone || standby || self.vehicle.grant_holder().is_some() {
+            return Ok(());
+        }
+        let strongest = (0..3)
+            .filter(|&i| {
+                self.live(i)
+                    && self.sessions[i].input().2
+                    && self.sessions[i].streams().driving.contains(&V)
+            })
+            .max_by_key(|&i| STRENGTHS[i])
+            .map(|i| IDS[i]);
+        prop_assert_eq!(
+            owner,
+            strongest,
+            "the strongest driving operator does not own"
+        );
+        Ok(())
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 10_000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn sessions_and_the_arbiter_agree_on_who_drives(
+        policies in [policy(), policy(), policy()],
+        drive in [any::<bool>(), any::<bool>(), any::<bool>()],
+        ops in prop::collection::vec(op(), 1..60),
+    ) {
+        let mut w = World::new(policies, drive);
+        w.publish_owner()?;
+        for op in ops {
+            match op {
+                Op::Sticks(i, t) => {
+                    let sticks = MovementCommand { throttle: t, ..MovementCommand::CENTRED };
+                    w.step(i, SessionEvent::Input(InputEvent::Axes(sticks)))?;
+                }
+                Op::Lost(i) => w.step(i, SessionEvent::Input(InputEvent::Lost { reason: "lost".into() }))?,
+                Op::DeadmanReleased(i) => w.step(i, SessionEvent::Input(InputEvent::Deadman(false)))?,
+                Op::Cmd(i, c) => w.step(i, SessionEvent::Command(c))?,
+                Op::Quit(i) => {
+                    if w.live(i) {
+                        let stamp = w.stamp();
+                        let effects = w.sessions[i].stop(stamp);
+                        // Stopping: until its releases land, the vehicle may still use its
+                        // values; it takes no more events.
+                        w.gone[i] = Some(w.now);
+                        w.deliver(i, effects)?;
+                        let participant = writer(i, Writer::Regular).participant;
+                        let d = w.vehicle.step(w.now, Event::ParticipantGone { participant });
+                        w.check_output(d.output)?;
+                    }
+                }
+                Op::Crash(i) => {
+                    if w.live(i) {
+                        w.gone[i] = Some(w.now);
+                    }
+                }
+                Op::Advance(n) => w.advance(n)?,
+            }
+            w.publish_owner()?;
+            w.check_ownership()?;
+        }
+    }
+}
