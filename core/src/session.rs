@@ -345,7 +345,7 @@ impl fmt::Display for Report {
             Report::InputLive { vehicles } => write!(f, "input live: driving {vehicles:?}"),
             Report::InputNotLive { reason, vehicles } => write!(
                 f,
-                "input not live ({reason}): released {vehicles:?} until it is live again"
+                "input not live: releasing control of {vehicles:?} ({reason}) until it is live"
             ),
             Report::Selected { vehicle: Some(v) } => write!(f, "vehicle {v} selected"),
             Report::Selected { vehicle: None } => write!(f, "no vehicle selected"),
@@ -388,7 +388,7 @@ impl fmt::Display for Report {
                 )
             }
             Report::RequestEnded { vehicle, outcome } => {
-                write!(f, "request for vehicle {vehicle} ended: {outcome:?}")
+                write!(f, "request ended: {outcome:?} (vehicle {vehicle})")
             }
             Report::GrantStarted { vehicle } => write!(
                 f,

@@ -39,7 +39,7 @@ pub fn input_latency(
     rate_hz: f64,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<(Stats, usize)> {
-    let mut rig = Rig::new(rove, "bench-input").map_err(anyhow::Error::msg)?;
+    let mut rig = Rig::new(rove, "bench-input")?;
     let vehicle_record = rig.vehicle(VEHICLE);
     // Start after DDS discovery (~1 s here); centred first (rove-inputs' no-jump rule).
     let start_ms = 3000.0;
@@ -249,7 +249,7 @@ pub fn run(
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let mut rig = Rig::new(rove, "bench").map_err(anyhow::Error::msg)?;
+    let mut rig = Rig::new(rove, "bench")?;
     let observer = rig.spawn("observer", &["status", "--events"]);
     let events_path = rig.procs[observer].log.clone();
     match options.scenario {
@@ -666,4 +666,63 @@ mod tests {
         };
         assert_eq!(svg(&[r]).matches("<rect").count(), 2);
     }
+}
+
+/// Where `rove bench handover` writes its results besides the table on stdout.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    /// One JSON object per scenario run.
+    pub json: Option<PathBuf>,
+    /// A box plot of all runs.
+    pub svg: Option<PathBuf>,
+}
+
+/// `rove bench handover`: runs `options` once per controller count in `controllers` (once
+/// for the late joiner), prints a table per count and one for all, and writes `outputs`.
+///
+/// # Errors
+/// As [`run`]; or an output file cannot be written.
+pub fn handover_cli(
+    rove: &Path,
+    options: Options,
+    controllers: &[usize],
+    outputs: &Outputs,
+) -> anyhow::Result<()> {
+    let mut reports = Vec::new();
+    for &n in controllers {
+        let options = Options {
+            controllers: n,
+            ..options.clone()
+        };
+        let report = run(rove, &options, &mut |line| eprintln!("  {line}"))?;
+        print!("{}", table(std::slice::from_ref(&report)));
+        reports.push(report);
+        if options.scenario == Scenario::Latejoin {
+            break;
+        }
+    }
+    println!();
+    print!("{}", table(&reports));
+    if let Some(path) = &outputs.json {
+        write_json(path, &reports)?;
+    }
+    if let Some(path) = &outputs.svg {
+        std::fs::write(path, svg(&reports))?;
+    }
+    Ok(())
+}
+
+/// `rove bench input`: replays `events` stick values at `rate_hz` and prints the latency
+/// summary.
+///
+/// # Errors
+/// As [`input_latency`].
+pub fn input_cli(rove: &Path, events: usize, rate_hz: f64) -> anyhow::Result<()> {
+    let (s, unmatched) = input_latency(rove, events, rate_hz, &mut |line| eprintln!("  {line}"))?;
+    println!(
+        "input read → vehicle output (ms), {events} events at {rate_hz} Hz: \
+         mean {:.3} stdev {:.3} min {:.3} p50 {:.3} p99 {:.3} max {:.3}; unmatched {unmatched}",
+        s.mean, s.stdev, s.min, s.p50, s.p99, s.max
+    );
+    Ok(())
 }

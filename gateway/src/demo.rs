@@ -15,42 +15,45 @@
 //! 5. the laptop crashes: after the 100 ms command timeout the vehicle enters failsafe.
 
 use rove_core::MonoTime;
-use rove_core::adapter::OutputAdapter;
+use rove_core::adapter::{InputEvent, OutputAdapter};
 use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, Owner, ParticipantId, WriterId};
-use rove_core::handover::{Action, Handover, HandoverConfig};
+use rove_core::handover::HandoverConfig;
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
-use rove_core::msg::{
-    Ack, CommandType, ControlCommand, DeviceId, Mode, MovementCommand, RequestControl, TimeT,
+use rove_core::msg::{Ack, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
+use rove_core::session::{
+    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
 use rove_core::sim::{SimAction, SimOutput};
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::time::Duration;
 
 const VEHICLE: DeviceId = 100;
 /// Operators stream at the default 50 Hz.
 const STREAM_PERIOD_MS: u64 = 20;
+/// The vehicle publishes its DeviceInfo at the default heartbeat, and at once on owner changes.
+const HEARTBEAT_MS: u64 = 500;
 /// The simulation's resolution: fine enough to show the 100 ms timeout to within 5 ms.
 const STEP_MS: u64 = 5;
 
-/// One scripted operator.
+/// One operator: the same session `rove operator` runs, with a scripted joystick.
 struct Operator {
     name: &'static str,
     id: DeviceId,
     strength: Strength,
-    handover: Handover,
-    /// Streams with its regular writer.
-    driving: bool,
-    /// Streams with its priority writer (holds a grant).
-    priority: bool,
-    /// Yielded: keeps its regular stream alive with PROBEs.
-    standby: bool,
+    session: OperatorSession,
+    /// Its process runs (joined, not quit or crashed).
+    running: bool,
 }
 
 impl Operator {
-    fn writer(&self, priority: bool) -> WriterId {
+    fn writer(&self, writer: Writer) -> WriterId {
         WriterId {
-            participant: ParticipantId(u128::try_from(self.id).unwrap_or_default()),
-            entity: if priority { 2 } else { 1 },
+            participant: ParticipantId(u128::from(self.id.unsigned_abs())),
+            entity: match writer {
+                Writer::Regular => 1,
+                Writer::Priority => 2,
+            },
         }
     }
 }
@@ -60,75 +63,232 @@ enum Cue {
     Join(usize),
     Quit(usize),
     Crash(usize),
-    Request(usize),
-    Consent(usize, bool),
-    Finish(usize),
+    Command(usize, Command),
+}
+
+/// The operators and the vehicle, joined by direct delivery (the network of the in-process
+/// story): every effect of a session reaches the vehicle's arbiter and the other sessions at
+/// once, in order.
+struct World<'p> {
+    ops: Vec<Operator>,
+    vehicle: Arbiter,
+    output: SimOutput,
+    summary: DemoSummary,
+    now: MonoTime,
+    t: u64,
+    print: &'p mut dyn FnMut(&str),
+}
+
+impl World<'_> {
+    fn stamp(&self) -> TimeT {
+        TimeT::from_unix(Duration::from_millis(self.t))
+    }
+
+    fn say(&mut self, line: &str) {
+        (self.print)(&format!("{:>8}  {line}", self.now.to_string()));
+    }
+
+    /// Steps operator `i` (if it runs) and delivers what follows.
+    fn step(&mut self, i: usize, event: SessionEvent) -> anyhow::Result<()> {
+        if !self.ops[i].running {
+            return Ok(());
+        }
+        let (now, stamp) = (self.now, self.stamp());
+        let effects = self.ops[i].session.step(now, stamp, event);
+        self.deliver(i, effects)
+    }
+
+    fn deliver(&mut self, from: usize, effects: Vec<Effect>) -> anyhow::Result<()> {
+        let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
+        while let Some((i, effect)) = queue.pop_front() {
+            let op = &self.ops[i];
+            let event = match effect {
+                Effect::Write { writer, command } => Some(Event::Sample {
+                    writer: op.writer(writer),
+                    strength: match writer {
+                        Writer::Regular => op.strength,
+                        Writer::Priority => Strength::PRIORITY,
+                    },
+                    command,
+                    arrival: self.now,
+                }),
+                Effect::Release { writer, .. } => Some(Event::Released {
+                    writer: op.writer(writer),
+                }),
+                Effect::Send(msg) => {
+                    for j in 0..self.ops.len() {
+                        if self.ops[j].running {
+                            let (now, stamp) = (self.now, self.stamp());
+                            let more = self.ops[j].session.step(
+                                now,
+                                stamp,
+                                SessionEvent::RequestControl(msg),
+                            );
+                            queue.extend(more.into_iter().map(|e| (j, e)));
+                        }
+                    }
+                    match msg.ack {
+                        Ack::Accept => Some(Event::GrantAccepted {
+                            holder: msg.src_id,
+                            granted_by: msg.current_controller_id,
+                            stamp: msg.timestamp,
+                        }),
+                        Ack::Finish => Some(Event::GrantFinished {
+                            holder: msg.src_id,
+                            stamp: msg.timestamp,
+                        }),
+                        Ack::Request | Ack::Refuse => None,
+                    }
+                }
+                Effect::Report(report) => {
+                    if !matches!(report, Report::Selected { .. } | Report::InputLive { .. }) {
+                        let line = format!("{}: {report}", op.name);
+                        self.say(&line);
+                    }
+                    None
+                }
+                Effect::Confirm(_) => None,
+                Effect::Refused(why) => anyhow::bail!("{}: {why}", op.name),
+            };
+            if let Some(event) = event {
+                self.vehicle_step(event)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn vehicle_step(&mut self, event: Event) -> anyhow::Result<()> {
+        let d = self.vehicle.step(self.now, event);
+        if let Some(change) = d.owner_change {
+            self.summary
+                .handovers
+                .push((self.t, change.to.device(), change.reason.to_string()));
+            let line = format!(
+                "vehicle {VEHICLE}: {} → {} ({})",
+                name(&self.ops, change.from),
+                name(&self.ops, change.to),
+                change.reason
+            );
+            self.say(&line);
+            self.publish_owner()?;
+        }
+        match d.output {
+            Some(Output::Apply { setpoint, .. }) => self.output.apply(self.now, &setpoint)?,
+            Some(Output::SafeState { .. }) => self.output.safe_state(self.now)?,
+            None => {}
+        }
+        Ok(())
+    }
+
+    /// The vehicle's DeviceInfo, to every operator.
+    fn publish_owner(&mut self) -> anyhow::Result<()> {
+        let info = DeviceInfo {
+            device_id: VEHICLE,
+            name: "sim vehicle".into(),
+            device_type: DeviceType::Vehicle,
+            controller_id: self.vehicle.controller_id(),
+        };
+        for i in 0..self.ops.len() {
+            self.step(i, SessionEvent::DeviceInfo(info.clone()))?;
+        }
+        Ok(())
+    }
 }
 
 /// Runs the demo. With `pace`, waits in real time between events so it can be watched; the
 /// story and its output are the same either way. Returns the printed story.
 pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummary> {
     let h = Hierarchy::STANDARD;
-    let make = |name, id, level, class| -> anyhow::Result<Operator> {
+    let make = |name, id, level, class, drive: &[DeviceId]| -> anyhow::Result<Operator> {
         let strength = h.strength(level, class, 0)?;
+        let config = SessionConfig {
+            me: id,
+            strength,
+            handover: HandoverConfig::default(),
+            drive: drive.to_vec(),
+            input: SessionInput::Device,
+            heartbeat: Duration::from_millis(HEARTBEAT_MS),
+            confirm_actions: false,
+            request: None,
+        };
         Ok(Operator {
             name,
             id,
             strength,
-            handover: Handover::new(id, strength, HandoverConfig::default()),
-            driving: false,
-            priority: false,
-            standby: false,
+            session: OperatorSession::new(config, MonoTime::ZERO),
+            running: false,
         })
     };
-    let mut ops = vec![
+    let ops = vec![
         make(
             "laptop (stationary)",
             11,
             Level::Stationary,
             DeviceClass::Laptop,
+            &[VEHICLE],
         )?,
-        make("phone (mobile)", 12, Level::Mobile, DeviceClass::Phone)?,
-        make("tablet (remote)", 13, Level::Remote, DeviceClass::Tablet)?,
+        make(
+            "phone (mobile)",
+            12,
+            Level::Mobile,
+            DeviceClass::Phone,
+            &[VEHICLE],
+        )?,
+        make(
+            "tablet (remote)",
+            13,
+            Level::Remote,
+            DeviceClass::Tablet,
+            &[],
+        )?,
     ];
+    let vehicle = Command::Request { vehicle: VEHICLE };
     let script = [
         (100, Cue::Join(0)),
         (600, Cue::Join(1)),
         (1200, Cue::Quit(1)),
-        (1800, Cue::Request(2)),
-        (2300, Cue::Consent(0, true)),
-        (3300, Cue::Finish(2)),
+        (1700, Cue::Join(2)),
+        (1800, Cue::Command(2, vehicle)),
+        (2300, Cue::Command(0, Command::Accept { vehicle: VEHICLE })),
+        (3300, Cue::Command(2, Command::Finish { vehicle: VEHICLE })),
         (4000, Cue::Crash(0)),
     ];
     let end_ms = 4500;
 
-    let mut vehicle = Arbiter::new(VEHICLE, ArbiterConfig::default());
-    let mut output = SimOutput::default();
-    let mut summary = DemoSummary::default();
-    output.safe_state(MonoTime::ZERO)?;
-    print(&format!(
+    let mut print = |line: &str| print(line);
+    let mut world = World {
+        ops,
+        vehicle: Arbiter::new(VEHICLE, ArbiterConfig::default()),
+        output: SimOutput::default(),
+        summary: DemoSummary::default(),
+        now: MonoTime::ZERO,
+        t: 0,
+        print: &mut print,
+    };
+    world.output.safe_state(MonoTime::ZERO)?;
+    let line = format!(
         "rove demo: vehicle {VEHICLE} (sim output) and operators {} — in-process simulation of \
-         the control core",
-        ops.iter()
+         the control core (the operators run rove operator's session)",
+        world
+            .ops
+            .iter()
             .map(|o| format!("{} id {} strength {}", o.name, o.id, o.strength))
             .collect::<Vec<_>>()
             .join(", ")
-    ));
+    );
+    (world.print)(&line);
 
     let mut next_cue = 0;
     let started = std::time::Instant::now();
     for t in (0..=end_ms).step_by(STEP_MS as usize) {
-        let now = MonoTime::from_millis(t);
+        world.t = t;
+        world.now = MonoTime::from_millis(t);
         if pace {
             let due = Duration::from_millis(t);
             if let Some(wait) = due.checked_sub(started.elapsed()) {
                 std::thread::sleep(wait);
             }
         }
-        let mut log = Vec::new();
-        let mut events = Vec::new();
-        let mut bus: Vec<RequestControl> = Vec::new();
-
         // Cues due now.
         while let Some((at, cue)) = script.get(next_cue).copied() {
             if at > t {
@@ -137,109 +297,63 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
             next_cue += 1;
             match cue {
                 Cue::Join(i) => {
-                    ops[i].driving = true;
-                    log.push(format!("{} starts driving", ops[i].name));
+                    world.ops[i].running = true;
+                    let line = format!("{} starts", world.ops[i].name);
+                    world.say(&line);
+                    // DeviceInfo is TRANSIENT_LOCAL: a joiner gets the vehicle's at once.
+                    world.publish_owner()?;
                 }
                 Cue::Quit(i) => {
-                    ops[i].driving = false;
-                    log.push(format!("{} quits (leaves the network)", ops[i].name));
-                    events.push(Event::ParticipantGone {
-                        participant: ops[i].writer(false).participant,
-                    });
+                    let line =
+                        format!("{} quits (releases, leaves the network)", world.ops[i].name);
+                    world.say(&line);
+                    let stamp = world.stamp();
+                    let effects = world.ops[i].session.stop(stamp);
+                    world.deliver(i, effects)?;
+                    world.ops[i].running = false;
+                    let participant = world.ops[i].writer(Writer::Regular).participant;
+                    world.vehicle_step(Event::ParticipantGone { participant })?;
                 }
                 Cue::Crash(i) => {
-                    ops[i].driving = false;
-                    log.push(format!(
-                        "{} crashes (stops sending, no release)",
-                        ops[i].name
-                    ));
+                    world.ops[i].running = false;
+                    let line = format!("{} crashes (stops sending, no release)", world.ops[i].name);
+                    world.say(&line);
                 }
-                Cue::Request(i) => {
-                    let owner = vehicle.controller_id();
-                    log.push(format!("{} requests control from {owner}", ops[i].name));
-                    let stamp = TimeT::from_unix(Duration::from_millis(t));
-                    let actions = ops[i].handover.request(now, VEHICLE, owner, stamp)?;
-                    handle(&mut ops, i, actions, &mut bus, &mut events, &mut log);
-                }
-                Cue::Consent(i, accept) => {
-                    let verdict = if accept { "accepts" } else { "refuses" };
-                    log.push(format!("{}'s operator {verdict}", ops[i].name));
-                    let actions = ops[i].handover.decide(now, VEHICLE, accept)?;
-                    handle(&mut ops, i, actions, &mut bus, &mut events, &mut log);
-                }
-                Cue::Finish(i) => {
-                    log.push(format!("{} finishes its grant", ops[i].name));
-                    let actions = ops[i].handover.finish(VEHICLE)?;
-                    handle(&mut ops, i, actions, &mut bus, &mut events, &mut log);
+                Cue::Command(i, command) => {
+                    let line = format!("{}'s operator: {}", world.ops[i].name, command.name());
+                    world.say(&line);
+                    world.step(i, SessionEvent::Command(command))?;
                 }
             }
         }
-        // Deliver RequestControl samples to every other operator and to the vehicle. They were
-        // sent before anything the same actions did to the streams, so the vehicle sees them
-        // first.
-        let mut grants = Vec::new();
-        while let Some(msg) = bus.pop() {
-            match msg.ack {
-                Ack::Accept => grants.push(Event::GrantAccepted {
-                    holder: msg.src_id,
-                    granted_by: msg.current_controller_id,
-                    stamp: msg.timestamp,
-                }),
-                Ack::Finish => grants.push(Event::GrantFinished {
-                    holder: msg.src_id,
-                    stamp: msg.timestamp,
-                }),
-                Ack::Request | Ack::Refuse => {}
-            }
-            for i in 0..ops.len() {
-                let actions = ops[i].handover.on_message(now, &msg);
-                handle(&mut ops, i, actions, &mut bus, &mut events, &mut log);
-            }
-        }
-        grants.append(&mut events);
-        let mut events = grants;
-        // Streams at 50 Hz.
         if t % STREAM_PERIOD_MS == 0 {
-            for op in &ops {
-                for (streaming, priority) in [(op.driving, false), (op.priority, true)] {
-                    if streaming {
-                        events.push(sample(op, priority, CommandType::Movement, now, t));
-                    }
-                }
-                if op.standby {
-                    events.push(sample(op, false, CommandType::Probe, now, t));
-                }
+            // A gentle sweep on every joystick, so that applied values visibly change; the
+            // session sends each change at once, and keeps standby streams alive.
+            let throttle = ((t / STREAM_PERIOD_MS) % 200) as i16 * 100 - 10_000;
+            let sticks = MovementCommand {
+                throttle,
+                ..MovementCommand::CENTRED
+            };
+            for i in 0..world.ops.len() {
+                world.step(i, SessionEvent::Input(InputEvent::Axes(sticks)))?;
+                world.step(i, SessionEvent::StreamTick)?;
             }
         }
-        events.push(Event::Tick);
-
-        for line in log {
-            print(&format!("{:>8}  {line}", now.to_string()));
+        if t % HEARTBEAT_MS == 0 {
+            world.publish_owner()?;
         }
-        for event in events {
-            let d = vehicle.step(now, event);
-            if let Some(change) = d.owner_change {
-                summary
-                    .handovers
-                    .push((t, change.to.device(), change.reason.to_string()));
-                print(&format!(
-                    "{:>8}  vehicle {VEHICLE}: {} → {} ({})",
-                    now.to_string(),
-                    name(&ops, change.from),
-                    name(&ops, change.to),
-                    change.reason
-                ));
-            }
-            match d.output {
-                Some(Output::Apply { setpoint, .. }) => output.apply(now, &setpoint)?,
-                Some(Output::SafeState { .. }) => output.safe_state(now)?,
-                None => {}
-            }
+        for i in 0..world.ops.len() {
+            world.step(i, SessionEvent::Tick)?;
         }
+        world.vehicle_step(Event::Tick)?;
     }
-    summary.outputs = output.records().count();
-    summary.safe_at_end = matches!(output.last().map(|r| r.action), Some(SimAction::SafeState));
-    print(&format!(
+    let mut summary = world.summary;
+    summary.outputs = world.output.records().count();
+    summary.safe_at_end = matches!(
+        world.output.last().map(|r| r.action),
+        Some(SimAction::SafeState)
+    );
+    let line = format!(
         "done: {} handovers, {} outputs recorded, outputs {} at the end",
         summary.handovers.len(),
         summary.outputs,
@@ -248,7 +362,8 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
         } else {
             "driving"
         }
-    ));
+    );
+    print(&line);
     Ok(summary)
 }
 
@@ -259,7 +374,7 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
 /// The namespace cannot be created (not root, no iproute2), or a step's outcome never shows.
 pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> anyhow::Result<()> {
     use crate::harness::{Rig, wait_for_output, wall_us};
-    let mut rig = Rig::new(rove, "demo").map_err(anyhow::Error::msg)?;
+    let mut rig = Rig::new(rove, "demo")?;
     let record = rig.vehicle(VEHICLE);
     print(&format!(
         "vehicle {VEHICLE} (sim output) started in a private network namespace (loopback only)"
@@ -326,83 +441,6 @@ pub struct DemoSummary {
     pub safe_at_end: bool,
 }
 
-fn sample(op: &Operator, priority: bool, kind: CommandType, now: MonoTime, t: u64) -> Event {
-    // A gentle sine-like sweep so that applied values visibly change.
-    let throttle = ((t / STREAM_PERIOD_MS) % 200) as i16 * 100 - 10_000;
-    Event::Sample {
-        writer: op.writer(priority),
-        strength: if priority {
-            Strength::PRIORITY
-        } else {
-            op.strength
-        },
-        command: ControlCommand {
-            src_id: op.id,
-            dest_id: VEHICLE,
-            command_type: kind,
-            movement_command: MovementCommand {
-                throttle,
-                ..MovementCommand::CENTRED
-            },
-            mode: Mode::Manual,
-            timestamp: TimeT::from_unix(Duration::from_millis(t)),
-        },
-        arrival: now,
-    }
-}
-
-/// Carries out one operator's handover actions.
-fn handle(
-    ops: &mut [Operator],
-    i: usize,
-    actions: Vec<Action>,
-    bus: &mut Vec<RequestControl>,
-    events: &mut Vec<Event>,
-    log: &mut Vec<String>,
-) {
-    for action in actions {
-        let op = &mut ops[i];
-        match action {
-            Action::Send(msg) => bus.push(msg),
-            Action::AskOperator { requester, .. } => log.push(format!(
-                "{} is asked to give control to {requester}",
-                op.name
-            )),
-            Action::Yield { .. } => {
-                op.driving = false;
-                op.standby = true;
-                log.push(format!("{} yields (stops driving, stands by)", op.name));
-            }
-            Action::EndStandby { .. } => op.standby = false,
-            Action::Resume { .. } => {
-                op.driving = true;
-                op.standby = false;
-                log.push(format!("{} resumes driving", op.name));
-            }
-            Action::StartPriorityDriving { .. } => {
-                op.priority = true;
-                log.push(format!("{} drives with its priority writer", op.name));
-            }
-            Action::StopPriorityDriving { .. } => {
-                op.priority = false;
-                events.push(Event::Released {
-                    writer: op.writer(true),
-                });
-            }
-            Action::RequestEnded { outcome, .. } => log.push(format!(
-                "{}: its request ended: {}",
-                op.name,
-                format!("{outcome:?}").to_lowercase()
-            )),
-            Action::PromptClosed { outcome, .. } => log.push(format!(
-                "{}: consent prompt closed: {}",
-                op.name,
-                format!("{outcome:?}").to_lowercase()
-            )),
-        }
-    }
-}
-
 fn name(ops: &[Operator], owner: Owner) -> String {
     match owner {
         Owner::Failsafe => "failsafe".into(),
@@ -439,7 +477,8 @@ mod tests {
             [
                 (Some(11), "joined"),
                 (Some(12), "preempted"),
-                (Some(11), "left"),
+                // The phone quits as `rove operator` does: it releases before it leaves.
+                (Some(11), "released"),
                 (Some(13), "granted"),
                 // The laptop stood by with PROBEs: no detour through the failsafe.
                 (Some(11), "grant returned"),

@@ -73,6 +73,12 @@ impl Proc {
     }
 }
 
+/// A private network namespace could not be created (not root, or no iproute2): callers that
+/// can do without real processes (the demo) fall back to running in-process.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot create a network namespace (needs root and iproute2): {0}")]
+pub struct NoNamespace(pub String);
+
 /// One world: a namespace, a directory, processes.
 #[derive(Debug)]
 pub struct Rig {
@@ -91,7 +97,7 @@ impl Rig {
     ///
     /// # Errors
     /// The namespace cannot be created (not root, no iproute2).
-    pub fn new(rove: &Path, test: &str) -> Result<Rig, String> {
+    pub fn new(rove: &Path, test: &str) -> Result<Rig, NoNamespace> {
         let n = NEXT.fetch_add(1, Ordering::SeqCst);
         let ns = format!("rove-{}-{n}", std::process::id());
         let dir = std::env::temp_dir().join(format!("rove-it-{}-{n}-{test}", std::process::id()));
@@ -111,9 +117,7 @@ impl Rig {
             vec!["ip", "-n", &ns, "route", "add", "224.0.0.0/4", "dev", "lo"],
         ];
         for cmd in setup {
-            run(&cmd).map_err(|e| {
-                format!("cannot create a network namespace (needs root and iproute2): {e}")
-            })?;
+            run(&cmd).map_err(NoNamespace)?;
         }
         Ok(rig)
     }

@@ -2,12 +2,12 @@
 //! the demo (DESIGN.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::{bench, config, demo, operator, runtime, status, vehicle};
+use rove_gateway::{bench, config, demo, harness, operator, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
 #[derive(Debug, Parser)]
-#[command(version, about)]
+#[command(name = "rove", version, about)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -239,13 +239,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             } else {
                 runtime::init_logging(config.common.log_filter.as_deref());
             }
-            tokio_runtime()?.block_on(operator::run(
-                config,
-                &path,
+            let options = operator::Options {
+                config_path: path,
                 request,
-                record.as_deref(),
+                record,
                 console,
-            ))
+            };
+            tokio_runtime()?.block_on(async {
+                operator::run(config, options, runtime::shutdown_signal()?).await
+            })
         }
         Command::Status {
             domain,
@@ -276,7 +278,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 match demo::run_processes(&rove, &mut |line| println!("{line}")) {
                     Ok(()) => return Ok(()),
                     // Without namespaces (not root), fall back to the in-process story.
-                    Err(e) if e.to_string().contains("network namespace") => {
+                    Err(e) if e.is::<harness::NoNamespace>() => {
                         eprintln!("rove demo: {e:#}; playing the story in-process instead");
                     }
                     Err(e) => return Err(e),
@@ -305,17 +307,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => show_input(&device, &config),
         Command::Bench {
             what: BenchCommand::Input { events, rate_hz },
-        } => {
-            let rove = std::env::current_exe()?;
-            let (s, unmatched) =
-                bench::input_latency(&rove, events, rate_hz, &mut |line| eprintln!("  {line}"))?;
-            println!(
-                "input read → vehicle output (ms), {events} events at {rate_hz} Hz: \
-                 mean {:.3} stdev {:.3} min {:.3} p50 {:.3} p99 {:.3} max {:.3}; unmatched {unmatched}",
-                s.mean, s.stdev, s.min, s.p50, s.p99, s.max
-            );
-            Ok(())
-        }
+        } => bench::input_cli(&std::env::current_exe()?, events, rate_hz),
         Command::Bench {
             what:
                 BenchCommand::Handover {
@@ -327,31 +319,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     svg,
                 },
         } => {
-            let rove = std::env::current_exe()?;
-            let mut reports = Vec::new();
-            for n in controllers {
-                let options = bench::Options {
-                    scenario,
-                    controllers: n,
-                    devices,
-                    runs,
-                };
-                let report = bench::run(&rove, &options, &mut |line| eprintln!("  {line}"))?;
-                print!("{}", bench::table(std::slice::from_ref(&report)));
-                reports.push(report);
-                if scenario == bench::Scenario::Latejoin {
-                    break;
-                }
-            }
-            println!();
-            print!("{}", bench::table(&reports));
-            if let Some(path) = json {
-                bench::write_json(&path, &reports)?;
-            }
-            if let Some(path) = svg {
-                std::fs::write(&path, bench::svg(&reports))?;
-            }
-            Ok(())
+            let options = bench::Options {
+                scenario,
+                controllers: 0,
+                devices,
+                runs,
+            };
+            let outputs = bench::Outputs { json, svg };
+            bench::handover_cli(&std::env::current_exe()?, options, &controllers, &outputs)
         }
         Command::CheckConfig { file, print } => {
             let loaded = config::load_any(&file)?;

@@ -88,7 +88,10 @@ fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator(
         "an explicit release hands over directly, with no failsafe in between"
     );
     let log = std::fs::read_to_string(&rig.procs[pad].log).unwrap_or_default();
-    assert!(log.contains("input not live: releasing control"), "{log}");
+    assert!(
+        log.contains("input not live: releasing control of"),
+        "{log}"
+    );
     assert!(
         rig.procs[pad].is_running(),
         "a lost input does not stop the operator"
