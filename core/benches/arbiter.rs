@@ -1,4 +1,4 @@
-//! Per-sample cost of the ownership arbiter with 32 live writers (issue 3).
+//! Per-sample cost of the ownership arbiter with 32 live writers.
 //!
 //! Each iteration steps one ControlCommand sample through the arbiter, cycling through 32
 //! writers of mixed strengths and advancing the clock by 625 µs per sample (32 writers × 50 Hz,

@@ -1,4 +1,4 @@
-//! The per-vehicle ownership arbiter: who drives this vehicle, at every instant (DESIGN.md §4).
+//! The per-vehicle ownership arbiter: who drives this vehicle, at every instant (docs/design.md §4).
 //!
 //! DDS's EXCLUSIVE ownership is not arbitrated by rustdds, so the vehicle does it here, as a pure
 //! state machine: [`Arbiter::step`] takes `now` and one [`Event`] and returns a [`Decision`].
@@ -289,7 +289,7 @@ pub struct ArbiterConfig {
     /// Most sources tracked at once. Bounds memory against a flood of writers: when the table is
     /// full, silent sources are forgotten to make room; if all are live, the new one is ignored.
     /// Sources are otherwise kept until their writer or participant leaves. 256 is far above any
-    /// real fleet (DESIGN.md's benchmarks use ≤ 32).
+    /// real fleet (the handover benchmarks use ≤ 32).
     pub max_sources: usize,
 }
 

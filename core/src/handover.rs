@@ -1,4 +1,4 @@
-//! Active handover (DESIGN.md §4): one operator's REQUEST / ACCEPT / REFUSE / FINISH state
+//! Active handover (docs/design.md §4): one operator's REQUEST / ACCEPT / REFUSE / FINISH state
 //! machines, as requester and as replier, for every vehicle it deals with.
 //!
 //! All messages of one handover carry the same `(src_id, dest_id, current_controller_id)` triple:

@@ -1,4 +1,4 @@
-//! The control hierarchy (DESIGN.md §3): level × device class (+ fine offset) → DDS ownership
+//! The control hierarchy (docs/design.md §3): level × device class (+ fine offset) → DDS ownership
 //! strength.
 //!
 //! | level | desktop | laptop | tablet | phone |
@@ -125,7 +125,7 @@ impl Default for Hierarchy {
 }
 
 impl Hierarchy {
-    /// The table of DESIGN.md §3.
+    /// The table of docs/design.md §3.
     pub const STANDARD: Hierarchy = Hierarchy {
         base: [
             [110, 120, 130, 140], // remote

@@ -14,7 +14,7 @@
 //! # Layout
 //! - [`msg`]: the seed IDL types (DeviceInfo, ControlCommand, RequestControl), wire-exact.
 //! - [`hierarchy`]: level × device class → ownership strength.
-//! - [`arbiter`]: the per-vehicle ownership state machine (DESIGN.md §4).
+//! - [`arbiter`]: the per-vehicle ownership state machine (docs/design.md §4).
 //! - [`handover`]: REQUEST / ACCEPT / REFUSE / FINISH for requester and replier.
 //! - [`session`]: the operator's decisions (streaming, input liveness, commands, handover).
 //! - [`watchdog`]: the command timeout and liveness watchdog.

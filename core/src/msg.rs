@@ -1,4 +1,4 @@
-//! The seed's wire data model (DESIGN.md §2), exactly: three topic types and their enums.
+//! The seed's wire data model (docs/design.md §2), exactly: three topic types and their enums.
 //!
 //! Field order here *is* the wire order: serde serialises struct fields in declaration order and
 //! the DDS binding puts these values on the wire with a plain-CDR (XCDR1) serde adapter, unchanged.
@@ -21,7 +21,7 @@ pub type DeviceId = i64;
 /// Full scale of a movement axis: axes are ±32767; −32768 is treated as −32767.
 pub const AXIS_MAX: i16 = i16::MAX;
 
-/// Wire type names: a foreign DDS matches topics on name *and* type name (DESIGN.md §2).
+/// Wire type names: a foreign DDS matches topics on name *and* type name (docs/design.md §2).
 pub mod type_names {
     /// Type name of [`super::DeviceInfo`].
     pub const DEVICE_INFO: &str = "RoVe::DeviceInfo";

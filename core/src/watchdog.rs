@@ -11,7 +11,7 @@ use std::time::Duration;
 
 /// How long a command stream may stay silent before its sender stops counting as live.
 ///
-/// Default 100 ms (DESIGN.md §4): five keep-alive periods at the operators' default 50 Hz, so a
+/// Default 100 ms (docs/design.md §4): five keep-alive periods at the operators' default 50 Hz, so a
 /// single lost or late sample never drops control, while a vehicle stops within a tenth of a second
 /// of losing its driver. Shorter risks dropping control on a busy Wi-Fi link; longer lets a
 /// vehicle run on after its operator is gone.
@@ -19,7 +19,7 @@ use std::time::Duration;
 pub struct CommandTimeout(Duration);
 
 impl CommandTimeout {
-    /// DESIGN.md §4 default.
+    /// docs/design.md §4 default.
     pub const DEFAULT: CommandTimeout = CommandTimeout(Duration::from_millis(100));
     /// Smallest accepted value: below one scheduler tick a stream can never stay live.
     pub const MIN: Duration = Duration::from_millis(5);

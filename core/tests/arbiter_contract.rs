@@ -1,4 +1,4 @@
-//! The ownership contract of DESIGN.md §4, one named test per rule, as `(t_ms, event)` timelines
+//! The ownership contract of docs/design.md §4, one named test per rule, as `(t_ms, event)` timelines
 //! against manual time. The twist_mux black-box cases (`test/system_blackbox.py`: empty, basic,
 //! priorities, fallback after timeout, locks) are ported at the end as deterministic tests.
 

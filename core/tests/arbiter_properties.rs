@@ -2,7 +2,7 @@
 //!
 //! A small shadow model, written independently of the arbiter and in a plainer style, tracks
 //! what the contract needs: which samples count, who is live, who holds the grant. After every
-//! step the invariants of DESIGN.md §4 are checked against it:
+//! step the invariants of docs/design.md §4 are checked against it:
 //!
 //! - at most one owner, and `controller_id` always names it;
 //! - the owner is the strongest eligible live controller (the grant holder's priority stream

@@ -1,4 +1,4 @@
-//! Active handover (DESIGN.md §4): REQUEST / ACCEPT / REFUSE / FINISH for requester and replier,
+//! Active handover (docs/design.md §4): REQUEST / ACCEPT / REFUSE / FINISH for requester and replier,
 //! consent timeout, auto-accept policy, duplicates, out-of-order and unknown messages — and an
 //! end-to-end exchange between two operators and the vehicle's arbiter over a simulated bus.
 

@@ -1,4 +1,4 @@
-//! Configuration files: one TOML file per device (DESIGN.md §7).
+//! Configuration files: one TOML file per device (docs/design.md §7).
 //!
 //! Two stages: the raw serde structs below reject unknown keys and only parse; `validate()`
 //! turns them into [`VehicleConfig`] / [`OperatorConfig`], collecting every problem. Every error
@@ -249,7 +249,7 @@ pub struct RawOperator {
     pub log: LogSection,
     /// `[operator]`.
     pub operator: OperatorSection,
-    /// `[hierarchy]`: a custom strength table (absent: DESIGN.md §3).
+    /// `[hierarchy]`: a custom strength table (absent: docs/design.md §3).
     #[serde(default)]
     pub hierarchy: HierarchyTable,
     /// `[handover]`.

@@ -1,4 +1,4 @@
-//! The DDS binding: rove's three seed topics on rustdds, with the seed's QoS (DESIGN.md §2).
+//! The DDS binding: rove's three seed topics on rustdds, with the seed's QoS (docs/design.md §2).
 //!
 //! `rove-core` holds the wire types and knows nothing of DDS; this module wraps them in keyed
 //! newtypes (`#[serde(transparent)]`, so the bytes on the wire are exactly the core type's CDR),
@@ -13,7 +13,7 @@
 //! Known limitations (intentional, not bugs):
 //! - rustdds has no `unregister_instance`; a graceful release is a `dispose` of the instance.
 //! - A foreign *exclusive reader* does not match rove's exclusive writers (a rustdds QoS parsing
-//!   bug, see `../shared/notes/rustdds.md`); foreign exclusive writers → rove readers do match.
+//!   bug, see `docs/rustdds.md`); foreign exclusive writers → rove readers do match.
 
 use anyhow::Context;
 use rove_core::arbiter::{ParticipantId, WriterId};

@@ -6,7 +6,7 @@
 //! [`run`] (`--in-process`, and the fallback without namespaces) plays the same story on the
 //! control core alone, on a virtual clock, with the network replaced by direct delivery.
 //!
-//! The story (default strengths, DESIGN.md §3):
+//! The story (default strengths, docs/design.md §3):
 //! 1. a stationary laptop (220) joins and drives;
 //! 2. a mobile phone (340) joins and preempts it;
 //! 3. the phone quits gracefully: control falls back to the laptop at once;

@@ -1,5 +1,5 @@
 //! Runs real `rove` processes in a network namespace of their own (loopback with multicast, as
-//! `../shared/notes/rustdds.md` requires): used by the multi-process tests, `rove demo` and
+//! `docs/rustdds.md` requires): used by the multi-process tests, `rove demo` and
 //! `rove bench`. Children are killed and the namespace deleted on drop; when a test panics every
 //! child's log is printed. Needs root and iproute2 (`ip netns`).
 
@@ -32,12 +32,15 @@ fn run(args: &[&str]) -> Result<(), String> {
 /// A running `rove` process.
 #[derive(Debug)]
 pub struct Proc {
+    /// Its name in the rig (`vehicle-100`, `operator-11`), also its log's.
     pub name: String,
     child: Child,
+    /// Its stderr (the log).
     pub log: PathBuf,
 }
 
 impl Proc {
+    /// The process id.
     pub fn pid(&self) -> u32 {
         self.child.id()
     }
@@ -122,6 +125,7 @@ impl Rig {
         Ok(rig)
     }
 
+    /// Writes `text` to `name` in the rig's directory; returns the path.
     pub fn write(&self, name: &str, text: &str) -> PathBuf {
         let path = self.dir.join(name);
         std::fs::write(&path, text).expect("write config");
@@ -263,12 +267,17 @@ impl Drop for Rig {
 /// One output of the vehicle's record.
 #[derive(Debug, Clone)]
 pub struct Out {
+    /// Wall-clock time of the output, µs since the Unix epoch.
     pub wall_us: u64,
+    /// `apply` or `safe`.
     pub action: String,
+    /// The owning device (`None`: the failsafe).
     pub owner: Option<i64>,
+    /// The applied throttle, if values were applied.
     pub throttle: Option<i64>,
 }
 
+/// Every output recorded so far in the vehicle's `--record` file.
 pub fn records(path: &Path) -> Vec<Out> {
     let mut follow = Follow::new(path);
     follow.poll();

@@ -12,6 +12,8 @@
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
 //! - [`sdnotify`]: systemd readiness, status, watchdog keep-alives and stopping.
 
+#![deny(missing_docs)]
+
 pub mod bench;
 pub mod config;
 pub mod dds;

@@ -1,5 +1,5 @@
 //! `rove`: the gateway binary — vehicle and operator roles over DDS, `status`, `check-config` and
-//! the demo (DESIGN.md §8). `main` only parses and maps the result to an exit code.
+//! the demo (docs/design.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
 use rove_gateway::{bench, config, demo, harness, operator, runtime, status, vehicle};

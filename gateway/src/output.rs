@@ -1,7 +1,7 @@
 //! The vehicle's output adapter as the gateway runs it: opened from `[output]`, kept in the safe
 //! state while its device fails, retried, and reopened if it could not be opened at start.
 //!
-//! Policy (issue 5): a failing output never stops the gateway. A write that fails puts the
+//! Policy: a failing output never stops the gateway. A write that fails puts the
 //! outputs in the safe state (as far as the device still takes writes) and holds them there for
 //! [`RETRY`]; then commands are applied again, which retries the device (the PWM backends redo a
 //! channel's set-up on the next write). A device that cannot be opened at start for a transient

@@ -1,4 +1,4 @@
-//! The operator's local API end to end (issue 10): two operators and a vehicle as processes, in
+//! The operator's local API end to end: two operators and a vehicle as processes, in
 //! a network namespace of the test's own; the operators are driven only through their Unix
 //! sockets (newline-delimited JSON, docs/api.md), as a web or mobile front end would.
 

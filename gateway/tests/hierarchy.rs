@@ -1,4 +1,4 @@
-//! The DDS hierarchy between real processes (issue 4): passive and active handover, failsafe,
+//! The DDS hierarchy between real processes: passive and active handover, failsafe,
 //! device lists. Each test runs `rove` processes in a network namespace of its own.
 //!
 //! Latencies are measured and printed (run with `--nocapture` to see them), never asserted:

@@ -1,4 +1,4 @@
-//! Inputs end to end (issue 7): a recorded joystick stream (rove-inputs' replay source) →
+//! Inputs end to end: a recorded joystick stream (rove-inputs' replay source) →
 //! operator process → vehicle process with the sim adapter; unplugging the joystick releases
 //! the vehicle explicitly, and the next operator in the hierarchy drives at once. Each test runs
 //! in a network namespace of its own.

@@ -1,4 +1,4 @@
-//! End to end with an autopilot (issue 6): operator process → vehicle process with the MAVLink
+//! End to end with an autopilot: operator process → vehicle process with the MAVLink
 //! adapter → the pymavlink autopilot of `adapters/mavlink/tests/fake_autopilot.py`, all inside a
 //! network namespace of the test's own (DDS on its loopback, MAVLink on UDP loopback).
 //!

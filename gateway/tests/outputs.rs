@@ -1,4 +1,4 @@
-//! Output adapters in the real gateway (issue 5): an operator process drives a vehicle process
+//! Output adapters in the real gateway: an operator process drives a vehicle process
 //! whose `[output]` is a PWM vehicle on the sysfs backend, over a temp directory standing in for
 //! `/sys/class/pwm`; and `rove failsafe` writes the safe state and exits.
 

@@ -1,4 +1,4 @@
-//! The Debian package (issue 8). `[package.metadata.deb]` in gateway/Cargo.toml must install
+//! The Debian package. `[package.metadata.deb]` in gateway/Cargo.toml must install
 //! the binary, every unit in systemd/, the configs the units name (as conffiles), the examples
 //! and the deployment guide.
 //!

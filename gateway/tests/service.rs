@@ -1,4 +1,4 @@
-//! The systemd integration (issue 8), tested without systemd (it is not PID 1 here and must
+//! The systemd integration, tested without systemd (it is not PID 1 here and must
 //! never be started as PID 1): the test plays the service manager's side of sd_notify, runs the
 //! unit files' own `ExecStopPost=` command line after a SIGKILL, and checks what the unit files
 //! promise. `systemd-analyze verify` and `security` run from `systemd/check-units` in CI.

@@ -1,7 +1,7 @@
 //! Stick values → MAVLink control fields, and the values that release or ignore a channel.
 //! Pure: no I/O, no clock.
 //!
-//! RC_CHANNELS_OVERRIDE rules (MAVLink spec, confirmed on ArduPilot, `../shared/notes/ardupilot.md`):
+//! RC_CHANNELS_OVERRIDE rules (MAVLink spec, confirmed on ArduPilot, docs/mavlink.md, "ArduPilot as a GCS sees it"):
 //! ch1–8: `0` releases the channel back to the radio, `u16::MAX` leaves it alone ("ignore");
 //! ch9–18: `0` and `u16::MAX` ignore, `u16::MAX − 1` releases.
 
@@ -170,7 +170,7 @@ mod tests {
         }
         .validate()
         .expect("valid");
-        // ArduPilot Rover: y steering, z throttle, both signed (notes/ardupilot.md: y=500,
+        // ArduPilot Rover: y steering, z throttle, both signed (docs/mavlink.md: y=500,
         // z=500 → 1750/1750).
         assert_eq!(
             manual_control_values(&rover.manual_control, &mc(16384, 16384, 0, 0)),

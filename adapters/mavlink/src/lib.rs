@@ -15,7 +15,7 @@
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //!
 //! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
-//! `../shared/notes/ardupilot.md`; the project's pymavlink test autopilot
+//! docs/mavlink.md, "ArduPilot as a GCS sees it"; the project's pymavlink test autopilot
 //! (`adapters/mavlink/tests/fake_autopilot.py`) behaves the same way.
 
 #![deny(missing_docs)]

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A pymavlink autopilot for rove's MAVLink tests: behaves like ArduPilot as a GCS sees it.
 
-What it copies from a real ArduPilot (../shared/notes/ardupilot.md):
+What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees it"):
 - RC_CHANNELS_OVERRIDE is taken only from the GCS system id (--gcs-sysid, ArduPilot's
   MAV_GCS_SYSID, default 255) and only when target_system is ours; others are recorded as ignored.
 - ch1-8: 0 releases the channel, 65535 ignores it; ch9-18: 0 and 65535 ignore, 65534 releases.
