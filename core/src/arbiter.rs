@@ -32,7 +32,9 @@
 //! change anything, so the gateway sleeps until exactly then instead of polling.
 
 use crate::hierarchy::Strength;
-use crate::msg::{CommandType, ControlCommand, DeviceId, Mode, MovementCommand, TimeT};
+use crate::msg::{
+    Ack, CommandType, ControlCommand, DeviceId, Mode, MovementCommand, RequestControl, TimeT,
+};
 use crate::time::MonoTime;
 use crate::watchdog::{CommandTimeout, Watchdog};
 use std::fmt;
@@ -147,6 +149,28 @@ pub enum Event {
     },
     /// Time passed: expire silent streams.
     Tick,
+}
+
+impl Event {
+    /// What a RequestControl sample means to `vehicle`'s arbiter: an ACCEPT is a grant, a
+    /// FINISH ends one; a REQUEST, a REFUSE or a sample for another vehicle means nothing to it.
+    pub fn from_request_control(vehicle: DeviceId, msg: &RequestControl) -> Option<Event> {
+        if msg.dest_id != vehicle {
+            return None;
+        }
+        match msg.ack {
+            Ack::Accept => Some(Event::GrantAccepted {
+                holder: msg.src_id,
+                granted_by: msg.current_controller_id,
+                stamp: msg.timestamp,
+            }),
+            Ack::Finish => Some(Event::GrantFinished {
+                holder: msg.src_id,
+                stamp: msg.timestamp,
+            }),
+            Ack::Request | Ack::Refuse => None,
+        }
+    }
 }
 
 /// Why the owner changed.

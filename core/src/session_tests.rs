@@ -126,6 +126,22 @@ fn request_from(requester: DeviceId, priority: i32, t: u64) -> SessionEvent {
     })
 }
 
+/// Requests vehicle `W` from OTHER at `t` and receives its ACCEPT: we then hold the grant.
+/// Returns the effects of the ACCEPT.
+fn hold_grant(s: &mut OperatorSession, t: u64) -> Vec<Effect> {
+    step(s, t, vehicle(W, OTHER));
+    let out = step(
+        s,
+        t + 1,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    let accept = RequestControl {
+        ack: Ack::Accept,
+        ..sent(&out)[0]
+    };
+    step(s, t + 2, SessionEvent::RequestControl(accept))
+}
+
 #[test]
 fn constant_sticks_stream_to_the_configured_vehicles_on_every_keepalive() {
     let mut s = constant();
@@ -363,18 +379,7 @@ fn with_a_console_buttons_go_to_it_for_confirmation() {
 fn a_grant_is_driven_with_the_priority_writer_and_finished_when_the_input_is_lost() {
     let mut s = device();
     step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(7))));
-    step(&mut s, 2, vehicle(W, OTHER));
-    let out = step(
-        &mut s,
-        3,
-        SessionEvent::Command(Command::Request { vehicle: W }),
-    );
-    let req = sent(&out)[0];
-    let accept = RequestControl {
-        ack: Ack::Accept,
-        ..req
-    };
-    let out = step(&mut s, 4, SessionEvent::RequestControl(accept));
+    let out = hold_grant(&mut s, 2);
     assert_eq!(
         writes(&out),
         vec![(
@@ -432,20 +437,7 @@ fn mode_changes_go_out_at_once_and_stay() {
 #[test]
 fn release_all_stops_every_stream_and_finishes_grants() {
     let mut s = constant();
-    step(&mut s, 1, vehicle(W, OTHER));
-    let req = sent(&step(
-        &mut s,
-        2,
-        SessionEvent::Command(Command::Request { vehicle: W }),
-    ))[0];
-    step(
-        &mut s,
-        3,
-        SessionEvent::RequestControl(RequestControl {
-            ack: Ack::Accept,
-            ..req
-        }),
-    );
+    hold_grant(&mut s, 1);
     let out = step(
         &mut s,
         4,
@@ -462,20 +454,7 @@ fn release_all_stops_every_stream_and_finishes_grants() {
 #[test]
 fn stop_finishes_grants_then_releases_every_instance() {
     let mut s = constant();
-    step(&mut s, 1, vehicle(W, OTHER));
-    let req = sent(&step(
-        &mut s,
-        2,
-        SessionEvent::Command(Command::Request { vehicle: W }),
-    ))[0];
-    step(
-        &mut s,
-        3,
-        SessionEvent::RequestControl(RequestControl {
-            ack: Ack::Accept,
-            ..req
-        }),
-    );
+    hold_grant(&mut s, 1);
     let out = s.stop(stamp(5));
     let kinds: Vec<&str> = out
         .iter()
@@ -561,20 +540,7 @@ fn status_line_says_what_we_drive_hold_and_stand_by_for() {
     step(&mut s, 2, vehicle(V, ME));
     assert_eq!(s.status_line(), "driving 100; 1 vehicle seen");
     step(&mut s, 3, request_from(OTHER, 340, 3));
-    step(&mut s, 4, vehicle(W, OTHER));
-    let req = sent(&step(
-        &mut s,
-        5,
-        SessionEvent::Command(Command::Request { vehicle: W }),
-    ))[0];
-    step(
-        &mut s,
-        6,
-        SessionEvent::RequestControl(RequestControl {
-            ack: Ack::Accept,
-            ..req
-        }),
-    );
+    hold_grant(&mut s, 4);
     assert_eq!(
         s.status_line(),
         "holding a grant for 101; standing by for 100; 2 vehicles seen"

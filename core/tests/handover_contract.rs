@@ -464,19 +464,7 @@ impl Bus {
         while let Some((who, action)) = queue.pop() {
             match action {
                 Action::Send(m) => {
-                    let event = match m.ack {
-                        Ack::Accept => Some(Event::GrantAccepted {
-                            holder: m.src_id,
-                            granted_by: m.current_controller_id,
-                            stamp: m.timestamp,
-                        }),
-                        Ack::Finish => Some(Event::GrantFinished {
-                            holder: m.src_id,
-                            stamp: m.timestamp,
-                        }),
-                        Ack::Request | Ack::Refuse => None,
-                    };
-                    if let Some(e) = event {
+                    if let Some(e) = Event::from_request_control(VEHICLE, &m) {
                         self.event(t, e);
                     }
                     for i in 0..self.ops.len() {

@@ -200,19 +200,7 @@ impl World {
                     self.check_output(d.output)?;
                 }
                 Effect::Send(msg) => {
-                    let grant = match msg.ack {
-                        Ack::Accept => Some(Event::GrantAccepted {
-                            holder: msg.src_id,
-                            granted_by: msg.current_controller_id,
-                            stamp: msg.timestamp,
-                        }),
-                        Ack::Finish => Some(Event::GrantFinished {
-                            holder: msg.src_id,
-                            stamp: msg.timestamp,
-                        }),
-                        Ack::Request | Ack::Refuse => None,
-                    };
-                    if let Some(event) = grant.filter(|_| msg.dest_id == V) {
+                    if let Some(event) = Event::from_request_control(V, &msg) {
                         let d = self.vehicle.step(self.now, event);
                         self.check_output(d.output)?;
                     }

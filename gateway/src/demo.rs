@@ -19,7 +19,7 @@ use rove_core::adapter::{InputEvent, OutputAdapter};
 use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, Owner, ParticipantId, WriterId};
 use rove_core::handover::HandoverConfig;
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
-use rove_core::msg::{Ack, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
+use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
 use rove_core::session::{
     Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
@@ -127,18 +127,7 @@ impl World<'_> {
                             queue.extend(more.into_iter().map(|e| (j, e)));
                         }
                     }
-                    match msg.ack {
-                        Ack::Accept => Some(Event::GrantAccepted {
-                            holder: msg.src_id,
-                            granted_by: msg.current_controller_id,
-                            stamp: msg.timestamp,
-                        }),
-                        Ack::Finish => Some(Event::GrantFinished {
-                            holder: msg.src_id,
-                            stamp: msg.timestamp,
-                        }),
-                        Ack::Request | Ack::Refuse => None,
-                    }
+                    Event::from_request_control(VEHICLE, &msg)
                 }
                 Effect::Report(report) => {
                     if !matches!(report, Report::Selected { .. } | Report::InputLive { .. }) {

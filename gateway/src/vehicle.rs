@@ -27,7 +27,7 @@ use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
-use rove_core::msg::{Ack, DeviceInfo, DeviceType};
+use rove_core::msg::{DeviceInfo, DeviceType};
 use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
@@ -157,17 +157,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                 None => anyhow::bail!("ControlCommand stream ended"),
             },
             request = requests.next() => match request {
-                Some(Ok(sample)) => {
-                    let rc = sample.value();
-                    match rc.ack {
-                        _ if rc.dest_id != me => None,
-                        Ack::Accept => Some(Event::GrantAccepted {
-                            holder: rc.src_id, granted_by: rc.current_controller_id, stamp: rc.timestamp,
-                        }),
-                        Ack::Finish => Some(Event::GrantFinished { holder: rc.src_id, stamp: rc.timestamp }),
-                        Ack::Request | Ack::Refuse => None,
-                    }
-                }
+                Some(Ok(sample)) => Event::from_request_control(me, sample.value()),
                 Some(Err(e)) => { malformed.warn(&e); None }
                 None => anyhow::bail!("RequestControl stream ended"),
             },
