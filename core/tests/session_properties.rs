@@ -26,7 +26,7 @@ use rove_core::adapter::InputEvent;
 use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId, WriterId};
 use rove_core::handover::{AutoAccept, HandoverConfig};
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{Ack, CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
+use rove_core::msg::{CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
 use rove_core::session::{
     Command, Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
 };
