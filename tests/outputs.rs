@@ -40,7 +40,7 @@ fn an_operator_drives_eyedrive_servos_through_sysfs_and_a_crash_brings_neutral()
 fn rove_failsafe_writes_the_safe_state_and_exits() {
     let scratch = Scratch::new("failsafe");
     let dir = &scratch.dir;
-    let root = fake_sysfs(&dir);
+    let root = fake_sysfs(dir);
     // A crashed gateway left the throttle at full.
     std::fs::write(root.join("pwmchip0/pwm1/duty_cycle"), "2000000").expect("duty");
     std::fs::write(root.join("pwmchip0/pwm1/enable"), "1").expect("enable");
