@@ -1,7 +1,8 @@
 //! Runs real `rove` processes in a network namespace of their own (loopback with multicast, as
 //! `../shared/notes/rustdds.md` requires): used by the end-to-end tests in `tests/`, `rove demo`
-//! and `rove bench` (what only the tests need lives in `tests/util.rs`). Children are killed and the namespace deleted on drop; when a test panics every
-//! child's log is printed. Needs root and iproute2 (`ip netns`).
+//! and `rove bench` (what only the tests need lives in `tests/util.rs`). Children are killed and
+//! the namespace deleted on drop; when a test panics every child's log is printed. Needs root
+//! and iproute2 (`ip netns`).
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
