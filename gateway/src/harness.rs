@@ -1,7 +1,8 @@
 //! Runs real `rove` processes in a network namespace of their own (loopback with multicast, as
-//! `docs/rustdds.md` requires): used by the multi-process tests, `rove demo` and
-//! `rove bench`. Children are killed and the namespace deleted on drop; when a test panics every
-//! child's log is printed. Needs root and iproute2 (`ip netns`).
+//! `docs/rustdds.md` requires): used by the end-to-end tests in `tests/`, `rove demo`
+//! and `rove bench` (what only the tests need lives in `tests/util.rs`). Children are killed and
+//! the namespace deleted on drop; when a test panics every child's log is printed. Needs root
+//! and iproute2 (`ip netns`).
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -209,40 +210,6 @@ impl Rig {
         all.extend_from_slice(args);
         self.spawn(&format!("operator-{id}"), &all)
     }
-
-    /// Runs a shell command inside the namespace (e.g. to send raw datagrams).
-    pub fn sh(&self, script: &str) -> Result<(), String> {
-        run(&["ip", "netns", "exec", &self.ns, "bash", "-c", script])
-    }
-
-    /// `rove status --json` in the namespace.
-    pub fn status(&self) -> Value {
-        let out = Command::new("ip")
-            .arg("netns")
-            .arg("exec")
-            .arg(&self.ns)
-            .arg(&self.rove)
-            .args(["status", "--json"])
-            .args(["--listen-ms", "1200"])
-            .output()
-            .expect("run rove status");
-        let text = String::from_utf8_lossy(&out.stdout);
-        serde_json::from_str(text.trim()).unwrap_or_else(|e| {
-            panic!(
-                "status output is not JSON ({e}): {text}\n{}",
-                String::from_utf8_lossy(&out.stderr)
-            )
-        })
-    }
-
-    /// The device row of `id` in a status snapshot.
-    pub fn device(status: &Value, id: i64) -> Option<Value> {
-        status["devices"]
-            .as_array()?
-            .iter()
-            .find(|d| d["id"] == id)
-            .cloned()
-    }
 }
 
 impl Drop for Rig {
@@ -385,41 +352,4 @@ pub fn wall_us() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
-}
-
-/// A fake sysfs PWM class under `dir`: `pwmchip0` with channels 0 and 1 already exported (the
-/// kernel creates `pwmM/` on export; rove-pwm's own tests cover the export step). Returns the
-/// class root to put in `sysfs_root`.
-pub fn fake_sysfs(dir: &Path) -> PathBuf {
-    let root = dir.join("sys-class-pwm");
-    for ch in 0..2 {
-        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
-        std::fs::create_dir_all(&pwm).expect("fake sysfs");
-        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
-            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
-        }
-    }
-    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
-    root
-}
-
-/// Channel `ch`'s duty cycle in a [`fake_sysfs`] tree, as written (ns).
-pub fn duty(root: &Path, ch: u32) -> String {
-    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
-        .unwrap_or_default()
-        .trim()
-        .to_string()
-}
-
-/// Waits until channel `ch`'s duty cycle reads `want` (ns); panics after [`PATIENCE`].
-pub fn wait_duty(root: &Path, ch: u32, want: &str) {
-    let deadline = Instant::now() + PATIENCE;
-    while duty(root, ch) != want {
-        assert!(
-            Instant::now() < deadline,
-            "pwm{ch}/duty_cycle is {:?}, never {want}",
-            duty(root, ch)
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
 }

@@ -16,7 +16,7 @@
 //!
 //! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
 //! docs/mavlink.md, "ArduPilot as a GCS sees it"; the project's pymavlink test autopilot
-//! (`adapters/mavlink/tests/fake_autopilot.py`) behaves the same way.
+//! (`testkit/fake_autopilot.py`) behaves the same way.
 
 #![deny(missing_docs)]
 

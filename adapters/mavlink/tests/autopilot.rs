@@ -1,5 +1,6 @@
-//! The MAVLink adapter against a real MAVLink peer: `fake_autopilot.py` (pymavlink), playing an
-//! ArduPilot (or PX4) autopilot on loopback UDP/TCP and on a pty pair (socat).
+//! The MAVLink adapter against a real MAVLink peer: `testkit/fake_autopilot.py` (pymavlink, run
+//! by [`rove_testkit::FakeAutopilot`]), playing an ArduPilot (or PX4) autopilot on loopback
+//! UDP/TCP and on a pty pair (socat).
 //!
 //! Needs `python3` with `pymavlink` (and `socat` for the serial test); `.ci/run` installs them.
 //! Timing assertions use wide bounds: they catch a wrong rate (2×, ½×), not scheduler jitter.
@@ -12,92 +13,12 @@ use rove_core::arbiter::Setpoint;
 use rove_core::msg::{Mode, MovementCommand};
 use rove_mavlink::mode::ModeState;
 use rove_mavlink::{MavlinkSettings, MavlinkVehicle};
+use rove_testkit::FakeAutopilot;
 use serde_json::Value;
-use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 const WAIT: Duration = Duration::from_secs(10);
-
-fn script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fake_autopilot.py")
-}
-
-/// A running fake autopilot and its record.
-struct Peer {
-    child: Child,
-    record: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-impl Peer {
-    fn start(args: &[&str]) -> Peer {
-        let dir = tempfile::tempdir().unwrap();
-        Peer::start_in(dir, args)
-    }
-
-    fn start_in(dir: tempfile::TempDir, args: &[&str]) -> Peer {
-        let record = dir.path().join("record.jsonl");
-        let child = Command::new("python3")
-            .arg(script())
-            .arg("--record")
-            .arg(&record)
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .expect("python3 runs (install pymavlink: python3 -m pip install pymavlink)");
-        let peer = Peer {
-            child,
-            record,
-            _dir: dir,
-        };
-        peer.wait_for("peer ready", |e| e["event"] == "ready");
-        peer
-    }
-
-    fn events(&self) -> Vec<Value> {
-        std::fs::read_to_string(&self.record)
-            .unwrap_or_default()
-            .lines()
-            .filter_map(|l| serde_json::from_str(l).ok())
-            .collect()
-    }
-
-    fn of(&self, event: &str) -> Vec<Value> {
-        self.events()
-            .into_iter()
-            .filter(|e| e["event"] == event)
-            .collect()
-    }
-
-    /// Waits until an event matches, failing the test after [`WAIT`].
-    fn wait_for(&self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
-        let start = Instant::now();
-        loop {
-            if let Some(e) = self.events().into_iter().find(|e| pred(e)) {
-                return e;
-            }
-            assert!(
-                start.elapsed() < WAIT,
-                "{what}: not seen in {WAIT:?}; record:\n{:#?}",
-                self.events()
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-
-    fn stop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        self.stop();
-    }
-}
 
 fn free_port() -> u16 {
     let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -184,7 +105,7 @@ fn raw(e: &Value) -> Vec<u64> {
 #[test]
 fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
     let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\nsystem_id = 250\ncomponent_id = 191"),
@@ -217,7 +138,7 @@ fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
 #[test]
 fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
     let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -269,7 +190,7 @@ fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
 #[test]
 fn manual_control_is_scaled_for_px4() {
     let port = free_port();
-    let peer = Peer::start(&[
+    let peer = FakeAutopilot::start(&[
         "--connection",
         &format!("udpin:127.0.0.1:{port}"),
         "--autopilot",
@@ -318,7 +239,7 @@ fn manual_control_is_scaled_for_px4() {
 #[test]
 fn mode_command_is_resent_until_acknowledged() {
     let port = free_port();
-    let peer = Peer::start(&[
+    let peer = FakeAutopilot::start(&[
         "--connection",
         &format!("udpin:127.0.0.1:{port}"),
         "--ignore-mode-commands",
@@ -368,7 +289,7 @@ fn mode_command_is_resent_until_acknowledged() {
 #[test]
 fn a_refused_mode_is_reported_not_retried() {
     let port = free_port();
-    let peer = Peer::start(&[
+    let peer = FakeAutopilot::start(&[
         "--connection",
         &format!("udpin:127.0.0.1:{port}"),
         "--deny-modes",
@@ -388,7 +309,7 @@ fn a_refused_mode_is_reported_not_retried() {
 #[test]
 fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
     let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 300"),
@@ -440,7 +361,7 @@ fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
 #[test]
 fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
     let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
@@ -465,7 +386,7 @@ fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
 fn reconnects_after_the_autopilot_restarts_over_tcp() {
     let port = free_port();
     let addr = format!("tcpin:127.0.0.1:{port}");
-    let mut peer = Peer::start(&["--connection", &addr]);
+    let mut peer = FakeAutopilot::start(&["--connection", &addr]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"tcpout:127.0.0.1:{port}\"\n[modes]\nset_mode = false"),
@@ -480,7 +401,7 @@ fn reconnects_after_the_autopilot_restarts_over_tcp() {
         !v.link_status().connected
     });
     assert!(matches!(v.health(), Health::Down(_)));
-    let peer2 = Peer::start(&["--connection", &addr]);
+    let peer2 = FakeAutopilot::start(&["--connection", &addr]);
     let start = Instant::now();
     while peer2.of("rc_override").is_empty() {
         assert!(
@@ -500,7 +421,7 @@ fn reconnects_after_the_autopilot_restarts_over_tcp() {
 #[test]
 fn garbage_and_other_systems_change_nothing() {
     let port = free_port();
-    let peer = Peer::start(&[
+    let peer = FakeAutopilot::start(&[
         "--connection",
         &format!("udpin:127.0.0.1:{port}"),
         "--garbage",
@@ -557,10 +478,7 @@ fn drives_over_a_serial_pty_pair() {
         assert!(start.elapsed() < WAIT, "socat made no ptys");
         std::thread::sleep(Duration::from_millis(10));
     }
-    let peer = Peer::start_in(
-        tempfile::tempdir().unwrap(),
-        &["--connection", a.to_str().unwrap(), "--baud", "57600"],
-    );
+    let peer = FakeAutopilot::start(&["--connection", a.to_str().unwrap(), "--baud", "57600"]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(

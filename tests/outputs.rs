@@ -2,26 +2,19 @@
 //! whose `[output]` is a PWM vehicle on the sysfs backend, over a temp directory standing in for
 //! `/sys/class/pwm`; and `rove failsafe` writes the safe state and exits.
 
-use rove_gateway::harness::{Rig, duty, fake_sysfs, wait_duty, wait_for_output, wall_us};
-use std::path::Path;
+use crate::util::{
+    ROVE, Rig, Scratch, duty, eyedrive_sysfs, fake_sysfs, vehicle_toml, wait_duty, wait_for_output,
+    wall_us,
+};
 use std::process::Command;
 
 const V: i64 = 100;
-const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-
-fn eyedrive(root: &Path) -> String {
-    format!(
-        "[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\nsysfs_root = \"{}\"\n\
-         [output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
-        root.display()
-    )
-}
 
 #[test]
 fn an_operator_drives_eyedrive_servos_through_sysfs_and_a_crash_brings_neutral() {
-    let mut rig = Rig::new(Path::new(ROVE), "pwm-e2e").unwrap_or_else(|e| panic!("{e}"));
+    let mut rig = Rig::new("pwm-e2e");
     let root = fake_sysfs(&rig.dir);
-    let record = rig.vehicle_with_output(V, &eyedrive(&root));
+    let record = rig.vehicle_with_output(V, &eyedrive_sysfs(&root));
     // Neutral at start (ESC arming), before anyone drives: 1500 µs, 20 ms period, enabled.
     wait_duty(&root, 1, "1500000");
     let period = std::fs::read_to_string(root.join("pwmchip0/pwm1/period")).unwrap_or_default();
@@ -45,19 +38,14 @@ fn an_operator_drives_eyedrive_servos_through_sysfs_and_a_crash_brings_neutral()
 
 #[test]
 fn rove_failsafe_writes_the_safe_state_and_exits() {
-    let dir = std::env::temp_dir().join(format!("rove-failsafe-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let root = fake_sysfs(&dir);
+    let scratch = Scratch::new("failsafe");
+    let dir = &scratch.dir;
+    let root = fake_sysfs(dir);
     // A crashed gateway left the throttle at full.
     std::fs::write(root.join("pwmchip0/pwm1/duty_cycle"), "2000000").expect("duty");
     std::fs::write(root.join("pwmchip0/pwm1/enable"), "1").expect("enable");
     let config = dir.join("vehicle.toml");
-    std::fs::write(
-        &config,
-        format!("[device]\nid = {V}\nname = \"v\"\n{}", eyedrive(&root)),
-    )
-    .expect("config");
+    std::fs::write(&config, vehicle_toml(V, &eyedrive_sysfs(&root))).expect("config");
     let out = Command::new(ROVE)
         .args(["failsafe", "-c"])
         .arg(&config)
@@ -75,10 +63,7 @@ fn rove_failsafe_writes_the_safe_state_and_exits() {
     let missing = dir.join("vehicle-missing.toml");
     std::fs::write(
         &missing,
-        format!(
-            "[device]\nid = {V}\nname = \"v\"\n{}",
-            eyedrive(&dir.join("no-such-pwm-class"))
-        ),
+        vehicle_toml(V, &eyedrive_sysfs(&dir.join("no-such-pwm-class"))),
     )
     .expect("config");
     let out = Command::new(ROVE)
@@ -89,5 +74,4 @@ fn rove_failsafe_writes_the_safe_state_and_exits() {
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("no-such-pwm-class"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

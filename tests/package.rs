@@ -8,10 +8,12 @@
 //! default configs, and (as root) that postinst creates the `rove` user, against a copy of
 //! `/etc` in a private mount namespace so the machine's own users are untouched.
 
+use crate::util::{Scratch, workspace};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// `gateway/`: the package's directory, which cargo-deb's asset sources are relative to.
 const GATEWAY: &str = env!("CARGO_MANIFEST_DIR");
 
 fn metadata() -> toml::Table {
@@ -39,7 +41,7 @@ fn assets(deb: &toml::Table) -> Vec<(String, String, String)> {
 }
 
 fn unit_files() -> Vec<String> {
-    let mut units: Vec<String> = std::fs::read_dir(Path::new(GATEWAY).join("../systemd"))
+    let mut units: Vec<String> = std::fs::read_dir(workspace().join("systemd"))
         .expect("systemd/")
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter(|n| n.ends_with(".service"))
@@ -52,8 +54,8 @@ fn unit_files() -> Vec<String> {
 fn configs_named_by_units() -> BTreeSet<String> {
     let mut configs = BTreeSet::new();
     for unit in unit_files().iter().filter(|u| !u.contains('@')) {
-        let text = std::fs::read_to_string(Path::new(GATEWAY).join("../systemd").join(unit))
-            .expect("unit file");
+        let text =
+            std::fs::read_to_string(workspace().join("systemd").join(unit)).expect("unit file");
         let exec_lines = text.lines().filter(|l| l.trim_start().starts_with("Exec"));
         for word in exec_lines.flat_map(str::split_whitespace) {
             if word.starts_with("/etc/rove/") {
@@ -173,7 +175,7 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     };
     // Tests run in gateway/; a relative path is taken from the workspace root, where
     // `cargo deb` is run.
-    let deb = Path::new(GATEWAY).join("..").join(deb);
+    let deb = workspace().join(deb);
     // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
     let listing = dpkg_deb("--contents", &deb, &[]);
     let files: Vec<(&str, &str)> = listing
@@ -209,9 +211,8 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     assert!(depends.contains("passwd"), "Depends: {depends}");
 
     // Control files: conffiles and the maintainer scripts.
-    let dir = std::env::temp_dir().join(format!("rove-deb-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
+    let scratch = Scratch::new("deb");
+    let dir = &scratch.dir;
     let control = dir.join("control");
     dpkg_deb(
         "--control",
@@ -228,7 +229,7 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     }
     let prerm = std::fs::read_to_string(control.join("prerm")).expect("prerm");
     assert!(prerm.contains("systemctl --system stop"), "{prerm}");
-    postinst_creates_the_service_user(&control.join("postinst"), &dir);
+    postinst_creates_the_service_user(&control.join("postinst"), dir);
 
     // The packaged binary runs and accepts the packaged default configs.
     let root = dir.join("root");
@@ -245,7 +246,6 @@ fn the_built_package_holds_binary_units_and_conffiles() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Runs `postinst configure` twice (install, then as an upgrade) with a copy of `/etc` mounted

@@ -3,11 +3,9 @@
 //! the vehicle explicitly, and the next operator in the hierarchy drives at once. Each test runs
 //! in a network namespace of its own.
 
-use rove_gateway::harness::{Rig, records, wait_for_output};
-use std::path::Path;
+use crate::util::{OperatorToml, Rig, eventually, records, wait_for_output};
 
 const V: i64 = 100;
-const ROVE: &str = env!("CARGO_BIN_EXE_rove");
 
 /// The joystick: deadman on BTN_TL, throttle on ABS_Y (up is negative in evdev, so inverted).
 const MAPPING: &str = "[input.axes.throttle]\nabs = \"ABS_Y\"\ninvert = true\n\
@@ -15,7 +13,7 @@ const MAPPING: &str = "[input.axes.throttle]\nabs = \"ABS_Y\"\ninvert = true\n\
 
 #[test]
 fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator() {
-    let mut rig = Rig::new(Path::new(ROVE), "inputs-e2e").unwrap_or_else(|e| panic!("{e}"));
+    let mut rig = Rig::new("inputs-e2e");
     let record = rig.vehicle(V);
     // A weaker operator with constant sticks drives first.
     rig.operator(21, "stationary", "laptop", &[V], 1000, "", &[]);
@@ -35,12 +33,14 @@ fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator(
     );
     let config = rig.write(
         "operator-11.toml",
-        &format!(
-            "[device]\nid = 11\nname = \"pad\"\n[operator]\nlevel = \"mobile\"\n\
-             device_class = \"phone\"\ndrive = [{V}]\n[input]\nsource = \"replay\"\n\
-             file = \"{}\"\n{MAPPING}",
-            recording.display()
-        ),
+        &OperatorToml::new(11, "mobile", "phone")
+            .name("pad")
+            .drive(&[V])
+            .then(&format!(
+                "[input]\nsource = \"replay\"\nfile = \"{}\"\n{MAPPING}",
+                recording.display()
+            ))
+            .to_string(),
     );
     let pad = rig.spawn(
         "operator-11",
@@ -50,20 +50,23 @@ fn a_replayed_joystick_drives_and_unplugging_it_hands_over_to_the_next_operator(
     // Full stick: throttle +32767; then half: the value the mapping gives for −16384.
     let full = wait_for_output(&record, Some(11), 0).expect("the joystick drives");
     assert_eq!(full.throttle, Some(32767), "{full:?}");
-    let half = loop {
+    let half = eventually("the half-deflection output", || {
         let outs = records(&record);
         if let Some(o) = outs
             .iter()
             .find(|o| o.owner == Some(11) && o.throttle != Some(32767))
         {
-            break o.clone();
+            return Ok(o.clone());
         }
         assert!(
             rig.procs[pad].is_running(),
             "operator exited early: see its log"
         );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    };
+        Err(format!(
+            "last outputs: {:?}",
+            outs.iter().rev().take(5).collect::<Vec<_>>()
+        ))
+    });
     assert!(
         matches!(half.throttle, Some(t) if (16_000..=16_500).contains(&t)),
         "half deflection: {half:?}"

@@ -3,23 +3,25 @@
 //! unit files' own `ExecStopPost=` command line after a SIGKILL, and checks what the unit files
 //! promise. `systemd-analyze verify` and `security` run from `systemd/check-units` in CI.
 //!
-//! Every vehicle runs in a network namespace of its own (the harness's [`Rig`]); its outputs are
+//! Every vehicle runs in a network namespace of its own (the util's [`Rig`]); its outputs are
 //! an Eyedrive rover on the sysfs PWM backend over a temp directory.
 
-use rove_gateway::harness::{PATIENCE, Rig, duty, fake_sysfs, wait_duty, wait_for_output};
+use crate::util::{
+    OperatorToml, PATIENCE, ROVE, Rig, Scratch, duty, eventually, eyedrive_sysfs, fake_sysfs,
+    vehicle_toml, wait_duty, wait_for_output, workspace,
+};
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-const UNITS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../systemd");
 const V: i64 = 100;
 /// Neutral (1500 µs) in sysfs's nanoseconds: the Eyedrive's safe state on both channels.
 const SAFE_NS: &str = "1500000";
 
-fn rig(test: &str) -> Rig {
-    Rig::new(Path::new(ROVE), test).unwrap_or_else(|e| panic!("{e}"))
+/// `systemd/`: the unit files.
+fn units() -> PathBuf {
+    workspace().join("systemd")
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -49,7 +51,7 @@ fn directives(text: &str) -> Vec<(String, String, String)> {
 }
 
 fn unit(name: &str) -> Vec<(String, String, String)> {
-    let path = Path::new(UNITS).join(name);
+    let path = units().join(name);
     let text = std::fs::read_to_string(&path)
         .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
     directives(&text)
@@ -136,7 +138,7 @@ const UNIT_FILES: [UnitCase; 3] = [
 
 #[test]
 fn every_unit_notifies_checks_its_config_first_and_restarts_with_a_limit() {
-    let on_disk: Vec<String> = std::fs::read_dir(UNITS)
+    let on_disk: Vec<String> = std::fs::read_dir(units())
         .expect("systemd/")
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter(|n| n.ends_with(".service"))
@@ -208,7 +210,7 @@ fn the_template_is_the_vehicle_unit_with_a_config_per_instance() {
 #[test]
 fn the_installed_default_configs_are_valid() {
     for file in ["vehicle.toml", "operator.toml"] {
-        let path = Path::new(UNITS).join("etc").join(file);
+        let path = units().join("etc").join(file);
         let out = Command::new(ROVE)
             .arg("check-config")
             .arg(&path)
@@ -225,8 +227,8 @@ fn the_installed_default_configs_are_valid() {
 
 #[test]
 fn a_bad_config_exits_78_from_every_role_so_systemd_stops_restarting() {
-    let dir = std::env::temp_dir().join(format!("rove-service-bad-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
+    let scratch = Scratch::new("service-bad");
+    let dir = &scratch.dir;
     let bad = dir.join("bad.toml");
     // The config fails to load before any role touches the network.
     std::fs::write(&bad, "[device]\nid = 0\n[output]\nadapter = \"sim\"\n").expect("config");
@@ -248,7 +250,6 @@ fn a_bad_config_exits_78_from_every_role_so_systemd_stops_restarting() {
         .output()
         .expect("run rove");
     assert_eq!(out.status.code(), Some(78));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -260,17 +261,6 @@ fn the_stall_test_hook_is_hidden_from_help() {
     let help = String::from_utf8_lossy(&out.stdout);
     assert!(help.contains("--record"), "{help}");
     assert!(!help.contains("stall"), "{help}");
-}
-
-// ---------------------------------------------------------------------------------------------
-// Outputs: a fake sysfs PWM class
-
-fn vehicle_toml(root: &Path) -> String {
-    format!(
-        "[device]\nid = {V}\nname = \"v{V}\"\n[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\n\
-         sysfs_root = \"{}\"\n[output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
-        root.display()
-    )
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -396,14 +386,9 @@ impl Service {
     }
 
     fn wait_exit(&mut self) -> std::process::ExitStatus {
-        let deadline = Instant::now() + PATIENCE;
-        loop {
-            if let Some(status) = self.child.try_wait().expect("wait") {
-                return status;
-            }
-            assert!(Instant::now() < deadline, "the process did not exit");
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        eventually("the process exits", || {
+            self.child.try_wait().expect("wait").ok_or("still running")
+        })
     }
 }
 
@@ -429,9 +414,9 @@ const STALL: Duration = Duration::from_millis(1500);
 
 #[test]
 fn sd_notify_ready_status_keepalives_stall_and_stopping() {
-    let mut rig = rig("sdnotify");
+    let mut rig = Rig::new("sdnotify");
     let root = fake_sysfs(&rig.dir);
-    let config = rig.write("vehicle.toml", &vehicle_toml(&root));
+    let config = rig.write("vehicle.toml", &vehicle_toml(V, &eyedrive_sysfs(&root)));
     let mut manager = Manager::bind(&rig.dir);
     let stall_ms = STALL.as_millis().to_string();
     let mut vehicle = Service::start(
@@ -548,13 +533,12 @@ fn sd_notify_ready_status_keepalives_stall_and_stopping() {
 
 #[test]
 fn the_operator_notifies_ready_keepalives_status_and_stopping() {
-    let rig = rig("sdnotify-operator");
+    let rig = Rig::new("sdnotify-operator");
     let config = rig.write(
         "operator.toml",
-        &format!(
-            "[device]\nid = 11\nname = \"op11\"\n[operator]\nlevel = \"stationary\"\n\
-             device_class = \"laptop\"\ndrive = [{V}]\n"
-        ),
+        &OperatorToml::new(11, "stationary", "laptop")
+            .drive(&[V])
+            .to_string(),
     );
     let mut manager = Manager::bind(&rig.dir);
     let mut operator = Service::start(&rig, "operator", &config, &manager.path, WATCHDOG, &[]);
@@ -580,7 +564,7 @@ fn the_operator_notifies_ready_keepalives_status_and_stopping() {
 /// `/etc/rove/…` moved into the rig's directory), lets an operator drive it to full throttle,
 /// kills it with SIGKILL, and runs the unit's ExecStopPost= command line.
 fn killed_vehicle_is_made_safe_by_exec_stop_post(file: &str, instance: Option<&str>) {
-    let mut rig = rig("stop-post");
+    let mut rig = Rig::new("stop-post");
     let root = fake_sysfs(&rig.dir);
     let u = unit(file);
     let start = command_line(&u, "ExecStart", instance);
@@ -589,7 +573,7 @@ fn killed_vehicle_is_made_safe_by_exec_stop_post(file: &str, instance: Option<&s
     assert_eq!(arg_after(&stop_post, "-c"), installed_config);
     let start = localize(&start, &rig.dir);
     let config = PathBuf::from(arg_after(&start, "-c"));
-    std::fs::write(&config, vehicle_toml(&root)).expect("config");
+    std::fs::write(&config, vehicle_toml(V, &eyedrive_sysfs(&root))).expect("config");
 
     let record = rig.dir.join("outputs.jsonl");
     let mut args: Vec<&str> = start[1..].iter().map(String::as_str).collect();

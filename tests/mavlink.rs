@@ -1,79 +1,19 @@
 //! End to end with an autopilot: operator process → vehicle process with the MAVLink
-//! adapter → the pymavlink autopilot of `adapters/mavlink/tests/fake_autopilot.py`, all inside a
+//! adapter → the pymavlink autopilot of `testkit/fake_autopilot.py`, all inside a
 //! network namespace of the test's own (DDS on its loopback, MAVLink on UDP loopback).
 //!
 //! Needs `python3` with `pymavlink` (installed by `.ci/run`).
 
-use rove_gateway::harness::{Follow, Rig, wait_for_output, wall_us};
+use crate::util::{FakeAutopilot, PATIENCE, Rig, wait_for_output, wall_us};
 use serde_json::Value;
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
 
 const V: i64 = 100;
-const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-const WAIT: Duration = Duration::from_secs(15);
 /// The vehicle's MAVLink mode command timeout in these tests.
 const COMMAND_TIMEOUT_MS: u64 = 300;
 
-/// The fake autopilot, in the rig's namespace.
-struct Autopilot {
-    child: Child,
-    record: Follow,
-}
-
-impl Autopilot {
-    fn start(rig: &Rig, port: u16) -> Autopilot {
-        let record = rig.dir.join("autopilot.jsonl");
-        let script = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../adapters/mavlink/tests/fake_autopilot.py");
-        let child = Command::new("ip")
-            .args(["netns", "exec", &rig.ns, "python3"])
-            .arg(script)
-            .args([
-                "--connection",
-                &format!("udpin:127.0.0.1:{port}"),
-                "--record",
-            ])
-            .arg(&record)
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("python3 with pymavlink (python3 -m pip install pymavlink)");
-        let mut ap = Autopilot {
-            child,
-            record: Follow::new(&record),
-        };
-        ap.wait_for("ready", |e| e["event"] == "ready");
-        ap
-    }
-
-    /// Everything the autopilot recorded so far.
-    fn events(&mut self) -> &[Value] {
-        self.record.poll();
-        &self.record.lines
-    }
-
-    fn wait_for(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
-        let start = Instant::now();
-        loop {
-            if let Some(e) = self.events().iter().find(|e| pred(e)) {
-                return e.clone();
-            }
-            assert!(
-                start.elapsed() < WAIT,
-                "autopilot: {what} not seen in {WAIT:?}; last events: {:#?}",
-                self.record.lines.iter().rev().take(8).collect::<Vec<_>>()
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
-
-impl Drop for Autopilot {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// The fake autopilot on UDP `port`, in the rig's namespace.
+fn autopilot(rig: &Rig, port: u16) -> FakeAutopilot {
+    rig.autopilot(&["--connection", &format!("udpin:127.0.0.1:{port}")])
 }
 
 fn raw(e: &Value) -> Vec<u64> {
@@ -96,8 +36,8 @@ fn mavlink_output(port: u16) -> String {
 
 #[test]
 fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
-    let mut rig = Rig::new(Path::new(ROVE), "mavlink-e2e").unwrap_or_else(|e| panic!("{e}"));
-    let mut ap = Autopilot::start(&rig, 14550);
+    let mut rig = Rig::new("mavlink-e2e");
+    let ap = autopilot(&rig, 14550);
     let record = rig.vehicle_with_output(V, &mavlink_output(14550));
     ap.wait_for("GCS heartbeat from the vehicle", |e| {
         e["event"] == "heartbeat" && e["src"] == 255 && e["comp"] == 190
@@ -149,8 +89,8 @@ fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
 
 #[test]
 fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
-    let mut rig = Rig::new(Path::new(ROVE), "mavlink-stop").unwrap_or_else(|e| panic!("{e}"));
-    let mut ap = Autopilot::start(&rig, 14550);
+    let mut rig = Rig::new("mavlink-stop");
+    let ap = autopilot(&rig, 14550);
     let record = rig.vehicle_with_output(V, &mavlink_output(14550));
     rig.operator(11, "mobile", "phone", &[V], 20000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("operator drives");
@@ -160,12 +100,12 @@ fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
     let vehicle = 0;
     let stop = wall_us();
     rig.procs[vehicle].terminate();
-    let status = rig.procs[vehicle].wait_exit(WAIT);
+    let status = rig.procs[vehicle].wait_exit(PATIENCE);
     assert!(
         status.is_some_and(|s| s.success()),
         "vehicle exits cleanly: {status:?}"
     );
-    let after: Vec<&Value> = ap.events().iter().filter(|e| wall(e) > stop).collect();
+    let after: Vec<Value> = ap.events().into_iter().filter(|e| wall(e) > stop).collect();
     assert!(
         after
             .iter()

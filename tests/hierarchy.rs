@@ -4,19 +4,15 @@
 //! Latencies are measured and printed (run with `--nocapture` to see them), never asserted:
 //! timing goals live in `rove bench`.
 
-use rove_gateway::harness::{self as util, Rig, records, wait_for_output, wall_us};
+use crate::util::{self, ROVE, Rig, eventually, records, wait_for_output, wall_us};
 use std::path::Path;
 use std::time::Duration;
-
-fn rig(test: &str) -> Rig {
-    Rig::new(Path::new(env!("CARGO_BIN_EXE_rove")), test).unwrap_or_else(|e| panic!("{e}"))
-}
 
 const V: i64 = 100;
 
 #[test]
 fn a_lone_operator_drives_the_vehicle() {
-    let mut rig = rig("lone");
+    let mut rig = Rig::new("lone");
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     let out = wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -31,7 +27,7 @@ fn a_lone_operator_drives_the_vehicle() {
 
 #[test]
 fn a_stronger_operator_takes_over_and_a_graceful_quit_hands_back_at_once() {
-    let mut rig = rig("preempt");
+    let mut rig = Rig::new("preempt");
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -51,25 +47,25 @@ fn a_stronger_operator_takes_over_and_a_graceful_quit_hands_back_at_once() {
 
 #[test]
 fn a_weaker_or_equal_operator_joining_does_not_take_over() {
-    let mut rig = rig("weaker");
+    let mut rig = Rig::new("weaker");
     let record = rig.vehicle(V);
     rig.operator(12, "stationary", "tablet", &[V], 2000, "", &[]);
     wait_for_output(&record, Some(12), 0).expect("tablet drives");
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     rig.operator(13, "stationary", "tablet", &[V], 3000, "", &[]);
     // Wait until both newcomers are on the network and streaming, then check nothing changed.
-    let deadline = std::time::Instant::now() + util::PATIENCE;
-    loop {
+    let status = eventually("both newcomers seen", || {
         let status = rig.status();
         if Rig::device(&status, 11).is_some() && Rig::device(&status, 13).is_some() {
-            assert_eq!(
-                Rig::device(&status, V).expect("vehicle")["controller_id"],
-                12
-            );
-            break;
+            Ok(status)
+        } else {
+            Err(status)
         }
-        assert!(std::time::Instant::now() < deadline, "newcomers never seen");
-    }
+    });
+    assert_eq!(
+        Rig::device(&status, V).expect("vehicle")["controller_id"],
+        12
+    );
     let later = wall_us();
     wait_for_output(&record, Some(12), later).expect("still the tablet");
     assert!(
@@ -82,7 +78,7 @@ fn a_weaker_or_equal_operator_joining_does_not_take_over() {
 
 #[test]
 fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsafe() {
-    let mut rig = rig("crash");
+    let mut rig = Rig::new("crash");
     let record = rig.vehicle(V);
     let laptop = rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -117,7 +113,7 @@ fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsaf
 
 #[test]
 fn active_handover_accept_drive_and_finish() {
-    let mut rig = rig("accept");
+    let mut rig = Rig::new("accept");
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -163,7 +159,7 @@ fn active_handover_accept_drive_and_finish() {
 /// owner once the holder's stream times out, and the owner, seeing itself named again, resumes.
 #[test]
 fn a_crashed_grant_holder_gives_the_vehicle_back_to_the_owner() {
-    let mut rig = rig("holder-crash");
+    let mut rig = Rig::new("holder-crash");
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -198,7 +194,7 @@ fn a_crashed_grant_holder_gives_the_vehicle_back_to_the_owner() {
 
 #[test]
 fn active_handover_refused_at_the_consent_timeout() {
-    let mut rig = rig("refuse");
+    let mut rig = Rig::new("refuse");
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -212,57 +208,51 @@ fn active_handover_refused_at_the_consent_timeout() {
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
     let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     // The request ends refused: the tablet says so in its log.
-    let deadline = std::time::Instant::now() + util::PATIENCE;
     let log = rig.procs[tablet].log.clone();
-    loop {
+    let text = eventually("an answer in the tablet's log", || {
         let text = std::fs::read_to_string(&log).unwrap_or_default();
         if text.contains("request ended") {
-            assert!(text.contains("Refused"), "tablet log:\n{text}");
-            break;
+            Ok(text)
+        } else {
+            Err(format!("no answer:\n{text}"))
         }
-        assert!(std::time::Instant::now() < deadline, "no answer:\n{text}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    });
+    assert!(text.contains("Refused"), "tablet log:\n{text}");
     assert!(records(&record).iter().all(|o| o.owner != Some(13)));
 }
 
 #[test]
 fn status_lists_every_device_and_reports_duplicate_ids() {
-    let mut rig = rig("status");
+    let mut rig = Rig::new("status");
     rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[], 0, "", &[]);
     rig.operator(12, "mobile", "phone", &[], 0, "", &[]);
     rig.operator(12, "remote", "desktop", &[], 0, "", &[]);
-    let deadline = std::time::Instant::now() + util::PATIENCE;
-    loop {
+    let status = eventually("every device and the duplicate listed", || {
         let status = rig.status();
         let ids: Vec<i64> = status["devices"]
             .as_array()
             .map(|a| a.iter().filter_map(|d| d["id"].as_i64()).collect())
             .unwrap_or_default();
         if ids == [11, 12, V] && status["duplicates"] == serde_json::json!([12]) {
-            assert!(
-                status["devices"]
-                    .as_array()
-                    .is_some_and(|a| a.iter().all(|d| d["online"] == true))
-            );
-            break;
+            Ok(status)
+        } else {
+            Err(format!("incomplete status: {status}"))
         }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "incomplete status: {status}"
-        );
-    }
+    });
+    assert!(
+        status["devices"]
+            .as_array()
+            .is_some_and(|a| a.iter().all(|d| d["online"] == true))
+    );
 }
 
 /// The README's demo runs its whole story over DDS between real processes.
 #[test]
 fn the_demo_tells_its_story_between_real_processes() {
     let mut lines = Vec::new();
-    rove_gateway::demo::run_processes(Path::new(env!("CARGO_BIN_EXE_rove")), &mut |l| {
-        lines.push(l.to_string())
-    })
-    .unwrap_or_else(|e| panic!("{e:#}"));
+    rove_gateway::demo::run_processes(Path::new(ROVE), &mut |l| lines.push(l.to_string()))
+        .unwrap_or_else(|e| panic!("{e:#}"));
     let story = lines.join("\n");
     for expected in [
         "joins: vehicle driven by 11",
@@ -284,7 +274,7 @@ fn the_demo_tells_its_story_between_real_processes() {
 /// nothing and crash nothing.
 #[test]
 fn garbage_and_misaddressed_traffic_change_nothing() {
-    let mut rig = rig("garbage");
+    let mut rig = Rig::new("garbage");
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
@@ -300,13 +290,14 @@ fn garbage_and_misaddressed_traffic_change_nothing() {
         rig.sh(noise).expect("send noise");
     }
     // Wait until both newcomers are on the network, then check that nothing changed.
-    let deadline = std::time::Instant::now() + util::PATIENCE;
-    while {
+    eventually("both newcomers seen", || {
         let status = rig.status();
-        Rig::device(&status, 12).is_none() || Rig::device(&status, 77).is_none()
-    } {
-        assert!(std::time::Instant::now() < deadline, "newcomers never seen");
-    }
+        if Rig::device(&status, 12).is_some() && Rig::device(&status, 77).is_some() {
+            Ok(())
+        } else {
+            Err(status)
+        }
+    });
     let later = wall_us();
     wait_for_output(&record, Some(11), later).expect("still the laptop");
     assert!(rig.procs[0].is_running(), "the vehicle died");

@@ -2,18 +2,16 @@
 //! a network namespace of the test's own; the operators are driven only through their Unix
 //! sockets (newline-delimited JSON, docs/api.md), as a web or mobile front end would.
 
-use rove_gateway::harness::{Rig, records, wait_for_output, wall_us};
+use crate::util::{Rig, eventually, records, wait_for_output, wall_us};
 use serde_json::{Value, json};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const V: i64 = 100;
 const A: i64 = 11;
 const B: i64 = 21;
-const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-const WAIT: Duration = Duration::from_secs(20);
 
 /// A client of one operator's API: every line it has read, in order.
 struct Api {
@@ -24,16 +22,9 @@ struct Api {
 
 impl Api {
     fn connect(path: &Path) -> Api {
-        let start = Instant::now();
-        let stream = loop {
-            match UnixStream::connect(path) {
-                Ok(s) => break s,
-                Err(e) => {
-                    assert!(start.elapsed() < WAIT, "{}: {e}", path.display());
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-            }
-        };
+        let stream = eventually(&format!("connect to {}", path.display()), || {
+            UnixStream::connect(path)
+        });
         stream
             .set_read_timeout(Some(Duration::from_millis(100)))
             .expect("timeout");
@@ -59,22 +50,17 @@ impl Api {
     }
 
     fn wait(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
-        let start = Instant::now();
         let mut seen = 0;
-        loop {
+        eventually(what, || {
             while seen < self.lines.len() {
                 if pred(&self.lines[seen]) {
-                    return self.lines[seen].clone();
+                    return Ok(self.lines[seen].clone());
                 }
                 seen += 1;
             }
-            assert!(
-                start.elapsed() < WAIT,
-                "{what}: not seen in {WAIT:?}; lines: {:#?}",
-                self.lines
-            );
             self.pump();
-        }
+            Err(format!("lines: {:#?}", self.lines))
+        })
     }
 
     /// Sends one command line and returns its reply (`ok` or `error`).
@@ -83,24 +69,23 @@ impl Api {
         self.writer
             .write_all(format!("{line}\n").as_bytes())
             .expect("write");
-        let start = Instant::now();
-        loop {
+        eventually(&format!("a reply to {line}"), || {
             if let Some(reply) = self.lines[from..]
                 .iter()
                 .find(|v| v.get("ok").is_some() || v.get("error").is_some())
             {
-                return reply.clone();
+                return Ok(reply.clone());
             }
-            assert!(start.elapsed() < WAIT, "no reply to {line}");
             self.pump();
-        }
+            Err(format!("lines since: {:#?}", &self.lines[from..]))
+        })
     }
 }
 
 /// The vehicle (driven by A), A (asks its person: auto_accept never, 3 s consent timeout)
 /// and B (weaker, drives nothing), each operator with an API socket.
 fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
-    let mut rig = Rig::new(Path::new(ROVE), test).unwrap_or_else(|e| panic!("{e}"));
+    let mut rig = Rig::new(test);
     let record = rig.vehicle(V);
     rig.operator(
         A,

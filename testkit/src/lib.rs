@@ -1,0 +1,203 @@
+//! `rove-testkit`: helpers shared by the tests of several crates, never by shipped code (a
+//! dev-dependency only).
+//!
+//! - [`eventually`]: poll a condition until a deadline; the one way tests wait for something
+//!   another process or thread does (no fixed sleeps for synchronisation).
+//! - [`FakeAutopilot`]: `fake_autopilot.py` (pymavlink, beside this crate's manifest) as a child
+//!   process, and its JSON-lines record. Used by `rove-mavlink`'s adapter tests
+//!   (`adapters/mavlink/tests/autopilot.rs`) and by the end-to-end tests in `tests/`.
+
+use serde_json::Value;
+use std::fmt::Display;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// How long [`eventually`] waits. Generous: a loaded 2-core CI machine starting several
+/// processes at once.
+pub const PATIENCE: Duration = Duration::from_secs(20);
+
+/// How often [`eventually`] polls.
+const POLL: Duration = Duration::from_millis(10);
+
+/// Polls `probe` until it returns `Ok`, for at most [`PATIENCE`], and returns that value.
+///
+/// # Panics
+/// When the deadline passes: the message names `what` and the last `Err` (say there what was
+/// seen instead, so that a failure explains itself).
+pub fn eventually<T, E: Display>(what: &str, probe: impl FnMut() -> Result<T, E>) -> T {
+    eventually_within(PATIENCE, what, probe)
+}
+
+/// [`eventually`] with a deadline of `patience`.
+///
+/// # Panics
+/// When the deadline passes, as [`eventually`].
+pub fn eventually_within<T, E: Display>(
+    patience: Duration,
+    what: &str,
+    mut probe: impl FnMut() -> Result<T, E>,
+) -> T {
+    let deadline = Instant::now() + patience;
+    loop {
+        match probe() {
+            Ok(value) => return value,
+            Err(why) if Instant::now() >= deadline => {
+                panic!("{what}: not within {patience:?}; last seen: {why}")
+            }
+            Err(_) => std::thread::sleep(POLL),
+        }
+    }
+}
+
+/// The pymavlink autopilot script (ArduPilot or PX4 as a ground station sees it); its
+/// docstring lists its options and what it records.
+pub fn fake_autopilot_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fake_autopilot.py")
+}
+
+/// A running [`fake_autopilot_script`] and its record (JSON lines, one per event, each with
+/// a monotonic `t` and a wall-clock `wall_us`). Killed on drop.
+///
+/// Needs `python3` with `pymavlink` (`pyserial` for serial links); `.ci/run` installs them.
+#[derive(Debug)]
+pub struct FakeAutopilot {
+    child: Child,
+    record: PathBuf,
+    /// The temp directory holding the record, when the autopilot made it itself.
+    _dir: Option<tempfile::TempDir>,
+}
+
+impl FakeAutopilot {
+    /// Starts the autopilot with `args` (e.g. `--connection udpin:127.0.0.1:PORT`) on this
+    /// host's network, recording into a temp directory of its own; returns once it is ready.
+    ///
+    /// # Panics
+    /// `python3` does not run, or the autopilot is not ready within [`PATIENCE`].
+    pub fn start(args: &[&str]) -> FakeAutopilot {
+        let dir = tempfile::tempdir().expect("temp dir for the autopilot's record");
+        let record = dir.path().join("autopilot.jsonl");
+        FakeAutopilot::spawn(Command::new("python3"), record, Some(dir), args)
+    }
+
+    /// Starts the autopilot with `args` inside network namespace `netns` (`ip netns exec`),
+    /// recording to `record`; returns once it is ready.
+    ///
+    /// # Panics
+    /// As [`FakeAutopilot::start`].
+    pub fn start_in_netns(netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
+        let mut command = Command::new("ip");
+        command.args(["netns", "exec", netns, "python3"]);
+        FakeAutopilot::spawn(command, record.to_path_buf(), None, args)
+    }
+
+    fn spawn(
+        mut command: Command,
+        record: PathBuf,
+        dir: Option<tempfile::TempDir>,
+        args: &[&str],
+    ) -> FakeAutopilot {
+        let child = command
+            .arg(fake_autopilot_script())
+            .arg("--record")
+            .arg(&record)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("python3 runs (install pymavlink: python3 -m pip install pymavlink)");
+        let autopilot = FakeAutopilot {
+            child,
+            record,
+            _dir: dir,
+        };
+        autopilot.wait_for("autopilot ready", |e| e["event"] == "ready");
+        autopilot
+    }
+
+    /// The record file.
+    pub fn record(&self) -> &Path {
+        &self.record
+    }
+
+    /// Everything the autopilot recorded so far, in order (a line still being written is left
+    /// out).
+    pub fn events(&self) -> Vec<Value> {
+        std::fs::read_to_string(&self.record)
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    }
+
+    /// The recorded events named `event`.
+    pub fn of(&self, event: &str) -> Vec<Value> {
+        self.events()
+            .into_iter()
+            .filter(|e| e["event"] == event)
+            .collect()
+    }
+
+    /// Waits until a recorded event matches `pred` and returns the first that does.
+    ///
+    /// # Panics
+    /// None within [`PATIENCE`]: the message shows the last events.
+    pub fn wait_for(&self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        eventually(&format!("autopilot: {what}"), || {
+            let events = self.events();
+            match events.iter().find(|e| pred(e)) {
+                Some(e) => Ok(e.clone()),
+                None => Err(format!(
+                    "{} events, the last ones: {:#?}",
+                    events.len(),
+                    events.iter().rev().take(8).rev().collect::<Vec<_>>()
+                )),
+            }
+        })
+    }
+
+    /// Kills the autopilot (a crash, or the end of a link).
+    pub fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for FakeAutopilot {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::cell::Cell;
+
+    #[test]
+    fn eventually_returns_the_first_ok() {
+        let calls = Cell::new(0);
+        let got = eventually("third call", || {
+            calls.set(calls.get() + 1);
+            if calls.get() == 3 {
+                Ok(calls.get())
+            } else {
+                Err("not yet")
+            }
+        });
+        assert_eq!(got, 3);
+    }
+
+    #[test]
+    #[should_panic(expected = "never: not within 30ms; last seen: still 7")]
+    fn eventually_panics_with_the_last_error_at_the_deadline() {
+        eventually_within(Duration::from_millis(30), "never", || {
+            Err::<(), _>("still 7")
+        });
+    }
+
+    #[test]
+    fn the_script_is_where_the_launcher_looks() {
+        assert!(fake_autopilot_script().is_file());
+    }
+}

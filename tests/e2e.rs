@@ -1,0 +1,16 @@
+//! rove's end-to-end tests: the real `rove` binary as processes, each test in a network namespace
+//! of its own (as root, with iproute2), asserting on outputs, records, status and logs. One test
+//! binary, a module per area (as ripgrep's `tests/tests.rs`); what they share is in [`util`].
+//!
+//! The target is declared in `gateway/Cargo.toml` (the package that builds `rove`, so Cargo
+//! sets `CARGO_BIN_EXE_rove`): `cargo test -p rove-gateway --test e2e [MODULE::]`.
+
+mod util;
+
+mod console_api;
+mod hierarchy;
+mod inputs;
+mod mavlink;
+mod outputs;
+mod package;
+mod service;

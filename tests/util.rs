@@ -1,0 +1,249 @@
+//! What the end-to-end modules share: the `rove` binary, the rig (processes in a network
+//! namespace of the test's own), config builders, the fake sysfs PWM class, the fake autopilot
+//! and the deadline poller.
+//!
+//! The process harness itself ([`rove_gateway::harness`]) ships in the library because `rove
+//! demo` and `rove bench` run on it too; what only tests need lives here, or in `rove-testkit`
+//! when another crate's tests need it as well.
+
+use serde_json::Value;
+use std::fmt;
+use std::ops::{Deref, DerefMut};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+pub use rove_gateway::harness::{records, wait_for_output, wall_us};
+pub use rove_testkit::{FakeAutopilot, PATIENCE, eventually};
+
+/// The `rove` binary under test: Cargo builds it for this test target, which is declared in
+/// `gateway/Cargo.toml`, the package of the binary.
+pub const ROVE: &str = env!("CARGO_BIN_EXE_rove");
+
+/// The repository root (the test target belongs to `gateway/`).
+pub fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+// ---------------------------------------------------------------------------------------------
+// The rig
+
+/// A fresh network namespace (loopback with multicast) and directory, running [`ROVE`]:
+/// [`rove_gateway::harness::Rig`] plus what only tests ask of it. Children are killed and the
+/// namespace deleted on drop; if the test failed, every child's log is printed.
+#[derive(Debug)]
+pub struct Rig(rove_gateway::harness::Rig);
+
+impl Rig {
+    /// A rig named after `test`.
+    ///
+    /// # Panics
+    /// The namespace cannot be created (needs root and iproute2).
+    pub fn new(test: &str) -> Rig {
+        Rig(rove_gateway::harness::Rig::new(Path::new(ROVE), test)
+            .unwrap_or_else(|e| panic!("{e}")))
+    }
+
+    /// Runs a shell command inside the namespace (e.g. to send raw datagrams).
+    pub fn sh(&self, script: &str) -> Result<(), String> {
+        let out = Command::new("ip")
+            .args(["netns", "exec", &self.ns, "bash", "-c", script])
+            .output()
+            .map_err(|e| format!("ip netns exec: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!(
+                "{script}: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            ))
+        }
+    }
+
+    /// `rove status --json` in the namespace.
+    pub fn status(&self) -> Value {
+        let out = Command::new("ip")
+            .args(["netns", "exec", &self.ns, ROVE, "status", "--json"])
+            .args(["--listen-ms", "1200"])
+            .output()
+            .expect("run rove status");
+        let text = String::from_utf8_lossy(&out.stdout);
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| {
+            panic!(
+                "status output is not JSON ({e}): {text}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        })
+    }
+
+    /// The device row of `id` in a status snapshot.
+    pub fn device(status: &Value, id: i64) -> Option<Value> {
+        status["devices"]
+            .as_array()?
+            .iter()
+            .find(|d| d["id"] == id)
+            .cloned()
+    }
+
+    /// The fake autopilot with `args`, in the rig's namespace, recording to
+    /// `DIR/autopilot.jsonl`; returns once it is ready.
+    pub fn autopilot(&self, args: &[&str]) -> FakeAutopilot {
+        FakeAutopilot::start_in_netns(&self.ns, &self.dir.join("autopilot.jsonl"), args)
+    }
+}
+
+impl Deref for Rig {
+    type Target = rove_gateway::harness::Rig;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl DerefMut for Rig {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
+/// A scratch directory of its own for a test that needs no namespace, removed on drop unless
+/// the test failed (or `ROVE_KEEP_RIG` is set, as for the rig).
+#[derive(Debug)]
+pub struct Scratch {
+    pub dir: PathBuf,
+}
+
+impl Scratch {
+    pub fn new(test: &str) -> Scratch {
+        static NEXT: AtomicUsize = AtomicUsize::new(0);
+        let n = NEXT.fetch_add(1, Ordering::SeqCst);
+        let dir = std::env::temp_dir().join(format!("rove-e2e-{}-{n}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch dir");
+        Scratch { dir }
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() && std::env::var_os("ROVE_KEEP_RIG").is_none() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Configs
+
+/// A vehicle's config: device `id` (named `v{id}`) with `output_toml` as its `[output]`.
+pub fn vehicle_toml(id: i64, output_toml: &str) -> String {
+    format!("[device]\nid = {id}\nname = \"v{id}\"\n{output_toml}")
+}
+
+/// An Eyedrive rover on the sysfs PWM backend under `root` (a [`fake_sysfs`]): steering on
+/// channel 0, throttle on channel 1.
+pub fn eyedrive_sysfs(root: &Path) -> String {
+    format!(
+        "[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\nsysfs_root = \"{}\"\n\
+         [output.steering]\nchannel = 0\n[output.throttle]\nchannel = 1\n",
+        root.display()
+    )
+}
+
+/// An operator's config, for tests that write the file themselves (the rig's `operator` starts
+/// one with constant sticks). Prints as TOML.
+#[derive(Debug, Clone)]
+pub struct OperatorToml {
+    id: i64,
+    name: String,
+    level: String,
+    class: String,
+    drive: Vec<i64>,
+    more: String,
+}
+
+impl OperatorToml {
+    /// Device `id` (named `op{id}`) at `level` as a `class`, driving nothing, with no `[input]`.
+    pub fn new(id: i64, level: &str, class: &str) -> OperatorToml {
+        OperatorToml {
+            id,
+            name: format!("op{id}"),
+            level: level.to_string(),
+            class: class.to_string(),
+            drive: Vec::new(),
+            more: String::new(),
+        }
+    }
+
+    pub fn name(mut self, name: &str) -> OperatorToml {
+        self.name = name.to_string();
+        self
+    }
+
+    /// The vehicles it drives.
+    pub fn drive(mut self, vehicles: &[i64]) -> OperatorToml {
+        self.drive = vehicles.to_vec();
+        self
+    }
+
+    /// TOML appended after `[operator]` (e.g. an `[input]` section).
+    pub fn then(mut self, toml: &str) -> OperatorToml {
+        self.more.push_str(toml);
+        self
+    }
+}
+
+impl fmt::Display for OperatorToml {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let drive: Vec<String> = self.drive.iter().map(i64::to_string).collect();
+        write!(
+            f,
+            "[device]\nid = {}\nname = \"{}\"\n[operator]\nlevel = \"{}\"\n\
+             device_class = \"{}\"\ndrive = [{}]\n{}",
+            self.id,
+            self.name,
+            self.level,
+            self.class,
+            drive.join(", "),
+            self.more
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// A fake sysfs PWM class
+
+/// A fake sysfs PWM class under `dir`: `pwmchip0` with channels 0 and 1 already exported (the
+/// kernel creates `pwmM/` on export; rove-pwm's own tests cover the export step). Returns the
+/// class root to put in `sysfs_root`.
+pub fn fake_sysfs(dir: &Path) -> PathBuf {
+    let root = dir.join("sys-class-pwm");
+    for ch in 0..2 {
+        let pwm = root.join(format!("pwmchip0/pwm{ch}"));
+        std::fs::create_dir_all(&pwm).expect("fake sysfs");
+        for (attr, value) in [("period", "0"), ("duty_cycle", "0"), ("enable", "0")] {
+            std::fs::write(pwm.join(attr), value).expect("fake sysfs attr");
+        }
+    }
+    std::fs::write(root.join("pwmchip0/export"), "").expect("export file");
+    root
+}
+
+/// Channel `ch`'s duty cycle in a [`fake_sysfs`] tree, as written (ns).
+pub fn duty(root: &Path, ch: u32) -> String {
+    std::fs::read_to_string(root.join(format!("pwmchip0/pwm{ch}/duty_cycle")))
+        .unwrap_or_default()
+        .trim()
+        .to_string()
+}
+
+/// Waits until channel `ch`'s duty cycle reads `want` (ns).
+pub fn wait_duty(root: &Path, ch: u32, want: &str) {
+    eventually(&format!("pwm{ch}/duty_cycle = {want}"), || {
+        let got = duty(root, ch);
+        if got == want {
+            Ok(())
+        } else {
+            Err(format!("{got:?}"))
+        }
+    });
+}
