@@ -16,7 +16,7 @@
 //! piece took; [`UnknownKeys::check`] reports each against its key path, so the gateway points
 //! at the misspelt key's own line. Tables that flatten nothing keep `deny_unknown_fields`.
 
-use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::error::{ConfigErrors, Result};
 use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
 use serde::{Deserialize, Serialize, Serializer};
 use std::collections::HashMap;
@@ -43,7 +43,7 @@ impl ConfigErrors {
         let narrowed = T::try_from(value).ok().filter(|_| range.contains(&value));
         if narrowed.is_none() {
             let rule = format!("must be {}..={}{unit}", range.start(), range.end());
-            self.push(ConfigError::new(key, value, rule));
+            self.add(key, value, rule);
         }
         narrowed
     }
@@ -62,7 +62,7 @@ impl ConfigErrors {
     /// `value` if it is finite and lies in `range`; otherwise records `key = value: rule`.
     pub fn float(&mut self, key: &str, value: f64, range: RangeInclusive<f64>, rule: &str) -> f64 {
         if !(value.is_finite() && range.contains(&value)) {
-            self.push(ConfigError::new(key, value, rule));
+            self.add(key, value, rule);
         }
         value
     }
@@ -77,14 +77,14 @@ impl ConfigErrors {
 
     /// Records `key = (absent): rule` for a required key that was left out.
     pub fn absent(&mut self, key: &str, rule: impl Into<String>) {
-        self.push(ConfigError::new(key, ABSENT, rule));
+        self.add(key, ABSENT, rule);
     }
 
     /// Records `key = value: rule` if the key was given although it does not apply (to this
     /// backend, source or method).
     pub fn not_for<V: fmt::Display>(&mut self, key: &str, value: Option<V>, rule: &str) {
         if let Some(v) = value {
-            self.push(ConfigError::new(key, v, rule));
+            self.add(key, v, rule);
         }
     }
 
@@ -98,7 +98,7 @@ impl ConfigErrors {
                 None
             }
             Err(other) => {
-                self.push(ConfigError::new(prefix, "?", other.to_string()));
+                self.add(prefix, "?", other.to_string());
                 None
             }
         }
@@ -139,7 +139,7 @@ impl<K: Eq + Hash> Unique<K> {
     ) {
         if let Some(first) = self.claim(value, owner) {
             let rule = format!("must be unique: {first} {what}");
-            errors.push(ConfigError::new(key, shown, rule.trim_end()));
+            errors.add(key, shown, rule.trim_end());
         }
     }
 }
@@ -160,7 +160,7 @@ impl UnknownKeys {
                 .map(|k| format!("`{k}`"))
                 .collect();
             let rule = format!("unknown key, expected one of {}", names.join(", "));
-            errors.push(ConfigError::new(key.as_str(), value, rule));
+            errors.add(key.as_str(), value, rule);
         }
     }
 }

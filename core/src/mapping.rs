@@ -17,7 +17,7 @@
 //! Safe-state values are written without slew limiting: a failsafe must not be slowed down.
 
 use crate::config::Int;
-use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::error::{ConfigErrors, Result};
 use crate::msg::{Mode, MovementCommand};
 use crate::time::MonoTime;
 use serde::{Deserialize, Serialize};
@@ -163,14 +163,14 @@ impl AxisMapSettings {
                 Some(t) => ("trim_us", t),
                 None => ("centre_us", centre),
             };
-            errors.push(ConfigError::new(
+            errors.add(
                 key,
                 value,
                 format!(
                     "centre_us + trim_us ({trimmed}) must lie strictly between min_us ({min}) \
                      and max_us ({max})"
                 ),
-            ));
+            );
         }
         let deadband_pct = self.deadband_pct.unwrap_or(0.0);
         let rule = "must be 0..=50 (percent of full scale)";
@@ -340,11 +340,11 @@ impl ModeLevelsSettings {
         ];
         for (i, (key, v)) in named.iter().enumerate() {
             if let Some((other, _)) = named[..i].iter().find(|(_, w)| v.is_some() && w == v) {
-                errors.push(ConfigError::new(
+                errors.add(
                     *key,
                     v.unwrap_or_default(),
                     format!("must differ from {other}: the device could not tell the modes apart"),
-                ));
+                );
             }
         }
         let levels = ModeLevels {

@@ -8,7 +8,7 @@
 use anyhow::{Context, anyhow};
 use rove_core::arbiter::ArbiterConfig;
 use rove_core::config::Int;
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::error::ConfigErrors;
 use rove_core::handover::{HandoverConfig, HandoverSettings};
 use rove_core::hierarchy::{DeviceClass, Hierarchy, HierarchyTable, Level, Strength};
 use rove_core::msg::{DeviceId, Mode, MovementCommand};
@@ -569,11 +569,7 @@ fn validate_common(
     let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
     let heartbeat_ms = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
-        errors.push(ConfigError::new(
-            "device.id",
-            device.id,
-            "must be a positive device id",
-        ));
+        errors.add("device.id", device.id, "must be a positive device id");
     }
     let domain_id = network.domain_id.unwrap_or(0);
     // RTPS maps domain ids to ports (7400 + 250 × domain); above 232 the ports overflow.
@@ -582,23 +578,23 @@ fn validate_common(
     if let Some(level) = &log.level
         && !is_log_filter(level)
     {
-        errors.push(ConfigError::new(
+        errors.add(
             "log.level",
             format!("{level:?}"),
             "must be a level (off, error, warn, info, debug, trace) or comma-separated \
              `target=level` directives",
-        ));
+        );
     }
     let interfaces = network
         .interfaces
         .clone()
         .unwrap_or_else(|| vec![Ipv4Addr::LOCALHOST]);
     if interfaces.is_empty() {
-        errors.push(ConfigError::new(
+        errors.add(
             "network.interfaces",
             "[]",
             "must name at least one interface address (absent: loopback)",
-        ));
+        );
     }
     Common {
         id: device.id,
@@ -681,11 +677,11 @@ impl RawOperator {
         let handover = handover.unwrap_or_default();
         for (i, v) in self.operator.drive.iter().enumerate() {
             if *v == self.device.id {
-                errors.push(ConfigError::new(
+                errors.add(
                     format!("operator.drive[{i}]"),
                     v,
                     "is this operator's own device id",
-                ));
+                );
             }
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);

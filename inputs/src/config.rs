@@ -8,7 +8,7 @@
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
 use rove_core::config::Int;
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
@@ -376,11 +376,11 @@ impl InputSettings {
     pub fn validate(&self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {
-            errors.push(ConfigError::new(
+            errors.add(
                 "source",
                 "(absent)",
                 "must be one of \"joystick\", \"keyboard\", \"replay\"",
-            ));
+            );
             SourceKind::Joystick
         });
         let config = self.validate_inner(kind, &mut errors);
@@ -397,11 +397,11 @@ impl InputSettings {
         let mut errors = ConfigErrors::default();
         if let Some(s) = self.source {
             if s != kind {
-                errors.push(ConfigError::new(
+                errors.add(
                     "source",
                     format!("{s:?}").to_lowercase(),
                     format!("must be {:?}", format!("{kind:?}").to_lowercase()),
-                ));
+                );
             }
         }
         let config = self.validate_inner(kind, &mut errors);
@@ -428,11 +428,11 @@ impl InputSettings {
         let mut used: BTreeMap<Control, String> = BTreeMap::new();
         let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
             if let Some(first) = used.get(&control) {
-                errors.push(ConfigError::new(
+                errors.add(
                     key,
                     format!("{value:?}"),
                     format!("is already used by {first}"),
-                ));
+                );
             } else {
                 used.insert(control, key.to_string());
             }
@@ -488,11 +488,11 @@ impl InputSettings {
             mapping.axes[slot] = config;
         }
         if raw_axes.iter().all(|a| a.is_none()) {
-            errors.push(ConfigError::new(
+            errors.add(
                 "axes",
                 "(none)",
                 "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
-            ));
+            );
         }
         let b = &self.buttons;
         let buttons: [(&str, &Option<String>, Option<InputAction>); 11] = [
@@ -536,12 +536,12 @@ impl InputSettings {
             let Some(value) = value else { continue };
             let key = format!("buttons.{name}");
             let Some(control) = Control::parse(value) else {
-                errors.push(ConfigError::new(
+                errors.add(
                     key,
                     format!("{value:?}"),
                     "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
                      direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
-                ));
+                );
                 continue;
             };
             claim(errors, control, &key, value);
@@ -590,26 +590,22 @@ impl InputSettings {
                 errors.not_for("file", file, "only applies to source = \"replay\"");
                 let selector = match (&self.device, &self.name) {
                     (Some(d), Some(n)) => {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "name",
                             format!("{n:?}"),
                             "give either device or name, not both",
-                        ));
+                        );
                         DeviceSelector::Path(d.clone())
                     }
                     (Some(d), None) => {
                         if d.as_os_str().is_empty() {
-                            errors.push(ConfigError::new("device", "\"\"", "must be a path"));
+                            errors.add("device", "\"\"", "must be a path");
                         }
                         DeviceSelector::Path(d.clone())
                     }
                     (None, Some(n)) => {
                         if n.trim().is_empty() {
-                            errors.push(ConfigError::new(
-                                "name",
-                                format!("{n:?}"),
-                                "must be a non-empty pattern",
-                            ));
+                            errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
                         }
                         DeviceSelector::Name(n.clone())
                     }
@@ -647,28 +643,28 @@ impl AxisSettings {
         );
         let scale_pct = self.scale_pct.unwrap_or(100.0);
         if !(scale_pct > 0.0 && scale_pct <= 100.0) {
-            errors.push(ConfigError::new(
+            errors.add(
                 "scale_pct",
                 scale_pct,
                 "must be greater than 0 and at most 100",
-            ));
+            );
         }
         let has_keys = self.negative.is_some() || self.positive.is_some();
         let input = match (&self.abs, has_keys) {
             (Some(_), true) => {
-                errors.push(ConfigError::new(
+                errors.add(
                     "abs",
                     format!("{:?}", self.abs.as_deref().unwrap_or_default()),
                     "give either abs or negative/positive keys, not both",
-                ));
+                );
                 None
             }
             (None, false) => {
-                errors.push(ConfigError::new(
+                errors.add(
                     "abs",
                     "(absent)",
                     "must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
-                ));
+                );
                 None
             }
             (Some(name), false) => self.validate_abs(name, errors),
@@ -690,11 +686,11 @@ impl AxisSettings {
         errors.not_for("spring_back_ms", self.spring_back_ms, not_for_abs);
         let code = parse_abs(name);
         if code.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "abs",
                 format!("{name:?}"),
                 "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
-            ));
+            );
         }
         let deadzone = self
             .deadband_pct
@@ -709,27 +705,19 @@ impl AxisSettings {
         );
         if let (Some(min), Some(max)) = (self.min, self.max) {
             if min >= max {
-                errors.push(ConfigError::new(
-                    "max",
-                    max,
-                    format!("must be greater than min ({min})"),
-                ));
+                errors.add("max", max, format!("must be greater than min ({min})"));
             }
         }
         if let Some(centre) = self.centre {
             if let Some(min) = self.min.filter(|m| centre <= *m) {
-                errors.push(ConfigError::new(
+                errors.add(
                     "centre",
                     centre,
                     format!("must be greater than min ({min})"),
-                ));
+                );
             }
             if let Some(max) = self.max.filter(|m| centre >= *m) {
-                errors.push(ConfigError::new(
-                    "centre",
-                    centre,
-                    format!("must be less than max ({max})"),
-                ));
+                errors.add("centre", centre, format!("must be less than max ({max})"));
             }
         }
         Some(AxisInput::Abs {
@@ -753,11 +741,11 @@ impl AxisSettings {
                 Some(name) => match parse_key(name) {
                     Some(code) => Some(Some(code)),
                     None => {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             field,
                             format!("{name:?}"),
                             "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
-                        ));
+                        );
                         None
                     }
                 },
@@ -767,11 +755,11 @@ impl AxisSettings {
         let positive = key("positive", &self.positive);
         if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
             if n == p {
-                errors.push(ConfigError::new(
+                errors.add(
                     "positive",
                     format!("{:?}", self.positive.as_deref().unwrap_or_default()),
                     "must differ from negative",
-                ));
+                );
             }
         }
         let mut ms = |field: &str, value: Option<Int>, default: Int| {

@@ -16,7 +16,7 @@ use crate::dronecan::{
 use crate::raw::{Endian, FieldLayout, Width};
 use crate::scale::{Scale, Source, UnitScale, axis_name};
 use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::error::ConfigErrors;
 use rove_core::mapping::Axis;
 use serde::de::{self, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
@@ -260,29 +260,29 @@ impl SourceSettings {
             SourceSettings::Axis(a) => Source::Axis(*a),
             SourceSettings::Mix { mix } => {
                 if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
-                    errors.push(ConfigError::new(
+                    errors.add(
                         "source",
                         self,
                         format!("a mix needs 1..={MIX_TERMS_MAX} terms"),
-                    ));
+                    );
                 }
                 for (i, (axis, weight)) in mix.iter().enumerate() {
                     if !weight.is_finite() || weight.abs() > MIX_WEIGHT_MAX || *weight == 0.0 {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "source",
                             self,
                             format!(
                                 "weight of {} must be non-zero and within ±{MIX_WEIGHT_MAX}",
                                 axis_name(*axis)
                             ),
-                        ));
+                        );
                     }
                     if mix[..i].iter().any(|(other, _)| other == axis) {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "source",
                             self,
                             format!("{} appears twice in the mix", axis_name(*axis)),
-                        ));
+                        );
                     }
                 }
                 Source::Mix(mix.clone())
@@ -562,14 +562,14 @@ impl<T: Copy + PartialOrd + fmt::Display> ScaleSettings<T> {
         let mut ok = true;
         for (key, v) in ["min", "centre", "max", "failsafe"].into_iter().zip(values) {
             if !range.contains(&v) {
-                errors.push(ConfigError::new(key, v, rule));
+                errors.add(key, v, rule);
                 ok = false;
             }
         }
         let between = (min < centre && centre < max) || (max < centre && centre < min);
         if ok && !between {
             let rule = format!("must lie strictly between min ({min}) and max ({max})");
-            errors.push(ConfigError::new("centre", centre, rule));
+            errors.add("centre", centre, rule);
             ok = false;
         }
         ok.then_some(values)
@@ -620,14 +620,14 @@ impl CanSettings {
                     .chars()
                     .all(|c| c.is_ascii_graphic() && c != '/' && c != ':'))
         {
-            errors.push(ConfigError::new(
+            errors.add(
                 "interface",
                 format!("{interface:?}"),
                 format!(
                     "must be a network interface name: 1..={INTERFACE_NAME_MAX} printable \
                      characters, no '/' or ':'"
                 ),
-            ));
+            );
         }
         let rate = check_rate("rate_hz", self.rate_hz, &mut errors).unwrap_or(DEFAULT_RATE_HZ);
         let mut frames: Vec<RawFrameConfig> = Vec::new();
@@ -664,20 +664,20 @@ impl CanSettings {
             for (t, priority) in ours {
                 let id = CanId::Extended(dronecan::message_id(priority, t.id, dc.node_id));
                 for (_, i) in our_ids.iter().filter(|(other, _)| *other == id).take(1) {
-                    errors.push(ConfigError::new(
+                    errors.add(
                         format!("frames[{i}].id"),
                         id,
                         format!("must differ from our DroneCAN {} identifier", t.name),
-                    ));
+                    );
                 }
             }
         }
         if self.frames.is_empty() && self.dronecan.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "frames",
                 "[]",
                 "a CAN vehicle needs at least one [[output.frames]] or an [output.dronecan] table",
-            ));
+            );
         }
         errors.into_result(CanConfig {
             interface,
@@ -717,11 +717,7 @@ fn validate_frame(
             } else {
                 format!("0x{id:X}")
             };
-            errors.push(ConfigError::new(
-                "id",
-                shown,
-                format!("must be 0..=0x{limit:X}{hint}"),
-            ));
+            errors.add("id", shown, format!("must be 0..=0x{limit:X}{hint}"));
         }
         fits
     });
@@ -736,14 +732,14 @@ fn validate_frame(
             } else {
                 "must be 0..=8 bytes (longer frames need fd = true)"
             };
-            errors.push(ConfigError::new("length", len, rule));
+            errors.add("length", len, rule);
         }
         ok
     });
     let rate = check_rate("rate_hz", f.rate_hz, errors).unwrap_or(section_rate);
     if f.outputs.is_empty() {
         let rule = "a frame needs at least one [[output.frames.outputs]]";
-        errors.push(ConfigError::new("outputs", "[]", rule));
+        errors.add("outputs", "[]", rule);
     }
     let limit = length.unwrap_or(capacity);
     let mut outputs: Vec<RawOutputConfig> = Vec::new();
@@ -802,7 +798,7 @@ fn validate_field(
         .check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
     let name = output_name(&o.name, default_name);
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
-        errors.push(ConfigError::new("name", "\"\"", "must not be empty"));
+        errors.add("name", "\"\"", "must not be empty");
     }
     let source = errors
         .required("source", &o.source)
@@ -812,7 +808,7 @@ fn validate_field(
         Some(w) => {
             let width = Width::from_bits(w);
             if width.is_none() {
-                errors.push(ConfigError::new("width", w, "must be 8, 16 or 32 (bits)"));
+                errors.add("width", w, "must be 8, 16 or 32 (bits)");
             }
             width
         }
@@ -820,11 +816,11 @@ fn validate_field(
     let offset = errors.required("offset", &o.offset).and_then(|off| {
         let ok = usize::try_from(off).ok().filter(|o| *o < frame_len);
         if ok.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "offset",
                 off,
                 format!("must be 0..{frame_len} (the frame's bytes)"),
-            ));
+            );
         }
         ok
     });
@@ -837,18 +833,18 @@ fn validate_field(
     };
     let mut placed = true;
     if layout.end() > frame_len {
-        errors.push(ConfigError::new(
+        errors.add(
             "offset",
             offset,
             format!(
                 "offset + width ({offset} + {} bytes) reaches past the frame's {frame_len} bytes",
                 width.bytes()
             ),
-        ));
+        );
         placed = false;
     }
     if let Some(other) = earlier.iter().find(|e| e.layout.overlaps(&layout)) {
-        errors.push(ConfigError::new(
+        errors.add(
             "offset",
             offset,
             format!(
@@ -859,7 +855,7 @@ fn validate_field(
                 other.layout.offset,
                 other.layout.end()
             ),
-        ));
+        );
         placed = false;
     }
     let range = layout.range();
@@ -898,19 +894,19 @@ impl DroneCanSettings {
         let priority = errors.int("priority", priority, PRIORITY_RANGE, " (0 highest)");
         let rate = check_rate("rate_hz", self.rate_hz, errors).unwrap_or(section_rate);
         if self.servos.is_empty() && self.escs.is_empty() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "servos",
                 "[]",
                 "[output.dronecan] needs at least one of [[output.dronecan.servos]] or \
                  [[output.dronecan.escs]]",
-            ));
+            );
         }
         if self.servos.len() > MAX_SERVOS {
-            errors.push(ConfigError::new(
+            errors.add(
                 "servos",
                 format!("{} entries", self.servos.len()),
                 format!("at most {MAX_SERVOS} (one ArrayCommand)"),
-            ));
+            );
         }
         let mut ok = true;
         let mut claim = |errors: &mut ConfigErrors, name: &str, key: String| {

@@ -10,7 +10,7 @@
 //! ```
 
 use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, AxisMap, AxisMapSettings};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
@@ -501,11 +501,7 @@ impl MavlinkSettings {
             .clone()
             .unwrap_or_else(|| "tcpout:127.0.0.1:5760".into());
         let endpoint = Endpoint::parse(&connection).unwrap_or_else(|rule| {
-            errors.push(ConfigError::new(
-                "connection",
-                format!("\"{connection}\""),
-                rule,
-            ));
+            errors.add("connection", format!("\"{connection}\""), rule);
             Endpoint::TcpOut("127.0.0.1:5760".into())
         });
         let mavlink_version = self.mavlink_version.unwrap_or(2);
@@ -524,11 +520,11 @@ impl MavlinkSettings {
             AutopilotKind::Px4 => Method::ManualControl,
         });
         if autopilot == AutopilotKind::Px4 && method == Method::RcOverride {
-            errors.push(ConfigError::new(
+            errors.add(
                 "method",
                 "\"rc_override\"",
                 "PX4 ignores RC_CHANNELS_OVERRIDE: use \"manual_control\"",
-            ));
+            );
         }
         let rate_hz = self.rate_hz.unwrap_or(25.0);
         let rule = "must be 1..=200 (autopilots time an override out after ~1–3 s)";
@@ -547,12 +543,12 @@ impl MavlinkSettings {
             Method::ManualControl => FailsafeAction::Neutral,
         });
         if method == Method::ManualControl && failsafe == FailsafeAction::Release {
-            errors.push(ConfigError::new(
+            errors.add(
                 "failsafe",
                 "\"release\"",
                 "MANUAL_CONTROL has no release value: use \"neutral\" (the safe mode then holds \
                  the vehicle)",
-            ));
+            );
         }
         let version = mavlink_version.unwrap_or(2);
         let channels = self.validate_channels(method, vehicle, version, &mut errors);
@@ -589,12 +585,12 @@ impl MavlinkSettings {
     ) -> Vec<ChannelConfig> {
         if method == Method::ManualControl {
             if !self.channels.is_empty() {
-                errors.push(ConfigError::new(
+                errors.add(
                     "channels",
                     format!("{} tables", self.channels.len()),
                     "only used with method = \"rc_override\"; map MANUAL_CONTROL in \
                      [output.manual_control]",
-                ));
+                );
             }
             return Vec::new();
         }
@@ -625,11 +621,7 @@ impl MavlinkSettings {
             let channel = rc.and_then(|ch| ce.int::<u8>("channel", ch, 1..=max_channel, rule));
             if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
                 let rule = format!("is already used by {first}");
-                ce.push(ConfigError::new(
-                    "channel",
-                    channel.unwrap_or_default(),
-                    rule,
-                ));
+                ce.add("channel", channel.unwrap_or_default(), rule);
             }
             if c.axis.is_none() {
                 ce.absent("axis", "is required: throttle, roll, pitch or yaw");
@@ -654,11 +646,11 @@ impl MavlinkSettings {
     ) -> ManualControlConfig {
         let s = self.manual_control.clone().unwrap_or_default();
         if method == Method::RcOverride && self.manual_control.is_some() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "manual_control",
                 "(table)",
                 "only used with method = \"manual_control\"",
-            ));
+            );
         }
         let pick = |v: Option<AxisOrNone>, d: Axis| v.map_or(Some(d), AxisOrNone::axis);
         let mut reverse = [false; 4];
@@ -724,7 +716,7 @@ impl MavlinkSettings {
                         },
                         None => {
                             let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
-                            errors.push(ConfigError::new(
+                            errors.add(
                                 format!("modes.{key}"),
                                 format!("\"{name}\""),
                                 format!(
@@ -732,7 +724,7 @@ impl MavlinkSettings {
                                     firmware_name(autopilot, vehicle),
                                     names.join(", ")
                                 ),
-                            ));
+                            );
                             fallback
                         }
                     }

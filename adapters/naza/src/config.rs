@@ -357,14 +357,14 @@ impl NazaSettings {
                     .land_throttle_us
                     .unwrap_or(default_floor.round() as Int);
                 if !(Int::from(min)..Int::from(centre)).contains(&floor_us) {
-                    errors.push(ConfigError::new(
+                    errors.add(
                         "land_throttle_us",
                         floor_us,
                         format!(
                             "must be at least throttle.min_us ({min}) and below the throttle \
                              centre ({centre}), or the aircraft would not descend"
                         ),
-                    ));
+                    );
                 }
                 FailsafeThrottle::Land {
                     floor_us: u16::try_from(floor_us).unwrap_or(min),

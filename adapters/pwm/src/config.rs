@@ -375,7 +375,7 @@ impl PwmVehicleSettings {
         let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
             let rule = "must list at least one channel ([[output.channels]])";
-            errors.push(ConfigError::new("channels", "[]", rule));
+            errors.add("channels", "[]", rule);
         }
         let mut channels = Vec::with_capacity(self.channels.len());
         let mut names = Unique::default();
@@ -454,11 +454,11 @@ impl PwmAddressSettings {
         let forms =
             usize::from(pin.is_some()) + usize::from(hw.is_some()) + usize::from(sysfs_given);
         if forms > 1 {
-            errors.push(ConfigError::new(
+            errors.add(
                 "pin",
                 self.pin.map_or("(absent)".into(), |p| p.to_string()),
                 "give one address: `pin`, `pwm_channel`, or `chip`/`channel`",
-            ));
+            );
             return None;
         }
         let u32_range = 0..=Int::from(u32::MAX);
@@ -480,11 +480,11 @@ impl PwmAddressSettings {
             BackendKind::Sysfs => {
                 if pin.is_some() || hw.is_some() {
                     let key = if pin.is_some() { "pin" } else { "pwm_channel" };
-                    errors.push(ConfigError::new(
+                    errors.add(
                         key,
                         self.pin.or(self.pwm_channel).unwrap_or_default(),
                         "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`",
-                    ));
+                    );
                     return None;
                 }
                 sysfs(errors)
@@ -496,11 +496,11 @@ impl PwmAddressSettings {
                     } else {
                         "chip"
                     };
-                    errors.push(ConfigError::new(
+                    errors.add(
                         key,
                         self.channel.or(self.chip).unwrap_or_default(),
                         "only applies to backend = \"sysfs\"; rppal channels take `pin` or `pwm_channel`",
-                    ));
+                    );
                     return None;
                 }
                 match (pin, hw) {
@@ -555,7 +555,7 @@ impl ChannelSettings {
             Some(n) if !n.trim().is_empty() => Some(n.to_string()),
             other => {
                 let shown = format!("{:?}", other.unwrap_or("(absent)"));
-                errors.push(ConfigError::new("name", shown, "must be a non-empty name"));
+                errors.add("name", shown, "must be a non-empty name");
                 None
             }
         };
@@ -571,12 +571,12 @@ impl ChannelSettings {
         let rule = format!("does not apply to {source_name}");
         let not_map = |errors: &mut ConfigErrors| {
             for (key, v) in self.map.given() {
-                errors.push(ConfigError::new(key, v, rule.as_str()));
+                errors.add(key, v, rule.as_str());
             }
         };
         let not_levels = |errors: &mut ConfigErrors| {
             for (key, v) in self.levels.given() {
-                errors.push(ConfigError::new(key, v, rule.as_str()));
+                errors.add(key, v, rule.as_str());
             }
         };
         if source_kind != ChannelSourceKind::Constant {
@@ -628,7 +628,7 @@ impl ChannelSettings {
         };
         let rule = format!("must be within the channel's range {flo}..={fhi} µs");
         if !(flo..=fhi).contains(&failsafe_us) {
-            errors.push(ConfigError::new("failsafe_us", failsafe_us, rule));
+            errors.add("failsafe_us", failsafe_us, rule);
         }
         let highest = Int::from(hi).max(failsafe_us);
         if highest >= period_us {
@@ -642,7 +642,7 @@ impl ChannelSettings {
                 }
             };
             let rule = format!("must be shorter than the PWM period ({period_us} µs)");
-            errors.push(ConfigError::new(key, highest, rule));
+            errors.add(key, highest, rule);
         }
         Some(ChannelConfig {
             name: name?,
