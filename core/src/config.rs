@@ -1,7 +1,7 @@
 //! The configuration vocabulary every crate shares: the integer policy and the checks that turn
 //! raw settings into validated ones (range, required, not-for-this-case, unique, unknown keys).
-//! Each check records a [`ConfigError`] (`key = value: rule`) in one [`ConfigErrors`] list, so a
-//! file's problems are all reported at once.
+//! Each check records a [`ConfigError`](crate::error::ConfigError) (`key = value: rule`) in one
+//! [`ConfigErrors`] list, so a file's problems are all reported at once.
 //!
 //! # Integer policy
 //! Every integer key is read as [`Int`] (`i64`, TOML's own integer type) and narrowed by
