@@ -27,6 +27,10 @@ use std::ops::RangeInclusive;
 /// How every integer key is read: wide, then range-checked by [`ConfigErrors::int`].
 pub type Int = i64;
 
+/// Older spellings still accepted (serde aliases), as (old, current): errors name the current
+/// key, the gateway finds either on its line, and "expected one of" lists only the current.
+pub const ALIASES: &[(&str, &str)] = &[("invert", "reverse"), ("deadzone_pct", "deadband_pct")];
+
 /// Shown as the value of a key that is absent but required.
 pub const ABSENT: &str = "(absent)";
 
@@ -154,9 +158,8 @@ impl UnknownKeys {
     /// table takes, for the message.
     pub fn check(&self, errors: &mut ConfigErrors, known: &[&[&str]]) {
         for (key, value) in &self.0 {
-            let names: Vec<String> = known
-                .iter()
-                .flat_map(|k| k.iter())
+            let names: Vec<String> = (known.iter().flat_map(|k| k.iter()))
+                .filter(|k| !ALIASES.iter().any(|(old, _)| old == *k))
                 .map(|k| format!("`{k}`"))
                 .collect();
             let rule = format!("unknown key, expected one of {}", names.join(", "));

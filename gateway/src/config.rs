@@ -550,11 +550,10 @@ pub fn key_line(text: &str, key: &str) -> Option<usize> {
 
 /// The name errors use for a key written in an older spelling (a serde alias).
 fn canonical(key: &str) -> &str {
-    match key {
-        "invert" => "reverse",
-        "deadzone_pct" => "deadband_pct",
-        other => other,
-    }
+    let alias = rove_core::config::ALIASES
+        .iter()
+        .find(|(old, _)| *old == key);
+    alias.map_or(key, |(_, current)| current)
 }
 
 const DEFAULT_HEARTBEAT_MS: Int = 500;
