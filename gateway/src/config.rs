@@ -861,6 +861,17 @@ mod tests {
             message.contains("ints.toml:5: network.heartbeat_ms = -1: must be 50..=10000"),
             "{message}"
         );
+        let text = "[device]\nid = 5\n[operator]\nlevel = \"mobile\"\ndevice_class = \"phone\"\n\
+                    offset = 300\n[hierarchy]\nmobile = { laptop = 70000 }\n[handover]\nresend_ms = -1\n";
+        let path = write("wide.toml", text);
+        let message = format!("{:#}", load_operator(&path).expect_err("ranges"));
+        for want in [
+            "wide.toml:8: hierarchy.mobile.laptop = 70000: must be 1..=65525",
+            "wide.toml:6: operator.offset = 300: must be 0..=9",
+            "wide.toml:10: handover.resend_ms = -1: must be 0..=9223372036854775807 ms",
+        ] {
+            assert!(message.contains(want), "missing {want:?} in\n{message}");
+        }
     }
 
     #[test]
