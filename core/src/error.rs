@@ -71,6 +71,16 @@ impl ConfigErrors {
         self.0.push(error);
     }
 
+    /// Records `key = value: rule`.
+    pub fn add(
+        &mut self,
+        key: impl Into<String>,
+        value: impl fmt::Display,
+        rule: impl Into<String>,
+    ) {
+        self.push(ConfigError::new(key, value, rule));
+    }
+
     /// Records every problem of a nested section under `prefix`.
     pub fn extend_within(&mut self, prefix: &str, errors: ConfigErrors) {
         self.0

@@ -66,11 +66,11 @@ pub struct HandoverSettings {
     /// Auto-accept policy.
     pub auto_accept: Option<AutoAccept>,
     /// How long a person has to answer a request before it is refused.
-    pub consent_timeout_ms: Option<u64>,
+    pub consent_timeout_ms: Option<crate::config::Int>,
     /// How long a requester waits for an answer before giving up.
-    pub reply_timeout_ms: Option<u64>,
+    pub reply_timeout_ms: Option<crate::config::Int>,
     /// How often an unanswered REQUEST is sent again.
-    pub resend_ms: Option<u64>,
+    pub resend_ms: Option<crate::config::Int>,
 }
 
 /// Validated handover settings.
@@ -109,14 +109,23 @@ impl HandoverSettings {
     /// timeout.
     pub fn validate(&self) -> Result<HandoverConfig> {
         let d = HandoverConfig::default();
-        let ms = |v: Option<u64>, default: Duration| v.map_or(default, Duration::from_millis);
+        let mut errors = ConfigErrors::default();
+        // Read wide (the config integer policy): a negative value is reported with its key, and
+        // the default stands in so that the checks below do not repeat it.
+        let mut ms = |key: &str, v: Option<crate::config::Int>, default: Duration| {
+            let v = v.map(|v| errors.int(key, v, 0..=crate::config::Int::MAX, " ms"));
+            v.flatten().map_or(default, Duration::from_millis)
+        };
         let config = HandoverConfig {
             auto_accept: self.auto_accept.unwrap_or(d.auto_accept),
-            consent_timeout: ms(self.consent_timeout_ms, d.consent_timeout),
-            reply_timeout: ms(self.reply_timeout_ms, d.reply_timeout),
-            resend: ms(self.resend_ms, d.resend),
+            consent_timeout: ms(
+                "consent_timeout_ms",
+                self.consent_timeout_ms,
+                d.consent_timeout,
+            ),
+            reply_timeout: ms("reply_timeout_ms", self.reply_timeout_ms, d.reply_timeout),
+            resend: ms("resend_ms", self.resend_ms, d.resend),
         };
-        let mut errors = ConfigErrors::default();
         let show = |d: Duration| d.as_millis();
         if config.consent_timeout.is_zero() || config.consent_timeout > Duration::from_secs(600) {
             errors.push(ConfigError::new(

@@ -90,13 +90,13 @@ pub const MAX_OFFSET: u8 = 9;
 #[serde(deny_unknown_fields)]
 pub struct LevelRow {
     /// Base strength of a desktop at this level.
-    pub desktop: Option<u16>,
+    pub desktop: Option<crate::config::Int>,
     /// Base strength of a laptop at this level.
-    pub laptop: Option<u16>,
+    pub laptop: Option<crate::config::Int>,
     /// Base strength of a tablet at this level.
-    pub tablet: Option<u16>,
+    pub tablet: Option<crate::config::Int>,
     /// Base strength of a phone at this level.
-    pub phone: Option<u16>,
+    pub phone: Option<crate::config::Int>,
 }
 
 /// The `[hierarchy]` table as written in TOML; absent rows and keys keep the defaults.
@@ -141,7 +141,8 @@ impl Hierarchy {
     /// offset stays a valid operator strength) or not above the previous rank's base + 9.
     /// Keys are named relative to the table, e.g. `mobile.laptop`.
     pub fn from_table(table: &HierarchyTable) -> Result<Hierarchy> {
-        let mut base = Self::STANDARD.base;
+        // Read wide (the config integer policy) so that any value is reported with its key.
+        let mut base = Self::STANDARD.base.map(|row| row.map(i64::from));
         for level in Level::ALL {
             let row = match level {
                 Level::Mobile => &table.mobile,
@@ -159,12 +160,12 @@ impl Hierarchy {
 
         let max_base = Strength::PRIORITY.0 - 1 - u16::from(MAX_OFFSET);
         let mut errors = ConfigErrors::default();
-        let mut previous: Option<(String, u16)> = None;
+        let mut previous: Option<(String, i64)> = None;
         for level in Level::ALL {
             for class in DeviceClass::ALL {
                 let key = rank_key(level, class);
                 let v = base[level as usize][class as usize];
-                if v == 0 || v > max_base {
+                if v < 1 || v > i64::from(max_base) {
                     errors.push(ConfigError::new(
                         &key,
                         v,
@@ -175,8 +176,8 @@ impl Hierarchy {
                     ));
                 }
                 if let Some((prev_key, prev)) = &previous {
-                    let min = u32::from(*prev) + u32::from(MAX_OFFSET) + 1;
-                    if u32::from(v) < min {
+                    let min = *prev + i64::from(MAX_OFFSET) + 1;
+                    if v < min {
                         errors.push(ConfigError::new(
                             &key,
                             v,
@@ -191,6 +192,8 @@ impl Hierarchy {
                 previous = Some((key, v));
             }
         }
+        // Every value fits once validation passed; the placeholder is never returned.
+        let base = base.map(|row| row.map(|v| u16::try_from(v).unwrap_or(1)));
         errors.into_result(Hierarchy { base })
     }
 
@@ -340,8 +343,8 @@ mod tests {
                 bases.push(bases[bases.len() - 1] + g);
             }
             let row = |i: usize| Some(LevelRow {
-                desktop: Some(bases[i]), laptop: Some(bases[i + 1]),
-                tablet: Some(bases[i + 2]), phone: Some(bases[i + 3]),
+                desktop: Some(bases[i].into()), laptop: Some(bases[i + 1].into()),
+                tablet: Some(bases[i + 2].into()), phone: Some(bases[i + 3].into()),
             });
             let table = HierarchyTable { remote: row(0), stationary: row(4), mobile: row(8) };
             let ordered = gaps.iter().all(|g| *g > u16::from(MAX_OFFSET));

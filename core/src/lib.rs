@@ -23,11 +23,14 @@
 //! - [`sim`]: a recording output and a scripted input.
 //! - [`time`]: monotonic instants.
 //! - [`error`]: configuration errors (naming their keys) and classified link errors.
+//! - [`config`]: the shared config vocabulary: integer policy, range/required/unique checks,
+//!   unknown keys of tables built from shared pieces.
 
 #![deny(missing_docs)]
 
 pub mod adapter;
 pub mod arbiter;
+pub mod config;
 pub mod error;
 pub mod handover;
 pub mod hierarchy;

@@ -16,7 +16,8 @@
 //!
 //! Safe-state values are written without slew limiting: a failsafe must not be slowed down.
 
-use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::config::Int;
+use crate::error::{ConfigErrors, Result};
 use crate::msg::{Mode, MovementCommand};
 use crate::time::MonoTime;
 use serde::{Deserialize, Serialize};
@@ -24,7 +25,7 @@ use serde::{Deserialize, Serialize};
 /// Pulse widths accepted anywhere in a channel map, in µs. Servo and autopilot signals live in
 /// 500–2500 µs; the wider bounds leave room for unusual devices while still rejecting typos such
 /// as `15000`.
-pub const PULSE_RANGE_US: std::ops::RangeInclusive<u16> = 100..=10_000;
+pub const PULSE_RANGE_US: std::ops::RangeInclusive<Int> = 100..=10_000;
 
 /// One of the four movement axes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -52,27 +53,32 @@ impl Axis {
     }
 }
 
-/// A channel's mapping as written in TOML. `min_us`/`centre_us`/`max_us` default to the servo
-/// standard 1000/1500/2000 µs; the others to "off".
+/// A channel's mapping as written in TOML: the one definition of these keys, flattened into
+/// the PWM and MAVLink channel tables (`#[serde(flatten)]`). `min_us`/`centre_us`/`max_us`
+/// default to the servo standard 1000/1500/2000 µs; the others to "off". Integers are read
+/// wide ([`crate::config::Int`]) and range-checked by [`AxisMapSettings::validate`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AxisMapSettings {
-    /// Pulse at −32767 (or +32767 when reversed).
-    pub min_us: Option<u16>,
-    /// Pulse at 0 before trim.
-    pub centre_us: Option<u16>,
-    /// Pulse at +32767 (or −32767 when reversed).
-    pub max_us: Option<u16>,
-    /// Shift of the centre.
-    pub trim_us: Option<i16>,
-    /// Swap directions.
+    /// Pulse at −32767 (or +32767 when reversed), µs.
+    pub min_us: Option<Int>,
+    /// Pulse at 0 before trim, µs.
+    pub centre_us: Option<Int>,
+    /// Pulse at +32767 (or −32767 when reversed), µs.
+    pub max_us: Option<Int>,
+    /// Shift of the centre, µs.
+    pub trim_us: Option<Int>,
+    /// Swap directions (`invert` is accepted as an older spelling).
+    #[serde(alias = "invert")]
     pub reverse: Option<bool>,
-    /// Dead zone around centre, percent of full scale (0..=50).
+    /// Dead zone around centre, percent of full scale (0..=50; `deadzone_pct` is accepted as
+    /// an older spelling).
+    #[serde(alias = "deadzone_pct")]
     pub deadband_pct: Option<f64>,
     /// Expo (0..=1).
     pub expo: Option<f64>,
     /// Slew limit in µs per second (absent: none).
-    pub slew_us_per_s: Option<u32>,
+    pub slew_us_per_s: Option<Int>,
 }
 
 /// A validated axis → pulse mapping.
@@ -103,83 +109,90 @@ impl Default for AxisMap {
     }
 }
 
+/// The rule of `deadband_pct` wherever it is written (outputs and inputs).
+pub const DEADBAND_RANGE_PCT: std::ops::RangeInclusive<f64> = 0.0..=50.0;
+
+/// The rule of `expo` wherever it is written (outputs and inputs).
+pub const EXPO_RANGE: std::ops::RangeInclusive<f64> = 0.0..=1.0;
+
+/// A pulse key checked against [`PULSE_RANGE_US`].
+pub fn pulse(errors: &mut ConfigErrors, key: &str, value: Int) -> Option<u16> {
+    errors.int(key, value, PULSE_RANGE_US, " µs")
+}
+
 impl AxisMapSettings {
+    /// The keys that were written, for "does not apply to this source" errors.
+    pub fn given(&self) -> Vec<(&'static str, String)> {
+        let s = |v: Option<Int>| v.map(|v| v.to_string());
+        let f = |v: Option<f64>| v.map(|v| v.to_string());
+        [
+            ("min_us", s(self.min_us)),
+            ("centre_us", s(self.centre_us)),
+            ("max_us", s(self.max_us)),
+            ("trim_us", s(self.trim_us)),
+            ("reverse", self.reverse.map(|v| v.to_string())),
+            ("deadband_pct", f(self.deadband_pct)),
+            ("expo", f(self.expo)),
+            ("slew_us_per_s", s(self.slew_us_per_s)),
+        ]
+        .into_iter()
+        .filter_map(|(k, v)| Some((k, v?)))
+        .collect()
+    }
+
     /// Validates, filling defaults. Keys are named relative to the channel's table.
     ///
     /// # Errors
     /// [`crate::Error::Config`] listing every key that is out of range: pulses outside
     /// [`PULSE_RANGE_US`], `min_us < centre_us + trim_us < max_us` broken, deadband outside
-    /// 0..=50 %, expo outside 0..=1, a zero slew rate.
+    /// 0..=50 %, expo outside 0..=1, a slew rate outside 1..=1000000 µs/s.
     pub fn validate(&self) -> Result<AxisMap> {
         let d = AxisMap::default();
-        let min = self.min_us.unwrap_or(d.min_us);
-        let centre = self.centre_us.unwrap_or(d.centre_us);
-        let max = self.max_us.unwrap_or(d.max_us);
-        let trim = self.trim_us.unwrap_or(0);
-        let deadband_pct = self.deadband_pct.unwrap_or(0.0);
-        let expo = self.expo.unwrap_or(0.0);
         let mut errors = ConfigErrors::default();
-        for (key, v) in [("min_us", min), ("centre_us", centre), ("max_us", max)] {
-            if !PULSE_RANGE_US.contains(&v) {
-                errors.push(ConfigError::new(
-                    key,
-                    v,
-                    format!(
-                        "must be {}..={} µs",
-                        PULSE_RANGE_US.start(),
-                        PULSE_RANGE_US.end()
-                    ),
-                ));
-            }
-        }
-        let trimmed = i32::from(centre) + i32::from(trim);
-        if !(i32::from(min) < trimmed && trimmed < i32::from(max)) {
-            let key = if self.trim_us.is_some() {
-                "trim_us"
-            } else {
-                "centre_us"
+        let min = self.min_us.unwrap_or(d.min_us.into());
+        let centre = self.centre_us.unwrap_or(d.centre_us.into());
+        let max = self.max_us.unwrap_or(d.max_us.into());
+        let (min_us, _, max_us) = (
+            pulse(&mut errors, "min_us", min),
+            pulse(&mut errors, "centre_us", centre),
+            pulse(&mut errors, "max_us", max),
+        );
+        let trimmed = centre.saturating_add(self.trim_us.unwrap_or(0));
+        if !(min < trimmed && trimmed < max) {
+            let (key, value) = match self.trim_us {
+                Some(t) => ("trim_us", t),
+                None => ("centre_us", centre),
             };
-            let value = if self.trim_us.is_some() {
-                trim.to_string()
-            } else {
-                centre.to_string()
-            };
-            errors.push(ConfigError::new(
+            errors.add(
                 key,
                 value,
                 format!(
                     "centre_us + trim_us ({trimmed}) must lie strictly between min_us ({min}) \
                      and max_us ({max})"
                 ),
-            ));
+            );
         }
-        if !(0.0..=50.0).contains(&deadband_pct) {
-            errors.push(ConfigError::new(
-                "deadband_pct",
-                deadband_pct,
-                "must be 0..=50 (percent of full scale)",
-            ));
-        }
-        if !(0.0..=1.0).contains(&expo) {
-            errors.push(ConfigError::new("expo", expo, "must be 0..=1"));
-        }
-        if self.slew_us_per_s == Some(0) {
-            errors.push(ConfigError::new(
-                "slew_us_per_s",
-                0,
-                "must be at least 1 (omit the key for no slew limit)",
-            ));
-        }
-        // `trimmed` is within (min, max) ⊂ u16 once validation passed.
-        let centre_us = u16::try_from(trimmed).unwrap_or(centre);
+        let deadband_pct = self.deadband_pct.unwrap_or(0.0);
+        let rule = "must be 0..=50 (percent of full scale)";
+        errors.float("deadband_pct", deadband_pct, DEADBAND_RANGE_PCT, rule);
+        let expo = errors.float(
+            "expo",
+            self.expo.unwrap_or(0.0),
+            EXPO_RANGE,
+            "must be 0..=1",
+        );
+        let slew_range = 1..=Int::from(u32::MAX);
+        let slew = " µs/s (omit the key for no slew limit)";
+        let slew = errors.opt_int("slew_us_per_s", self.slew_us_per_s, slew_range, slew);
         errors.into_result(AxisMap {
-            min_us: min,
-            centre_us,
-            max_us: max,
+            min_us: min_us.unwrap_or(d.min_us),
+            // Within (min, max) ⊂ u16 once validation passed.
+            centre_us: u16::try_from(trimmed).unwrap_or(d.centre_us),
+            max_us: max_us.unwrap_or(d.max_us),
             reverse: self.reverse.unwrap_or(false),
             deadband: deadband_pct / 100.0,
             expo,
-            slew_us_per_s: self.slew_us_per_s,
+            slew_us_per_s: slew,
         })
     }
 }
@@ -271,16 +284,16 @@ impl SlewLimiter {
     }
 }
 
-/// `[..mode_levels]` as written in TOML: the pulse for each mode.
+/// The levels of a mode-switch channel as written in TOML: the pulse for each mode.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModeLevelsSettings {
-    /// Pulse for MANUAL.
-    pub manual_us: Option<u16>,
-    /// Pulse for ASSISTED.
-    pub assisted_us: Option<u16>,
-    /// Pulse for AUTO.
-    pub auto_us: Option<u16>,
+    /// Pulse for MANUAL, µs.
+    pub manual_us: Option<Int>,
+    /// Pulse for ASSISTED, µs.
+    pub assisted_us: Option<Int>,
+    /// Pulse for AUTO, µs.
+    pub auto_us: Option<Int>,
 }
 
 /// Pulse levels of a mode-switch channel, one per [`Mode`].
@@ -292,43 +305,53 @@ pub struct ModeLevels {
 }
 
 impl ModeLevelsSettings {
+    /// The keys that were written, for "does not apply to this source" errors.
+    pub fn given(&self) -> Vec<(&'static str, Int)> {
+        [
+            ("manual_us", self.manual_us),
+            ("assisted_us", self.assisted_us),
+            ("auto_us", self.auto_us),
+        ]
+        .into_iter()
+        .filter_map(|(k, v)| Some((k, v?)))
+        .collect()
+    }
+
     /// Validates against `defaults` (each adapter knows its device's usual levels).
     ///
     /// # Errors
     /// [`crate::Error::Config`] for a level outside [`PULSE_RANGE_US`] or two modes sharing a
     /// level (the device could not tell them apart).
     pub fn validate(&self, defaults: ModeLevels) -> Result<ModeLevels> {
-        let levels = ModeLevels {
-            manual_us: self.manual_us.unwrap_or(defaults.manual_us),
-            assisted_us: self.assisted_us.unwrap_or(defaults.assisted_us),
-            auto_us: self.auto_us.unwrap_or(defaults.auto_us),
+        let mut errors = ConfigErrors::default();
+        let mut level = |key: &str, v: Option<Int>, default: u16| {
+            v.map_or(Some(default), |v| pulse(&mut errors, key, v))
         };
         let named = [
-            ("manual_us", levels.manual_us),
-            ("assisted_us", levels.assisted_us),
-            ("auto_us", levels.auto_us),
+            (
+                "manual_us",
+                level("manual_us", self.manual_us, defaults.manual_us),
+            ),
+            (
+                "assisted_us",
+                level("assisted_us", self.assisted_us, defaults.assisted_us),
+            ),
+            ("auto_us", level("auto_us", self.auto_us, defaults.auto_us)),
         ];
-        let mut errors = ConfigErrors::default();
         for (i, (key, v)) in named.iter().enumerate() {
-            if !PULSE_RANGE_US.contains(v) {
-                errors.push(ConfigError::new(
+            if let Some((other, _)) = named[..i].iter().find(|(_, w)| v.is_some() && w == v) {
+                errors.add(
                     *key,
-                    v,
-                    format!(
-                        "must be {}..={} µs",
-                        PULSE_RANGE_US.start(),
-                        PULSE_RANGE_US.end()
-                    ),
-                ));
-            }
-            if let Some((other, _)) = named[..i].iter().find(|(_, w)| w == v) {
-                errors.push(ConfigError::new(
-                    *key,
-                    v,
+                    v.unwrap_or_default(),
                     format!("must differ from {other}: the device could not tell the modes apart"),
-                ));
+                );
             }
         }
+        let levels = ModeLevels {
+            manual_us: named[0].1.unwrap_or(defaults.manual_us),
+            assisted_us: named[1].1.unwrap_or(defaults.assisted_us),
+            auto_us: named[2].1.unwrap_or(defaults.auto_us),
+        };
         errors.into_result(levels)
     }
 }
@@ -516,8 +539,9 @@ mod tests {
             trim in -5i16..=5, reverse: bool, deadband in 0.0f64..=50.0, expo in 0.0f64..=1.0,
         ) -> AxisMap {
             AxisMapSettings {
-                min_us: Some(min), centre_us: Some(min + span_lo), max_us: Some(min + span_lo + span_hi),
-                trim_us: Some(trim), reverse: Some(reverse), deadband_pct: Some(deadband),
+                min_us: Some(min.into()), centre_us: Some((min + span_lo).into()),
+                max_us: Some((min + span_lo + span_hi).into()),
+                trim_us: Some(trim.into()), reverse: Some(reverse), deadband_pct: Some(deadband),
                 expo: Some(expo), slew_us_per_s: None,
             }.validate().expect("valid by construction")
         }

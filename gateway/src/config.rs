@@ -7,7 +7,8 @@
 
 use anyhow::{Context, anyhow};
 use rove_core::arbiter::ArbiterConfig;
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::config::Int;
+use rove_core::error::ConfigErrors;
 use rove_core::handover::{HandoverConfig, HandoverSettings};
 use rove_core::hierarchy::{DeviceClass, Hierarchy, HierarchyTable, Level, Strength};
 use rove_core::msg::{DeviceId, Mode, MovementCommand};
@@ -34,12 +35,12 @@ pub struct DeviceSection {
 #[serde(deny_unknown_fields)]
 pub struct NetworkSection {
     /// DDS domain id (absent: 0).
-    pub domain_id: Option<u16>,
+    pub domain_id: Option<Int>,
     /// IPv4 addresses of the interfaces DDS may use (absent: loopback only).
     pub interfaces: Option<Vec<Ipv4Addr>>,
     /// Presence heartbeat period, ms (absent: 500). Crashed devices drop from device lists
     /// after three missed heartbeats, because rustdds's own participant lease is ~50 s.
-    pub heartbeat_ms: Option<u64>,
+    pub heartbeat_ms: Option<Int>,
 }
 
 /// `[log]`.
@@ -57,10 +58,13 @@ pub struct LogSection {
 #[serde(deny_unknown_fields)]
 pub struct VehicleSection {
     /// Owner silence before re-arbitration (absent: 100).
-    pub command_timeout_ms: Option<u64>,
+    pub command_timeout_ms: Option<Int>,
 }
 
 /// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
+///
+/// Files are not read through this tagged enum (serde buffers a tagged table and loses every
+/// line inside it) but through `parse_vehicle`; it remains for errors about `adapter` itself.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "adapter", rename_all = "lowercase")]
 pub enum OutputSection {
@@ -102,40 +106,100 @@ pub enum OutputConfig {
 
 impl OutputSection {
     fn validate(&self, errors: &mut ConfigErrors) -> OutputConfig {
-        match self {
-            OutputSection::Sim(_) => OutputConfig::Sim,
-            OutputSection::Pwm(s) => collect(
-                s.validate().map(OutputConfig::Pwm),
-                "output",
-                errors,
-                OutputConfig::Sim,
-            ),
-            OutputSection::Eyedrive(s) => collect(
-                s.validate().map(OutputConfig::Eyedrive),
-                "output",
-                errors,
-                OutputConfig::Sim,
-            ),
-            OutputSection::Naza(s) => collect(
-                s.validate().map(OutputConfig::Naza),
-                "output",
-                errors,
-                OutputConfig::Sim,
-            ),
-            OutputSection::Mavlink(s) => collect(
-                s.validate().map(|c| OutputConfig::Mavlink(Box::new(c))),
-                "output",
-                errors,
-                OutputConfig::Sim,
-            ),
-            OutputSection::Can(s) => collect(
-                s.validate().map(|c| OutputConfig::Can(Box::new(c))),
-                "output",
-                errors,
-                OutputConfig::Sim,
-            ),
-        }
+        let config = match self {
+            OutputSection::Sim(_) => Ok(OutputConfig::Sim),
+            OutputSection::Pwm(s) => s.validate().map(OutputConfig::Pwm),
+            OutputSection::Eyedrive(s) => s.validate().map(OutputConfig::Eyedrive),
+            OutputSection::Naza(s) => s.validate().map(OutputConfig::Naza),
+            OutputSection::Mavlink(s) => s.validate().map(|c| OutputConfig::Mavlink(Box::new(c))),
+            OutputSection::Can(s) => s.validate().map(|c| OutputConfig::Can(Box::new(c))),
+        };
+        errors
+            .section("output", config)
+            .unwrap_or(OutputConfig::Sim)
     }
+}
+
+/// A vehicle file whose `[output]` is read as one adapter's settings `T` (see
+/// [`parse_vehicle`]).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct VehicleFile<T> {
+    device: DeviceSection,
+    #[serde(default)]
+    network: NetworkSection,
+    #[serde(default)]
+    log: LogSection,
+    #[serde(default)]
+    vehicle: VehicleSection,
+    #[serde(default)]
+    output: T,
+}
+
+/// Reads a vehicle file in two steps so that errors inside `[output]` keep their lines: first
+/// `adapter`, then the same text, with the `adapter` key blanked (every byte offset and line
+/// unchanged), as that adapter's settings. An unknown or missing adapter is reported by the
+/// tagged [`OutputSection`].
+fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle> {
+    #[derive(Deserialize)]
+    struct Probe {
+        output: Option<ProbeOutput>,
+    }
+    #[derive(Deserialize)]
+    struct ProbeOutput {
+        adapter: Option<toml::Spanned<String>>,
+    }
+    fn read<T: for<'de> Deserialize<'de> + Default>(
+        path: &Path,
+        text: &str,
+        wrap: fn(T) -> OutputSection,
+    ) -> anyhow::Result<RawVehicle> {
+        let file: VehicleFile<T> = parse(path, text)?;
+        Ok(RawVehicle {
+            device: file.device,
+            network: file.network,
+            log: file.log,
+            vehicle: file.vehicle,
+            output: wrap(file.output),
+        })
+    }
+    let probe: Probe = parse(path, text)?;
+    let Some(adapter) = probe.output.and_then(|o| o.adapter) else {
+        return parse(path, text);
+    };
+    let blanked = blank_key_value(text, adapter.span());
+    match adapter.get_ref().as_str() {
+        "sim" => read(path, &blanked, OutputSection::Sim),
+        "pwm" => read(path, &blanked, |s| OutputSection::Pwm(Box::new(s))),
+        "eyedrive" => read(path, &blanked, |s| OutputSection::Eyedrive(Box::new(s))),
+        "naza" => read(path, &blanked, |s| OutputSection::Naza(Box::new(s))),
+        "mavlink" => read(path, &blanked, |s| OutputSection::Mavlink(Box::new(s))),
+        "can" => read(path, &blanked, |s| OutputSection::Can(Box::new(s))),
+        _ => parse(path, text),
+    }
+}
+
+/// `text` with the key/value pair whose value spans `value` replaced by spaces (newlines
+/// kept), together with the comma that separates it in an inline table.
+fn blank_key_value(text: &str, value: std::ops::Range<usize>) -> String {
+    let bytes = text.as_bytes();
+    let is_key = |b: u8| b.is_ascii_alphanumeric() || b"_-.\"' \t=".contains(&b);
+    let mut start = value.start.min(bytes.len());
+    while start > 0 && is_key(bytes[start - 1]) {
+        start -= 1;
+    }
+    let mut end = value.end.min(bytes.len());
+    let after = text[end..].trim_start_matches([' ', '\t']);
+    if after.starts_with(',') {
+        end = text.len() - after.len() + 1;
+    } else if text[..start].trim_end_matches([' ', '\t']).ends_with(',') {
+        start = text[..start].trim_end_matches([' ', '\t']).len() - 1;
+    }
+    // One space per byte (newlines kept), so no offset or line after the blank moves.
+    let blank: String = (text[start..end].chars())
+        .flat_map(|c| std::iter::repeat_n(if c == '\n' { c } else { ' ' }, c.len_utf8()))
+        .collect();
+    format!("{}{blank}{}", &text[..start], &text[end..])
 }
 
 /// A vehicle's file as written.
@@ -166,9 +230,9 @@ pub struct OperatorSection {
     /// The device: desktop, laptop, tablet or phone.
     pub device_class: DeviceClass,
     /// Fine offset 0..=9 within the rank (absent: 0).
-    pub offset: Option<u8>,
+    pub offset: Option<Int>,
     /// Keep-alive stream rate while driving, Hz (absent: 50).
-    pub stream_hz: Option<u32>,
+    pub stream_hz: Option<Int>,
     /// Vehicles to drive from the start.
     #[serde(default)]
     pub drive: Vec<DeviceId>,
@@ -183,16 +247,16 @@ pub enum InputSection {
     Constant {
         /// Throttle axis (absent: 0).
         #[serde(default)]
-        throttle: i16,
+        throttle: Int,
         /// Roll axis (absent: 0).
         #[serde(default)]
-        roll: i16,
+        roll: Int,
         /// Pitch axis (absent: 0).
         #[serde(default)]
-        pitch: i16,
+        pitch: Int,
         /// Yaw axis (absent: 0).
         #[serde(default)]
-        yaw: i16,
+        yaw: Int,
         /// Mode (absent: manual).
         mode: Option<ModeName>,
     },
@@ -328,7 +392,7 @@ pub struct OperatorConfig {
 /// message names the file, line and key.
 pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
     let text = read(path)?;
-    let raw: RawVehicle = parse(path, &text)?;
+    let raw = parse_vehicle(path, &text)?;
     raw.validate().map_err(|e| located(path, &text, e))
 }
 
@@ -382,7 +446,7 @@ pub fn load_any(path: &Path) -> anyhow::Result<AnyConfig> {
         let config = raw.validate().map_err(|e| located(path, &text, e))?;
         Ok(AnyConfig::Operator(config))
     } else if table.contains_key("output") || table.contains_key("vehicle") {
-        let raw: RawVehicle = parse(path, &text)?;
+        let raw = parse_vehicle(path, &text)?;
         let config = raw.validate().map_err(|e| located(path, &text, e))?;
         Ok(AnyConfig::Vehicle(config))
     } else {
@@ -458,7 +522,7 @@ pub fn key_line(text: &str, key: &str) -> Option<usize> {
         let Some((name, rest)) = line.split_once('=') else {
             continue;
         };
-        let name = name.trim();
+        let name = canonical(name.trim());
         let full = if table.is_empty() {
             name.to_string()
         } else {
@@ -484,8 +548,16 @@ pub fn key_line(text: &str, key: &str) -> Option<usize> {
     best
 }
 
-const DEFAULT_HEARTBEAT_MS: u64 = 500;
-const DEFAULT_STREAM_HZ: u32 = 50;
+/// The name errors use for a key written in an older spelling (a serde alias).
+fn canonical(key: &str) -> &str {
+    let alias = rove_core::config::ALIASES
+        .iter()
+        .find(|(old, _)| *old == key);
+    alias.map_or(key, |(_, current)| current)
+}
+
+const DEFAULT_HEARTBEAT_MS: Int = 500;
+const DEFAULT_STREAM_HZ: Int = 50;
 
 fn validate_common(
     device: &DeviceSection,
@@ -494,49 +566,34 @@ fn validate_common(
     errors: &mut ConfigErrors,
 ) -> Common {
     let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
-    if !(50..=10_000).contains(&heartbeat_ms) {
-        errors.push(ConfigError::new(
-            "network.heartbeat_ms",
-            heartbeat_ms,
-            "must be 50..=10000",
-        ));
-    }
+    let heartbeat_ms = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
-        errors.push(ConfigError::new(
-            "device.id",
-            device.id,
-            "must be a positive device id",
-        ));
+        errors.add("device.id", device.id, "must be a positive device id");
     }
     let domain_id = network.domain_id.unwrap_or(0);
     // RTPS maps domain ids to ports (7400 + 250 × domain); above 232 the ports overflow.
-    if domain_id > 232 {
-        errors.push(ConfigError::new(
-            "network.domain_id",
-            domain_id,
-            "must be 0..=232 (RTPS port mapping)",
-        ));
-    }
+    let rule = " (RTPS port mapping)";
+    let domain_id = errors.int("network.domain_id", domain_id, 0..=232, rule);
     if let Some(level) = &log.level
         && !is_log_filter(level)
     {
-        errors.push(ConfigError::new(
+        errors.add(
             "log.level",
             format!("{level:?}"),
             "must be a level (off, error, warn, info, debug, trace) or comma-separated \
              `target=level` directives",
-        ));
+        );
     }
     let interfaces = network
         .interfaces
         .clone()
         .unwrap_or_else(|| vec![Ipv4Addr::LOCALHOST]);
     if interfaces.is_empty() {
-        errors.push(ConfigError::new(
+        errors.add(
             "network.interfaces",
             "[]",
             "must name at least one interface address (absent: loopback)",
-        ));
+        );
     }
     Common {
         id: device.id,
@@ -544,9 +601,9 @@ fn validate_common(
             .name
             .clone()
             .unwrap_or_else(|| format!("rove-{}", device.id)),
-        domain_id,
+        domain_id: domain_id.unwrap_or(0),
         interfaces,
-        heartbeat: Duration::from_millis(heartbeat_ms),
+        heartbeat: Duration::from_millis(heartbeat_ms.unwrap_or(500)),
         log_filter: log.level.as_ref().map(|level| {
             if level.contains("rustdds") {
                 level.clone()
@@ -570,27 +627,6 @@ fn is_log_filter(filter: &str) -> bool {
         && tracing_subscriber::EnvFilter::try_new(filter).is_ok()
 }
 
-/// The value of a section's validation, or `fallback` with its problems filed under `prefix`
-/// (so that validation goes on and reports every problem at once).
-fn collect<T>(
-    result: rove_core::Result<T>,
-    prefix: &str,
-    errors: &mut ConfigErrors,
-    fallback: T,
-) -> T {
-    match result {
-        Ok(value) => value,
-        Err(rove_core::Error::Config(e)) => {
-            errors.extend_within(prefix, e);
-            fallback
-        }
-        Err(other) => {
-            errors.push(ConfigError::new(prefix, "?", other.to_string()));
-            fallback
-        }
-    }
-}
-
 impl RawVehicle {
     /// Validates, filling defaults.
     ///
@@ -600,19 +636,15 @@ impl RawVehicle {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
         let output = self.output.validate(&mut errors);
-        let timeout = collect(
-            CommandTimeout::from_millis(
-                "vehicle.command_timeout_ms",
-                self.vehicle.command_timeout_ms.unwrap_or(100),
-            ),
-            "",
-            &mut errors,
-            CommandTimeout::DEFAULT,
-        );
+        let key = "vehicle.command_timeout_ms";
+        let millis = self.vehicle.command_timeout_ms.unwrap_or(100);
+        let timeout = errors
+            .int(key, millis, 0..=Int::MAX, "")
+            .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
         errors.into_result(VehicleConfig {
             common,
             arbiter: ArbiterConfig {
-                command_timeout: timeout,
+                command_timeout: timeout.unwrap_or(CommandTimeout::DEFAULT),
                 ..ArbiterConfig::default()
             },
             output,
@@ -628,55 +660,37 @@ impl RawOperator {
     pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
-        let hierarchy = collect(
-            Hierarchy::from_table(&self.hierarchy),
-            "hierarchy",
-            &mut errors,
-            Hierarchy::STANDARD,
-        );
+        let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
+        let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let offset = self.operator.offset.unwrap_or(0);
-        let strength = hierarchy
-            .strength(self.operator.level, self.operator.device_class, offset)
-            .unwrap_or_else(|e| {
-                errors.push(ConfigError::new("operator.offset", offset, e.to_string()));
-                Strength(1)
-            });
+        let (level, class) = (self.operator.level, self.operator.device_class);
+        let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
+        let strength = (errors.int("operator.offset", offset, offset_range, ""))
+            .and_then(|o| hierarchy.strength(level, class, o).ok())
+            .unwrap_or(Strength(1));
         let stream_hz = self.operator.stream_hz.unwrap_or(DEFAULT_STREAM_HZ);
-        if !(1..=1000).contains(&stream_hz) {
-            errors.push(ConfigError::new(
-                "operator.stream_hz",
-                stream_hz,
-                "must be 1..=1000; at least 10 keeps a vehicle with the default 100 ms command \
-                 timeout from timing out between samples",
-            ));
-        }
-        let handover = collect(
-            self.handover.validate(),
-            "handover",
-            &mut errors,
-            HandoverConfig::default(),
-        );
+        let rule = "; at least 10 keeps a vehicle with the default 100 ms command timeout from \
+                    timing out between samples";
+        let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
+        let handover = errors.section("handover", self.handover.validate());
+        let handover = handover.unwrap_or_default();
         for (i, v) in self.operator.drive.iter().enumerate() {
             if *v == self.device.id {
-                errors.push(ConfigError::new(
+                errors.add(
                     format!("operator.drive[{i}]"),
                     v,
                     "is this operator's own device id",
-                ));
+                );
             }
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
         let device = |settings: &rove_inputs::InputSettings,
                       kind: rove_inputs::SourceKind,
                       errors: &mut ConfigErrors| {
-            collect(
-                settings
-                    .validate_as(kind)
-                    .map(|c| InputChoice::Device(Box::new(c))),
-                "input",
-                errors,
-                constant.clone(),
-            )
+            let input = settings
+                .validate_as(kind)
+                .map(|c| InputChoice::Device(Box::new(c)));
+            errors.section("input", input).unwrap_or(constant.clone())
         };
         let input = match &self.input {
             None => constant.clone(),
@@ -686,15 +700,21 @@ impl RawOperator {
                 pitch,
                 yaw,
                 mode,
-            }) => InputChoice::Constant(
-                MovementCommand {
-                    throttle: *throttle,
-                    roll: *roll,
-                    pitch: *pitch,
-                    yaw: *yaw,
-                },
-                mode.map_or(Mode::Manual, Mode::from),
-            ),
+            }) => {
+                let mut axis = |key: &str, v: Int| {
+                    let key = format!("input.{key}");
+                    errors
+                        .int(&key, v, i16::MIN.into()..=i16::MAX.into(), "")
+                        .unwrap_or(0)
+                };
+                let movement = MovementCommand {
+                    throttle: axis("throttle", *throttle),
+                    roll: axis("roll", *roll),
+                    pitch: axis("pitch", *pitch),
+                    yaw: axis("yaw", *yaw),
+                };
+                InputChoice::Constant(movement, mode.map_or(Mode::Manual, Mode::from))
+            }
             Some(InputSection::Joystick(s)) => {
                 device(s, rove_inputs::SourceKind::Joystick, &mut errors)
             }
@@ -710,7 +730,7 @@ impl RawOperator {
             level: self.operator.level,
             device_class: self.operator.device_class,
             strength,
-            stream_period: Duration::from_secs_f64(1.0 / f64::from(stream_hz.max(1))),
+            stream_period: Duration::from_secs_f64(1.0 / f64::from(stream_hz.unwrap_or(1))),
             drive: self.operator.drive.clone(),
             handover,
             input,
@@ -798,6 +818,60 @@ mod tests {
         );
         let message = format!("{:#}", load_vehicle(&path).expect_err("unknown adapter"));
         assert!(message.contains("warp"), "{message}");
+    }
+
+    #[test]
+    fn errors_inside_output_name_the_line_of_their_key() {
+        // A misspelt key in the second channel table: line 17, not `[output]`'s line.
+        let text = "[device]\nid = 7\n\n# a comment\n\n[output]\nadapter = \"pwm\"\n\
+                    backend = \"sim\"\n\n[[output.channels]]\nname = \"a\"\nsource = \"roll\"\n\n\
+                    [[output.channels]]\nname = \"b\"\nsource = \"yaw\"\nmax_uss = 1900\n";
+        let path = write("bad.toml", text);
+        let message = format!("{:#}", load_vehicle(&path).expect_err("misspelt key"));
+        assert!(
+            message.contains("bad.toml:17: output.channels[1].max_uss = 1900: unknown key"),
+            "{message}"
+        );
+        // A type error in a table serde reads directly (no flattening) names its line too.
+        let text = "[device]\nid = 7\n[output]\nadapter = \"mavlink\"\n[output.modes]\n\
+                    set_mode = \"no\"\n";
+        let path = write("bad-type.toml", text);
+        let message = format!("{:#}", load_vehicle(&path).expect_err("bad type"));
+        assert!(message.contains("bad-type.toml:6:"), "{message}");
+        // An inline `[output]` and an alias written in the file.
+        let text = "# inline\noutput = { backend = \"sim\", adapter = \"pwm\", \
+                    channels = [{ name = \"a\", source = \"roll\", deadzone_pct = 70 }] }\n\
+                    [device]\nid = 7\n";
+        let path = write("inline.toml", text);
+        let message = format!("{:#}", load_vehicle(&path).expect_err("deadband too wide"));
+        assert!(
+            message.contains("inline.toml:2: output.channels[0].deadband_pct = 70"),
+            "{message}"
+        );
+        // Out-of-range integers are reported against their key, all at once.
+        let text = "[device]\nid = 7\n[network]\ndomain_id = 70000\nheartbeat_ms = -1\n\
+                    [output]\nadapter = \"sim\"\n";
+        let path = write("ints.toml", text);
+        let message = format!("{:#}", load_vehicle(&path).expect_err("ranges"));
+        assert!(
+            message.contains("ints.toml:4: network.domain_id = 70000: must be 0..=232"),
+            "{message}"
+        );
+        assert!(
+            message.contains("ints.toml:5: network.heartbeat_ms = -1: must be 50..=10000"),
+            "{message}"
+        );
+        let text = "[device]\nid = 5\n[operator]\nlevel = \"mobile\"\ndevice_class = \"phone\"\n\
+                    offset = 300\n[hierarchy]\nmobile = { laptop = 70000 }\n[handover]\nresend_ms = -1\n";
+        let path = write("wide.toml", text);
+        let message = format!("{:#}", load_operator(&path).expect_err("ranges"));
+        for want in [
+            "wide.toml:8: hierarchy.mobile.laptop = 70000: must be 1..=65525",
+            "wide.toml:6: operator.offset = 300: must be 0..=9",
+            "wide.toml:10: handover.resend_ms = -1: must be 0..=9223372036854775807 ms",
+        ] {
+            assert!(message.contains(want), "missing {want:?} in\n{message}");
+        }
     }
 
     #[test]

@@ -2,13 +2,14 @@
 //! reject unknown keys) and `validate()`, which checks every key, collects every problem and
 //! returns the validated [`InputConfig`].
 //!
-//! Keys of errors are relative to the `[input]` table, e.g. `axes.throttle.deadzone_pct`; the
+//! Keys of errors are relative to the `[input]` table, e.g. `axes.throttle.deadband_pct`; the
 //! gateway puts `input.` in front. The keys are listed in the crate README.
 
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
-use rove_core::error::{ConfigError, ConfigErrors};
-use rove_core::mapping::Axis;
+use rove_core::config::Int;
+use rove_core::error::ConfigErrors;
+use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -18,25 +19,25 @@ use std::time::Duration;
 /// Default time between attempts to reopen an unplugged device, ms. Half a second feels
 /// immediate to an operator replugging a cable and costs one directory scan per attempt; much
 /// shorter only burns CPU while nothing is plugged in.
-pub const DEFAULT_REOPEN_INTERVAL_MS: u64 = 500;
+pub const DEFAULT_REOPEN_INTERVAL_MS: Int = 500;
 
 /// Accepted `reopen_interval_ms`.
-pub const REOPEN_INTERVAL_RANGE_MS: std::ops::RangeInclusive<u64> = 10..=60_000;
+pub const REOPEN_INTERVAL_RANGE_MS: std::ops::RangeInclusive<Int> = 10..=60_000;
 
 /// Accepted `silence_timeout_ms`: from 50 ms (a few frames of a gamepad that streams at
 /// 100–250 Hz) to 10 minutes.
-pub const SILENCE_TIMEOUT_RANGE_MS: std::ops::RangeInclusive<u64> = 50..=600_000;
+pub const SILENCE_TIMEOUT_RANGE_MS: std::ops::RangeInclusive<Int> = 50..=600_000;
 
 /// Default keyboard ramp-up time (0 → full scale), ms: a quarter second is quick enough to
 /// steer and slow enough that a tap is a nudge, not a jerk.
-pub const DEFAULT_RAMP_UP_MS: u64 = 250;
+pub const DEFAULT_RAMP_UP_MS: Int = 250;
 
 /// Default keyboard spring-back time (full scale → 0), ms: faster than the ramp-up, because
 /// letting go means "stop".
-pub const DEFAULT_SPRING_BACK_MS: u64 = 150;
+pub const DEFAULT_SPRING_BACK_MS: Int = 150;
 
 /// Longest accepted ramp-up or spring-back, ms; beyond ten seconds a key axis is unusable.
-pub const MAX_RAMP_MS: u64 = 10_000;
+pub const MAX_RAMP_MS: Int = 10_000;
 
 /// Which kind of input `[input] source` selects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -65,11 +66,11 @@ pub struct InputSettings {
     /// its events (absent: false).
     pub grab: Option<bool>,
     /// Joystick/keyboard: time between reopen attempts after an unplug, ms (absent: 500).
-    pub reopen_interval_ms: Option<u64>,
+    pub reopen_interval_ms: Option<Int>,
     /// Replay: the recording to play.
     pub file: Option<PathBuf>,
     /// No event at all from the device for this long → lost (absent: off; see the crate docs).
-    pub silence_timeout_ms: Option<u64>,
+    pub silence_timeout_ms: Option<Int>,
     /// `[input.axes.*]`: what drives each movement axis.
     #[serde(default)]
     pub axes: AxesSettings,
@@ -116,25 +117,27 @@ pub struct AxisSettings {
     pub negative: Option<String>,
     /// Key or button driving towards +full scale, e.g. `"KEY_W"`.
     pub positive: Option<String>,
-    /// Negate the axis (absent: false).
-    pub invert: Option<bool>,
+    /// Negate the axis (absent: false; `invert` is accepted as an older spelling).
+    #[serde(alias = "invert")]
+    pub reverse: Option<bool>,
     /// Abs: dead zone around centre, percent of the half range, 0..=50 (absent: the device's
-    /// `flat`).
-    pub deadzone_pct: Option<f64>,
+    /// `flat`; `deadzone_pct` is accepted as an older spelling).
+    #[serde(alias = "deadzone_pct")]
+    pub deadband_pct: Option<f64>,
     /// Expo 0..=1 (absent: 0, linear).
     pub expo: Option<f64>,
     /// Output at full deflection, percent of full scale, >0..=100 (absent: 100).
     pub scale_pct: Option<f64>,
     /// Abs: raw value at −full scale (absent: the device's minimum).
-    pub min: Option<i32>,
+    pub min: Option<Int>,
     /// Abs: raw value at centre (absent: midpoint of min and max).
-    pub centre: Option<i32>,
+    pub centre: Option<Int>,
     /// Abs: raw value at +full scale (absent: the device's maximum).
-    pub max: Option<i32>,
+    pub max: Option<Int>,
     /// Keys: time from centre to full scale while a key is held, ms (absent: 250).
-    pub ramp_up_ms: Option<u64>,
+    pub ramp_up_ms: Option<Int>,
     /// Keys: time from full scale back to centre when released, ms (absent: 150).
-    pub spring_back_ms: Option<u64>,
+    pub spring_back_ms: Option<Int>,
     /// Where the axis must be before driving resumes (absent: `"centre"`).
     pub rest: Option<Rest>,
 }
@@ -247,7 +250,7 @@ pub struct AxisConfig {
     /// The input.
     pub input: AxisInput,
     /// Negate.
-    pub invert: bool,
+    pub reverse: bool,
     /// Expo 0..=1.
     pub expo: f64,
     /// Full-deflection output, fraction 0..=1.
@@ -332,7 +335,7 @@ impl InputConfig {
             SourceConfig::Replay { .. } => SourceConfig::Evdev {
                 selector,
                 grab: false,
-                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS),
+                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs()),
             },
         };
         if self.kind == SourceKind::Replay {
@@ -373,11 +376,11 @@ impl InputSettings {
     pub fn validate(&self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {
-            errors.push(ConfigError::new(
+            errors.add(
                 "source",
                 "(absent)",
                 "must be one of \"joystick\", \"keyboard\", \"replay\"",
-            ));
+            );
             SourceKind::Joystick
         });
         let config = self.validate_inner(kind, &mut errors);
@@ -394,11 +397,11 @@ impl InputSettings {
         let mut errors = ConfigErrors::default();
         if let Some(s) = self.source {
             if s != kind {
-                errors.push(ConfigError::new(
+                errors.add(
                     "source",
                     format!("{s:?}").to_lowercase(),
                     format!("must be {:?}", format!("{kind:?}").to_lowercase()),
-                ));
+                );
             }
         }
         let config = self.validate_inner(kind, &mut errors);
@@ -407,22 +410,16 @@ impl InputSettings {
 
     fn validate_inner(&self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
         let source = self.validate_source(kind, errors);
-        let silence_timeout = self.silence_timeout_ms.and_then(|ms| {
-            if SILENCE_TIMEOUT_RANGE_MS.contains(&ms) {
-                Some(Duration::from_millis(ms))
-            } else {
-                errors.push(ConfigError::new(
-                    "silence_timeout_ms",
-                    ms,
-                    format!(
-                        "must be {}..={} ms (leave it out to turn silence detection off)",
-                        SILENCE_TIMEOUT_RANGE_MS.start(),
-                        SILENCE_TIMEOUT_RANGE_MS.end()
-                    ),
-                ));
-                None
-            }
-        });
+        let rule = " ms (leave it out to turn silence detection off)";
+        let silence_ms = self.silence_timeout_ms;
+        let silence_timeout = errors
+            .opt_int(
+                "silence_timeout_ms",
+                silence_ms,
+                SILENCE_TIMEOUT_RANGE_MS,
+                rule,
+            )
+            .map(Duration::from_millis);
         let mut mapping = MappingConfig {
             silence_timeout,
             ..MappingConfig::default()
@@ -431,11 +428,11 @@ impl InputSettings {
         let mut used: BTreeMap<Control, String> = BTreeMap::new();
         let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
             if let Some(first) = used.get(&control) {
-                errors.push(ConfigError::new(
+                errors.add(
                     key,
                     format!("{value:?}"),
                     format!("is already used by {first}"),
-                ));
+                );
             } else {
                 used.insert(control, key.to_string());
             }
@@ -491,11 +488,11 @@ impl InputSettings {
             mapping.axes[slot] = config;
         }
         if raw_axes.iter().all(|a| a.is_none()) {
-            errors.push(ConfigError::new(
+            errors.add(
                 "axes",
                 "(none)",
                 "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
-            ));
+            );
         }
         let b = &self.buttons;
         let buttons: [(&str, &Option<String>, Option<InputAction>); 11] = [
@@ -539,12 +536,12 @@ impl InputSettings {
             let Some(value) = value else { continue };
             let key = format!("buttons.{name}");
             let Some(control) = Control::parse(value) else {
-                errors.push(ConfigError::new(
+                errors.add(
                     key,
                     format!("{value:?}"),
                     "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
                      direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
-                ));
+                );
                 continue;
             };
             claim(errors, control, &key, value);
@@ -564,62 +561,51 @@ impl InputSettings {
         match kind {
             SourceKind::Replay => {
                 let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
-                if let Some(d) = &self.device {
-                    errors.push(ConfigError::new(
-                        "device",
-                        format!("{:?}", d.display().to_string()),
-                        only_devices,
-                    ));
-                }
-                if let Some(n) = &self.name {
-                    errors.push(ConfigError::new("name", format!("{n:?}"), only_devices));
-                }
-                if let Some(g) = self.grab {
-                    errors.push(ConfigError::new("grab", g, only_devices));
-                }
-                if let Some(r) = self.reopen_interval_ms {
-                    errors.push(ConfigError::new("reopen_interval_ms", r, only_devices));
-                }
+                let device = self
+                    .device
+                    .as_ref()
+                    .map(|d| format!("{:?}", d.display().to_string()));
+                errors.not_for("device", device, only_devices);
+                errors.not_for(
+                    "name",
+                    self.name.as_ref().map(|n| format!("{n:?}")),
+                    only_devices,
+                );
+                errors.not_for("grab", self.grab, only_devices);
+                errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
                 let file = self.file.clone().unwrap_or_else(|| {
-                    errors.push(ConfigError::new(
+                    errors.absent(
                         "file",
-                        "(absent)",
                         "must name the recording to play for source = \"replay\"",
-                    ));
+                    );
                     PathBuf::new()
                 });
                 SourceConfig::Replay { file }
             }
             SourceKind::Joystick | SourceKind::Keyboard => {
-                if let Some(f) = &self.file {
-                    errors.push(ConfigError::new(
-                        "file",
-                        format!("{:?}", f.display().to_string()),
-                        "only applies to source = \"replay\"",
-                    ));
-                }
+                let file = self
+                    .file
+                    .as_ref()
+                    .map(|f| format!("{:?}", f.display().to_string()));
+                errors.not_for("file", file, "only applies to source = \"replay\"");
                 let selector = match (&self.device, &self.name) {
                     (Some(d), Some(n)) => {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "name",
                             format!("{n:?}"),
                             "give either device or name, not both",
-                        ));
+                        );
                         DeviceSelector::Path(d.clone())
                     }
                     (Some(d), None) => {
                         if d.as_os_str().is_empty() {
-                            errors.push(ConfigError::new("device", "\"\"", "must be a path"));
+                            errors.add("device", "\"\"", "must be a path");
                         }
                         DeviceSelector::Path(d.clone())
                     }
                     (None, Some(n)) => {
                         if n.trim().is_empty() {
-                            errors.push(ConfigError::new(
-                                "name",
-                                format!("{n:?}"),
-                                "must be a non-empty pattern",
-                            ));
+                            errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
                         }
                         DeviceSelector::Name(n.clone())
                     }
@@ -629,21 +615,16 @@ impl InputSettings {
                 let reopen_ms = self
                     .reopen_interval_ms
                     .unwrap_or(DEFAULT_REOPEN_INTERVAL_MS);
-                if !REOPEN_INTERVAL_RANGE_MS.contains(&reopen_ms) {
-                    errors.push(ConfigError::new(
-                        "reopen_interval_ms",
-                        reopen_ms,
-                        format!(
-                            "must be {}..={} ms",
-                            REOPEN_INTERVAL_RANGE_MS.start(),
-                            REOPEN_INTERVAL_RANGE_MS.end()
-                        ),
-                    ));
-                }
+                let reopen = errors.int(
+                    "reopen_interval_ms",
+                    reopen_ms,
+                    REOPEN_INTERVAL_RANGE_MS,
+                    " ms",
+                );
                 SourceConfig::Evdev {
                     selector,
                     grab: self.grab.unwrap_or(false),
-                    reopen_interval: Duration::from_millis(reopen_ms),
+                    reopen_interval: Duration::from_millis(reopen.unwrap_or_default()),
                 }
             }
         }
@@ -654,34 +635,36 @@ impl AxisSettings {
     /// Validates one axis; keys in errors are relative to the axis table.
     fn validate(&self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
         let before = errors.0.len();
-        let expo = self.expo.unwrap_or(0.0);
-        if !(0.0..=1.0).contains(&expo) {
-            errors.push(ConfigError::new("expo", expo, "must be 0..=1"));
-        }
+        let expo = errors.float(
+            "expo",
+            self.expo.unwrap_or(0.0),
+            EXPO_RANGE,
+            "must be 0..=1",
+        );
         let scale_pct = self.scale_pct.unwrap_or(100.0);
         if !(scale_pct > 0.0 && scale_pct <= 100.0) {
-            errors.push(ConfigError::new(
+            errors.add(
                 "scale_pct",
                 scale_pct,
                 "must be greater than 0 and at most 100",
-            ));
+            );
         }
         let has_keys = self.negative.is_some() || self.positive.is_some();
         let input = match (&self.abs, has_keys) {
             (Some(_), true) => {
-                errors.push(ConfigError::new(
+                errors.add(
                     "abs",
                     format!("{:?}", self.abs.as_deref().unwrap_or_default()),
                     "give either abs or negative/positive keys, not both",
-                ));
+                );
                 None
             }
             (None, false) => {
-                errors.push(ConfigError::new(
+                errors.add(
                     "abs",
                     "(absent)",
                     "must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
-                ));
+                );
                 None
             }
             (Some(name), false) => self.validate_abs(name, errors),
@@ -690,7 +673,7 @@ impl AxisSettings {
         let input = input?;
         (errors.0.len() == before).then_some(AxisConfig {
             input,
-            invert: self.invert.unwrap_or(false),
+            reverse: self.reverse.unwrap_or(false),
             expo,
             scale: scale_pct / 100.0,
             rest: self.rest.unwrap_or_default(),
@@ -699,87 +682,70 @@ impl AxisSettings {
 
     fn validate_abs(&self, name: &str, errors: &mut ConfigErrors) -> Option<AxisInput> {
         let not_for_abs = "only applies to key axes (negative/positive)";
-        if let Some(v) = self.ramp_up_ms {
-            errors.push(ConfigError::new("ramp_up_ms", v, not_for_abs));
-        }
-        if let Some(v) = self.spring_back_ms {
-            errors.push(ConfigError::new("spring_back_ms", v, not_for_abs));
-        }
+        errors.not_for("ramp_up_ms", self.ramp_up_ms, not_for_abs);
+        errors.not_for("spring_back_ms", self.spring_back_ms, not_for_abs);
         let code = parse_abs(name);
         if code.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "abs",
                 format!("{name:?}"),
                 "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
-            ));
+            );
         }
-        let deadzone = self.deadzone_pct.and_then(|d| {
-            if (0.0..=50.0).contains(&d) {
-                Some(d / 100.0)
-            } else {
-                errors.push(ConfigError::new("deadzone_pct", d, "must be 0..=50"));
-                None
-            }
-        });
+        let deadzone = self
+            .deadband_pct
+            .map(|d| errors.float("deadband_pct", d, DEADBAND_RANGE_PCT, "must be 0..=50") / 100.0);
+        let raw = |errors: &mut ConfigErrors, key: &str, v: Option<Int>| {
+            errors.opt_int::<i32>(key, v, Int::from(i32::MIN)..=Int::from(i32::MAX), "")
+        };
+        let (min, centre, max) = (
+            raw(errors, "min", self.min),
+            raw(errors, "centre", self.centre),
+            raw(errors, "max", self.max),
+        );
         if let (Some(min), Some(max)) = (self.min, self.max) {
             if min >= max {
-                errors.push(ConfigError::new(
-                    "max",
-                    max,
-                    format!("must be greater than min ({min})"),
-                ));
+                errors.add("max", max, format!("must be greater than min ({min})"));
             }
         }
         if let Some(centre) = self.centre {
             if let Some(min) = self.min.filter(|m| centre <= *m) {
-                errors.push(ConfigError::new(
+                errors.add(
                     "centre",
                     centre,
                     format!("must be greater than min ({min})"),
-                ));
+                );
             }
             if let Some(max) = self.max.filter(|m| centre >= *m) {
-                errors.push(ConfigError::new(
-                    "centre",
-                    centre,
-                    format!("must be less than max ({max})"),
-                ));
+                errors.add("centre", centre, format!("must be less than max ({max})"));
             }
         }
         Some(AxisInput::Abs {
             code: code?,
-            min: self.min,
-            centre: self.centre,
-            max: self.max,
+            min,
+            centre,
+            max,
             deadzone,
         })
     }
 
     fn validate_keys(&self, errors: &mut ConfigErrors) -> Option<AxisInput> {
         let not_for_keys = "only applies to abs axes";
-        if let Some(v) = self.deadzone_pct {
-            errors.push(ConfigError::new("deadzone_pct", v, not_for_keys));
-        }
-        for (key, v) in [
-            ("min", self.min),
-            ("centre", self.centre),
-            ("max", self.max),
-        ] {
-            if let Some(v) = v {
-                errors.push(ConfigError::new(key, v, not_for_keys));
-            }
-        }
+        errors.not_for("deadband_pct", self.deadband_pct, not_for_keys);
+        errors.not_for("min", self.min, not_for_keys);
+        errors.not_for("centre", self.centre, not_for_keys);
+        errors.not_for("max", self.max, not_for_keys);
         let mut key = |field: &str, value: &Option<String>| -> Option<Option<u16>> {
             match value {
                 None => Some(None),
                 Some(name) => match parse_key(name) {
                     Some(code) => Some(Some(code)),
                     None => {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             field,
                             format!("{name:?}"),
                             "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
-                        ));
+                        );
                         None
                     }
                 },
@@ -789,23 +755,16 @@ impl AxisSettings {
         let positive = key("positive", &self.positive);
         if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
             if n == p {
-                errors.push(ConfigError::new(
+                errors.add(
                     "positive",
                     format!("{:?}", self.positive.as_deref().unwrap_or_default()),
                     "must differ from negative",
-                ));
+                );
             }
         }
-        let mut ms = |field: &str, value: Option<u64>, default: u64| {
-            let v = value.unwrap_or(default);
-            if v > MAX_RAMP_MS {
-                errors.push(ConfigError::new(
-                    field,
-                    v,
-                    format!("must be 0..={MAX_RAMP_MS} ms"),
-                ));
-            }
-            Duration::from_millis(v)
+        let mut ms = |field: &str, value: Option<Int>, default: Int| {
+            let v = errors.int(field, value.unwrap_or(default), 0..=MAX_RAMP_MS, " ms");
+            Duration::from_millis(v.unwrap_or_default())
         };
         let ramp_up = ms("ramp_up_ms", self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
         let spring_back = ms(
@@ -857,7 +816,7 @@ mod tests {
             &SourceConfig::Evdev {
                 selector: DeviceSelector::AnyJoystick,
                 grab: false,
-                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS),
+                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS as u64),
             }
         );
         let roll = c.mapping().axes[1].expect("roll mapped");
@@ -871,7 +830,7 @@ mod tests {
                 deadzone: None
             }
         );
-        assert_eq!((roll.invert, roll.expo, roll.scale), (false, 0.0, 1.0));
+        assert_eq!((roll.reverse, roll.expo, roll.scale), (false, 0.0, 1.0));
         assert_eq!(roll.rest, Rest::Centre);
         assert_eq!(c.mapping().silence_timeout, None);
         assert_eq!(c.mapping().deadman, None);
@@ -904,8 +863,8 @@ mod tests {
             Some(AxisInput::Keys {
                 negative: Some(31),
                 positive: Some(17),
-                ramp_up: Duration::from_millis(DEFAULT_RAMP_UP_MS),
-                spring_back: Duration::from_millis(DEFAULT_SPRING_BACK_MS),
+                ramp_up: Duration::from_millis(DEFAULT_RAMP_UP_MS as u64),
+                spring_back: Duration::from_millis(DEFAULT_SPRING_BACK_MS as u64),
             })
         );
         assert_eq!(c.mapping().deadman, Some(Control::Key(57)));
@@ -968,11 +927,11 @@ mod tests {
             "axes.throttle.scale_pct = 0: must be greater than 0 and at most 100",
             "axes.throttle.ramp_up_ms = 10: only applies to key axes (negative/positive)",
             "axes.throttle.abs = \"ABS_Q\": must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
-            "axes.throttle.deadzone_pct = 60: must be 0..=50",
+            "axes.throttle.deadband_pct = 60: must be 0..=50",
             "axes.roll.max = 5: must be greater than min (10)",
             "axes.roll.centre = 20: must be less than max (5)",
             "axes.pitch.abs = (absent): must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
-            "axes.yaw.deadzone_pct = 5: only applies to abs axes",
+            "axes.yaw.deadband_pct = 5: only applies to abs axes",
             "axes.yaw.positive = \"KEY_NOPE\": must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
             "buttons.release = \"BTN_TL\": is already used by buttons.deadman",
             "buttons.finish = \"BTN_WHAT\": must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
@@ -987,6 +946,26 @@ mod tests {
             "yaw was invalid, so KEY_Q was not claimed: {got:#?}"
         );
         assert_eq!(got.len(), expected.len(), "{got:#?}");
+    }
+
+    #[test]
+    fn older_spellings_are_accepted_and_wide_integers_name_their_key() {
+        let c = parse("source = \"joystick\"\n[axes.roll]\nabs = \"ABS_X\"\ninvert = true\ndeadzone_pct = 5.0")
+            .validate()
+            .expect("aliases");
+        let roll = c.mapping().axes[1].expect("roll mapped");
+        assert!(roll.reverse);
+        assert!(matches!(roll.input, AxisInput::Abs { deadzone: Some(d), .. } if d == 0.05));
+        let got = errors_of(
+            "source = \"joystick\"\nreopen_interval_ms = -1\n[axes.roll]\nabs = \"ABS_X\"\nmin = 3000000000",
+        );
+        assert_eq!(
+            got,
+            [
+                "reopen_interval_ms = -1: must be 10..=60000 ms",
+                "axes.roll.min = 3000000000: must be -2147483648..=2147483647",
+            ]
+        );
     }
 
     #[test]

@@ -567,7 +567,7 @@ impl Mapper {
                 let deadzone =
                     deadzone.unwrap_or_else(|| cal.flat_fraction(info.map_or(0, |i| i.flat)));
                 let shaping = Shaping {
-                    invert: config.invert,
+                    invert: config.reverse,
                     deadzone,
                     expo: 0.0,
                     scale: 1.0,
@@ -577,7 +577,7 @@ impl Mapper {
             AxisInput::Keys { .. } => {
                 let ramp = self.ramps[slot]?;
                 Shaping {
-                    invert: config.invert,
+                    invert: config.reverse,
                     ..Shaping::default()
                 }
                 .apply(ramp.value())

@@ -3,8 +3,8 @@
 //! collects every problem and returns the validated [`CanConfig`].
 //!
 //! Keys of errors are relative to the `[output]` table, e.g. `frames[1].outputs[0].offset`;
-//! the gateway puts `output.` in front. Integers are read as `i64` so that a negative or huge
-//! value is reported against its key instead of failing the parse.
+//! the gateway puts `output.` in front. Integers are read wide ([`rove_core::config::Int`]) so
+//! that a negative or huge value is reported against its key instead of failing the parse.
 
 use crate::bus::{
     CLASSIC_MAX_LEN, CanId, EXTENDED_ID_MAX, FD_LENGTHS, FD_MAX_LEN, STANDARD_ID_MAX,
@@ -15,12 +15,13 @@ use crate::dronecan::{
 };
 use crate::raw::{Endian, FieldLayout, Width};
 use crate::scale::{Scale, Source, UnitScale, axis_name};
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::error::ConfigErrors;
 use rove_core::mapping::Axis;
 use serde::de::{self, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
-use std::collections::HashMap;
 use std::fmt;
+use std::ops::RangeInclusive;
 use std::time::Duration;
 
 /// Default send rate, Hz, of frames and DroneCAN commands: 50 Hz (20 ms), the rate RC systems
@@ -82,7 +83,6 @@ pub struct FrameSettings {
 
 /// One value in a raw frame (`[[output.frames.outputs]]`), as written.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct FieldSettings {
     /// Name for logs and status (absent: `frames[i].outputs[j]`).
     pub name: Option<String>,
@@ -96,14 +96,28 @@ pub struct FieldSettings {
     pub endian: Option<Endian>,
     /// Two's complement (absent: true).
     pub signed: Option<bool>,
-    /// Device value at −full scale (absent: the field's lowest value, symmetric for signed).
-    pub min: Option<i64>,
-    /// Device value at centre (absent: halfway between min and max).
-    pub centre: Option<i64>,
-    /// Device value at +full scale (absent: the field's highest value).
-    pub max: Option<i64>,
-    /// Device value in the safe state (absent: centre).
-    pub failsafe: Option<i64>,
+    /// `min`, `centre`, `max`, `failsafe` in device units (absent: the field's lowest value,
+    /// symmetric for signed; halfway; the field's highest value; centre).
+    #[serde(flatten)]
+    pub scale: ScaleSettings<Int>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
+}
+
+/// `min`/`centre`/`max`/`failsafe` of a CAN output, as written: the one definition for raw
+/// fields (device units), DroneCAN servos (−1..=1) and ESCs (raw command), flattened into each.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScaleSettings<T> {
+    /// Value at −full scale.
+    pub min: Option<T>,
+    /// Value at centre (absent: halfway between min and max).
+    pub centre: Option<T>,
+    /// Value at +full scale.
+    pub max: Option<T>,
+    /// Value in the safe state (absent: centre, unless the output says otherwise).
+    pub failsafe: Option<T>,
 }
 
 /// `[output.dronecan]`, as written.
@@ -126,43 +140,38 @@ pub struct DroneCanSettings {
 
 /// One DroneCAN servo, as written.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ServoSettings {
     /// Name for logs and status (absent: `dronecan.servos[i]`).
     pub name: Option<String>,
     /// The actuator's id, 0..=255 (required).
-    pub actuator_id: Option<i64>,
+    pub actuator_id: Option<Int>,
     /// What drives it (required).
     pub source: Option<SourceSettings>,
-    /// Command at −full scale, −1..=1 (absent: −1).
-    pub min: Option<f64>,
-    /// Command at centre (absent: halfway between min and max).
-    pub centre: Option<f64>,
-    /// Command at +full scale (absent: 1).
-    pub max: Option<f64>,
-    /// Command in the safe state (absent: centre).
-    pub failsafe: Option<f64>,
+    /// `min`, `centre`, `max`, `failsafe`: commands −1..=1 (absent: −1, halfway, 1, centre).
+    #[serde(flatten)]
+    pub scale: ScaleSettings<f64>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// One DroneCAN ESC channel, as written.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct EscSettings {
     /// Name for logs and status (absent: `dronecan.escs[i]`).
     pub name: Option<String>,
     /// Index in the RawCommand array, 0..=19 (required). Unlisted indices below the highest
     /// are sent as 0 (stop).
-    pub index: Option<i64>,
+    pub index: Option<Int>,
     /// What drives it (required).
     pub source: Option<SourceSettings>,
-    /// Command at −full scale, −8192..=8191 (absent: 0).
-    pub min: Option<i64>,
-    /// Command at centre (absent: halfway between min and max).
-    pub centre: Option<i64>,
-    /// Command at +full scale (absent: 8191).
-    pub max: Option<i64>,
-    /// Command in the safe state (absent: 0, motor stopped).
-    pub failsafe: Option<i64>,
+    /// `min`, `centre`, `max`, `failsafe`: raw commands −8192..=8191 (absent: 0, halfway,
+    /// 8191, 0 = motor stopped).
+    #[serde(flatten)]
+    pub scale: ScaleSettings<Int>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// `source = …` as written: an axis name (`"throttle"`, `"roll"`, `"pitch"`, `"yaw"`), or
@@ -251,29 +260,29 @@ impl SourceSettings {
             SourceSettings::Axis(a) => Source::Axis(*a),
             SourceSettings::Mix { mix } => {
                 if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
-                    errors.push(ConfigError::new(
+                    errors.add(
                         "source",
                         self,
                         format!("a mix needs 1..={MIX_TERMS_MAX} terms"),
-                    ));
+                    );
                 }
                 for (i, (axis, weight)) in mix.iter().enumerate() {
                     if !weight.is_finite() || weight.abs() > MIX_WEIGHT_MAX || *weight == 0.0 {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "source",
                             self,
                             format!(
                                 "weight of {} must be non-zero and within ±{MIX_WEIGHT_MAX}",
                                 axis_name(*axis)
                             ),
-                        ));
+                        );
                     }
                     if mix[..i].iter().any(|(other, _)| other == axis) {
-                        errors.push(ConfigError::new(
+                        errors.add(
                             "source",
                             self,
                             format!("{} appears twice in the mix", axis_name(*axis)),
-                        ));
+                        );
                     }
                 }
                 Source::Mix(mix.clone())
@@ -530,89 +539,61 @@ fn period_of(rate_hz: i64) -> Duration {
     Duration::from_nanos(1_000_000_000 / rate_hz.clamp(1, 1_000_000_000) as u64)
 }
 
-fn check_rate(key: &str, rate: Option<i64>, errors: &mut ConfigErrors) -> Option<i64> {
-    match rate {
-        Some(r) if !RATE_RANGE_HZ.contains(&r) => {
-            errors.push(ConfigError::new(
-                key,
-                r,
-                format!(
-                    "must be {}..={} Hz",
-                    RATE_RANGE_HZ.start(),
-                    RATE_RANGE_HZ.end()
-                ),
-            ));
-            None
+fn check_rate(key: &str, rate: Option<Int>, errors: &mut ConfigErrors) -> Option<Int> {
+    errors.opt_int(key, rate, RATE_RANGE_HZ, " Hz")
+}
+
+impl<T: Copy + PartialOrd + fmt::Display> ScaleSettings<T> {
+    /// Checks the four values (min and max in either order) against `range`, filling
+    /// defaults: `(lo, hi)` for min and max, `mid` for the centre, then `failsafe_default` or
+    /// the centre. `None` if any is invalid (each invalid key recorded with `rule`).
+    fn check(
+        &self,
+        (lo, hi): (T, T),
+        mid: fn(T, T) -> T,
+        failsafe_default: Option<T>,
+        (range, rule): (RangeInclusive<T>, &str),
+        errors: &mut ConfigErrors,
+    ) -> Option<[T; 4]> {
+        let (min, max) = (self.min.unwrap_or(lo), self.max.unwrap_or(hi));
+        let centre = self.centre.unwrap_or_else(|| mid(min, max));
+        let failsafe = self.failsafe.or(failsafe_default).unwrap_or(centre);
+        let values = [min, centre, max, failsafe];
+        let mut ok = true;
+        for (key, v) in ["min", "centre", "max", "failsafe"].into_iter().zip(values) {
+            if !range.contains(&v) {
+                errors.add(key, v, rule);
+                ok = false;
+            }
         }
-        r => r,
-    }
-}
-
-fn required<T: Clone>(key: &str, value: &Option<T>, errors: &mut ConfigErrors) -> Option<T> {
-    if value.is_none() {
-        errors.push(ConfigError::new(key, "(absent)", "is required"));
-    }
-    value.clone()
-}
-
-/// Checks `min`/`centre`/`max` (in either order) and `failsafe` against `range`, filling
-/// defaults; `None` if any is invalid (each invalid key recorded).
-#[allow(clippy::too_many_arguments)]
-fn check_scale(
-    min: Option<i64>,
-    centre: Option<i64>,
-    max: Option<i64>,
-    failsafe: Option<i64>,
-    defaults: (i64, i64),
-    failsafe_default: Option<i64>,
-    range: (i64, i64),
-    errors: &mut ConfigErrors,
-) -> Option<(Scale, i64)> {
-    let min = min.unwrap_or(defaults.0);
-    let max = max.unwrap_or(defaults.1);
-    let centre = centre.unwrap_or_else(|| (min + max).div_euclid(2));
-    let failsafe = failsafe.or(failsafe_default).unwrap_or(centre);
-    let mut ok = true;
-    let rule = format!("must be {}..={}", range.0, range.1);
-    for (key, v) in [
-        ("min", min),
-        ("centre", centre),
-        ("max", max),
-        ("failsafe", failsafe),
-    ] {
-        if !(range.0..=range.1).contains(&v) {
-            errors.push(ConfigError::new(key, v, rule.clone()));
+        let between = (min < centre && centre < max) || (max < centre && centre < min);
+        if ok && !between {
+            let rule = format!("must lie strictly between min ({min}) and max ({max})");
+            errors.add("centre", centre, rule);
             ok = false;
         }
+        ok.then_some(values)
     }
-    let between = (min < centre && centre < max) || (max < centre && centre < min);
-    if ok && !between {
-        errors.push(ConfigError::new(
-            "centre",
-            centre,
-            format!("must lie strictly between min ({min}) and max ({max})"),
-        ));
-        ok = false;
-    }
-    ok.then_some((Scale { min, centre, max }, failsafe))
 }
 
-struct Names(HashMap<String, String>);
+/// [`ScaleSettings::check`] for integer device units: `lo..=hi` as the range and its rule.
+fn int_scale(
+    s: &ScaleSettings<Int>,
+    defaults: (Int, Int),
+    failsafe_default: Option<Int>,
+    (lo, hi): (Int, Int),
+    errors: &mut ConfigErrors,
+) -> Option<(Scale, Int)> {
+    let rule = format!("must be {lo}..={hi}");
+    let mid = |a: Int, b: Int| (a + b).div_euclid(2);
+    let [min, centre, max, failsafe] =
+        s.check(defaults, mid, failsafe_default, (lo..=hi, &rule), errors)?;
+    Some((Scale { min, centre, max }, failsafe))
+}
 
-impl Names {
-    /// Records `name`, whose full key path is `full_key`, or reports a duplicate at `key`
-    /// (relative to the section `errors` collects for).
-    fn claim(&mut self, name: &str, full_key: &str, key: &str, errors: &mut ConfigErrors) {
-        if let Some(first) = self.0.get(name) {
-            errors.push(ConfigError::new(
-                key,
-                format!("{name:?}"),
-                format!("must be unique: {first} has the same name"),
-            ));
-        } else {
-            self.0.insert(name.to_string(), full_key.to_string());
-        }
-    }
+/// The name of an output, or its key path when it has none.
+fn output_name(name: &Option<String>, default_name: &str) -> String {
+    name.clone().unwrap_or_else(|| default_name.to_string())
 }
 
 impl CanSettings {
@@ -627,9 +608,11 @@ impl CanSettings {
     /// of range or repeated, and a vehicle with nothing to send.
     pub fn validate(&self) -> rove_core::Result<CanConfig> {
         let mut errors = ConfigErrors::default();
-        let mut names = Names(HashMap::new());
+        let mut names = Unique::default();
         let fd = self.fd.unwrap_or(false);
-        let interface = required("interface", &self.interface, &mut errors).unwrap_or_default();
+        let interface = errors
+            .required("interface", &self.interface)
+            .unwrap_or_default();
         if self.interface.is_some()
             && (interface.is_empty()
                 || interface.len() > INTERFACE_NAME_MAX
@@ -637,18 +620,19 @@ impl CanSettings {
                     .chars()
                     .all(|c| c.is_ascii_graphic() && c != '/' && c != ':'))
         {
-            errors.push(ConfigError::new(
+            errors.add(
                 "interface",
                 format!("{interface:?}"),
                 format!(
                     "must be a network interface name: 1..={INTERFACE_NAME_MAX} printable \
                      characters, no '/' or ':'"
                 ),
-            ));
+            );
         }
         let rate = check_rate("rate_hz", self.rate_hz, &mut errors).unwrap_or(DEFAULT_RATE_HZ);
         let mut frames: Vec<RawFrameConfig> = Vec::new();
-        let mut ids: HashMap<CanId, usize> = HashMap::new();
+        let mut ids = Unique::default();
+        let mut our_ids = Vec::new();
         for (i, f) in self.frames.iter().enumerate() {
             let mut fe = ConfigErrors::default();
             let frame = validate_frame(f, i, fd, rate, &mut names, &mut fe);
@@ -657,15 +641,9 @@ impl CanSettings {
                 CanId::new(u32::try_from(id).ok()?, f.extended.unwrap_or(false)).ok()
             });
             if let Some(id) = id {
-                if let Some(first) = ids.get(&id) {
-                    fe.push(ConfigError::new(
-                        "id",
-                        id,
-                        format!("must be unique: frames[{first}] has the same identifier"),
-                    ));
-                } else {
-                    ids.insert(id, i);
-                }
+                let owner = format!("frames[{i}]");
+                ids.check(&mut fe, id, &owner, ("id", id), "has the same identifier");
+                our_ids.push((id, i));
             }
             errors.extend_within(&format!("frames[{i}]"), fe);
             frames.extend(frame);
@@ -685,21 +663,21 @@ impl CanSettings {
             ];
             for (t, priority) in ours {
                 let id = CanId::Extended(dronecan::message_id(priority, t.id, dc.node_id));
-                if let Some(i) = ids.get(&id) {
-                    errors.push(ConfigError::new(
+                for (_, i) in our_ids.iter().filter(|(other, _)| *other == id).take(1) {
+                    errors.add(
                         format!("frames[{i}].id"),
                         id,
                         format!("must differ from our DroneCAN {} identifier", t.name),
-                    ));
+                    );
                 }
             }
         }
         if self.frames.is_empty() && self.dronecan.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "frames",
                 "[]",
                 "a CAN vehicle needs at least one [[output.frames]] or an [output.dronecan] table",
-            ));
+            );
         }
         errors.into_result(CanConfig {
             interface,
@@ -715,11 +693,11 @@ fn validate_frame(
     i: usize,
     fd: bool,
     section_rate: i64,
-    names: &mut Names,
+    names: &mut Unique<String>,
     errors: &mut ConfigErrors,
 ) -> Option<RawFrameConfig> {
     let extended = f.extended.unwrap_or(false);
-    let id = required("id", &f.id, errors).and_then(|id| {
+    let id = errors.required("id", &f.id).and_then(|id| {
         let limit = if extended {
             EXTENDED_ID_MAX
         } else {
@@ -739,11 +717,7 @@ fn validate_frame(
             } else {
                 format!("0x{id:X}")
             };
-            errors.push(ConfigError::new(
-                "id",
-                shown,
-                format!("must be 0..=0x{limit:X}{hint}"),
-            ));
+            errors.add("id", shown, format!("must be 0..=0x{limit:X}{hint}"));
         }
         fits
     });
@@ -758,17 +732,14 @@ fn validate_frame(
             } else {
                 "must be 0..=8 bytes (longer frames need fd = true)"
             };
-            errors.push(ConfigError::new("length", len, rule));
+            errors.add("length", len, rule);
         }
         ok
     });
     let rate = check_rate("rate_hz", f.rate_hz, errors).unwrap_or(section_rate);
     if f.outputs.is_empty() {
-        errors.push(ConfigError::new(
-            "outputs",
-            "[]",
-            "a frame needs at least one [[output.frames.outputs]]",
-        ));
+        let rule = "a frame needs at least one [[output.frames.outputs]]";
+        errors.add("outputs", "[]", rule);
     }
     let limit = length.unwrap_or(capacity);
     let mut outputs: Vec<RawOutputConfig> = Vec::new();
@@ -778,11 +749,14 @@ fn validate_frame(
         let default_name = format!("frames[{i}].outputs[{j}]");
         let output = validate_field(o, &default_name, limit, &outputs, &mut oe);
         if let Some(output) = &output {
-            names.claim(
-                &output.name,
-                &format!("{default_name}.name"),
-                &format!("outputs[{j}].name"),
+            let (owner, key) = (format!("{default_name}.name"), format!("outputs[{j}].name"));
+            let shown = (key.as_str(), format!("{:?}", output.name));
+            names.check(
                 errors,
+                output.name.clone(),
+                owner,
+                shown,
+                "has the same name",
             );
         }
         all_ok &= output.is_some();
@@ -820,29 +794,33 @@ fn validate_field(
     earlier: &[RawOutputConfig],
     errors: &mut ConfigErrors,
 ) -> Option<RawOutputConfig> {
-    let name = o.name.clone().unwrap_or_else(|| default_name.to_string());
+    o.unknown
+        .check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
+    let name = output_name(&o.name, default_name);
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
-        errors.push(ConfigError::new("name", "\"\"", "must not be empty"));
+        errors.add("name", "\"\"", "must not be empty");
     }
-    let source = required("source", &o.source, errors).map(|s| s.validate(errors));
+    let source = errors
+        .required("source", &o.source)
+        .map(|s| s.validate(errors));
     let width = match o.width {
         None => Some(Width::Bits16),
         Some(w) => {
             let width = Width::from_bits(w);
             if width.is_none() {
-                errors.push(ConfigError::new("width", w, "must be 8, 16 or 32 (bits)"));
+                errors.add("width", w, "must be 8, 16 or 32 (bits)");
             }
             width
         }
     };
-    let offset = required("offset", &o.offset, errors).and_then(|off| {
+    let offset = errors.required("offset", &o.offset).and_then(|off| {
         let ok = usize::try_from(off).ok().filter(|o| *o < frame_len);
         if ok.is_none() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "offset",
                 off,
                 format!("must be 0..{frame_len} (the frame's bytes)"),
-            ));
+            );
         }
         ok
     });
@@ -855,18 +833,18 @@ fn validate_field(
     };
     let mut placed = true;
     if layout.end() > frame_len {
-        errors.push(ConfigError::new(
+        errors.add(
             "offset",
             offset,
             format!(
                 "offset + width ({offset} + {} bytes) reaches past the frame's {frame_len} bytes",
                 width.bytes()
             ),
-        ));
+        );
         placed = false;
     }
     if let Some(other) = earlier.iter().find(|e| e.layout.overlaps(&layout)) {
-        errors.push(ConfigError::new(
+        errors.add(
             "offset",
             offset,
             format!(
@@ -877,7 +855,7 @@ fn validate_field(
                 other.layout.offset,
                 other.layout.end()
             ),
-        ));
+        );
         placed = false;
     }
     let range = layout.range();
@@ -886,10 +864,7 @@ fn validate_field(
     } else {
         range
     };
-    let scaled = check_scale(
-        o.min, o.centre, o.max, o.failsafe, defaults, None, range, errors,
-    );
-    let (scale, failsafe) = scaled?;
+    let (scale, failsafe) = int_scale(&o.scale, defaults, None, range, errors)?;
     if !placed {
         return None;
     }
@@ -902,100 +877,79 @@ fn validate_field(
     })
 }
 
+/// The keys of an output table that are not in [`ScaleSettings`].
+const FIELD_KEYS: &[&str] = &["name", "source", "offset", "width", "endian", "signed"];
+
 impl DroneCanSettings {
     fn validate(
         &self,
-        section_rate: i64,
-        names: &mut Names,
+        section_rate: Int,
+        names: &mut Unique<String>,
         errors: &mut ConfigErrors,
     ) -> Option<DroneCanConfig> {
-        let node_id = required("node_id", &self.node_id, errors).and_then(|n| {
-            let ok = u8::try_from(n).ok().filter(|_| NODE_ID_RANGE.contains(&n));
-            if ok.is_none() {
-                errors.push(ConfigError::new(
-                    "node_id",
-                    n,
-                    "must be 1..=127 (0 is anonymous)",
-                ));
-            }
-            ok
-        });
+        let node_id = errors.required("node_id", &self.node_id);
+        let node_id =
+            node_id.and_then(|n| errors.int("node_id", n, NODE_ID_RANGE, " (0 is anonymous)"));
         let priority = self.priority.unwrap_or(DEFAULT_PRIORITY);
-        let priority = u8::try_from(priority)
-            .ok()
-            .filter(|_| PRIORITY_RANGE.contains(&priority));
-        if priority.is_none() {
-            errors.push(ConfigError::new(
-                "priority",
-                self.priority.unwrap_or(DEFAULT_PRIORITY),
-                "must be 0..=31 (0 highest)",
-            ));
-        }
+        let priority = errors.int("priority", priority, PRIORITY_RANGE, " (0 highest)");
         let rate = check_rate("rate_hz", self.rate_hz, errors).unwrap_or(section_rate);
         if self.servos.is_empty() && self.escs.is_empty() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "servos",
                 "[]",
                 "[output.dronecan] needs at least one of [[output.dronecan.servos]] or \
                  [[output.dronecan.escs]]",
-            ));
+            );
         }
         if self.servos.len() > MAX_SERVOS {
-            errors.push(ConfigError::new(
+            errors.add(
                 "servos",
                 format!("{} entries", self.servos.len()),
                 format!("at most {MAX_SERVOS} (one ArrayCommand)"),
-            ));
+            );
         }
         let mut ok = true;
+        let mut claim = |errors: &mut ConfigErrors, name: &str, key: String| {
+            let shown = (key.as_str(), format!("{name:?}"));
+            names.check(
+                errors,
+                name.to_string(),
+                format!("dronecan.{key}"),
+                shown,
+                "has the same name",
+            );
+        };
         let mut servos = Vec::new();
-        let mut actuator_ids: HashMap<u8, usize> = HashMap::new();
+        let mut actuator_ids = Unique::default();
         for (i, s) in self.servos.iter().enumerate() {
-            let mut se = ConfigErrors::default();
-            let key = format!("dronecan.servos[{i}]");
-            let servo = s.validate(&key, &mut se);
+            let (mut se, owner) = (ConfigErrors::default(), format!("servos[{i}]"));
+            let servo = s.validate(&format!("dronecan.{owner}"), &mut se);
             if let Some(servo) = &servo {
-                names.claim(
-                    &servo.name,
-                    &format!("{key}.name"),
-                    &format!("servos[{i}].name"),
-                    errors,
-                );
-                if let Some(first) = actuator_ids.insert(servo.actuator_id, i) {
-                    se.push(ConfigError::new(
-                        "actuator_id",
-                        servo.actuator_id,
-                        format!("must be unique: servos[{first}] has the same"),
-                    ));
-                }
+                claim(errors, &servo.name, format!("{owner}.name"));
+                let key = ("actuator_id", servo.actuator_id);
+                actuator_ids.check(&mut se, servo.actuator_id, &owner, key, "has the same");
             }
             ok &= servo.is_some() && se.0.is_empty();
-            errors.extend_within(&format!("servos[{i}]"), se);
+            errors.extend_within(&owner, se);
             servos.extend(servo);
         }
         let mut escs = Vec::new();
-        let mut indices: HashMap<u8, usize> = HashMap::new();
+        let mut indices = Unique::default();
         for (i, e) in self.escs.iter().enumerate() {
-            let mut ee = ConfigErrors::default();
-            let key = format!("dronecan.escs[{i}]");
-            let esc = e.validate(&key, &mut ee);
+            let (mut ee, owner) = (ConfigErrors::default(), format!("escs[{i}]"));
+            let esc = e.validate(&format!("dronecan.{owner}"), &mut ee);
             if let Some(esc) = &esc {
-                names.claim(
-                    &esc.name,
-                    &format!("{key}.name"),
-                    &format!("escs[{i}].name"),
-                    errors,
+                claim(errors, &esc.name, format!("{owner}.name"));
+                indices.check(
+                    &mut ee,
+                    esc.index,
+                    &owner,
+                    ("index", esc.index),
+                    "has the same",
                 );
-                if let Some(first) = indices.insert(esc.index, i) {
-                    ee.push(ConfigError::new(
-                        "index",
-                        esc.index,
-                        format!("must be unique: escs[{first}] has the same"),
-                    ));
-                }
             }
             ok &= esc.is_some() && ee.0.is_empty();
-            errors.extend_within(&format!("escs[{i}]"), ee);
+            errors.extend_within(&owner, ee);
             escs.extend(esc);
         }
         if !ok {
@@ -1011,53 +965,26 @@ impl DroneCanSettings {
     }
 }
 
+/// The keys of a servo or ESC table that are not in [`ScaleSettings`].
+const SERVO_KEYS: &[&str] = &["name", "actuator_id", "source"];
+const ESC_KEYS: &[&str] = &["name", "index", "source"];
+
 impl ServoSettings {
     fn validate(&self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
-        let actuator_id = required("actuator_id", &self.actuator_id, errors).and_then(|a| {
-            let ok = u8::try_from(a).ok();
-            if ok.is_none() {
-                errors.push(ConfigError::new("actuator_id", a, "must be 0..=255"));
-            }
-            ok
-        });
-        let source = required("source", &self.source, errors).map(|s| s.validate(errors));
-        let min = self.min.unwrap_or(-1.0);
-        let max = self.max.unwrap_or(1.0);
-        let centre = self.centre.unwrap_or((min + max) / 2.0);
-        let failsafe = self.failsafe.unwrap_or(centre);
-        let mut ok = true;
-        for (key, v) in [
-            ("min", min),
-            ("centre", centre),
-            ("max", max),
-            ("failsafe", failsafe),
-        ] {
-            if !(-1.0..=1.0).contains(&v) {
-                errors.push(ConfigError::new(
-                    key,
-                    v,
-                    "must be -1..=1 (a unitless actuator command)",
-                ));
-                ok = false;
-            }
-        }
-        let between = (min < centre && centre < max) || (max < centre && centre < min);
-        if ok && !between {
-            errors.push(ConfigError::new(
-                "centre",
-                centre,
-                format!("must lie strictly between min ({min}) and max ({max})"),
-            ));
-            ok = false;
-        }
-        if !ok {
-            return None;
-        }
+        self.unknown
+            .check(errors, &[SERVO_KEYS, keys_of::<ScaleSettings<f64>>()]);
+        let name = output_name(&self.name, default_name);
+        let actuator_id = errors.required("actuator_id", &self.actuator_id);
+        let actuator_id = actuator_id.and_then(|a| errors.int("actuator_id", a, 0..=255, ""));
+        let source = errors
+            .required("source", &self.source)
+            .map(|s| s.validate(errors));
+        let range = (-1.0..=1.0, "must be -1..=1 (a unitless actuator command)");
+        let [min, centre, max, failsafe] =
+            self.scale
+                .check((-1.0, 1.0), |a, b| (a + b) / 2.0, None, range, errors)?;
         Some(ServoConfig {
-            name: self
-                .name
-                .clone()
-                .unwrap_or_else(|| default_name.to_string()),
+            name,
             actuator_id: actuator_id?,
             source: source?,
             scale: UnitScale {
@@ -1072,37 +999,20 @@ impl ServoSettings {
 
 impl EscSettings {
     fn validate(&self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
-        let index = required("index", &self.index, errors).and_then(|i| {
-            let ok = u8::try_from(i).ok().filter(|i| usize::from(*i) < MAX_ESCS);
-            if ok.is_none() {
-                errors.push(ConfigError::new(
-                    "index",
-                    i,
-                    format!(
-                        "must be 0..={} (RawCommand has {MAX_ESCS} channels)",
-                        MAX_ESCS - 1
-                    ),
-                ));
-            }
-            ok
+        self.unknown
+            .check(errors, &[ESC_KEYS, keys_of::<ScaleSettings<Int>>()]);
+        let name = output_name(&self.name, default_name);
+        let index = errors.required("index", &self.index).and_then(|i| {
+            let rule = format!(" (RawCommand has {MAX_ESCS} channels)");
+            errors.int("index", i, 0..=(MAX_ESCS as Int - 1), &rule)
         });
-        let source = required("source", &self.source, errors).map(|s| s.validate(errors));
+        let source = errors
+            .required("source", &self.source)
+            .map(|s| s.validate(errors));
         let range = (*RAW_COMMAND_RANGE.start(), *RAW_COMMAND_RANGE.end());
-        let (scale, failsafe) = check_scale(
-            self.min,
-            self.centre,
-            self.max,
-            self.failsafe,
-            (0, range.1),
-            Some(0),
-            range,
-            errors,
-        )?;
+        let (scale, failsafe) = int_scale(&self.scale, (0, range.1), Some(0), range, errors)?;
         Some(EscConfig {
-            name: self
-                .name
-                .clone()
-                .unwrap_or_else(|| default_name.to_string()),
+            name,
             index: index?,
             source: source?,
             scale,
@@ -1215,6 +1125,22 @@ mod tests {
         let bad_mix = "interface = \"can0\"\n[[frames]]\nid = 1\n[[frames.outputs]]\n\
                        source = { mixx = [] }\noffset = 0";
         assert!(toml::from_str::<CanSettings>(bad_mix).is_err());
+    }
+
+    #[test]
+    fn unknown_keys_of_outputs_are_named_with_their_path() {
+        let err = errors_of(
+            "interface = \"can0\"\n[[frames]]\nid = 1\n[[frames.outputs]]\nsource = \"yaw\"\n\
+             offset = 0\nfailsafe_us = 3\n[dronecan]\nnode_id = 10\n[[dronecan.servos]]\n\
+             actuator_id = 1\nsource = \"roll\"\nmaxx = 1.0",
+        );
+        assert_has(
+            &err,
+            &[
+                "frames[0].outputs[0].failsafe_us = 3: unknown key, expected one of `name`",
+                "dronecan.servos[0].maxx = 1: unknown key, expected one of `name`, `actuator_id`",
+            ],
+        );
     }
 
     #[test]

@@ -2,27 +2,25 @@
 //! PWM vehicle config. Errors name the Eyedrive keys (`steering.max_us`), not the generic
 //! channel list.
 
-use rove_core::error::{ConfigError, ConfigErrors};
-use rove_pwm::{BackendKind, PwmVehicleConfig, PwmVehicleSettings, SourceKind};
+use rove_core::config::{UnknownKeys, keys_of};
+use rove_core::error::ConfigErrors;
+use rove_pwm::config::{preset_tables, rename_channels};
+use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
 
 /// `[output]` for the Eyedrive, as written.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct EyedriveSettings {
-    /// `"sysfs"`, `"rppal"` or `"sim"` (required).
-    pub backend: Option<BackendKind>,
-    /// PWM period, µs (absent: 20000).
-    pub period_us: Option<u32>,
-    /// sysfs only: the PWM class directory (absent: `/sys/class/pwm`).
-    pub sysfs_root: Option<PathBuf>,
-    /// sysfs only: default `pwmchipN` (absent: 0).
-    pub chip: Option<i64>,
+    /// `backend` (required), `period_us`, `sysfs_root`, `chip`: rove-pwm's backend keys.
+    #[serde(flatten)]
+    pub pwm: PwmBackendSettings,
     /// `[output.steering]` (required).
     pub steering: Option<EyedriveChannelSettings>,
     /// `[output.throttle]` (required).
     pub throttle: Option<EyedriveChannelSettings>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// `[output.steering]` / `[output.throttle]`: the address, and optional limits (defaults
@@ -30,9 +28,9 @@ pub struct EyedriveSettings {
 pub type EyedriveChannelSettings = rove_pwm::ServoChannelSettings;
 
 /// The generic channel order the preset builds; error keys are translated back by it.
-const CHANNELS: [(&str, SourceKind); 2] = [
-    ("steering", SourceKind::Roll),
-    ("throttle", SourceKind::Throttle),
+const CHANNELS: [(&str, ChannelSourceKind); 2] = [
+    ("steering", ChannelSourceKind::Roll),
+    ("throttle", ChannelSourceKind::Throttle),
 ];
 
 impl EyedriveSettings {
@@ -41,15 +39,13 @@ impl EyedriveSettings {
     pub fn to_generic(&self) -> PwmVehicleSettings {
         let tables = [&self.steering, &self.throttle];
         PwmVehicleSettings {
-            backend: self.backend,
-            period_us: self.period_us,
-            sysfs_root: self.sysfs_root.clone(),
-            chip: self.chip,
+            pwm: self.pwm.clone(),
             channels: CHANNELS
                 .iter()
                 .zip(tables)
                 .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
                 .collect(),
+            unknown: UnknownKeys::default(),
         }
     }
 
@@ -58,45 +54,39 @@ impl EyedriveSettings {
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
-    /// (`steering.pin`, `throttle.max_us`, `backend`…): a missing table, and everything
-    /// [`PwmVehicleSettings::validate`] rejects.
+    /// (`steering.pin`, `throttle.max_us`, `backend`…): unknown keys, a missing table, and
+    /// everything [`PwmVehicleSettings::validate`] rejects.
     pub fn validate(&self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        for (name, table) in [("steering", &self.steering), ("throttle", &self.throttle)] {
-            if table.is_none() {
-                errors.push(ConfigError::new(
-                    name,
-                    "(absent)",
-                    format!("must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"),
-                ));
-            }
-        }
-        match self.to_generic().validate() {
-            Ok(config) => errors.into_result(config),
-            Err(rove_core::Error::Config(generic)) => {
-                errors.0.extend(
-                    generic
-                        .0
-                        .into_iter()
-                        .map(|e| rename(e, &CHANNELS.map(|c| c.0))),
-                );
-                Err(rove_core::Error::Config(errors))
-            }
-            Err(other) => Err(other),
-        }
+        let keys = [
+            keys_of::<PwmBackendSettings>(),
+            &["steering", "throttle"][..],
+        ];
+        self.unknown.check(&mut errors, &keys);
+        let tables = [&self.steering, &self.throttle];
+        let names = CHANNELS.map(|c| c.0);
+        preset_tables(&mut errors, &names, &tables);
+        finish(errors, self.to_generic().validate(), &names)
     }
 }
 
-/// Rewrites `channels[i]` in a generic error's key and rule to the preset's table name.
-pub(crate) fn rename(mut e: ConfigError, names: &[&str]) -> ConfigError {
-    for (i, name) in names.iter().enumerate() {
-        let generic = format!("channels[{i}]");
-        if let Some(rest) = e.key.strip_prefix(&generic) {
-            e.key = format!("{name}{rest}");
+/// The preset's own `errors` followed by the generic validation's, renamed to the preset's
+/// table names.
+fn finish<T>(
+    mut errors: ConfigErrors,
+    generic: rove_core::Result<T>,
+    names: &[&str],
+) -> rove_core::Result<T> {
+    match generic {
+        Ok(config) => errors.into_result(config),
+        Err(rove_core::Error::Config(generic)) => {
+            errors
+                .0
+                .extend(generic.0.into_iter().map(|e| rename_channels(e, names)));
+            Err(rove_core::Error::Config(errors))
         }
-        e.rule = e.rule.replace(&generic, name);
+        Err(other) => Err(other),
     }
-    e
 }
 
 #[cfg(test)]
@@ -139,13 +129,24 @@ mod tests {
     }
 
     #[test]
-    fn unknown_keys_are_rejected_at_parse() {
-        for text in [
-            "backend = \"sim\"\nfailsafe_us = 1500",
-            "backend = \"sim\"\n[steering]\nfailsafe_us = 1500",
-            "backend = \"sim\"\n[throttle]\nsource = \"yaw\"",
+    fn unknown_keys_are_rejected_naming_their_table() {
+        for (text, want) in [
+            (
+                "failsafe_us = 1500\n[steering]\n[throttle]",
+                "failsafe_us = 1500: unknown key, expected one of `backend`",
+            ),
+            (
+                "[steering]\nfailsafe_us = 1500\n[throttle]",
+                "steering.failsafe_us = 1500: unknown key, expected one of `chip`",
+            ),
+            (
+                "[steering]\n[throttle]\nsource = \"yaw\"",
+                "throttle.source = \"yaw\": unknown key",
+            ),
         ] {
-            assert!(toml::from_str::<EyedriveSettings>(text).is_err(), "{text}");
+            let err = errors(&format!("backend = \"sim\"\n{text}"));
+            assert!(err.contains(want), "missing {want:?} in\n{err}");
+            assert_eq!(err.lines().count(), 1, "{err}");
         }
     }
 }

@@ -34,9 +34,9 @@ fn load(text: &str) -> PwmVehicleConfig {
 fn sim(text: &str) -> (PwmVehicle<SimBackend>, SimLog) {
     let file: File = toml::from_str(text).expect("parses");
     let Output::Eyedrive(mut settings) = file.output;
-    settings.backend = Some(rove_pwm::BackendKind::Sim);
-    settings.sysfs_root = None;
-    settings.chip = None;
+    settings.pwm.backend = Some(rove_pwm::BackendKind::Sim);
+    settings.pwm.sysfs_root = None;
+    settings.pwm.chip = None;
     let cfg = settings.validate().expect("valid on sim");
     let backend = SimBackend::for_config(&cfg);
     let log = backend.log();
@@ -83,10 +83,12 @@ fn example_sections_parse_and_name_their_outputs() {
             }
         ]
     );
-    assert!(
-        toml::from_str::<File>(&PI.replace("pin = 13", "pin = 13\nfoo = 1")).is_err(),
-        "unknown key inside a tagged section is still rejected"
-    );
+    let file: File = toml::from_str(&PI.replace("pin = 13", "pin = 13\nfoo = 1")).expect("parses");
+    let Output::Eyedrive(settings) = file.output;
+    let err = settings
+        .validate()
+        .expect_err("unknown key inside a tagged section is rejected");
+    assert!(err.to_string().contains(".foo = 1: unknown key"), "{err}");
 }
 
 #[test]

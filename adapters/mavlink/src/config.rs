@@ -9,7 +9,8 @@
 //! connection = "tcpout:127.0.0.1:5760"
 //! ```
 
-use rove_core::error::{ConfigError, ConfigErrors};
+use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, AxisMap, AxisMapSettings};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
@@ -25,15 +26,15 @@ pub struct MavlinkSettings {
     /// `tcp:` = tcpout), or `serial:DEVICE:BAUD` (absent: `tcpout:127.0.0.1:5760`, SITL).
     pub connection: Option<String>,
     /// 2 (absent) or 1.
-    pub mavlink_version: Option<u8>,
+    pub mavlink_version: Option<Int>,
     /// Our system id (absent: 255, ArduPilot's default `MAV_GCS_SYSID` / `SYSID_MYGCS`).
-    pub system_id: Option<u8>,
+    pub system_id: Option<Int>,
     /// Our component id (absent: 190, MAV_COMP_ID_MISSIONPLANNER).
-    pub component_id: Option<u8>,
+    pub component_id: Option<Int>,
     /// The autopilot's system id (absent: the first autopilot heard).
-    pub target_system: Option<u8>,
+    pub target_system: Option<Int>,
     /// The autopilot's component id (absent: that of the first autopilot heard, else 1).
-    pub target_component: Option<u8>,
+    pub target_component: Option<Int>,
     /// `"ardupilot"` (absent) or `"px4"`.
     pub autopilot: Option<AutopilotKind>,
     /// `"rover"` (absent) or `"copter"`: picks the default modes and stick conventions.
@@ -43,11 +44,11 @@ pub struct MavlinkSettings {
     /// Resend rate of the control message while driving and in failsafe, Hz (absent: 25).
     pub rate_hz: Option<f64>,
     /// No HEARTBEAT from the autopilot for this long → link reported down, ms (absent: 3000).
-    pub link_timeout_ms: Option<u64>,
+    pub link_timeout_ms: Option<Int>,
     /// Wait for a mode command's COMMAND_ACK before resending, ms (absent: 300).
-    pub command_timeout_ms: Option<u64>,
+    pub command_timeout_ms: Option<Int>,
     /// Resends of an unacknowledged mode command (absent: 3).
-    pub command_retries: Option<u32>,
+    pub command_retries: Option<Int>,
     /// What the control message carries in failsafe: `"release"` (absent for rc_override: hand
     /// every mapped channel back to the radio) or `"neutral"` (centre values, resent at rate;
     /// the only choice for manual_control, which has no release value).
@@ -103,26 +104,17 @@ pub enum FailsafeAction {
 
 /// One `[[output.channels]]` table: an axis on an RC channel.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ChannelSettings {
     /// RC channel 1..=18 (9..=18 need MAVLink 2).
-    pub channel: Option<u8>,
+    pub channel: Option<Int>,
     /// The axis it carries.
     pub axis: Option<Axis>,
-    /// Pulse at −full scale, µs (absent: 1000).
-    pub min_us: Option<u16>,
-    /// Pulse at centre, µs (absent: 1500).
-    pub centre_us: Option<u16>,
-    /// Pulse at +full scale, µs (absent: 2000).
-    pub max_us: Option<u16>,
-    /// Centre shift, µs.
-    pub trim_us: Option<i16>,
-    /// Swap directions.
-    pub reverse: Option<bool>,
-    /// Dead zone, percent of full scale.
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1.
-    pub expo: Option<f64>,
+    /// The mapping keys ([`rove_core::mapping::AxisMapSettings`]; no `slew_us_per_s`).
+    #[serde(flatten)]
+    pub map: AxisMapSettings,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
@@ -202,34 +194,26 @@ pub enum ZRange {
 #[serde(deny_unknown_fields)]
 pub struct ModeSettings {
     /// For rove's MANUAL.
-    pub manual: Option<ModeName>,
+    pub manual: Option<AutopilotModeName>,
     /// For rove's ASSISTED.
-    pub assisted: Option<ModeName>,
+    pub assisted: Option<AutopilotModeName>,
     /// For rove's AUTO.
-    pub auto: Option<ModeName>,
+    pub auto: Option<AutopilotModeName>,
     /// Entered when rove stops driving (owner lost, gateway stopping, `rove failsafe`).
-    pub safe: Option<ModeName>,
+    pub safe: Option<AutopilotModeName>,
     /// `false`: never send mode commands; the radio or another GCS owns the mode (absent: true).
     pub set_mode: Option<bool>,
 }
 
-/// A mode as written: a name (`"HOLD"`, `"AUTO.LOITER"`) or a raw custom_mode.
+/// An autopilot mode as written: a name (`"HOLD"`, `"AUTO.LOITER"`) or a raw custom_mode
+/// (resolved into an [`AutopilotMode`]).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(untagged)]
-pub enum ModeName {
+pub enum AutopilotModeName {
     /// A name from the autopilot's table.
     Name(String),
-    /// A raw `custom_mode` (PX4: `main << 16 | sub << 24`).
-    Number(u32),
-}
-
-impl fmt::Display for ModeName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ModeName::Name(n) => write!(f, "\"{n}\""),
-            ModeName::Number(n) => write!(f, "{n}"),
-        }
-    }
+    /// A raw `custom_mode` (PX4: `main << 16 | sub << 24`), 0..=4294967295.
+    Number(Int),
 }
 
 /// Where the autopilot is.
@@ -517,21 +501,18 @@ impl MavlinkSettings {
             .clone()
             .unwrap_or_else(|| "tcpout:127.0.0.1:5760".into());
         let endpoint = Endpoint::parse(&connection).unwrap_or_else(|rule| {
-            errors.push(ConfigError::new(
-                "connection",
-                format!("\"{connection}\""),
-                rule,
-            ));
+            errors.add("connection", format!("\"{connection}\""), rule);
             Endpoint::TcpOut("127.0.0.1:5760".into())
         });
         let mavlink_version = self.mavlink_version.unwrap_or(2);
-        if !(1..=2).contains(&mavlink_version) {
-            errors.push(ConfigError::new(
-                "mavlink_version",
-                mavlink_version,
-                "must be 1 or 2",
-            ));
-        }
+        let mavlink_version = errors.int("mavlink_version", mavlink_version, 1..=2, "");
+        let id = |errors: &mut ConfigErrors, key: &str, v: Option<Int>| {
+            errors.opt_int::<u8>(key, v, 0..=255, "")
+        };
+        let system_id = id(&mut errors, "system_id", self.system_id);
+        let component_id = id(&mut errors, "component_id", self.component_id);
+        let target_system = id(&mut errors, "target_system", self.target_system);
+        let target_component = id(&mut errors, "target_component", self.target_component);
         let autopilot = self.autopilot.unwrap_or(AutopilotKind::Ardupilot);
         let vehicle = self.vehicle.unwrap_or(VehicleKind::Rover);
         let method = self.method.unwrap_or(match autopilot {
@@ -539,73 +520,55 @@ impl MavlinkSettings {
             AutopilotKind::Px4 => Method::ManualControl,
         });
         if autopilot == AutopilotKind::Px4 && method == Method::RcOverride {
-            errors.push(ConfigError::new(
+            errors.add(
                 "method",
                 "\"rc_override\"",
                 "PX4 ignores RC_CHANNELS_OVERRIDE: use \"manual_control\"",
-            ));
+            );
         }
         let rate_hz = self.rate_hz.unwrap_or(25.0);
-        if !(rate_hz.is_finite() && (1.0..=200.0).contains(&rate_hz)) {
-            errors.push(ConfigError::new(
-                "rate_hz",
-                rate_hz,
-                "must be 1..=200 (autopilots time an override out after ~1–3 s)",
-            ));
-        }
+        let rule = "must be 1..=200 (autopilots time an override out after ~1–3 s)";
+        errors.float("rate_hz", rate_hz, 1.0..=200.0, rule);
         let link_timeout_ms = self.link_timeout_ms.unwrap_or(3000);
-        if !(500..=60_000).contains(&link_timeout_ms) {
-            errors.push(ConfigError::new(
-                "link_timeout_ms",
-                link_timeout_ms,
-                "must be 500..=60000 (the autopilot sends HEARTBEAT at 1 Hz)",
-            ));
-        }
+        let rule = " (the autopilot sends HEARTBEAT at 1 Hz)";
+        let link_timeout =
+            errors.int::<u64>("link_timeout_ms", link_timeout_ms, 500..=60_000, rule);
         let command_timeout_ms = self.command_timeout_ms.unwrap_or(300);
-        if !(20..=10_000).contains(&command_timeout_ms) {
-            errors.push(ConfigError::new(
-                "command_timeout_ms",
-                command_timeout_ms,
-                "must be 20..=10000",
-            ));
-        }
-        let command_retries = self.command_retries.unwrap_or(3);
-        if command_retries > 20 {
-            errors.push(ConfigError::new(
-                "command_retries",
-                command_retries,
-                "must be 0..=20",
-            ));
-        }
+        let command_timeout =
+            errors.int::<u64>("command_timeout_ms", command_timeout_ms, 20..=10_000, "");
+        let retries = self.command_retries.unwrap_or(3);
+        let command_retries = errors.int("command_retries", retries, 0..=20, "");
         let failsafe = self.failsafe.unwrap_or(match method {
             Method::RcOverride => FailsafeAction::Release,
             Method::ManualControl => FailsafeAction::Neutral,
         });
         if method == Method::ManualControl && failsafe == FailsafeAction::Release {
-            errors.push(ConfigError::new(
+            errors.add(
                 "failsafe",
                 "\"release\"",
                 "MANUAL_CONTROL has no release value: use \"neutral\" (the safe mode then holds \
                  the vehicle)",
-            ));
+            );
         }
-        let channels = self.validate_channels(method, vehicle, mavlink_version, &mut errors);
+        let version = mavlink_version.unwrap_or(2);
+        let channels = self.validate_channels(method, vehicle, version, &mut errors);
         let manual_control = self.validate_manual_control(method, autopilot, vehicle, &mut errors);
         let modes = self.validate_modes(autopilot, vehicle, &mut errors);
         errors.into_result(MavlinkConfig {
             endpoint,
-            mavlink_version,
-            system_id: self.system_id.unwrap_or(255),
-            component_id: self.component_id.unwrap_or(190),
-            target_system: self.target_system,
-            target_component: self.target_component,
+            mavlink_version: version,
+            system_id: system_id.unwrap_or(255),
+            component_id: component_id.unwrap_or(190),
+            target_system,
+            target_component,
             autopilot,
             vehicle,
             method,
-            period: Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 200.0)),
-            link_timeout: Duration::from_millis(link_timeout_ms),
-            command_timeout: Duration::from_millis(command_timeout_ms),
-            command_retries,
+            // A NaN rate was reported above; the placeholder keeps `from_secs_f64` from panicking.
+            period: Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 200.0).max(1.0)),
+            link_timeout: Duration::from_millis(link_timeout.unwrap_or_default()),
+            command_timeout: Duration::from_millis(command_timeout.unwrap_or_default()),
+            command_retries: command_retries.unwrap_or_default(),
             failsafe,
             channels,
             manual_control,
@@ -622,12 +585,12 @@ impl MavlinkSettings {
     ) -> Vec<ChannelConfig> {
         if method == Method::ManualControl {
             if !self.channels.is_empty() {
-                errors.push(ConfigError::new(
+                errors.add(
                     "channels",
                     format!("{} tables", self.channels.len()),
                     "only used with method = \"rc_override\"; map MANUAL_CONTROL in \
                      [output.manual_control]",
-                ));
+                );
             }
             return Vec::new();
         }
@@ -642,71 +605,31 @@ impl MavlinkSettings {
                 .collect();
         }
         let mut out: Vec<ChannelConfig> = Vec::new();
-        let mut used: Vec<(u8, usize)> = Vec::new();
+        let mut used = Unique::default();
+        let (max_channel, rule) = match version {
+            1 => (8, " with mavlink_version = 1 (9..=18 need MAVLink 2)"),
+            _ => (18, ""),
+        };
         for (i, c) in self.channels.iter().enumerate() {
-            let key = |k: &str| format!("channels[{i}].{k}");
-            let max_channel = if version == 1 { 8 } else { 18 };
-            let channel = match c.channel {
-                Some(ch) if (1..=max_channel).contains(&ch) => Some(ch),
-                Some(ch) => {
-                    errors.push(ConfigError::new(
-                        key("channel"),
-                        ch,
-                        if version == 1 {
-                            "must be 1..=8 with mavlink_version = 1 (9..=18 need MAVLink 2)"
-                        } else {
-                            "must be 1..=18"
-                        },
-                    ));
-                    None
-                }
-                None => {
-                    errors.push(ConfigError::new(key("channel"), "(missing)", "is required"));
-                    None
-                }
-            };
-            if let Some(ch) = channel {
-                if let Some(&(_, j)) = used.iter().find(|(u, _)| *u == ch) {
-                    errors.push(ConfigError::new(
-                        key("channel"),
-                        ch,
-                        format!("is already used by channels[{j}]"),
-                    ));
-                }
-                used.push((ch, i));
+            let owner = format!("channels[{i}]");
+            let mut ce = ConfigErrors::default();
+            c.unknown.check(
+                &mut ce,
+                &[&["channel", "axis"], keys_of::<AxisMapSettings>()],
+            );
+            let rc = ce.required("channel", &c.channel);
+            let channel = rc.and_then(|ch| ce.int::<u8>("channel", ch, 1..=max_channel, rule));
+            if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
+                let rule = format!("is already used by {first}");
+                ce.add("channel", channel.unwrap_or_default(), rule);
             }
             if c.axis.is_none() {
-                errors.push(ConfigError::new(
-                    key("axis"),
-                    "(missing)",
-                    "is required: throttle, roll, pitch or yaw",
-                ));
+                ce.absent("axis", "is required: throttle, roll, pitch or yaw");
             }
-            let settings = AxisMapSettings {
-                min_us: c.min_us,
-                centre_us: c.centre_us,
-                max_us: c.max_us,
-                trim_us: c.trim_us,
-                reverse: c.reverse,
-                deadband_pct: c.deadband_pct,
-                expo: c.expo,
-                slew_us_per_s: None,
-            };
-            let map = match settings.validate() {
-                Ok(m) => Some(m),
-                Err(rove_core::Error::Config(e)) => {
-                    errors.extend_within(&format!("channels[{i}]"), e);
-                    None
-                }
-                Err(other) => {
-                    errors.push(ConfigError::new(
-                        format!("channels[{i}]"),
-                        "",
-                        other.to_string(),
-                    ));
-                    None
-                }
-            };
+            let rule = "does not apply to MAVLink channels: the autopilot shapes its own inputs";
+            ce.not_for("slew_us_per_s", c.map.slew_us_per_s, rule);
+            let map = ce.section("", c.map.validate());
+            errors.extend_within(&owner, ce);
             if let (Some(channel), Some(axis), Some(map)) = (channel, c.axis, map) {
                 out.push(ChannelConfig { channel, axis, map });
             }
@@ -723,11 +646,11 @@ impl MavlinkSettings {
     ) -> ManualControlConfig {
         let s = self.manual_control.clone().unwrap_or_default();
         if method == Method::RcOverride && self.manual_control.is_some() {
-            errors.push(ConfigError::new(
+            errors.add(
                 "manual_control",
                 "(table)",
                 "only used with method = \"manual_control\"",
-            ));
+            );
         }
         let pick = |v: Option<AxisOrNone>, d: Axis| v.map_or(Some(d), AxisOrNone::axis);
         let mut reverse = [false; 4];
@@ -764,7 +687,7 @@ impl MavlinkSettings {
         let s = self.modes.clone().unwrap_or_default();
         let table = mode_table(autopilot, vehicle);
         let defaults = default_modes(autopilot, vehicle);
-        let mut resolve = |key: &str, written: &Option<ModeName>, default: &str| {
+        let mut resolve = |key: &str, written: &Option<AutopilotModeName>, default: &str| {
             let fallback = AutopilotMode {
                 name: default.to_string(),
                 custom_mode: table
@@ -774,11 +697,17 @@ impl MavlinkSettings {
             };
             match written {
                 None => fallback,
-                Some(ModeName::Number(n)) => AutopilotMode {
-                    name: n.to_string(),
-                    custom_mode: *n,
-                },
-                Some(ModeName::Name(name)) => {
+                Some(AutopilotModeName::Number(n)) => {
+                    let key = format!("modes.{key}");
+                    match errors.int(&key, *n, 0..=Int::from(u32::MAX), " (a custom_mode number)") {
+                        Some(custom_mode) => AutopilotMode {
+                            name: n.to_string(),
+                            custom_mode,
+                        },
+                        None => fallback,
+                    }
+                }
+                Some(AutopilotModeName::Name(name)) => {
                     let upper = name.to_ascii_uppercase();
                     match table.iter().find(|(n, _)| *n == upper) {
                         Some(&(n, m)) => AutopilotMode {
@@ -787,7 +716,7 @@ impl MavlinkSettings {
                         },
                         None => {
                             let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
-                            errors.push(ConfigError::new(
+                            errors.add(
                                 format!("modes.{key}"),
                                 format!("\"{name}\""),
                                 format!(
@@ -795,7 +724,7 @@ impl MavlinkSettings {
                                     firmware_name(autopilot, vehicle),
                                     names.join(", ")
                                 ),
-                            ));
+                            );
                             fallback
                         }
                     }
@@ -983,7 +912,36 @@ mod tests {
     fn unknown_keys_are_rejected() {
         let r: Result<MavlinkSettings, _> = toml::from_str("rate = 25");
         assert!(r.is_err());
-        let r: Result<MavlinkSettings, _> = toml::from_str("[[channels]]\nchanel = 1");
-        assert!(r.is_err());
+        let e = errors_of("[[channels]]\nchanel = 1\naxis = \"roll\"\nslew_us_per_s = 5");
+        assert!(
+            e[0].starts_with("channels[0].chanel = 1: unknown key, expected one of `channel`"),
+            "{e:?}"
+        );
+        assert!(
+            e[2].starts_with("channels[0].slew_us_per_s = 5: does not apply"),
+            "{e:?}"
+        );
+        // A number no integer type of the message holds is named with its key.
+        let e = errors_of(
+            "system_id = 300\n[modes]\nsafe = -1\n[[channels]]\nchannel = 300\naxis = \"roll\"",
+        );
+        assert!(
+            e[0].starts_with("system_id = 300: must be 0..=255"),
+            "{e:?}"
+        );
+        assert!(
+            e[1].starts_with("channels[0].channel = 300: must be 1..=18"),
+            "{e:?}"
+        );
+        assert!(
+            e[2].starts_with("modes.safe = -1: must be 0..=4294967295"),
+            "{e:?}"
+        );
+        // `invert` and `deadzone_pct` are older spellings of `reverse` and `deadband_pct`.
+        let c =
+            parse("[[channels]]\nchannel = 1\naxis = \"roll\"\ninvert = true\ndeadzone_pct = 5")
+                .validate()
+                .expect("aliases");
+        assert_eq!(c.channels[0].map.map(i16::MAX), 1000);
     }
 }

@@ -2,15 +2,16 @@
 //! [`NazaConfig`] (a generic PWM vehicle plus the Naza's own policies). Errors name the Naza
 //! keys (`mode.atti_us`, `throttle.max_us`), not the generic channel list.
 
+use rove_core::config::{Int, UnknownKeys, keys_of};
 use rove_core::error::{ConfigError, ConfigErrors};
-use rove_core::mapping::ModeLevels;
+use rove_core::mapping::{ModeLevels, ModeLevelsSettings};
 use rove_core::msg::{Mode, MovementCommand};
+use rove_pwm::config::{preset_tables, rename_channels};
 use rove_pwm::{
-    BackendKind, ChannelSettings, ChannelSource, Polarity, PwmVehicleConfig, PwmVehicleSettings,
-    SourceKind,
+    ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
+    PwmVehicleConfig, PwmVehicleSettings,
 };
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
 use std::time::Duration;
 
 /// Default U levels, µs: Manual low, ATTI middle, GPS high — what a Naza-M calibrated on a
@@ -22,23 +23,23 @@ pub const DEFAULT_LEVELS: ModeLevels = ModeLevels::new(1100, 1500, 1900);
 /// Default throttle slew, µs/s: the whole 1000 µs travel in one second, so a new operator's
 /// throttle takes ≥ 0.5 s to go from hover to an end. Faster lets a change of hands jerk
 /// the aircraft; slower makes the throttle feel laggy.
-pub const DEFAULT_THROTTLE_SLEW_US_PER_S: u32 = 1_000;
+pub const DEFAULT_THROTTLE_SLEW_US_PER_S: Int = 1_000;
 
 /// Default CSC hold, ms. The Naza starts the motors once it sees the CSC (its manual gives no
 /// minimum); 1.5 s covers its input filtering and a frame or two of jitter from software PWM,
 /// and is short enough that the operator is not left waiting. Longer is harmless: the
 /// throttle is at minimum throughout.
-pub const DEFAULT_CSC_HOLD_MS: u64 = 1_500;
+pub const DEFAULT_CSC_HOLD_MS: Int = 1_500;
 
 /// Accepted CSC hold times, ms.
-pub const CSC_HOLD_RANGE_MS: std::ops::RangeInclusive<u64> = 200..=5_000;
+pub const CSC_HOLD_RANGE_MS: std::ops::RangeInclusive<Int> = 200..=5_000;
 
 /// Default land ramp, ms: from hover throttle to the land floor. Gentle enough that the
 /// aircraft does not drop; quick enough that a lost link does not leave it hovering long.
-pub const DEFAULT_LAND_RAMP_MS: u64 = 3_000;
+pub const DEFAULT_LAND_RAMP_MS: Int = 3_000;
 
 /// Accepted land ramp times, ms.
-pub const LAND_RAMP_RANGE_MS: std::ops::RangeInclusive<u64> = 100..=60_000;
+pub const LAND_RAMP_RANGE_MS: std::ops::RangeInclusive<Int> = 100..=60_000;
 
 /// The default land floor as a fraction of the way from the throttle centre down to its
 /// minimum: 40 % (1300 µs with the defaults) descends steadily in ATTI/GPS and stays well
@@ -105,38 +106,27 @@ pub type StickSettings = rove_pwm::ServoChannelSettings;
 
 /// `[output.mode]`: the U channel's address and levels.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ModeChannelSettings {
-    /// sysfs: `pwmchipN`.
-    pub chip: Option<i64>,
-    /// sysfs: channel within the chip.
-    pub channel: Option<i64>,
-    /// rppal: software PWM on this BCM GPIO.
-    pub pin: Option<i64>,
-    /// rppal: hardware PWM channel.
-    pub pwm_channel: Option<i64>,
-    /// Output polarity.
-    pub polarity: Option<Polarity>,
+    /// The address keys (rove-pwm's).
+    #[serde(flatten)]
+    pub address: PwmAddressSettings,
     /// Level for Manual (MANUAL), µs.
-    pub manual_us: Option<u16>,
+    pub manual_us: Option<Int>,
     /// Level for ATTI (ASSISTED), µs.
-    pub atti_us: Option<u16>,
+    pub atti_us: Option<Int>,
     /// Level for GPS (AUTO), µs.
-    pub gps_us: Option<u16>,
+    pub gps_us: Option<Int>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// `[output]` for the Naza-M, as written.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct NazaSettings {
-    /// `"sysfs"`, `"rppal"` or `"sim"` (required).
-    pub backend: Option<BackendKind>,
-    /// PWM period, µs (absent: 20000).
-    pub period_us: Option<u32>,
-    /// sysfs only: the PWM class directory.
-    pub sysfs_root: Option<PathBuf>,
-    /// sysfs only: default `pwmchipN`.
-    pub chip: Option<i64>,
+    /// `backend` (required), `period_us`, `sysfs_root`, `chip`: rove-pwm's backend keys.
+    #[serde(flatten)]
+    pub pwm: PwmBackendSettings,
     /// A: roll.
     pub aileron: Option<StickSettings>,
     /// E: pitch.
@@ -152,14 +142,32 @@ pub struct NazaSettings {
     /// Throttle in failsafe (absent: hover).
     pub failsafe_policy: Option<FailsafePolicy>,
     /// `land`: throttle floor, µs (absent: see [`DEFAULT_LAND_FRACTION`]).
-    pub land_throttle_us: Option<u16>,
+    pub land_throttle_us: Option<Int>,
     /// `land`: ramp time from centre to the floor, ms (absent: [`DEFAULT_LAND_RAMP_MS`]).
-    pub land_ramp_ms: Option<u64>,
+    pub land_ramp_ms: Option<Int>,
     /// CSC corners (absent: outer).
     pub csc: Option<CscPattern>,
     /// How long the CSC is held, ms (absent: [`DEFAULT_CSC_HOLD_MS`]).
-    pub csc_hold_ms: Option<u64>,
+    pub csc_hold_ms: Option<Int>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
+
+/// The keys of `[output]` for the Naza-M besides the backend keys.
+const NAZA_KEYS: &[&str] = &[
+    "aileron",
+    "elevator",
+    "throttle",
+    "rudder",
+    "mode",
+    "failsafe_mode",
+    "failsafe_policy",
+    "land_throttle_us",
+    "land_ramp_ms",
+    "csc",
+    "csc_hold_ms",
+];
 
 /// The throttle in failsafe, validated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -223,21 +231,21 @@ impl NazaConfig {
     }
 }
 
-/// (generic name, preset table name, source)
-const CHANNELS: [(&str, SourceKind); 5] = [
-    ("aileron", SourceKind::Roll),
-    ("elevator", SourceKind::Pitch),
-    ("throttle", SourceKind::Throttle),
-    ("rudder", SourceKind::Yaw),
-    ("mode", SourceKind::Mode),
+/// (preset table name, source), in the generic channel order.
+const CHANNELS: [(&str, ChannelSourceKind); 5] = [
+    ("aileron", ChannelSourceKind::Roll),
+    ("elevator", ChannelSourceKind::Pitch),
+    ("throttle", ChannelSourceKind::Throttle),
+    ("rudder", ChannelSourceKind::Yaw),
+    ("mode", ChannelSourceKind::Mode),
 ];
 
 /// A stick channel as a generic channel; the throttle gets a slew limit unless one is set, so
 /// it never jumps when control changes hands.
-fn stick_channel(stick: &StickSettings, name: &str, source: SourceKind) -> ChannelSettings {
+fn stick_channel(stick: &StickSettings, name: &str, source: ChannelSourceKind) -> ChannelSettings {
     let mut channel = stick.to_channel(name, source);
-    if source == SourceKind::Throttle && channel.slew_us_per_s.is_none() {
-        channel.slew_us_per_s = Some(DEFAULT_THROTTLE_SLEW_US_PER_S);
+    if source == ChannelSourceKind::Throttle && channel.map.slew_us_per_s.is_none() {
+        channel.map.slew_us_per_s = Some(DEFAULT_THROTTLE_SLEW_US_PER_S);
     }
     channel
 }
@@ -260,32 +268,28 @@ impl NazaSettings {
             .map(|((name, source), t)| stick_channel(&t.clone().unwrap_or_default(), name, *source))
             .collect();
         let m = self.mode.clone().unwrap_or_default();
-        let level = |v: Option<u16>, d: Mode| v.unwrap_or(DEFAULT_LEVELS.level(d));
-        let levels = ModeLevels::new(
-            level(m.manual_us, Mode::Manual),
-            level(m.atti_us, Mode::Assisted),
-            level(m.gps_us, Mode::Auto),
-        );
+        let level = |v: Option<Int>, d: Mode| v.unwrap_or(DEFAULT_LEVELS.level(d).into());
+        let failsafe = match self.failsafe_mode() {
+            Mode::Manual => m.manual_us,
+            Mode::Assisted => m.atti_us,
+            Mode::Auto => m.gps_us,
+        };
         channels.push(ChannelSettings {
             name: Some("mode".into()),
-            source: Some(SourceKind::Mode),
-            chip: m.chip,
-            channel: m.channel,
-            pin: m.pin,
-            pwm_channel: m.pwm_channel,
-            polarity: m.polarity,
-            manual_us: Some(levels.level(Mode::Manual)),
-            assisted_us: Some(levels.level(Mode::Assisted)),
-            auto_us: Some(levels.level(Mode::Auto)),
-            failsafe_us: Some(levels.level(self.failsafe_mode())),
+            source: Some(ChannelSourceKind::Mode),
+            address: m.address,
+            levels: ModeLevelsSettings {
+                manual_us: Some(level(m.manual_us, Mode::Manual)),
+                assisted_us: Some(level(m.atti_us, Mode::Assisted)),
+                auto_us: Some(level(m.gps_us, Mode::Auto)),
+            },
+            failsafe_us: Some(level(failsafe, self.failsafe_mode())),
             ..ChannelSettings::default()
         });
         PwmVehicleSettings {
-            backend: self.backend,
-            period_us: self.period_us,
-            sysfs_root: self.sysfs_root.clone(),
-            chip: self.chip,
+            pwm: self.pwm.clone(),
             channels,
+            unknown: UnknownKeys::default(),
         }
     }
 
@@ -299,65 +303,36 @@ impl NazaSettings {
     /// [`PwmVehicleSettings::validate`] rejects.
     pub fn validate(&self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
-        let present = [
-            self.aileron.is_some(),
-            self.elevator.is_some(),
-            self.throttle.is_some(),
-            self.rudder.is_some(),
-            self.mode.is_some(),
-        ];
-        for ((name, _), present) in CHANNELS.iter().zip(present) {
-            if !present {
-                errors.push(ConfigError::new(
-                    *name,
-                    "(absent)",
-                    format!("must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"),
-                ));
+        self.unknown
+            .check(&mut errors, &[keys_of::<PwmBackendSettings>(), NAZA_KEYS]);
+        let names = CHANNELS.map(|c| c.0);
+        let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
+        preset_tables(&mut errors, &names[..4], &sticks);
+        match &self.mode {
+            None => errors.absent(
+                "mode",
+                "must give [output.mode] with its output (pin, pwm_channel or chip/channel)",
+            ),
+            Some(m) => {
+                let mut unknown = ConfigErrors::default();
+                let keys = [
+                    keys_of::<PwmAddressSettings>(),
+                    &["manual_us", "atti_us", "gps_us"],
+                ];
+                m.unknown.check(&mut unknown, &keys);
+                errors.extend_within("mode", unknown);
             }
         }
         let hold_ms = self.csc_hold_ms.unwrap_or(DEFAULT_CSC_HOLD_MS);
-        if !CSC_HOLD_RANGE_MS.contains(&hold_ms) {
-            errors.push(ConfigError::new(
-                "csc_hold_ms",
-                hold_ms,
-                format!(
-                    "must be {}..={} ms",
-                    CSC_HOLD_RANGE_MS.start(),
-                    CSC_HOLD_RANGE_MS.end()
-                ),
-            ));
-        }
+        let hold = errors.int::<u64>("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
         let policy = self.failsafe_policy.unwrap_or(FailsafePolicy::Hover);
         if policy == FailsafePolicy::Hover {
-            for (key, given) in [
-                (
-                    "land_throttle_us",
-                    self.land_throttle_us.map(|v| v.to_string()),
-                ),
-                ("land_ramp_ms", self.land_ramp_ms.map(|v| v.to_string())),
-            ] {
-                if let Some(v) = given {
-                    errors.push(ConfigError::new(
-                        key,
-                        v,
-                        "only applies with failsafe_policy = \"land\"",
-                    ));
-                }
-            }
+            let rule = "only applies with failsafe_policy = \"land\"";
+            errors.not_for("land_throttle_us", self.land_throttle_us, rule);
+            errors.not_for("land_ramp_ms", self.land_ramp_ms, rule);
         }
         let ramp_ms = self.land_ramp_ms.unwrap_or(DEFAULT_LAND_RAMP_MS);
-        if !LAND_RAMP_RANGE_MS.contains(&ramp_ms) {
-            errors.push(ConfigError::new(
-                "land_ramp_ms",
-                ramp_ms,
-                format!(
-                    "must be {}..={} ms",
-                    LAND_RAMP_RANGE_MS.start(),
-                    LAND_RAMP_RANGE_MS.end()
-                ),
-            ));
-        }
-        let names = CHANNELS.map(|c| c.0);
+        let ramp = errors.int::<u64>("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
         let pwm = match self.to_generic().validate() {
             Ok(pwm) => Some(pwm),
             Err(rove_core::Error::Config(generic)) => {
@@ -380,20 +355,20 @@ impl NazaSettings {
                     f64::from(centre) - DEFAULT_LAND_FRACTION * f64::from(centre - min);
                 let floor_us = self
                     .land_throttle_us
-                    .unwrap_or(default_floor.round() as u16);
-                if !(min..centre).contains(&floor_us) {
-                    errors.push(ConfigError::new(
+                    .unwrap_or(default_floor.round() as Int);
+                if !(Int::from(min)..Int::from(centre)).contains(&floor_us) {
+                    errors.add(
                         "land_throttle_us",
                         floor_us,
                         format!(
                             "must be at least throttle.min_us ({min}) and below the throttle \
                              centre ({centre}), or the aircraft would not descend"
                         ),
-                    ));
+                    );
                 }
                 FailsafeThrottle::Land {
-                    floor_us,
-                    ramp: Duration::from_millis(ramp_ms),
+                    floor_us: u16::try_from(floor_us).unwrap_or(min),
+                    ramp: Duration::from_millis(ramp.unwrap_or_default()),
                 }
             }
         };
@@ -403,7 +378,7 @@ impl NazaSettings {
                 failsafe_mode: self.failsafe_mode(),
                 failsafe_throttle,
                 csc: self.csc.unwrap_or(CscPattern::Outer),
-                csc_hold: Duration::from_millis(hold_ms),
+                csc_hold: Duration::from_millis(hold.unwrap_or_default()),
             }),
             None => Err(rove_core::Error::Config(errors)),
         }
@@ -412,14 +387,8 @@ impl NazaSettings {
 
 /// Rewrites `channels[i]` to the preset's table name, and the U channel's generic level keys
 /// to the Naza's names.
-fn rename(mut e: ConfigError, names: &[&str]) -> ConfigError {
-    for (i, name) in names.iter().enumerate() {
-        let generic = format!("channels[{i}]");
-        if let Some(rest) = e.key.strip_prefix(&generic) {
-            e.key = format!("{name}{rest}");
-        }
-        e.rule = e.rule.replace(&generic, name);
-    }
+fn rename(e: ConfigError, names: &[&str]) -> ConfigError {
+    let mut e = rename_channels(e, names);
     for (generic, naza) in [
         ("mode.assisted_us", "mode.atti_us"),
         ("mode.auto_us", "mode.gps_us"),
@@ -520,7 +489,11 @@ mod tests {
             err,
             "mode = (absent): must give [output.mode] with its output (pin, pwm_channel or chip/channel)"
         );
-        assert!(toml::from_str::<NazaSettings>("[mode]\nassisted_us = 1500").is_err());
+        let err = errors(&MINIMAL.replace("[mode]", "[mode]\nassisted_us = 1500"));
+        assert!(
+            err.starts_with("mode.assisted_us = 1500: unknown key, expected one of `chip`"),
+            "{err}"
+        );
         assert!(toml::from_str::<NazaSettings>("failsafe_policy = \"drop\"").is_err());
     }
 

@@ -36,9 +36,9 @@ fn settings(text: &str) -> NazaSettings {
 /// The example on the sim backend (addresses kept; sysfs-only keys dropped).
 fn sim(text: &str) -> (NazaVehicle<SimBackend>, SimLog) {
     let mut s = settings(text);
-    s.backend = Some(rove_pwm::BackendKind::Sim);
-    s.sysfs_root = None;
-    s.chip = None;
+    s.pwm.backend = Some(rove_pwm::BackendKind::Sim);
+    s.pwm.sysfs_root = None;
+    s.pwm.chip = None;
     let cfg = s.validate().expect("valid");
     let backend = SimBackend::for_config(cfg.pwm());
     let log = backend.log();
@@ -83,7 +83,10 @@ fn examples_parse() {
             channel: 0
         }
     );
-    assert!(toml::from_str::<File>(&PI.replace("pin = 26", "pin = 26\nu_us = 1")).is_err());
+    let err = settings(&PI.replace("pin = 26", "pin = 26\nu_us = 1"))
+        .validate()
+        .expect_err("unknown key");
+    assert!(err.to_string().contains(".u_us = 1: unknown key"), "{err}");
 }
 
 #[test]

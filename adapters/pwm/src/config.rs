@@ -5,12 +5,12 @@
 //! Keys of errors are relative to the `[output]` table, e.g. `channels[2].max_us`; the gateway
 //! puts `output.` in front.
 
+use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{
-    Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US,
+    Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US, pulse,
 };
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -21,7 +21,7 @@ pub const DEFAULT_PERIOD_US: u32 = 20_000;
 
 /// Accepted PWM periods, µs: 2.5 ms (400 Hz) to 100 ms (10 Hz). Outside this no RC device
 /// understands the signal; inside, every pulse must still be shorter than the period.
-pub const PERIOD_RANGE_US: std::ops::RangeInclusive<u32> = 2_500..=100_000;
+pub const PERIOD_RANGE_US: std::ops::RangeInclusive<Int> = 2_500..=100_000;
 
 /// Default root of the Linux PWM class in sysfs.
 pub const DEFAULT_SYSFS_ROOT: &str = "/sys/class/pwm";
@@ -48,10 +48,10 @@ pub enum BackendKind {
     Sim,
 }
 
-/// What a channel outputs.
+/// What a channel outputs, as written in `source = …`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum SourceKind {
+pub enum ChannelSourceKind {
     /// The throttle axis.
     Throttle,
     /// The roll axis (UGV steering).
@@ -86,21 +86,50 @@ impl Polarity {
     }
 }
 
-/// `[output]` for `adapter = "pwm"`, as written.
+/// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
+/// `"eyedrive"` and `"naza"` (flattened into each).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct PwmVehicleSettings {
-    /// Which device drives the channels.
+pub struct PwmBackendSettings {
+    /// Which device drives the channels (required).
     pub backend: Option<BackendKind>,
     /// PWM period, µs (absent: [`DEFAULT_PERIOD_US`]).
-    pub period_us: Option<u32>,
+    pub period_us: Option<Int>,
     /// sysfs only: the PWM class directory (absent: [`DEFAULT_SYSFS_ROOT`]).
     pub sysfs_root: Option<PathBuf>,
     /// sysfs only: the `pwmchipN` used by channels that name no `chip` (absent: 0).
-    pub chip: Option<i64>,
+    pub chip: Option<Int>,
+}
+
+/// Where a channel is wired, as written: the one definition of the address keys, shared by
+/// generic channels and the preset tables (flattened into each).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PwmAddressSettings {
+    /// sysfs: the `pwmchipN` (absent: the section's `chip`).
+    pub chip: Option<Int>,
+    /// sysfs: the channel number within the chip (`pwmchipN/pwmM`).
+    pub channel: Option<Int>,
+    /// rppal: software PWM on this BCM GPIO pin (0..=27).
+    pub pin: Option<Int>,
+    /// rppal: hardware PWM channel (0..=1).
+    pub pwm_channel: Option<Int>,
+    /// sysfs and rppal hardware PWM: output polarity (absent: left as the device has it).
+    pub polarity: Option<Polarity>,
+}
+
+/// `[output]` for `adapter = "pwm"`, as written.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PwmVehicleSettings {
+    /// `backend`, `period_us`, `sysfs_root`, `chip`.
+    #[serde(flatten)]
+    pub pwm: PwmBackendSettings,
     /// The outputs, one table per channel (`[[output.channels]]`).
     #[serde(default)]
     pub channels: Vec<ChannelSettings>,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 /// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
@@ -108,110 +137,69 @@ pub struct PwmVehicleSettings {
 /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
 /// the generic channel's.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ServoChannelSettings {
-    /// sysfs: `pwmchipN` (absent: the section's `chip`).
-    pub chip: Option<i64>,
-    /// sysfs: channel within the chip.
-    pub channel: Option<i64>,
-    /// rppal: software PWM on this BCM GPIO.
-    pub pin: Option<i64>,
-    /// rppal: hardware PWM channel 0..=1.
-    pub pwm_channel: Option<i64>,
-    /// Output polarity (absent: untouched).
-    pub polarity: Option<Polarity>,
-    /// Pulse at −full scale, µs (absent: 1000).
-    pub min_us: Option<u16>,
-    /// Pulse at centre / neutral, µs (absent: 1500).
-    pub centre_us: Option<u16>,
-    /// Pulse at +full scale, µs (absent: 2000).
-    pub max_us: Option<u16>,
-    /// Centre shift, µs (absent: 0).
-    pub trim_us: Option<i16>,
-    /// Swap directions (absent: false).
-    pub reverse: Option<bool>,
-    /// Dead zone, percent of full scale (absent: 0).
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1 (absent: 0).
-    pub expo: Option<f64>,
-    /// Slew limit, µs/s (absent: none, unless the preset sets one).
-    pub slew_us_per_s: Option<u32>,
+    /// The address keys.
+    #[serde(flatten)]
+    pub address: PwmAddressSettings,
+    /// The mapping keys (`min_us` … `slew_us_per_s`).
+    #[serde(flatten)]
+    pub map: AxisMapSettings,
+    /// Keys nothing above took: reported by [`ServoChannelSettings::check_unknown`].
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
 
 impl ServoChannelSettings {
     /// The generic channel `name` fed from `source`; its failsafe is the generic default (the
     /// trimmed centre).
-    pub fn to_channel(&self, name: &str, source: SourceKind) -> ChannelSettings {
+    pub fn to_channel(&self, name: &str, source: ChannelSourceKind) -> ChannelSettings {
         ChannelSettings {
             name: Some(name.to_string()),
             source: Some(source),
-            chip: self.chip,
-            channel: self.channel,
-            pin: self.pin,
-            pwm_channel: self.pwm_channel,
-            polarity: self.polarity,
-            min_us: self.min_us,
-            centre_us: self.centre_us,
-            max_us: self.max_us,
-            trim_us: self.trim_us,
-            reverse: self.reverse,
-            deadband_pct: self.deadband_pct,
-            expo: self.expo,
-            slew_us_per_s: self.slew_us_per_s,
+            address: self.address.clone(),
+            map: self.map,
             ..ChannelSettings::default()
         }
+    }
+
+    /// Records the table's unknown keys (relative to the table).
+    pub fn check_unknown(&self, errors: &mut ConfigErrors) {
+        let keys = [
+            keys_of::<PwmAddressSettings>(),
+            keys_of::<AxisMapSettings>(),
+        ];
+        self.unknown.check(errors, &keys);
     }
 }
 
 /// One `[[output.channels]]` table, as written.
-///
-/// The mapping keys (`min_us` … `slew_us_per_s`) are those of
-/// [`rove_core::mapping::AxisMapSettings`], written directly in the channel's table.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ChannelSettings {
     /// Unique name, for logs and status (`steering`, `throttle`, `U`…).
     pub name: Option<String>,
     /// What the channel outputs.
-    pub source: Option<SourceKind>,
+    pub source: Option<ChannelSourceKind>,
     /// `source = "constant"`: the pulse, µs.
-    pub value_us: Option<u16>,
-    /// sysfs: the `pwmchipN` (absent: the section's `chip`).
-    pub chip: Option<i64>,
-    /// sysfs: the channel number within the chip (`pwmchipN/pwmM`).
-    pub channel: Option<i64>,
-    /// rppal: software PWM on this BCM GPIO pin (0..=27).
-    pub pin: Option<i64>,
-    /// rppal: hardware PWM channel (0..=1).
-    pub pwm_channel: Option<i64>,
-    /// sysfs and rppal hardware PWM: output polarity (absent: left as the device has it).
-    pub polarity: Option<Polarity>,
-    /// Axis sources: pulse at −full scale.
-    pub min_us: Option<u16>,
-    /// Axis sources: pulse at centre.
-    pub centre_us: Option<u16>,
-    /// Axis sources: pulse at +full scale.
-    pub max_us: Option<u16>,
-    /// Axis sources: centre shift.
-    pub trim_us: Option<i16>,
-    /// Axis sources: swap directions.
-    pub reverse: Option<bool>,
-    /// Axis sources: dead zone, percent of full scale.
-    pub deadband_pct: Option<f64>,
-    /// Axis sources: expo 0..=1.
-    pub expo: Option<f64>,
-    /// Axis sources: slew limit, µs per second.
-    pub slew_us_per_s: Option<u32>,
-    /// `source = "mode"`: pulse for MANUAL.
-    pub manual_us: Option<u16>,
-    /// `source = "mode"`: pulse for ASSISTED.
-    pub assisted_us: Option<u16>,
-    /// `source = "mode"`: pulse for AUTO.
-    pub auto_us: Option<u16>,
+    pub value_us: Option<Int>,
     /// Pulse in the safe state (absent: the centre for axes, the ASSISTED level for mode,
     /// `value_us` for constants).
-    pub failsafe_us: Option<u16>,
+    pub failsafe_us: Option<Int>,
+    /// The address keys.
+    #[serde(flatten)]
+    pub address: PwmAddressSettings,
+    /// Axis sources: the mapping keys ([`rove_core::mapping::AxisMapSettings`]).
+    #[serde(flatten)]
+    pub map: AxisMapSettings,
+    /// `source = "mode"`: the levels (`manual_us`, `assisted_us`, `auto_us`).
+    #[serde(flatten)]
+    pub levels: ModeLevelsSettings,
+    /// Keys nothing above took: reported by `validate`.
+    #[serde(flatten)]
+    pub unknown: UnknownKeys,
 }
+
+/// The keys of a `[[output.channels]]` table that are not in a flattened piece.
+const CHANNEL_KEYS: &[&str] = &["name", "source", "value_us", "failsafe_us"];
 
 /// Where a channel is wired.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -339,261 +327,164 @@ impl PwmVehicleConfig {
     }
 }
 
-fn range_msg(range: &std::ops::RangeInclusive<u16>) -> String {
-    format!("must be {}..={} µs", range.start(), range.end())
+const ONLY_SYSFS: &str = "only applies to backend = \"sysfs\"";
+
+impl PwmBackendSettings {
+    /// The backend (a placeholder after recording a missing one), period and default chip.
+    fn validate(&self, errors: &mut ConfigErrors) -> (BackendKind, Int, u32) {
+        let backend = self.backend.unwrap_or_else(|| {
+            errors.absent("backend", "must be one of \"sysfs\", \"rppal\", \"sim\"");
+            BackendKind::Sim
+        });
+        let period_us = self.period_us.unwrap_or(DEFAULT_PERIOD_US.into());
+        errors.int::<u32>(
+            "period_us",
+            period_us,
+            PERIOD_RANGE_US,
+            " µs (400 Hz to 10 Hz)",
+        );
+        if backend != BackendKind::Sysfs {
+            let root = self
+                .sysfs_root
+                .as_ref()
+                .map(|r| format!("{:?}", r.display().to_string()));
+            errors.not_for("sysfs_root", root, ONLY_SYSFS);
+            errors.not_for("chip", self.chip, ONLY_SYSFS);
+        }
+        let chip = errors.opt_int("chip", self.chip, 0..=u32::MAX.into(), "");
+        (backend, period_us, chip.unwrap_or(0))
+    }
 }
 
 impl PwmVehicleSettings {
     /// Validates, filling defaults; keys in errors are relative to `[output]`.
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem: missing `backend`, a period outside
-    /// [`PERIOD_RANGE_US`], backend options given to another backend, an empty channel list,
-    /// and per channel (`channels[i].key`): missing or duplicate name, missing or wrong address
-    /// keys for the backend, pin/channel out of range, two channels on one address, mapping
-    /// errors (min > max …), keys that do not apply to the source, pulses not shorter than the
-    /// period, a failsafe outside the channel's range.
+    /// [`rove_core::Error::Config`] listing every problem: unknown keys, missing `backend`, a
+    /// period outside [`PERIOD_RANGE_US`], backend options given to another backend, an empty
+    /// channel list, and per channel (`channels[i].key`): missing or duplicate name, missing or
+    /// wrong address keys for the backend, pin/channel out of range, two channels on one
+    /// address, mapping errors (min > max …), keys that do not apply to the source, pulses not
+    /// shorter than the period, a failsafe outside the channel's range.
     pub fn validate(&self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let backend_kind = self.backend.unwrap_or_else(|| {
-            errors.push(ConfigError::new(
-                "backend",
-                "(absent)",
-                "must be one of \"sysfs\", \"rppal\", \"sim\"",
-            ));
-            BackendKind::Sim
-        });
-        let period_us = self.period_us.unwrap_or(DEFAULT_PERIOD_US);
-        if !PERIOD_RANGE_US.contains(&period_us) {
-            errors.push(ConfigError::new(
-                "period_us",
-                period_us,
-                format!(
-                    "must be {}..={} µs (400 Hz to 10 Hz)",
-                    PERIOD_RANGE_US.start(),
-                    PERIOD_RANGE_US.end()
-                ),
-            ));
-        }
-        if backend_kind != BackendKind::Sysfs {
-            if let Some(root) = &self.sysfs_root {
-                errors.push(ConfigError::new(
-                    "sysfs_root",
-                    format!("{:?}", root.display().to_string()),
-                    "only applies to backend = \"sysfs\"",
-                ));
-            }
-            if let Some(chip) = self.chip {
-                errors.push(ConfigError::new(
-                    "chip",
-                    chip,
-                    "only applies to backend = \"sysfs\"",
-                ));
-            }
-        }
-        let default_chip = match self.chip {
-            Some(c) => u32_key(&mut errors, "chip", c),
-            None => 0,
-        };
+        self.unknown.check(
+            &mut errors,
+            &[keys_of::<PwmBackendSettings>(), &["channels"]],
+        );
+        let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
-            errors.push(ConfigError::new(
-                "channels",
-                "[]",
-                "must list at least one channel ([[output.channels]])",
-            ));
+            let rule = "must list at least one channel ([[output.channels]])";
+            errors.add("channels", "[]", rule);
         }
         let mut channels = Vec::with_capacity(self.channels.len());
-        let mut names: HashMap<&str, usize> = HashMap::new();
-        let mut addresses: HashMap<ChannelAddress, usize> = HashMap::new();
+        let mut names = Unique::default();
+        let mut addresses = Unique::default();
         for (i, raw) in self.channels.iter().enumerate() {
-            let prefix = format!("channels[{i}]");
+            let owner = format!("channels[{i}]");
             let mut ch_errors = ConfigErrors::default();
             let channel = raw.validate(backend_kind, default_chip, period_us, &mut ch_errors);
             if let Some(name) = raw.name.as_deref() {
-                if let Some(first) = names.get(name) {
-                    ch_errors.push(ConfigError::new(
-                        "name",
-                        format!("{name:?}"),
-                        format!("must be unique: channels[{first}] has the same name"),
-                    ));
-                } else {
-                    names.insert(name, i);
-                }
+                let shown = format!("{name:?}");
+                names.check(
+                    &mut ch_errors,
+                    name,
+                    &owner,
+                    ("name", shown),
+                    "has the same name",
+                );
             }
             if let Some(ch) = channel
                 .as_ref()
                 .filter(|c| c.address != ChannelAddress::Unaddressed)
             {
-                if let Some(first) = addresses.get(&ch.address) {
-                    ch_errors.push(ConfigError::new(
-                        address_key(raw),
-                        ch.address,
-                        format!("must be unique: channels[{first}] drives the same output"),
-                    ));
-                } else {
-                    addresses.insert(ch.address, i);
-                }
+                let key = (raw.address.address_key(), ch.address);
+                addresses.check(
+                    &mut ch_errors,
+                    ch.address,
+                    &owner,
+                    key,
+                    "drives the same output",
+                );
             }
-            errors.extend_within(&prefix, ch_errors);
-            if let Some(ch) = channel {
-                channels.push(ch);
-            }
+            errors.extend_within(&owner, ch_errors);
+            channels.extend(channel);
         }
         let backend = match backend_kind {
             BackendKind::Sysfs => BackendConfig::Sysfs {
-                root: self
-                    .sysfs_root
-                    .clone()
-                    .unwrap_or_else(|| PathBuf::from(DEFAULT_SYSFS_ROOT)),
+                root: (self.pwm.sysfs_root.clone()).unwrap_or_else(|| DEFAULT_SYSFS_ROOT.into()),
             },
             BackendKind::Rppal => BackendConfig::Rppal,
             BackendKind::Sim => BackendConfig::Sim,
         };
         errors.into_result(PwmVehicleConfig {
             backend,
-            period: Duration::from_micros(u64::from(period_us)),
+            period: Duration::from_micros(period_us.unsigned_abs()),
             channels,
         })
     }
 }
 
-/// The key a duplicate-address error is filed under: the one that names the device.
-fn address_key(raw: &ChannelSettings) -> &'static str {
-    if raw.pin.is_some() {
-        "pin"
-    } else if raw.pwm_channel.is_some() {
-        "pwm_channel"
-    } else {
-        "channel"
-    }
-}
-
-fn u32_key(errors: &mut ConfigErrors, key: &str, v: i64) -> u32 {
-    u32::try_from(v).unwrap_or_else(|_| {
-        errors.push(ConfigError::new(key, v, "must be 0..=4294967295"));
-        0
-    })
-}
-
-impl ChannelSettings {
-    fn mapping(&self) -> AxisMapSettings {
-        AxisMapSettings {
-            min_us: self.min_us,
-            centre_us: self.centre_us,
-            max_us: self.max_us,
-            trim_us: self.trim_us,
-            reverse: self.reverse,
-            deadband_pct: self.deadband_pct,
-            expo: self.expo,
-            slew_us_per_s: self.slew_us_per_s,
+impl PwmAddressSettings {
+    /// The key a duplicate-address error is filed under: the one that names the device.
+    fn address_key(&self) -> &'static str {
+        if self.pin.is_some() {
+            "pin"
+        } else if self.pwm_channel.is_some() {
+            "pwm_channel"
+        } else {
+            "channel"
         }
     }
 
-    fn mapping_keys(&self) -> Vec<&'static str> {
-        let present = [
-            ("min_us", self.min_us.is_some()),
-            ("centre_us", self.centre_us.is_some()),
-            ("max_us", self.max_us.is_some()),
-            ("trim_us", self.trim_us.is_some()),
-            ("reverse", self.reverse.is_some()),
-            ("deadband_pct", self.deadband_pct.is_some()),
-            ("expo", self.expo.is_some()),
-            ("slew_us_per_s", self.slew_us_per_s.is_some()),
-        ];
-        present
-            .iter()
-            .filter(|(_, p)| *p)
-            .map(|(k, _)| *k)
-            .collect()
-    }
-
-    fn level_keys(&self) -> Vec<&'static str> {
-        [
-            ("manual_us", self.manual_us.is_some()),
-            ("assisted_us", self.assisted_us.is_some()),
-            ("auto_us", self.auto_us.is_some()),
-        ]
-        .iter()
-        .filter(|(_, p)| *p)
-        .map(|(k, _)| *k)
-        .collect()
-    }
-
-    fn address(
+    /// The validated address for `backend`, recording every problem.
+    fn validate(
         &self,
         backend: BackendKind,
         default_chip: u32,
         errors: &mut ConfigErrors,
     ) -> Option<ChannelAddress> {
-        let mut check = |key: &str, v: i64, range: std::ops::RangeInclusive<i64>, what: &str| {
-            if range.contains(&v) {
-                u8::try_from(v).ok()
-            } else {
-                errors.push(ConfigError::new(
-                    key,
-                    v,
-                    format!("must be {}..={} ({what})", range.start(), range.end()),
-                ));
-                None
-            }
-        };
         let pin = self
             .pin
-            .map(|v| check("pin", v, GPIO_PIN_RANGE, "BCM GPIO number"));
-        let hw = self.pwm_channel.map(|v| {
-            check(
-                "pwm_channel",
-                v,
-                HARDWARE_PWM_CHANNEL_RANGE,
-                "Raspberry Pi hardware PWM channel",
-            )
-        });
+            .map(|v| errors.int("pin", v, GPIO_PIN_RANGE, " (BCM GPIO number)"));
+        let hw_rule = " (Raspberry Pi hardware PWM channel)";
+        let hw = (self.pwm_channel)
+            .map(|v| errors.int("pwm_channel", v, HARDWARE_PWM_CHANNEL_RANGE, hw_rule));
         let sysfs_given = self.chip.is_some() || self.channel.is_some();
         let forms =
             usize::from(pin.is_some()) + usize::from(hw.is_some()) + usize::from(sysfs_given);
         if forms > 1 {
-            errors.push(ConfigError::new(
+            errors.add(
                 "pin",
                 self.pin.map_or("(absent)".into(), |p| p.to_string()),
                 "give one address: `pin`, `pwm_channel`, or `chip`/`channel`",
-            ));
+            );
             return None;
         }
+        let u32_range = 0..=Int::from(u32::MAX);
         let sysfs = |errors: &mut ConfigErrors| -> Option<ChannelAddress> {
             let chip = match self.chip {
-                Some(c) => u32::try_from(c).ok().or_else(|| {
-                    errors.push(ConfigError::new("chip", c, "must be 0..=4294967295"));
-                    None
-                })?,
+                Some(c) => errors.int("chip", c, u32_range.clone(), "")?,
                 None => default_chip,
             };
             let Some(channel) = self.channel else {
-                errors.push(ConfigError::new(
-                    "channel",
-                    "(absent)",
-                    "must name the channel within the chip (pwmchipN/pwmM) for backend = \"sysfs\"",
-                ));
+                let rule =
+                    "must name the channel within the chip (pwmchipN/pwmM) for backend = \"sysfs\"";
+                errors.absent("channel", rule);
                 return None;
             };
-            let channel = u32::try_from(channel).ok().or_else(|| {
-                errors.push(ConfigError::new(
-                    "channel",
-                    channel,
-                    "must be 0..=4294967295",
-                ));
-                None
-            })?;
+            let channel = errors.int("channel", channel, u32_range.clone(), "")?;
             Some(ChannelAddress::Sysfs { chip, channel })
         };
         match backend {
             BackendKind::Sysfs => {
                 if pin.is_some() || hw.is_some() {
                     let key = if pin.is_some() { "pin" } else { "pwm_channel" };
-                    errors.push(ConfigError::new(
+                    errors.add(
                         key,
                         self.pin.or(self.pwm_channel).unwrap_or_default(),
                         "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`",
-                    ));
+                    );
                     return None;
                 }
                 sysfs(errors)
@@ -605,33 +496,30 @@ impl ChannelSettings {
                     } else {
                         "chip"
                     };
-                    errors.push(ConfigError::new(
+                    errors.add(
                         key,
                         self.channel.or(self.chip).unwrap_or_default(),
                         "only applies to backend = \"sysfs\"; rppal channels take `pin` or `pwm_channel`",
-                    ));
+                    );
                     return None;
                 }
                 match (pin, hw) {
                     (Some(pin), None) => {
-                        if self.polarity.is_some() {
-                            errors.push(ConfigError::new(
-                                "polarity",
-                                self.polarity.map_or("", |p| p.as_sysfs()),
-                                "software PWM on a GPIO pin has no polarity setting; \
-                                 use a hardware `pwm_channel` or invert externally",
-                            ));
-                        }
+                        errors.not_for(
+                            "polarity",
+                            self.polarity.map(Polarity::as_sysfs),
+                            "software PWM on a GPIO pin has no polarity setting; \
+                             use a hardware `pwm_channel` or invert externally",
+                        );
                         pin.map(ChannelAddress::GpioPin)
                     }
                     (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
                     _ => {
-                        errors.push(ConfigError::new(
+                        errors.absent(
                             "pin",
-                            "(absent)",
                             "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
                              for backend = \"rppal\"",
-                        ));
+                        );
                         None
                     }
                 }
@@ -646,142 +534,105 @@ impl ChannelSettings {
             },
         }
     }
+}
 
+impl ChannelSettings {
     fn validate(
         &self,
         backend: BackendKind,
         default_chip: u32,
-        period_us: u32,
+        period_us: Int,
         errors: &mut ConfigErrors,
     ) -> Option<ChannelConfig> {
+        let pieces = [
+            CHANNEL_KEYS,
+            keys_of::<PwmAddressSettings>(),
+            keys_of::<AxisMapSettings>(),
+            keys_of::<ModeLevelsSettings>(),
+        ];
+        self.unknown.check(errors, &pieces);
         let name = match self.name.as_deref() {
             Some(n) if !n.trim().is_empty() => Some(n.to_string()),
             other => {
-                errors.push(ConfigError::new(
-                    "name",
-                    format!("{:?}", other.unwrap_or("(absent)")),
-                    "must be a non-empty name",
-                ));
+                let shown = format!("{:?}", other.unwrap_or("(absent)"));
+                errors.add("name", shown, "must be a non-empty name");
                 None
             }
         };
-        let address = self.address(backend, default_chip, errors);
+        let address = self.address.validate(backend, default_chip, errors);
         let Some(source_kind) = self.source else {
-            errors.push(ConfigError::new(
+            errors.absent(
                 "source",
-                "(absent)",
                 "must be one of throttle, roll, pitch, yaw, mode, constant",
-            ));
+            );
             return None;
         };
-        let not_for = |errors: &mut ConfigErrors, keys: Vec<&'static str>, what: &str| {
-            for key in keys {
-                errors.push(ConfigError::new(
-                    key,
-                    "(given)",
-                    format!("does not apply to source = \"{what}\""),
-                ));
+        let source_name = format!("source = \"{}\"", format!("{source_kind:?}").to_lowercase());
+        let rule = format!("does not apply to {source_name}");
+        let not_map = |errors: &mut ConfigErrors| {
+            for (key, v) in self.map.given() {
+                errors.add(key, v, rule.as_str());
             }
         };
-        let source_name = format!("{source_kind:?}").to_lowercase();
+        let not_levels = |errors: &mut ConfigErrors| {
+            for (key, v) in self.levels.given() {
+                errors.add(key, v, rule.as_str());
+            }
+        };
+        if source_kind != ChannelSourceKind::Constant {
+            errors.not_for("value_us", self.value_us, &rule);
+        }
         // (source, lowest and highest pulse it can output, default failsafe)
         let (source, lo, hi, default_failsafe) = match source_kind {
-            SourceKind::Throttle | SourceKind::Roll | SourceKind::Pitch | SourceKind::Yaw => {
-                let axis = match source_kind {
-                    SourceKind::Throttle => Axis::Throttle,
-                    SourceKind::Roll => Axis::Roll,
-                    SourceKind::Pitch => Axis::Pitch,
+            ChannelSourceKind::Mode => {
+                not_map(errors);
+                let levels = errors.section("", self.levels.validate(DEFAULT_MODE_LEVELS))?;
+                let all = rove_core::msg::Mode::ALL.map(|m| levels.level(m));
+                let (lo, hi) = (all.iter().min(), all.iter().max());
+                let assisted = levels.level(rove_core::msg::Mode::Assisted);
+                let (lo, hi) = (lo.copied().unwrap_or(0), hi.copied().unwrap_or(0));
+                (ChannelSource::Mode(levels), lo, hi, assisted)
+            }
+            ChannelSourceKind::Constant => {
+                not_map(errors);
+                not_levels(errors);
+                let Some(v) = self.value_us else {
+                    errors.absent("value_us", "must give the pulse for source = \"constant\"");
+                    return None;
+                };
+                let v = pulse(errors, "value_us", v)?;
+                (ChannelSource::Constant(v), v, v, v)
+            }
+            axis => {
+                not_levels(errors);
+                let axis = match axis {
+                    ChannelSourceKind::Throttle => Axis::Throttle,
+                    ChannelSourceKind::Roll => Axis::Roll,
+                    ChannelSourceKind::Pitch => Axis::Pitch,
                     _ => Axis::Yaw,
                 };
-                not_for(errors, self.level_keys(), &source_name);
-                if self.value_us.is_some() {
-                    not_for(errors, vec!["value_us"], &source_name);
-                }
-                match self.mapping().validate() {
-                    Ok(map) => (
-                        ChannelSource::Axis(axis, map),
-                        map.min_us(),
-                        map.max_us(),
-                        map.centre_us(),
-                    ),
-                    Err(rove_core::Error::Config(e)) => {
-                        errors.0.extend(e.0);
-                        return None;
-                    }
-                    Err(other) => {
-                        errors.push(ConfigError::new("min_us", "?", other.to_string()));
-                        return None;
-                    }
-                }
-            }
-            SourceKind::Mode => {
-                not_for(errors, self.mapping_keys(), &source_name);
-                if self.value_us.is_some() {
-                    not_for(errors, vec!["value_us"], &source_name);
-                }
-                let raw = ModeLevelsSettings {
-                    manual_us: self.manual_us,
-                    assisted_us: self.assisted_us,
-                    auto_us: self.auto_us,
-                };
-                match raw.validate(DEFAULT_MODE_LEVELS) {
-                    Ok(levels) => {
-                        let all = rove_core::msg::Mode::ALL.map(|m| levels.level(m));
-                        let lo = all.iter().copied().min().unwrap_or(0);
-                        let hi = all.iter().copied().max().unwrap_or(0);
-                        (
-                            ChannelSource::Mode(levels),
-                            lo,
-                            hi,
-                            levels.level(rove_core::msg::Mode::Assisted),
-                        )
-                    }
-                    Err(rove_core::Error::Config(e)) => {
-                        errors.0.extend(e.0);
-                        return None;
-                    }
-                    Err(other) => {
-                        errors.push(ConfigError::new("manual_us", "?", other.to_string()));
-                        return None;
-                    }
-                }
-            }
-            SourceKind::Constant => {
-                not_for(errors, self.mapping_keys(), &source_name);
-                not_for(errors, self.level_keys(), &source_name);
-                match self.value_us {
-                    Some(v) if PULSE_RANGE_US.contains(&v) => (ChannelSource::Constant(v), v, v, v),
-                    Some(v) => {
-                        errors.push(ConfigError::new("value_us", v, range_msg(&PULSE_RANGE_US)));
-                        return None;
-                    }
-                    None => {
-                        errors.push(ConfigError::new(
-                            "value_us",
-                            "(absent)",
-                            "must give the pulse for source = \"constant\"",
-                        ));
-                        return None;
-                    }
-                }
+                let map = errors.section("", self.map.validate())?;
+                (
+                    ChannelSource::Axis(axis, map),
+                    map.min_us(),
+                    map.max_us(),
+                    map.centre_us(),
+                )
             }
         };
-        let failsafe_us = self.failsafe_us.unwrap_or(default_failsafe);
+        let failsafe_us = self.failsafe_us.unwrap_or(default_failsafe.into());
         let (flo, fhi) = match source {
             // A mode channel may fail safe to any level the device understands.
             ChannelSource::Mode(_) => (*PULSE_RANGE_US.start(), *PULSE_RANGE_US.end()),
-            _ => (lo, hi),
+            _ => (lo.into(), hi.into()),
         };
+        let rule = format!("must be within the channel's range {flo}..={fhi} µs");
         if !(flo..=fhi).contains(&failsafe_us) {
-            errors.push(ConfigError::new(
-                "failsafe_us",
-                failsafe_us,
-                format!("must be within the channel's range {flo}..={fhi} µs"),
-            ));
+            errors.add("failsafe_us", failsafe_us, rule);
         }
-        let highest = hi.max(failsafe_us);
-        if u32::from(highest) >= period_us {
-            let key = if self.failsafe_us.is_some() && u32::from(failsafe_us) >= period_us {
+        let highest = Int::from(hi).max(failsafe_us);
+        if highest >= period_us {
+            let key = if self.failsafe_us.is_some() && failsafe_us >= period_us {
                 "failsafe_us"
             } else {
                 match source {
@@ -790,20 +641,54 @@ impl ChannelSettings {
                     ChannelSource::Constant(_) => "value_us",
                 }
             };
-            errors.push(ConfigError::new(
-                key,
-                highest,
-                format!("must be shorter than the PWM period ({period_us} µs)"),
-            ));
+            let rule = format!("must be shorter than the PWM period ({period_us} µs)");
+            errors.add(key, highest, rule);
         }
         Some(ChannelConfig {
             name: name?,
             address: address?,
-            polarity: self.polarity,
+            polarity: self.address.polarity,
             source,
-            failsafe_us,
+            failsafe_us: u16::try_from(failsafe_us).ok()?,
         })
     }
+}
+
+/// Checks a preset's channel tables (`[output.NAME]` for each of `names`): each must be given,
+/// and may hold only the servo keys.
+pub fn preset_tables(
+    errors: &mut ConfigErrors,
+    names: &[&str],
+    tables: &[&Option<ServoChannelSettings>],
+) {
+    for (name, table) in names.iter().zip(tables) {
+        match table {
+            None => errors.absent(
+                name,
+                format!(
+                    "must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"
+                ),
+            ),
+            Some(t) => {
+                let mut unknown = ConfigErrors::default();
+                t.check_unknown(&mut unknown);
+                errors.extend_within(name, unknown);
+            }
+        }
+    }
+}
+
+/// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
+/// (`names[i]`), so that errors name the keys as written.
+pub fn rename_channels(mut e: ConfigError, names: &[&str]) -> ConfigError {
+    for (i, name) in names.iter().enumerate() {
+        let generic = format!("channels[{i}]");
+        if let Some(rest) = e.key.strip_prefix(&generic) {
+            e.key = format!("{name}{rest}");
+        }
+        e.rule = e.rule.replace(&generic, name);
+    }
+    e
 }
 
 #[cfg(test)]
@@ -886,15 +771,43 @@ mod tests {
     }
 
     #[test]
-    fn unknown_keys_are_rejected_at_parse() {
-        let err = toml::from_str::<PwmVehicleSettings>(
-            "backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\nmax_uss = 3",
+    fn unknown_keys_are_rejected_naming_their_key() {
+        let err =
+            errors("backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\nmax_uss = 3");
+        assert!(
+            err.starts_with("channels[0].max_uss = 3: unknown key, expected one of `name`"),
+            "{err}"
+        );
+        assert!(err.contains("`max_us`"), "lists the valid keys: {err}");
+        let err =
+            errors("backend = \"sim\"\nperiod = 3\n[[channels]]\nname = \"a\"\nsource = \"roll\"");
+        assert!(err.starts_with("period = 3: unknown key"), "{err}");
+        // The older spellings of the mapping keys are accepted.
+        let cfg = parse(
+            "backend = \"sim\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\ninvert = true\n\
+             deadzone_pct = 10",
         )
-        .expect_err("unknown key");
-        assert!(err.to_string().contains("max_uss"), "{err}");
-        let err = toml::from_str::<PwmVehicleSettings>("backend = \"sim\"\nperiod = 3")
-            .expect_err("unknown key");
-        assert!(err.to_string().contains("period"), "{err}");
+        .validate()
+        .expect("aliases");
+        match cfg.channels()[0].source() {
+            ChannelSource::Axis(_, map) => assert_eq!(map.map(i16::MAX), 1000, "reversed"),
+            other => panic!("unexpected source {other:?}"),
+        }
+    }
+
+    #[test]
+    fn integers_out_of_any_range_name_their_key() {
+        let err = errors(
+            "backend = \"sim\"\nperiod_us = -5\n[[channels]]\nname = \"a\"\nsource = \"roll\"\n\
+             max_us = 70000\nslew_us_per_s = -1",
+        );
+        for want in [
+            "period_us = -5: must be 2500..=100000 µs",
+            "channels[0].max_us = 70000: must be 100..=10000 µs",
+            "channels[0].slew_us_per_s = -1: must be 1..=4294967295 µs/s",
+        ] {
+            assert!(err.contains(want), "missing {want:?} in\n{err}");
+        }
     }
 
     #[test]
@@ -984,7 +897,7 @@ mod tests {
         for want in [
             "sysfs_root = \"/x\": only applies to backend = \"sysfs\"",
             "channels[0].channel = 3: only applies to backend = \"sysfs\"",
-            "channels[1].max_us = (given): does not apply to source = \"mode\"",
+            "channels[1].max_us = 1900: does not apply to source = \"mode\"",
             "channels[2].value_us = (absent): must give the pulse",
             "channels[3].polarity = inversed: software PWM on a GPIO pin has no polarity",
         ] {

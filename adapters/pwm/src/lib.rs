@@ -25,7 +25,7 @@
 //! | `chip`, `channel` | channel, sysfs | `pwmchip{chip}/pwm{channel}` |
 //! | `pin` / `pwm_channel` | channel, rppal | software PWM on BCM GPIO 0..=27 / hardware PWM 0..=1 |
 //! | `polarity` | channel, sysfs or `pwm_channel` | `"normal"` / `"inversed"` (default: untouched) |
-//! | `min_us` … `slew_us_per_s` | channel, axis sources | [`rove_core::mapping`] keys |
+//! | `min_us` … `slew_us_per_s` | channel, axis sources | [`rove_core::mapping`] keys (`reverse` also as `invert`, `deadband_pct` also as `deadzone_pct`) |
 //! | `manual_us`, `assisted_us`, `auto_us` | channel, `mode` | levels (default 1000/1500/2000) |
 //! | `value_us` | channel, `constant` | the pulse |
 //! | `failsafe_us` | channel | safe-state pulse (default: centre / ASSISTED level / `value_us`) |
@@ -58,7 +58,8 @@ pub mod vehicle;
 pub use backend::{PulseRecord, PwmBackend, SimBackend, SimLog, open_backend};
 pub use config::{
     BackendConfig, BackendKind, ChannelAddress, ChannelConfig, ChannelSettings, ChannelSource,
-    Polarity, PwmVehicleConfig, PwmVehicleSettings, ServoChannelSettings, SourceKind,
+    ChannelSourceKind, Polarity, PwmAddressSettings, PwmBackendSettings, PwmVehicleConfig,
+    PwmVehicleSettings, ServoChannelSettings,
 };
 pub use sysfs::SysfsBackend;
 pub use vehicle::PwmVehicle;

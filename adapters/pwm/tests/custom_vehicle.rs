@@ -51,7 +51,7 @@ fn config_only_vehicle_writes_the_expected_duty_cycles() {
     fake_kernel(root);
     let file: File = toml::from_str(CUSTOM).expect("parses");
     let Output::Pwm(mut settings) = file.output;
-    settings.sysfs_root = Some(root.to_path_buf());
+    settings.pwm.sysfs_root = Some(root.to_path_buf());
     let cfg = settings.validate().expect("valid");
     let backend = SysfsBackend::new(root.to_path_buf(), &cfg);
     let mut v = PwmVehicle::new(cfg, backend, MonoTime::ZERO).expect("starts");

@@ -1,0 +1,356 @@
+//! The configuration vocabulary every crate shares: the integer policy and the checks that turn
+//! raw settings into validated ones (range, required, not-for-this-case, unique, unknown keys).
+//! Each check records a [`ConfigError`](crate::error::ConfigError) (`key = value: rule`) in one
+//! [`ConfigErrors`] list, so a file's problems are all reported at once.
+//!
+//! # Integer policy
+//! Every integer key is read as [`Int`] (`i64`, TOML's own integer type) and narrowed by
+//! [`ConfigErrors::int`]. A negative or oversized value is then reported against its key with
+//! the key's rule (`channels[0].channel = 300: must be 1..=18`) instead of failing the parse
+//! with a message that names neither.
+//!
+//! # Tables built from shared pieces
+//! serde's `deny_unknown_fields` does not combine with `flatten`: a struct with a flattened
+//! field silently drops unknown keys. A table built from shared pieces (`#[serde(flatten)]`)
+//! therefore ends with `#[serde(flatten)] unknown: UnknownKeys`, which collects every key no
+//! piece took; [`UnknownKeys::check`] reports each against its key path, so the gateway points
+//! at the misspelt key's own line. Tables that flatten nothing keep `deny_unknown_fields`.
+
+use crate::error::{ConfigErrors, Result};
+use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
+use serde::{Deserialize, Serialize, Serializer};
+use std::collections::HashMap;
+use std::fmt;
+use std::hash::Hash;
+use std::ops::RangeInclusive;
+
+/// How every integer key is read: wide, then range-checked by [`ConfigErrors::int`].
+pub type Int = i64;
+
+/// Older spellings still accepted (serde aliases), as (old, current): errors name the current
+/// key, the gateway finds either on its line, and "expected one of" lists only the current.
+pub const ALIASES: &[(&str, &str)] = &[("invert", "reverse"), ("deadzone_pct", "deadband_pct")];
+
+/// Shown as the value of a key that is absent but required.
+pub const ABSENT: &str = "(absent)";
+
+impl ConfigErrors {
+    /// `value` narrowed to `T` if it lies in `range`; otherwise records
+    /// `key = value: must be LO..=HI{unit}` (`unit` such as `" µs"` or `" (BCM GPIO number)"`).
+    pub fn int<T: TryFrom<Int>>(
+        &mut self,
+        key: &str,
+        value: Int,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<T> {
+        let narrowed = T::try_from(value).ok().filter(|_| range.contains(&value));
+        if narrowed.is_none() {
+            let rule = format!("must be {}..={}{unit}", range.start(), range.end());
+            self.add(key, value, rule);
+        }
+        narrowed
+    }
+
+    /// [`ConfigErrors::int`] for an optional key: `None` stays `None` without an error.
+    pub fn opt_int<T: TryFrom<Int>>(
+        &mut self,
+        key: &str,
+        value: Option<Int>,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<T> {
+        value.and_then(|v| self.int(key, v, range, unit))
+    }
+
+    /// `value` if it is finite and lies in `range`; otherwise records `key = value: rule`.
+    pub fn float(&mut self, key: &str, value: f64, range: RangeInclusive<f64>, rule: &str) -> f64 {
+        if !(value.is_finite() && range.contains(&value)) {
+            self.add(key, value, rule);
+        }
+        value
+    }
+
+    /// The value of a required key, or records `key = (absent): is required`.
+    pub fn required<T: Clone>(&mut self, key: &str, value: &Option<T>) -> Option<T> {
+        if value.is_none() {
+            self.absent(key, "is required");
+        }
+        value.clone()
+    }
+
+    /// Records `key = (absent): rule` for a required key that was left out.
+    pub fn absent(&mut self, key: &str, rule: impl Into<String>) {
+        self.add(key, ABSENT, rule);
+    }
+
+    /// Records `key = value: rule` if the key was given although it does not apply (to this
+    /// backend, source or method).
+    pub fn not_for<V: fmt::Display>(&mut self, key: &str, value: Option<V>, rule: &str) {
+        if let Some(v) = value {
+            self.add(key, v, rule);
+        }
+    }
+
+    /// The value of a nested section's validation, its problems filed under `prefix`; `None`
+    /// if it had any (validation goes on, so that every problem is reported at once).
+    pub fn section<T>(&mut self, prefix: &str, result: Result<T>) -> Option<T> {
+        match result {
+            Ok(value) => Some(value),
+            Err(crate::Error::Config(e)) => {
+                self.extend_within(prefix, e);
+                None
+            }
+            Err(other) => {
+                self.add(prefix, "?", other.to_string());
+                None
+            }
+        }
+    }
+}
+
+/// The "must be unique" check: remembers who first used each value.
+#[derive(Debug, Clone)]
+pub struct Unique<K>(HashMap<K, String>);
+
+impl<K> Default for Unique<K> {
+    fn default() -> Self {
+        Unique(HashMap::new())
+    }
+}
+
+impl<K: Eq + Hash> Unique<K> {
+    /// Records that `owner` (a key path such as `channels[2]`) uses `value`; if another owner
+    /// used it first, returns that owner and records nothing.
+    pub fn claim(&mut self, value: K, owner: impl Into<String>) -> Option<String> {
+        match self.0.get(&value) {
+            Some(first) => Some(first.clone()),
+            None => {
+                self.0.insert(value, owner.into());
+                None
+            }
+        }
+    }
+
+    /// [`Unique::claim`], recording `key = shown: must be unique: FIRST {what}` on a repeat.
+    pub fn check(
+        &mut self,
+        errors: &mut ConfigErrors,
+        value: K,
+        owner: impl Into<String>,
+        (key, shown): (&str, impl fmt::Display),
+        what: &str,
+    ) {
+        if let Some(first) = self.claim(value, owner) {
+            let rule = format!("must be unique: {first} {what}");
+            errors.add(key, shown, rule.trim_end());
+        }
+    }
+}
+
+/// The keys of a table that none of its flattened pieces took, with their values as written;
+/// see the module docs. Always empty when serialized.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct UnknownKeys(pub Vec<(String, String)>);
+
+impl UnknownKeys {
+    /// Records `key = value: unknown key …` for each collected key; `known` lists the keys the
+    /// table takes, for the message.
+    pub fn check(&self, errors: &mut ConfigErrors, known: &[&[&str]]) {
+        for (key, value) in &self.0 {
+            let names: Vec<String> = (known.iter().flat_map(|k| k.iter()))
+                .filter(|k| !ALIASES.iter().any(|(old, _)| old == *k))
+                .map(|k| format!("`{k}`"))
+                .collect();
+            let rule = format!("unknown key, expected one of {}", names.join(", "));
+            errors.add(key.as_str(), value, rule);
+        }
+    }
+}
+
+impl Serialize for UnknownKeys {
+    fn serialize<S: Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        serializer.collect_map(std::iter::empty::<(&str, &str)>())
+    }
+}
+
+impl<'de> Deserialize<'de> for UnknownKeys {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
+        struct Keys;
+        impl<'de> Visitor<'de> for Keys {
+            type Value = UnknownKeys;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("a table")
+            }
+            fn visit_map<A: MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<UnknownKeys, A::Error> {
+                let mut keys = Vec::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    keys.push((key, map.next_value::<Shown>()?.0));
+                }
+                Ok(UnknownKeys(keys))
+            }
+        }
+        deserializer.deserialize_map(Keys)
+    }
+}
+
+/// A value of any type, kept only as text for an error message.
+struct Shown(String);
+
+impl<'de> Deserialize<'de> for Shown {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Shown;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("any value")
+            }
+            fn visit_bool<E>(self, v: bool) -> std::result::Result<Shown, E> {
+                Ok(Shown(v.to_string()))
+            }
+            fn visit_i64<E>(self, v: i64) -> std::result::Result<Shown, E> {
+                Ok(Shown(v.to_string()))
+            }
+            fn visit_u64<E>(self, v: u64) -> std::result::Result<Shown, E> {
+                Ok(Shown(v.to_string()))
+            }
+            fn visit_f64<E>(self, v: f64) -> std::result::Result<Shown, E> {
+                Ok(Shown(v.to_string()))
+            }
+            fn visit_str<E>(self, v: &str) -> std::result::Result<Shown, E> {
+                Ok(Shown(format!("{v:?}")))
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> std::result::Result<Shown, A::Error> {
+                while seq.next_element::<IgnoredAny>()?.is_some() {}
+                Ok(Shown("[…]".into()))
+            }
+            fn visit_map<A: MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> std::result::Result<Shown, A::Error> {
+                while map.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
+                Ok(Shown("{…}".into()))
+            }
+        }
+        deserializer.deserialize_any(V)
+    }
+}
+
+/// The keys a flatten-free serde struct takes (aliases included), for [`UnknownKeys::check`]:
+/// read from what its derived `Deserialize` hands the deserializer.
+pub fn keys_of<T: for<'de> Deserialize<'de>>() -> &'static [&'static str] {
+    struct Probe(&'static [&'static str]);
+    #[derive(Debug)]
+    struct Stop;
+    impl fmt::Display for Stop {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("probe")
+        }
+    }
+    impl std::error::Error for Stop {}
+    impl de::Error for Stop {
+        fn custom<M: fmt::Display>(_: M) -> Self {
+            Stop
+        }
+    }
+    impl<'de> Deserializer<'de> for &mut Probe {
+        type Error = Stop;
+        fn deserialize_any<V: Visitor<'de>>(self, _: V) -> std::result::Result<V::Value, Stop> {
+            Err(Stop)
+        }
+        fn deserialize_struct<V: Visitor<'de>>(
+            self,
+            _: &'static str,
+            fields: &'static [&'static str],
+            _: V,
+        ) -> std::result::Result<V::Value, Stop> {
+            self.0 = fields;
+            Err(Stop)
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes byte_buf
+            option unit unit_struct newtype_struct seq tuple tuple_struct map enum identifier
+            ignored_any
+        }
+    }
+    let mut probe = Probe(&[]);
+    // The error is the probe's own stop signal; only the recorded field list matters.
+    let _ = T::deserialize(&mut probe);
+    probe.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, Default, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Piece {
+        #[serde(alias = "b")]
+        a: Option<Int>,
+    }
+
+    #[derive(Debug, Default, Deserialize)]
+    struct Table {
+        name: Option<String>,
+        #[serde(flatten)]
+        piece: Piece,
+        #[serde(flatten)]
+        unknown: UnknownKeys,
+    }
+
+    #[test]
+    fn int_names_key_and_rule() {
+        let mut errors = ConfigErrors::default();
+        assert_eq!(errors.int::<u8>("pin", 12, 0..=27, ""), Some(12));
+        assert_eq!(errors.int::<u8>("pin", 300, 0..=400, " (GPIO)"), None);
+        assert_eq!(errors.opt_int::<u8>("pin", None, 0..=27, ""), None);
+        assert_eq!(errors.to_string(), "pin = 300: must be 0..=400 (GPIO)");
+    }
+
+    #[test]
+    fn flattened_pieces_take_aliases_and_leave_unknown_keys() {
+        let t: Table =
+            toml::from_str("name = \"x\"\nb = 3\nbogus = [1]\nc = \"s\"").expect("parses");
+        assert_eq!(t.piece.a, Some(3));
+        assert_eq!(t.name.as_deref(), Some("x"));
+        let mut errors = ConfigErrors::default();
+        t.unknown
+            .check(&mut errors, &[&["name"], keys_of::<Piece>()]);
+        assert_eq!(
+            errors.to_string(),
+            "bogus = […]: unknown key, expected one of `name`, `a`, `b`\n\
+             c = \"s\": unknown key, expected one of `name`, `a`, `b`"
+        );
+    }
+
+    #[test]
+    fn unique_reports_the_first_owner() {
+        let mut errors = ConfigErrors::default();
+        let mut names = Unique::default();
+        names.check(
+            &mut errors,
+            "a",
+            "channels[0]",
+            ("name", "\"a\""),
+            "has the same name",
+        );
+        names.check(
+            &mut errors,
+            "a",
+            "channels[1]",
+            ("name", "\"a\""),
+            "has the same name",
+        );
+        assert_eq!(
+            errors.to_string(),
+            "name = \"a\": must be unique: channels[0] has the same name"
+        );
+    }
+}
