@@ -2,7 +2,7 @@
 //! adapter → the pymavlink autopilot of `testkit/fake_autopilot.py`, all inside a
 //! network namespace of the test's own (DDS on its loopback, MAVLink on UDP loopback).
 //!
-//! Needs `python3` with `pymavlink` (installed by `.ci/run`).
+//! Needs Python with `pymavlink` (`scripts/test` installs it; missing, the test fails at once).
 
 use crate::util::{FakeAutopilot, PATIENCE, Rig, wait_for_output, wall_us};
 use serde_json::Value;

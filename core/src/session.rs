@@ -691,6 +691,16 @@ impl OperatorSession {
             });
         }
         self.paused.extend(regular.iter().copied());
+        // Vehicles we stand by for: our PROBEs would make the vehicle fall back to us (and to
+        // our last values) when the grant ends, but we cannot drive. Stop them and release;
+        // the yield itself stands, so the grant's end still brings them back to us (paused
+        // until the input is live).
+        for v in std::mem::take(&mut self.standby) {
+            out.push(Effect::Release {
+                writer: Writer::Regular,
+                vehicle: v,
+            });
+        }
         out.report(Report::InputNotLive {
             reason: why.to_string(),
             vehicles: regular,
@@ -760,8 +770,19 @@ impl OperatorSession {
                         "vehicle {vehicle} is driven by {owner}: request control instead"
                     )),
                     Some(_) => {
+                        // Still ours after we yielded it (the holder never took over): the
+                        // person takes it back, so the standby ends and a late FINISH is moot.
+                        let probing =
+                            self.handover.resume(vehicle) && self.standby.remove(&vehicle);
                         self.selected = Some(vehicle);
                         self.drive(vehicle, DriveReason::Commanded, stamp, out);
+                        if probing && !self.input_live {
+                            // Our PROBEs kept us live on the vehicle: release (as on Resume).
+                            out.push(Effect::Release {
+                                writer: Writer::Regular,
+                                vehicle,
+                            });
+                        }
                     }
                 }
             }
@@ -930,12 +951,21 @@ impl OperatorSession {
                 Action::Yield { vehicle } => {
                     self.driving.remove(&vehicle);
                     self.paused.remove(&vehicle);
-                    self.standby.insert(vehicle);
                     out.report(Report::Yielded { vehicle });
-                    out.write(
-                        Writer::Regular,
-                        self.command(vehicle, CommandType::Probe, stamp),
-                    );
+                    if self.input_live {
+                        self.standby.insert(vehicle);
+                        out.write(
+                            Writer::Regular,
+                            self.command(vehicle, CommandType::Probe, stamp),
+                        );
+                    } else {
+                        // No standby without live input: the vehicle must not fall back to
+                        // us when the grant ends (see `stop_driving`).
+                        out.push(Effect::Release {
+                            writer: Writer::Regular,
+                            vehicle,
+                        });
+                    }
                 }
                 Action::EndStandby { vehicle } => {
                     self.standby.remove(&vehicle);

@@ -546,3 +546,52 @@ fn status_line_says_what_we_drive_hold_and_stand_by_for() {
         "holding a grant for 101; standing by for 100; 2 vehicles seen"
     );
 }
+
+#[test]
+fn driving_a_yielded_vehicle_that_is_still_ours_takes_it_back_from_standby() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    step(&mut s, 2, request_from(OTHER, 340, 2));
+    assert!(s.handover().has_yielded(V));
+    // The holder never shows up on the vehicle; the person drives it again.
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Drive { vehicle: V }),
+    );
+    assert_eq!(refused(&out), None);
+    assert!(!s.handover().has_yielded(V));
+    assert_eq!(
+        writes(&step(&mut s, 20, SessionEvent::StreamTick)),
+        vec![(
+            Writer::Regular,
+            sample(V, CommandType::Movement, 100, Mode::Manual, 20)
+        )],
+        "MOVEMENT only, no standby PROBE"
+    );
+}
+
+#[test]
+fn losing_the_input_while_standing_by_stops_the_probes_and_releases() {
+    let mut s = device();
+    step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(1))));
+    step(&mut s, 2, vehicle(V, ME));
+    step(&mut s, 3, request_from(OTHER, 340, 3));
+    assert_eq!(s.streams().standby, vec![V]);
+    let out = step(&mut s, 4, SessionEvent::Input(InputEvent::Deadman(false)));
+    assert_eq!(releases(&out), vec![(Writer::Regular, V)]);
+    assert!(step(&mut s, 20, SessionEvent::StreamTick).is_empty());
+    // The yield stands: the grant's end brings the vehicle back, paused until live input.
+    assert!(s.handover().has_yielded(V));
+}
+
+#[test]
+fn yielding_without_live_input_releases_instead_of_standing_by() {
+    let mut s = device();
+    step(&mut s, 1, vehicle(V, ME));
+    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Accept));
+    assert_eq!(releases(&out), vec![(Writer::Regular, V)]);
+    assert!(writes(&out).is_empty());
+    assert!(s.streams().standby.is_empty());
+}

@@ -304,8 +304,9 @@ impl World {
         let recently_gone = self.gone.iter().flatten().any(|&t| {
             self.now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS + STREAM_MS)
         });
-        let standby =
-            (0..3).any(|i| self.live(i) && !self.sessions[i].streams().standby.is_empty());
+        // Yielded (standing by, or the standby ended and the vehicle times us out): the
+        // owner may be the yielded replier for up to a command timeout.
+        let standby = (0..3).any(|i| self.live(i) && self.sessions[i].handover().has_yielded(V));
         if recently_gone || standby || self.vehicle.grant_holder().is_some() {
             return Ok(());
         }

@@ -4,7 +4,8 @@
 //! - [`eventually`]: poll a condition until a deadline; the one way tests wait for something
 //!   another process or thread does (no fixed sleeps for synchronisation).
 //! - [`FakeAutopilot`]: `fake_autopilot.py` (pymavlink, beside this crate's manifest) as a child
-//!   process, and its JSON-lines record. Used by `rove-mavlink`'s adapter tests
+//!   process, and its JSON-lines record; [`python`] finds the interpreter that has pymavlink
+//!   and [`require_tool`] fails a test at once, naming the fix, when a peer is missing. Used by `rove-mavlink`'s adapter tests
 //!   (`adapters/mavlink/tests/autopilot.rs`) and by the end-to-end tests in `tests/`.
 
 use serde_json::Value;
@@ -50,6 +51,76 @@ pub fn eventually_within<T, E: Display>(
     }
 }
 
+/// The Python interpreter for the test peers: `ROVE_TEST_PYTHON` if set, else the project's
+/// virtual environment `.venv/bin/python3` (`scripts/test` creates it), else `python3`.
+pub fn python() -> PathBuf {
+    if let Some(p) = std::env::var_os("ROVE_TEST_PYTHON") {
+        return PathBuf::from(p);
+    }
+    let venv = repo_root().join(".venv/bin/python3");
+    if venv.exists() {
+        venv
+    } else {
+        PathBuf::from("python3")
+    }
+}
+
+/// The repository's root directory.
+pub fn repo_root() -> PathBuf {
+    let testkit = Path::new(env!("CARGO_MANIFEST_DIR"));
+    testkit.parent().unwrap_or(testkit).to_path_buf()
+}
+
+/// How to install the test peers, for failure messages.
+const INSTALL: &str = "run `scripts/test` (it installs the prerequisites and creates .venv), \
+     or `python3 -m venv .venv && .venv/bin/pip install pymavlink==2.4.50 pyserial==3.5`";
+
+/// Checks, once per test binary, that [`python`] runs and imports pymavlink and pyserial.
+///
+/// # Panics
+/// At once, naming the interpreter, what it lacks and the command that installs it (instead
+/// of a test waiting for an autopilot that can never start).
+pub fn require_python_peers() {
+    static CHECKED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    let checked = CHECKED.get_or_init(|| {
+        let python = python();
+        let out = Command::new(&python)
+            .args(["-c", "import pymavlink, serial"])
+            .stdin(Stdio::null())
+            .output()
+            .map_err(|e| format!("{} does not run ({e}): {INSTALL}", python.display()))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!(
+                "{} lacks the test autopilot's packages ({}): {INSTALL}",
+                python.display(),
+                String::from_utf8_lossy(&out.stderr)
+                    .trim()
+                    .lines()
+                    .last()
+                    .unwrap_or("")
+            ))
+        }
+    });
+    if let Err(why) = checked {
+        panic!("{why}");
+    }
+}
+
+/// Checks that the program `tool` is on the PATH.
+///
+/// # Panics
+/// At once, naming `tool` and the Debian package (`package`) that provides it.
+pub fn require_tool(tool: &str, package: &str) {
+    let found = std::env::var_os("PATH")
+        .is_some_and(|path| std::env::split_paths(&path).any(|dir| dir.join(tool).is_file()));
+    assert!(
+        found,
+        "{tool} is not installed: run `scripts/test`, or `apt-get install {package}`"
+    );
+}
+
 /// The pymavlink autopilot script (ArduPilot or PX4 as a ground station sees it); its
 /// docstring lists its options and what it records.
 pub fn fake_autopilot_script() -> PathBuf {
@@ -59,7 +130,8 @@ pub fn fake_autopilot_script() -> PathBuf {
 /// A running [`fake_autopilot_script`] and its record (JSON lines, one per event, each with
 /// a monotonic `t` and a wall-clock `wall_us`). Killed on drop.
 ///
-/// Needs `python3` with `pymavlink` (`pyserial` for serial links); `.ci/run` installs them.
+/// Needs [`python`] with `pymavlink` (`pyserial` for serial links); `scripts/test` installs
+/// them, and a test without them fails at once saying so.
 #[derive(Debug)]
 pub struct FakeAutopilot {
     child: Child,
@@ -73,11 +145,12 @@ impl FakeAutopilot {
     /// host's network, recording into a temp directory of its own; returns once it is ready.
     ///
     /// # Panics
-    /// `python3` does not run, or the autopilot is not ready within [`PATIENCE`].
+    /// [`python`] does not run or lacks pymavlink (at once), or the autopilot is not ready
+    /// within [`PATIENCE`].
     pub fn start(args: &[&str]) -> FakeAutopilot {
         let dir = tempfile::tempdir().expect("temp dir for the autopilot's record");
         let record = dir.path().join("autopilot.jsonl");
-        FakeAutopilot::spawn(Command::new("python3"), record, Some(dir), args)
+        FakeAutopilot::spawn(Command::new(python()), record, Some(dir), args)
     }
 
     /// Starts the autopilot with `args` inside network namespace `netns` (`ip netns exec`),
@@ -87,7 +160,7 @@ impl FakeAutopilot {
     /// As [`FakeAutopilot::start`].
     pub fn start_in_netns(netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
         let mut command = Command::new("ip");
-        command.args(["netns", "exec", netns, "python3"]);
+        command.args(["netns", "exec", netns]).arg(python());
         FakeAutopilot::spawn(command, record.to_path_buf(), None, args)
     }
 
@@ -97,6 +170,7 @@ impl FakeAutopilot {
         dir: Option<tempfile::TempDir>,
         args: &[&str],
     ) -> FakeAutopilot {
+        require_python_peers();
         let child = command
             .arg(fake_autopilot_script())
             .arg("--record")
@@ -105,7 +179,7 @@ impl FakeAutopilot {
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .spawn()
-            .expect("python3 runs (install pymavlink: python3 -m pip install pymavlink)");
+            .unwrap_or_else(|e| panic!("{} does not run ({e}): {INSTALL}", python().display()));
         let autopilot = FakeAutopilot {
             child,
             record,

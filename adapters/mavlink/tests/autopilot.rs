@@ -2,7 +2,8 @@
 //! by [`rove_testkit::FakeAutopilot`]), playing an ArduPilot (or PX4) autopilot on loopback
 //! UDP/TCP and on a pty pair (socat).
 //!
-//! Needs `python3` with `pymavlink` (and `socat` for the serial test); `.ci/run` installs them.
+//! Needs Python with `pymavlink` (and `socat` for the serial test); `scripts/test` installs
+//! them, and a test without them fails at once saying what is missing.
 //! Timing assertions use wide bounds: they catch a wrong rate (2×, ½×), not scheduler jitter.
 
 #![allow(clippy::unwrap_used)]
@@ -462,6 +463,7 @@ fn garbage_and_other_systems_change_nothing() {
 fn drives_over_a_serial_pty_pair() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("ttyA"), dir.path().join("ttyB"));
+    rove_testkit::require_tool("socat", "socat");
     let socat = Command::new("socat")
         .args([
             format!("pty,raw,echo=0,link={}", a.display()),
