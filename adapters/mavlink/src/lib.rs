@@ -10,8 +10,10 @@
 //! # Layout
 //! - [`config`]: the `[output]` keys, validation, per-autopilot mode tables.
 //! - [`encode`]: sticks → override pulses / MANUAL_CONTROL fields; release and ignore values (pure).
+//! - [`frame`]: bytes → messages with immediate resynchronisation; messages → frame bytes (pure).
 //! - [`mode`]: the mode-command machine with retries (pure, stepped with `now`).
-//! - [`link`]: the transport (udpin/udpout/tcpout/serial) with its reader thread and reconnect.
+//! - [`link`]: the transport (udpin/udpout/tcpout with TCP_NODELAY/serial), opened here, with its
+//!   reader thread and reconnect.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //!
 //! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
@@ -22,6 +24,7 @@
 
 pub mod config;
 pub mod encode;
+pub mod frame;
 pub mod link;
 pub mod mode;
 pub mod vehicle;

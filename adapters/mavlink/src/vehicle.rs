@@ -14,7 +14,7 @@ use crate::config::{FailsafeAction, MavlinkConfig, Method};
 use crate::encode::{RC_CHANNELS, manual_control_values, override_values, release_values};
 use crate::link::{Link, LinkStatus};
 use crate::mode::{ModeControl, ModeState};
-use mavlink::dialects::common::{
+use mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage,
     MavModeFlag, MavState, MavType, RC_CHANNELS_OVERRIDE_DATA,
 };
