@@ -56,6 +56,15 @@ impl Peer {
         peer
     }
 
+    /// The UDP or TCP port it listens on (it was started on port 0).
+    fn port(&self) -> u16 {
+        let ready = self.wait_for("peer ready", |e| e["event"] == "ready");
+        ready["port"]
+            .as_u64()
+            .and_then(|p| u16::try_from(p).ok())
+            .expect("a udpin/tcpin peer reports its port")
+    }
+
     fn events(&self) -> Vec<Value> {
         std::fs::read_to_string(&self.record)
             .unwrap_or_default()
@@ -97,14 +106,6 @@ impl Drop for Peer {
     fn drop(&mut self) {
         self.stop();
     }
-}
-
-fn free_port() -> u16 {
-    let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-    let t = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    // One port free for both UDP and TCP is not guaranteed; the UDP one is what most tests use.
-    drop(t);
-    s.local_addr().unwrap().port()
 }
 
 fn vehicle(toml: &str, clock: &Clock) -> MavlinkVehicle {
@@ -183,8 +184,8 @@ fn raw(e: &Value) -> Vec<u64> {
 
 #[test]
 fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
-    let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\nsystem_id = 250\ncomponent_id = 191"),
@@ -216,8 +217,8 @@ fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
 
 #[test]
 fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
-    let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -268,15 +269,15 @@ fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
 
 #[test]
 fn manual_control_is_scaled_for_px4() {
-    let port = free_port();
     let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--autopilot",
         "px4",
         "--vehicle",
         "copter",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -317,13 +318,13 @@ fn manual_control_is_scaled_for_px4() {
 
 #[test]
 fn mode_command_is_resent_until_acknowledged() {
-    let port = free_port();
     let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--ignore-mode-commands",
         "2",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 200"),
@@ -367,28 +368,35 @@ fn mode_command_is_resent_until_acknowledged() {
 
 #[test]
 fn a_refused_mode_is_reported_not_retried() {
-    let port = free_port();
     let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--deny-modes",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
     v.apply(clock.now(), &setpoint(0, 0, Mode::Auto)).unwrap();
+    // With on_mode_refused = "hold" (default) rove then commands HOLD, which this autopilot
+    // (already in HOLD) denies too but reports in its HEARTBEAT: the refusal of AUTO stays.
     run_until(&mut v, &clock, "refusal seen", |v| {
-        matches!(v.mode_state(), ModeState::Failed { .. })
+        matches!(v.health(), Health::Degraded(_))
     });
     run(&mut v, &clock, Duration::from_millis(500), None);
-    assert_eq!(peer.of("set_mode").len(), 1, "no resend after DENIED");
+    let auto: Vec<Value> = peer
+        .of("set_mode")
+        .into_iter()
+        .filter(|e| e["custom_mode"] == 10)
+        .collect();
+    assert_eq!(auto.len(), 1, "no resend after DENIED");
     assert!(matches!(v.health(), Health::Degraded(why) if why.contains("DENIED")));
 }
 
 #[test]
 fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
-    let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 300"),
@@ -439,8 +447,8 @@ fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
 
 #[test]
 fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
-    let port = free_port();
-    let peer = Peer::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
@@ -463,9 +471,10 @@ fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
 
 #[test]
 fn reconnects_after_the_autopilot_restarts_over_tcp() {
-    let port = free_port();
+    let mut peer = Peer::start(&["--connection", "tcpin:127.0.0.1:0"]);
+    let port = peer.port();
+    // The restarted autopilot listens where the first one did (the port the kernel gave it).
     let addr = format!("tcpin:127.0.0.1:{port}");
-    let mut peer = Peer::start(&["--connection", &addr]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"tcpout:127.0.0.1:{port}\"\n[modes]\nset_mode = false"),
@@ -499,16 +508,16 @@ fn reconnects_after_the_autopilot_restarts_over_tcp() {
 
 #[test]
 fn garbage_and_other_systems_change_nothing() {
-    let port = free_port();
     let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--garbage",
         "--foreign-sysid",
         "42",
         "--heartbeat-hz",
         "20",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
@@ -588,4 +597,229 @@ impl Drop for KillOnDrop {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+// Issue #20: the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
+// messages in bursts once a second, a stray 0xFE inside SIMSTATE, an unknown message), on TCP.
+// See: docs/mavlink.md, "ArduPilot as a GCS sees it".
+
+/// A TCP autopilot with ArduPilot-like telemetry, and a vehicle connected to it.
+fn tcp_pair(peer_args: &[&str], extra_toml: &str, clock: &Clock) -> (Peer, MavlinkVehicle) {
+    let mut args = vec!["--connection", "tcpin:127.0.0.1:0"];
+    args.extend_from_slice(peer_args);
+    let peer = Peer::start(&args);
+    let port = peer.port();
+    let mut v = vehicle(
+        &format!("connection = \"tcpout:127.0.0.1:{port}\"\n{extra_toml}"),
+        clock,
+    );
+    run_until(&mut v, clock, "autopilot discovered", discovered);
+    (peer, v)
+}
+
+/// Applies `sp` (and keep-alives) until the mode machine confirms `name`.
+fn drive_until_confirmed(v: &mut MavlinkVehicle, clock: &Clock, sp: Setpoint, name: &str) {
+    let start = Instant::now();
+    while !matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == name) {
+        assert!(
+            start.elapsed() < WAIT,
+            "{name} not confirmed: {:?}",
+            v.mode_state()
+        );
+        let _ = v.apply(clock.now(), &sp);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn r20_failsafe_completes_in_under_200_ms_between_telemetry_bursts() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "", &clock);
+    let sp = setpoint(20000, 0, Mode::Manual);
+    let mut times_ms = Vec::new();
+    for run_no in 0..20u64 {
+        drive_until_confirmed(&mut v, &clock, sp, "MANUAL");
+        // Spread the failsafes over the autopilot's 1 s telemetry cycle.
+        run(
+            &mut v,
+            &clock,
+            Duration::from_millis(20 + run_no * 47 % 500),
+            Some(sp),
+        );
+        let t = Instant::now();
+        let done = v.failsafe_now();
+        let took = t.elapsed();
+        assert!(done.is_ok(), "run {run_no}: {done:?}");
+        times_ms.push(took.as_secs_f64() * 1000.0);
+    }
+    let max = times_ms.iter().copied().fold(0.0, f64::max);
+    let mean = times_ms.iter().sum::<f64>() / times_ms.len() as f64;
+    eprintln!(
+        "r20 failsafe (release + HOLD confirmed), 20 runs: max {max:.2} ms, mean {mean:.2} ms: {:?}",
+        times_ms
+            .iter()
+            .map(|t| format!("{t:.1}"))
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        times_ms.iter().all(|&t| t < 200.0),
+        "every failsafe under 200 ms: {times_ms:?}"
+    );
+    // Every mode command was answered at once: none was resent.
+    let sends = peer.of("set_mode");
+    assert_eq!(sends.len(), 40, "20 × MANUAL + 20 × HOLD: {sends:#?}");
+    assert!(sends.iter().all(|e| e["answered"] == true));
+    let releases = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] == 0 && raw(e)[2] == 0)
+        .count();
+    assert!(releases >= 20, "a release in every run ({releases})");
+    assert!(
+        v.link_status().garbage > 0,
+        "the unknown message in every burst was skipped: {:?}",
+        v.link_status()
+    );
+}
+
+#[test]
+fn r20_overrides_are_one_per_period_and_evenly_spaced_while_commands_stream_at_50_hz() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "rate_hz = 25\n[modes]\nset_mode = false", &clock);
+    let period = v.keepalive_period().unwrap();
+    let command_every = Duration::from_millis(20);
+    let span = Duration::from_secs(2);
+    // The gateway's two schedules: a command every 20 ms (operator at 50 Hz), and the
+    // keep-alive every period, each on its own clock.
+    let start = Instant::now();
+    let (mut next_cmd, mut next_keep) = (start, start + period / 3);
+    let mut throttle = 0i16;
+    while start.elapsed() < span {
+        let now = Instant::now();
+        if now >= next_cmd {
+            throttle = throttle.wrapping_add(100) % 30000;
+            let _ = v.apply(clock.now(), &setpoint(throttle, 0, Mode::Manual));
+            next_cmd += command_every;
+        }
+        if now >= next_keep {
+            let _ = v.keepalive(clock.now());
+            next_keep += period;
+        }
+        std::thread::sleep(next_cmd.min(next_keep).saturating_duration_since(Instant::now()));
+    }
+    let t_end = peer.events().last().unwrap()["t"].as_f64().unwrap();
+    let t_start = t_end - span.as_secs_f64() + 0.2;
+    let times: Vec<f64> = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] != 0)
+        .filter_map(|e| e["t"].as_f64())
+        .filter(|&t| t >= t_start)
+        .collect();
+    let gaps: Vec<f64> = times.windows(2).map(|w| (w[1] - w[0]) * 1000.0).collect();
+    let max = gaps.iter().copied().fold(0.0, f64::max);
+    let mean = gaps.iter().sum::<f64>() / gaps.len() as f64;
+    let rate = times.len() as f64 / (times.last().unwrap() - times[0]);
+    eprintln!(
+        "r20 overrides while commands stream at 50 Hz: {rate:.1}/s, gap mean {mean:.1} ms, max \
+         {max:.1} ms (period {:.0} ms)",
+        period.as_secs_f64() * 1000.0
+    );
+    assert!(
+        (40.0..=56.0).contains(&rate),
+        "one per command, no keep-alive on top: {rate:.1}/s"
+    );
+    assert!(
+        max < 2.0 * period.as_secs_f64() * 1000.0,
+        "no gap over 2× the period: {max:.1} ms; gaps {gaps:?}"
+    );
+
+    // Commands stop: the keep-alive alone, at rate_hz.
+    let before = peer.of("rc_override").len();
+    let t = Instant::now();
+    run(&mut v, &clock, Duration::from_secs(1), None);
+    let rate = (peer.of("rc_override").len() - before) as f64 / t.elapsed().as_secs_f64();
+    assert!((20.0..=30.0).contains(&rate), "keep-alive alone: {rate:.1}/s");
+}
+
+#[test]
+fn r20_a_refused_mode_is_reported_and_holds_by_default() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&["--fail-modes", "10"], "", &clock);
+    drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
+    // AUTO with no mission: MAV_RESULT_FAILED.
+    let auto = setpoint(20000, 0, Mode::Auto);
+    let start = Instant::now();
+    while !matches!(v.health(), Health::Degraded(_)) {
+        assert!(start.elapsed() < WAIT, "refusal not reported");
+        let _ = v.apply(clock.now(), &auto);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let Health::Degraded(why) = v.health() else {
+        unreachable!()
+    };
+    assert!(
+        why.contains("MAV_RESULT_FAILED") && why.contains("HOLD"),
+        "{why}"
+    );
+    assert!(
+        v.detail().is_some_and(|d| d.contains("AUTO refused")),
+        "{:?}",
+        v.detail()
+    );
+    // The operator keeps asking for AUTO: rove holds (release, HOLD) and does not resend AUTO.
+    let t_refused = peer.events().last().unwrap()["t"].as_f64().unwrap();
+    run(&mut v, &clock, Duration::from_millis(600), Some(auto));
+    let after: Vec<Value> = peer
+        .events()
+        .into_iter()
+        .filter(|e| e["t"].as_f64().unwrap() > t_refused)
+        .collect();
+    let tail: Vec<&Value> = after.iter().rev().take(10).collect();
+    assert!(
+        tail.iter()
+            .filter(|e| e["event"] == "rc_override")
+            .all(|e| raw(e)[2] != 1805),
+        "no driven override while held: {tail:#?}"
+    );
+    let auto_sends = peer
+        .of("set_mode")
+        .into_iter()
+        .filter(|e| e["custom_mode"] == 10)
+        .count();
+    assert_eq!(auto_sends, 1, "AUTO not resent");
+    assert!(
+        matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == "HOLD"),
+        "{:?}",
+        v.mode_state()
+    );
+    // Another mode from the operator: driving again.
+    drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
+    assert_eq!(v.health(), Health::Ok);
+}
+
+#[test]
+fn r20_a_refused_mode_with_continue_keeps_driving_and_is_reported() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&["--fail-modes", "10"], "on_mode_refused = \"continue\"", &clock);
+    let auto = setpoint(20000, 0, Mode::Auto);
+    let start = Instant::now();
+    while !matches!(v.mode_state(), ModeState::Failed { .. }) {
+        assert!(start.elapsed() < WAIT, "refusal not seen");
+        let _ = v.apply(clock.now(), &auto);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let before = peer.of("rc_override").len();
+    run(&mut v, &clock, Duration::from_millis(300), Some(auto));
+    let driven = peer.of("rc_override")[before..]
+        .iter()
+        .filter(|e| raw(e)[2] == 1805)
+        .count();
+    assert!(driven > 3, "overrides go on: {driven}");
+    assert!(
+        matches!(v.health(), Health::Degraded(why) if why.contains("MAV_RESULT_FAILED")),
+        "{:?}",
+        v.health()
+    );
+    assert!(peer.of("set_mode").iter().all(|e| e["custom_mode"] != 4), "no HOLD");
 }
