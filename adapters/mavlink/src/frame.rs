@@ -45,7 +45,7 @@ pub struct Frame {
 /// What the bytes at a frame-start marker are.
 enum Candidate {
     /// A valid frame of this many bytes.
-    Valid(usize, Frame),
+    Valid(usize, Box<Frame>),
     /// Not a frame: skip the marker.
     Bad,
     /// Could be a frame; more bytes needed.
@@ -93,7 +93,7 @@ impl Decoder {
                 Candidate::Valid(len, frame) => {
                     self.drop_front(start);
                     self.buf.drain(..len);
-                    return Some(frame);
+                    return Some(*frame);
                 }
                 Candidate::Bad => from = start + 1,
                 Candidate::Incomplete => {
@@ -103,7 +103,7 @@ impl Decoder {
                         if let Candidate::Valid(len, frame) = candidate(&self.buf[later..]) {
                             self.drop_front(later);
                             self.buf.drain(..len);
-                            return Some(frame);
+                            return Some(*frame);
                         }
                         next = later + 1;
                     }
@@ -156,12 +156,7 @@ fn candidate(b: &[u8]) -> Candidate {
         return Candidate::Incomplete;
     }
     let (seq, sys, comp, id) = match version {
-        MavlinkVersion::V2 => (
-            b[4],
-            b[5],
-            b[6],
-            u32::from_le_bytes([b[7], b[8], b[9], 0]),
-        ),
+        MavlinkVersion::V2 => (b[4], b[5], b[6], u32::from_le_bytes([b[7], b[8], b[9], 0])),
         MavlinkVersion::V1 => (b[2], b[3], b[4], u32::from(b[5])),
     };
     let crc = u16::from_le_bytes([b[payload_end], b[payload_end + 1]]);
@@ -171,7 +166,7 @@ fn candidate(b: &[u8]) -> Candidate {
     match MavMessage::parse(version, id, &b[header_len..payload_end]) {
         Ok(message) => Candidate::Valid(
             len,
-            Frame {
+            Box::new(Frame {
                 version,
                 header: MavHeader {
                     system_id: u32::from(sys),
@@ -179,7 +174,7 @@ fn candidate(b: &[u8]) -> Candidate {
                     sequence: seq,
                 },
                 message,
-            },
+            }),
         ),
         // Unknown id or a field out of its enum: not a message we can use.
         Err(_) => Candidate::Bad,
@@ -297,7 +292,9 @@ mod tests {
         let last = bad.len() - 1;
         bad[last] ^= 0xFF;
         // A well-formed frame with an id no dialect rove knows (CRC_EXTRA 0).
-        let mut unknown = vec![MAV_STX_V2, 3, 0, 0, 0, 1, 1, 0x42, 0x42, 0x42, MAV_STX, 0xF0, 1];
+        let mut unknown = vec![
+            MAV_STX_V2, 3, 0, 0, 0, 1, 1, 0x42, 0x42, 0x42, MAV_STX, 0xF0, 1,
+        ];
         let crc = calculate_crc(&unknown[1..], 0);
         unknown.extend(crc.to_le_bytes());
         let mut input = bad;

@@ -417,7 +417,10 @@ fn run(shared: &Shared) {
                     }
                     let more = decoder.skipped() - skipped;
                     if more > 0 {
-                        debug!(bytes = more, "mavlink: skipped bytes that are not a message");
+                        debug!(
+                            bytes = more,
+                            "mavlink: skipped bytes that are not a message"
+                        );
                         lock(&shared.status).garbage += more;
                     }
                 }
@@ -528,8 +531,14 @@ mod tests {
     #[test]
     fn read_errors_are_classified() {
         let e = |k| io::Error::from(k);
-        assert_eq!(classify_read(&e(io::ErrorKind::WouldBlock)), ReadOutcome::Idle);
-        assert_eq!(classify_read(&e(io::ErrorKind::TimedOut)), ReadOutcome::Idle);
+        assert_eq!(
+            classify_read(&e(io::ErrorKind::WouldBlock)),
+            ReadOutcome::Idle
+        );
+        assert_eq!(
+            classify_read(&e(io::ErrorKind::TimedOut)),
+            ReadOutcome::Idle
+        );
         assert_eq!(
             classify_read(&e(io::ErrorKind::UnexpectedEof)),
             ReadOutcome::Reconnect,

@@ -19,10 +19,10 @@
 //! (8N1: baud / 10 bytes/s): a rate above it is lowered, with a logged note, and commands that
 //! come faster are coalesced (the newest is sent when the budget allows).
 
+use crate::config::AutopilotMode;
 use crate::config::{Endpoint, FailsafeAction, MavlinkConfig, Method, OnModeRefused};
 use crate::encode::{RC_CHANNELS, manual_control_values, override_values, release_values};
 use crate::link::{Link, LinkStatus};
-use crate::config::AutopilotMode;
 use crate::mode::{ModeControl, ModeState};
 use mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage,
@@ -640,14 +640,14 @@ impl MavlinkVehicle {
     fn failsafe_result(&self) -> Result<String, LinkError> {
         let v = self;
         match v.mode.state() {
-        ModeState::Failed { reason, .. } => Err(LinkError::transient(reason.clone())),
-        ModeState::Pending { mode, .. } => Err(LinkError::transient(format!(
-            "{} not confirmed in time",
-            mode.name
-        ))),
-        _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
+            ModeState::Failed { reason, .. } => Err(LinkError::transient(reason.clone())),
+            ModeState::Pending { mode, .. } => Err(LinkError::transient(format!(
+                "{} not confirmed in time",
+                mode.name
+            ))),
+            _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
+        }
     }
-}
 }
 
 #[cfg(test)]

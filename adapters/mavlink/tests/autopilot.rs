@@ -368,11 +368,7 @@ fn mode_command_is_resent_until_acknowledged() {
 
 #[test]
 fn a_refused_mode_is_reported_not_retried() {
-    let peer = Peer::start(&[
-        "--connection",
-        "udpin:127.0.0.1:0",
-        "--deny-modes",
-    ]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0", "--deny-modes"]);
     let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
@@ -705,7 +701,11 @@ fn r20_overrides_are_one_per_period_and_evenly_spaced_while_commands_stream_at_5
             let _ = v.keepalive(clock.now());
             next_keep += period;
         }
-        std::thread::sleep(next_cmd.min(next_keep).saturating_duration_since(Instant::now()));
+        std::thread::sleep(
+            next_cmd
+                .min(next_keep)
+                .saturating_duration_since(Instant::now()),
+        );
     }
     let t_end = peer.events().last().unwrap()["t"].as_f64().unwrap();
     let t_start = t_end - span.as_secs_f64() + 0.2;
@@ -739,7 +739,10 @@ fn r20_overrides_are_one_per_period_and_evenly_spaced_while_commands_stream_at_5
     let t = Instant::now();
     run(&mut v, &clock, Duration::from_secs(1), None);
     let rate = (peer.of("rc_override").len() - before) as f64 / t.elapsed().as_secs_f64();
-    assert!((20.0..=30.0).contains(&rate), "keep-alive alone: {rate:.1}/s");
+    assert!(
+        (20.0..=30.0).contains(&rate),
+        "keep-alive alone: {rate:.1}/s"
+    );
 }
 
 #[test]
@@ -801,7 +804,11 @@ fn r20_a_refused_mode_is_reported_and_holds_by_default() {
 #[test]
 fn r20_a_refused_mode_with_continue_keeps_driving_and_is_reported() {
     let clock = Clock::new();
-    let (peer, mut v) = tcp_pair(&["--fail-modes", "10"], "on_mode_refused = \"continue\"", &clock);
+    let (peer, mut v) = tcp_pair(
+        &["--fail-modes", "10"],
+        "on_mode_refused = \"continue\"",
+        &clock,
+    );
     let auto = setpoint(20000, 0, Mode::Auto);
     let start = Instant::now();
     while !matches!(v.mode_state(), ModeState::Failed { .. }) {
@@ -821,5 +828,8 @@ fn r20_a_refused_mode_with_continue_keeps_driving_and_is_reported() {
         "{:?}",
         v.health()
     );
-    assert!(peer.of("set_mode").iter().all(|e| e["custom_mode"] != 4), "no HOLD");
+    assert!(
+        peer.of("set_mode").iter().all(|e| e["custom_mode"] != 4),
+        "no HOLD"
+    );
 }
