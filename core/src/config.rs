@@ -1,6 +1,6 @@
 //! The configuration vocabulary every crate shares: the integer policy and the checks that turn
 //! raw settings into validated ones (range, required, not-for-this-case, unique, unknown keys).
-//! Each check records a [`ConfigError`] (`key = value: rule`) in one [`ConfigErrors`] list, so a
+//! Each check records a [`ConfigError`](crate::error::ConfigError) (`key = value: rule`) in one [`ConfigErrors`] list, so a
 //! file's problems are all reported at once.
 //!
 //! # Integer policy

@@ -64,7 +64,7 @@ pub struct VehicleSection {
 /// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
 ///
 /// Files are not read through this tagged enum (serde buffers a tagged table and loses every
-/// line inside it) but through [`parse_vehicle`]; it remains for errors about `adapter` itself.
+/// line inside it) but through `parse_vehicle`; it remains for errors about `adapter` itself.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "adapter", rename_all = "lowercase")]
 pub enum OutputSection {

@@ -1,7 +1,7 @@
 //! Bytes → MAVLink messages, never stalling on bytes that are not a message (issue #20). Pure:
 //! no I/O, no clock.
 //!
-//! The reader thread pushes whatever a read returned; [`Decoder::next`] yields every complete
+//! The reader thread pushes whatever a read returned; [`Decoder::next_frame`] yields every complete
 //! frame whose CRC (with the message's CRC_EXTRA) checks and whose id the `ardupilotmega`
 //! dialect knows, decoded with the mavlink crate's own parser ([`Message::parse`]).
 //!
