@@ -184,6 +184,7 @@ fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
 /// release or safe-mode command after its first driven override (the start-up hold used to end
 /// in the same loop turn as the first command and put the driving adapter in its safe state),
 /// and logs no output failure for a link that was only connecting.
+/// See: docs/mavlink.md.
 #[test]
 fn r20_a_vehicle_starting_under_a_streaming_operator_neither_releases_nor_holds() {
     let mut rig = Rig::new(Path::new(ROVE), "mavlink-start").unwrap_or_else(|e| panic!("{e}"));
@@ -231,8 +232,10 @@ fn r20_a_vehicle_starting_under_a_streaming_operator_neither_releases_nor_holds(
         .find(|p| p.to_string_lossy().ends_with(&format!("-vehicle-{V}.log")))
         .and_then(|p| std::fs::read_to_string(p).ok())
         .unwrap_or_default();
+    // A command before the autopilot's first HEARTBEAT does fail ("no autopilot heard yet") and
+    // is reported; a link that is merely opening is not a failure.
     assert!(
-        !log.contains("output failed"),
-        "no output failure at start:\n{log}"
+        !log.contains("not connected"),
+        "no output failure for a link still connecting:\n{log}"
     );
 }
