@@ -16,6 +16,18 @@
 //!   reader thread and reconnect.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //!
+//! Issue #20 (measured against ArduPilot Rover SITL): the reader decodes the `ardupilotmega`
+//! dialect and resynchronises at once on bytes that are not a message ([`frame`]), TCP links have
+//! `TCP_NODELAY`, the keep-alive sends only when no command did within the period, and a refused
+//! driven mode is reported (and, by default, stops the driving).
+//!
+//! # Known limitations (intentional, not bugs)
+//! - A frame still arriving whose payload holds a whole valid MAVLink frame yields to that inner
+//!   frame (no message an autopilot sends a GCS tunnels MAVLink).
+//! - Mode changes are not enforced continuously: a pilot's mode switch wins until rove's wish
+//!   changes.
+//! - rove never arms the vehicle.
+//!
 //! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
 //! `../shared/notes/ardupilot.md`; the project's pymavlink test autopilot
 //! (`adapters/mavlink/tests/fake_autopilot.py`) behaves the same way.
