@@ -48,6 +48,12 @@ pub const KEEPALIVE_SKIP: f64 = 0.75;
 /// Share of a serial link's bytes the control messages may use; the rest is for the heartbeat,
 /// mode commands and, on half-duplex radios (SiK), the autopilot's telemetry.
 pub const SERIAL_SHARE: f64 = 0.5;
+/// At start, the release (or neutral sticks) waits this long after the autopilot is first heard,
+/// and is not sent at all if a command comes first: an operator already streaming (the arbiter
+/// drops one silent for 100 ms, so a live one sends faster than that) would otherwise see its
+/// first override preceded by a release, a blip of radio values (issue #20). A restart after a
+/// crash still releases, 250 ms late (`rove failsafe` in ExecStopPost releases at once).
+pub const START_RELEASE_GRACE: Duration = Duration::from_millis(250);
 /// MAVLink 2 header (10) and CRC (2) around a payload; MAVLink 1: 6 + 2.
 const V2_OVERHEAD: usize = 12;
 const V1_OVERHEAD: usize = 8;
@@ -85,6 +91,12 @@ pub struct MavlinkVehicle {
     deferred: bool,
     /// A driven mode the autopilot refused (or never confirmed), and why.
     refused: Option<(AutopilotMode, String)>,
+    /// Not driven since start: the start-up failsafe content waits for [`START_RELEASE_GRACE`].
+    fresh: bool,
+    /// When the autopilot was first heard (its target known).
+    heard_at: Option<MonoTime>,
+    /// Commands arrived before the autopilot was heard (logged once).
+    warned_unheard: bool,
 }
 
 /// The shortest spacing of control messages a serial link at `baud` (8N1) carries within
@@ -157,6 +169,9 @@ impl MavlinkVehicle {
             min_gap,
             deferred: false,
             refused: None,
+            fresh: true,
+            heard_at: None,
+            warned_unheard: false,
         })
     }
 
@@ -193,6 +208,9 @@ impl MavlinkVehicle {
             self.mode.on_heartbeat(a.custom_mode);
         }
         self.check_refusal(now);
+        if self.heard_at.is_none() && self.link.target().is_some() {
+            self.heard_at = Some(now);
+        }
         let up = self.heard_recently(&status);
         if up != self.link_up {
             self.link_up = up;
@@ -363,6 +381,9 @@ impl MavlinkVehicle {
 
     /// The failsafe message for this step, if any.
     fn send_failsafe(&mut self, now: MonoTime) -> Result<(), LinkError> {
+        if self.fresh && self.heard_at.is_none_or(|t| now < t + START_RELEASE_GRACE) {
+            return Ok(());
+        }
         match (self.config.failsafe, &mut self.drive) {
             (FailsafeAction::Neutral, _) => self.send_control(now, &MovementCommand::CENTRED),
             (FailsafeAction::Release, Drive::Safe { releases_left }) if *releases_left > 0 => {
@@ -444,6 +465,22 @@ impl OutputAdapter for MavlinkVehicle {
     fn apply(&mut self, now: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError> {
         self.clock = (now, Instant::now());
         self.observe(now);
+        if self.link.target().is_none() {
+            // Nobody to address yet (the autopilot's first HEARTBEAT): routine at start, and
+            // holding the outputs would only delay the first override once it is heard. Not
+            // driving either, so the safe state that follows commands no safe mode.
+            if !self.warned_unheard {
+                self.warned_unheard = true;
+                warn!(
+                    endpoint = %self.config.endpoint,
+                    "mavlink: commands arrive but no autopilot heard yet; they start when it is"
+                );
+            }
+            return Err(LinkError {
+                disposition: Disposition::Silent,
+                detail: format!("mavlink {}: no autopilot heard yet", self.config.endpoint),
+            });
+        }
         if self.config.modes.set_mode {
             let wished = self.config.modes.for_mode(setpoint.mode).clone();
             if self.held_by_refusal(&wished) {
@@ -457,6 +494,7 @@ impl OutputAdapter for MavlinkVehicle {
             self.mode.request(now, &wished);
         }
         self.drive = Drive::Driving(*setpoint);
+        self.fresh = false;
         // The control message first: it is what the latency budget is about.
         let control = if self.budget_allows(now) {
             self.send_control(now, &setpoint.movement)
@@ -631,6 +669,8 @@ impl MavlinkVehicle {
     pub fn failsafe_now(&mut self) -> Result<String, LinkError> {
         let v = self;
         let now = v.now_from_clock();
+        // `rove failsafe` releases at once, start-up grace or not.
+        v.fresh = false;
         v.command_safe_mode(now);
         v.safe_state(now)?;
         v.settle_mode(v.mode_wait());
