@@ -833,3 +833,41 @@ fn r20_a_refused_mode_with_continue_keeps_driving_and_is_reported() {
         "no HOLD"
     );
 }
+
+#[test]
+fn r20_no_start_up_release_when_a_command_comes_within_the_grace() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "[modes]\nset_mode = false", &clock);
+    let heard = Instant::now();
+    // Keep-alives only, for less than the grace: the start-up release is held back…
+    run(&mut v, &clock, Duration::from_millis(100), None);
+    // …and a command in time replaces it.
+    v.apply(clock.now(), &setpoint(20000, 0, Mode::Manual))
+        .unwrap();
+    run(
+        &mut v,
+        &clock,
+        Duration::from_millis(300),
+        Some(setpoint(20000, 0, Mode::Manual)),
+    );
+    assert!(heard.elapsed() > rove_mavlink::vehicle::START_RELEASE_GRACE);
+    let overrides = peer.of("rc_override");
+    assert!(overrides.len() > 5, "{overrides:#?}");
+    assert!(
+        overrides.iter().all(|e| raw(e)[2] == 1805),
+        "only driven overrides, no release first: {overrides:#?}"
+    );
+}
+
+#[test]
+fn r20_the_start_up_release_still_goes_out_when_nobody_drives() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "[modes]\nset_mode = false", &clock);
+    run(&mut v, &clock, Duration::from_millis(500), None);
+    let releases = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] == 0 && raw(e)[2] == 0)
+        .count();
+    assert_eq!(releases, 3, "the release, after the grace, 3 times");
+}
