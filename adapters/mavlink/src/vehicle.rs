@@ -93,7 +93,7 @@ pub struct MavlinkVehicle {
     refused: Option<(AutopilotMode, String)>,
     /// Not driven since start: the start-up failsafe content waits for [`START_RELEASE_GRACE`].
     fresh: bool,
-    /// When the autopilot was first heard (its target known).
+    /// When the autopilot's first HEARTBEAT was seen.
     heard_at: Option<MonoTime>,
     /// Commands arrived before the autopilot was heard (logged once).
     warned_unheard: bool,
@@ -208,7 +208,7 @@ impl MavlinkVehicle {
             self.mode.on_heartbeat(a.custom_mode);
         }
         self.check_refusal(now);
-        if self.heard_at.is_none() && self.link.target().is_some() {
+        if self.heard_at.is_none() && status.autopilot.is_some() {
             self.heard_at = Some(now);
         }
         let up = self.heard_recently(&status);
@@ -394,11 +394,13 @@ impl MavlinkVehicle {
         }
     }
 
-    /// Before the transport was ever open there is nothing to write and nothing has failed:
-    /// the health says "connecting". Reported as silent so that the gateway neither logs an
-    /// output failure nor holds the outputs at start (issue #20).
+    /// Until the autopilot is first heard, a send that fails (the transport still opening, a
+    /// udpin link before the autopilot's first datagram) is routine: the health says why
+    /// ("connecting", "no autopilot heard yet") and the link thread logs a transport that cannot
+    /// open. Reported as silent so that the gateway neither logs an output failure nor holds the
+    /// outputs at start (issue #20). Once the autopilot was heard, failures are transient.
     fn connecting(&self, e: LinkError) -> LinkError {
-        if self.link.first_connect_pending() {
+        if self.link.first_connect_pending() || self.heard_at.is_none() {
             LinkError {
                 disposition: Disposition::Silent,
                 ..e
