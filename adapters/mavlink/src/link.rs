@@ -122,7 +122,8 @@ struct Shared {
     writer: Mutex<Option<Arc<Writer>>>,
     status: Mutex<LinkStatus>,
     acks: Mutex<VecDeque<AckResult>>,
-    /// Bumped on every HEARTBEAT or COMMAND_ACK from our autopilot; waiters wake on `news`.
+    /// Bumped when the transport opens and on every HEARTBEAT or COMMAND_ACK from our
+    /// autopilot; waiters wake on `news`.
     generation: Mutex<u64>,
     news: Condvar,
     stop: AtomicBool,
@@ -192,13 +193,13 @@ impl Link {
         lock(&self.shared.status).clone()
     }
 
-    /// The count of HEARTBEATs and COMMAND_ACKs heard from our autopilot so far; pass it to
-    /// [`Link::wait_for_news`].
+    /// The count of transport opens, HEARTBEATs and COMMAND_ACKs from our autopilot so far;
+    /// pass it to [`Link::wait_for_news`].
     pub fn generation(&self) -> u64 {
         *lock(&self.shared.generation)
     }
 
-    /// Blocks until a HEARTBEAT or COMMAND_ACK newer than `seen` arrives or `limit` passes.
+    /// Blocks until news newer than `seen` (an open, a HEARTBEAT, a COMMAND_ACK) or `limit`.
     pub fn wait_for_news(&self, seen: u64, limit: Duration) {
         let guard = lock(&self.shared.generation);
         let _ = self
@@ -407,6 +408,8 @@ fn run(shared: &Shared) {
             s.connects += 1;
         }
         *lock(&shared.writer) = Some(Arc::new(writer));
+        // A waiter with a configured target needs only an open transport.
+        notify(shared);
         while !shared.stop.load(Ordering::Relaxed) {
             match reader.read(&mut buf) {
                 Ok(n) => {

@@ -646,12 +646,18 @@ impl Drop for MavlinkVehicle {
 /// `rove failsafe` for a MAVLink vehicle: connect, wait (bounded by the link timeout) for the
 /// autopilot, release (or neutral), command the safe mode and wait for its confirmation.
 ///
+/// Discovering the autopilot waits for its first HEARTBEAT (1 Hz on ArduPilot and PX4), so
+/// this takes up to a second; with `target_system` set it starts as soon as the transport is
+/// open and takes milliseconds (the COMMAND_ACK confirms the mode).
+///
 /// # Errors
 /// The autopilot was not heard, or the safe mode was not confirmed.
 pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
     let start = Instant::now();
     let mut v = MavlinkVehicle::new(config.clone(), MonoTime::ZERO)?;
-    while v.link.target().is_none() && start.elapsed() < config.link_timeout {
+    // An open transport and a target: the first HEARTBEAT, or at once with `target_system`.
+    let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.status().connected;
+    while !ready(&v) && start.elapsed() < config.link_timeout {
         let seen = v.link.generation();
         let now = v.now_from_clock();
         let _ = v.keepalive(now);
