@@ -12,19 +12,29 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
   param3 sub mode) switches the mode and is answered with COMMAND_ACK; the HEARTBEAT reports it.
 - HEARTBEAT at --heartbeat-hz (1 Hz like the real one).
 - Optional GCS failsafe (--gcs-failsafe S): no GCS traffic for S seconds -> the safe mode.
+- Default telemetry like ArduPilot's first serial port (--telemetry ardupilot, the default):
+  once a second a burst of ardupilotmega messages outside `common` (AHRS, AHRS2, MEMINFO,
+  SIMSTATE, EKF_STATUS_REPORT), half a second out of phase with the HEARTBEAT. SIMSTATE's roll
+  carries the bytes FE F0 (a MAVLink 1 start claiming 240 bytes) and the burst ends with a
+  well-formed frame of an id no dialect knows, whose payload also holds FE F0: a reader that
+  trusts a stray start byte's length waits for the next burst (issue #20).
+- A mode in --fail-modes (e.g. 10, Rover AUTO without a mission) is answered MAV_RESULT_FAILED
+  with a STATUSTEXT, and the mode stays as it was.
 
 Test knobs: --ignore-mode-commands N (drop the first N mode commands: no ACK), --deny-modes,
 --garbage (random bytes between messages), --foreign-sysid N (a second system that also sends
 HEARTBEATs and COMMAND_ACKs).
 
 Everything it receives and does is written to --record as JSON lines with a monotonic time `t`.
-The first line is {"event": "ready"} once the link is open.
+The first line is {"event": "ready", "port": P} once the link is open; P is the UDP or TCP port
+it listens on, so a test can pass port 0 and read the real one.
 """
 
 import argparse
 import json
 import os
 import random
+import struct
 import sys
 import time
 
@@ -52,6 +62,8 @@ def main():
     p.add_argument("--gcs-failsafe", type=float, default=0.0)
     p.add_argument("--ignore-mode-commands", type=int, default=0)
     p.add_argument("--deny-modes", action="store_true")
+    p.add_argument("--fail-modes", default="", help="comma-separated custom modes answered FAILED")
+    p.add_argument("--telemetry", choices=["ardupilot", "none"], default="ardupilot")
     p.add_argument("--garbage", action="store_true")
     p.add_argument("--foreign-sysid", type=int, default=0)
     p.add_argument("--duration", type=float, default=120.0, help="exit after this long (bounded)")
@@ -71,7 +83,15 @@ def main():
     foreign = None
     if a.foreign_sysid:
         foreign = mavutil.mavlink.MAVLink(m, srcSystem=a.foreign_sysid, srcComponent=1)
-    record("ready", pid=os.getpid())
+    port = None
+    if a.connection.startswith("udpin:"):
+        port = m.port.getsockname()[1]
+    elif a.connection.startswith("tcpin:"):
+        port = m.listen.getsockname()[1]
+    fail_modes = {int(x) for x in a.fail_modes.split(",") if x}
+    next_burst = time.monotonic() + 0.5
+    burst_seq = 0
+    record("ready", pid=os.getpid(), port=port)
 
     mav_type = (mavutil.mavlink.MAV_TYPE_GROUND_ROVER if a.vehicle == "rover"
                 else mavutil.mavlink.MAV_TYPE_QUADROTOR)
@@ -103,6 +123,25 @@ def main():
                                                         mavutil.mavlink.MAV_RESULT_DENIED).pack(foreign))
                 if a.garbage:
                     send_raw(bytes(random.getrandbits(8) for _ in range(40)) + b"\xfd\x09\x00")
+            except OSError:
+                pass
+        if a.telemetry == "ardupilot" and now >= next_burst:
+            next_burst = now + 1.0
+            burst_seq = (burst_seq + 1) % 256
+            stray = struct.unpack("<f", bytes([0x00, 0xFE, 0xF0, 0x3F]))[0]
+            try:
+                m.mav.ahrs_send(0.001, -0.002, 0.0, 0.9, 0.0, 0.01, 0.02)
+                m.mav.ahrs2_send(0.01, -0.02, 1.5, 12.5, -353632640, 1491652352)
+                m.mav.meminfo_send(0, 65535, 131072)
+                m.mav.simstate_send(stray, 0.0, 1.5, 0.1, 0.0, -9.8, 0.0, 0.0, 0.0,
+                                    -353632640, 1491652352)
+                m.mav.ekf_status_report_send(0x1FF, 0.01, 0.02, 0.03, 0.04, 0.0, 0.0)
+                # MAVLink 2, msgid 0x0FEEEE (unknown everywhere), payload with FE F0 inside.
+                payload = bytes([0x11, 0xFE, 0xF0, 0x22, 0x33])
+                head = bytes([len(payload), 0, 0, burst_seq, a.sysid, a.compid, 0xEE, 0xEE, 0x0F])
+                crc = mavutil.mavlink.x25crc(head + payload)
+                crc.accumulate(bytes([0]))  # CRC_EXTRA of an unknown message: anything
+                send_raw(bytes([0xFD]) + head + payload + struct.pack("<H", crc.crc))
             except OSError:
                 pass
         for ch in [c for c, (_, at) in overrides.items() if now - at > a.override_timeout]:
@@ -164,9 +203,14 @@ def main():
                 ignore_modes -= 1
                 record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=False)
                 continue
-            result = (mavutil.mavlink.MAV_RESULT_DENIED if a.deny_modes
-                      else mavutil.mavlink.MAV_RESULT_ACCEPTED)
-            if not a.deny_modes:
+            if a.deny_modes:
+                result = mavutil.mavlink.MAV_RESULT_DENIED
+            elif wanted in fail_modes:
+                result = mavutil.mavlink.MAV_RESULT_FAILED
+                m.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING,
+                                      b"Flight mode change failed")
+            else:
+                result = mavutil.mavlink.MAV_RESULT_ACCEPTED
                 mode = wanted
             record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=True,
                    result=result)

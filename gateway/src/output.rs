@@ -131,7 +131,14 @@ impl ManagedOutput {
             return;
         };
         match adapter.apply(now, setpoint) {
-            Ok(()) => self.recovered(),
+            Ok(()) => {
+                // The command was the retry and it worked: the hold is over. Left set, the next
+                // tick would end it by putting the adapter, already driving, in its safe state
+                // (issue #20: a start-up hold ending in the same turn as the first command made
+                // the MAVLink adapter release and command HOLD).
+                self.hold_until = None;
+                self.recovered();
+            }
             Err(e) => {
                 self.failed(now, &e);
                 self.safe_state(now);
@@ -241,4 +248,82 @@ pub fn failsafe(config: &OutputConfig) -> Result<String, LinkError> {
     let mut adapter = open(config, now)?;
     adapter.safe_state(now)?;
     Ok(adapter.describe())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rove_core::msg::{Mode, MovementCommand};
+    use std::sync::{Arc, Mutex};
+
+    /// Records its calls; the first keep-alive fails (a link still connecting).
+    #[derive(Debug)]
+    struct Flaky(Arc<Mutex<Vec<&'static str>>>);
+
+    impl OutputAdapter for Flaky {
+        fn describe(&self) -> String {
+            "flaky".into()
+        }
+        fn apply(&mut self, _: MonoTime, _: &Setpoint) -> Result<(), LinkError> {
+            self.0
+                .lock()
+                .map_err(|_| LinkError::fatal("poisoned"))?
+                .push("apply");
+            Ok(())
+        }
+        fn safe_state(&mut self, _: MonoTime) -> Result<(), LinkError> {
+            self.0
+                .lock()
+                .map_err(|_| LinkError::fatal("poisoned"))?
+                .push("safe");
+            Ok(())
+        }
+        fn keepalive_period(&self) -> Option<Duration> {
+            Some(Duration::from_secs(10))
+        }
+        fn keepalive(&mut self, _: MonoTime) -> Result<(), LinkError> {
+            let mut calls = self.0.lock().map_err(|_| LinkError::fatal("poisoned"))?;
+            calls.push("keepalive");
+            if calls.len() == 1 {
+                return Err(LinkError::transient("not connected (connecting)"));
+            }
+            Ok(())
+        }
+        fn health(&self) -> Health {
+            Health::Ok
+        }
+    }
+
+    /// Issue #20: a hold that ends in the same loop turn as the first command must not put the
+    /// adapter, already driving, in its safe state.
+    #[test]
+    fn r20_a_successful_apply_ends_the_hold() {
+        let calls = Arc::new(Mutex::new(Vec::new()));
+        let mut out = ManagedOutput {
+            config: OutputConfig::Sim,
+            adapter: Some(Box::new(Flaky(Arc::clone(&calls)))),
+            hold_until: None,
+            next_keepalive: None,
+            last_error: None,
+        };
+        let t0 = MonoTime::ZERO;
+        out.tick(t0); // the keep-alive fails: held safe for RETRY
+        assert_eq!(out.next_deadline(), Some(t0 + RETRY));
+        let sp = Setpoint {
+            movement: MovementCommand::CENTRED,
+            mode: Mode::Manual,
+        };
+        out.apply(t0 + RETRY / 2, &sp);
+        // The first command arrives as the hold ends, before the loop's tick for its end.
+        let end = t0 + RETRY;
+        out.apply(end, &sp);
+        out.tick(end);
+        let calls = calls.lock().map(|c| c.clone()).unwrap_or_default();
+        assert_eq!(
+            calls,
+            ["keepalive", "apply"],
+            "held while holding, then driving with no safe state after it"
+        );
+        assert_eq!(out.health(), Health::Ok);
+    }
 }

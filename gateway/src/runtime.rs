@@ -104,8 +104,10 @@ impl RateLimited {
 }
 
 /// The filter used when `RUST_LOG` is not set: rove at `info`, rustdds at `warn` (its `info`
-/// level logs every discovery step).
-pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn";
+/// level logs every discovery step), and rustdds's UDP sender at `error`: it warns
+/// `send_to_locator: Message size = N` for every datagram over 1500 bytes (discovery data with
+/// several interfaces), which filled the log; its failed sends stay visible as errors.
+pub const DEFAULT_LOG_FILTER: &str = "info,rustdds=warn,rustdds::network::udp_sender=error";
 
 /// How log lines are written to stderr.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -270,14 +272,18 @@ pub struct JsonLines {
 }
 
 impl JsonLines {
-    /// Creates (truncates) the record file.
+    /// Opens the record file for appending, creating it if needed (`--record` appends, as its
+    /// help says: a restarted vehicle adds to the record of the run before).
     ///
     /// # Errors
-    /// The file cannot be created.
+    /// The file cannot be created or opened.
     pub fn create(path: &std::path::Path) -> anyhow::Result<JsonLines> {
         use anyhow::Context;
-        let file = std::fs::File::create(path)
-            .with_context(|| format!("cannot create record {}", path.display()))?;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .with_context(|| format!("cannot open record {}", path.display()))?;
         Ok(JsonLines {
             file: std::io::BufWriter::new(file),
         })
@@ -330,6 +336,20 @@ mod tests {
                 "JOURNAL_STREAM={value:?}"
             );
         }
+    }
+
+    #[test]
+    fn r20_record_appends_across_starts() {
+        let path =
+            std::env::temp_dir().join(format!("rove-r20-record-{}.jsonl", std::process::id()));
+        let _ = std::fs::remove_file(&path);
+        for n in 0..2 {
+            let mut rec = JsonLines::create(&path).expect("opens");
+            rec.write(&serde_json::json!({ "start": n }));
+        }
+        let text = std::fs::read_to_string(&path).expect("reads");
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(text, "{\"start\":0}\n{\"start\":1}\n");
     }
 
     #[test]

@@ -189,6 +189,19 @@ impl FakeAutopilot {
         autopilot
     }
 
+    /// The UDP or TCP port it listens on, when it was started on port 0 (`udpin:…:0`,
+    /// `tcpin:…:0`): it reports the port it got in its `ready` event.
+    ///
+    /// # Panics
+    /// The autopilot reported no port (it was not started listening).
+    pub fn port(&self) -> u16 {
+        let ready = self.wait_for("autopilot ready", |e| e["event"] == "ready");
+        ready["port"]
+            .as_u64()
+            .and_then(|p| u16::try_from(p).ok())
+            .expect("a udpin/tcpin autopilot reports its port")
+    }
+
     /// The record file.
     pub fn record(&self) -> &Path {
         &self.record

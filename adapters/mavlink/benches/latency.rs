@@ -6,7 +6,7 @@
 //! Prints n, mean, p50, p99, max in microseconds. The arbiter's own decision is measured by the
 //! core's criterion bench; DDS delivery by `rove bench handover`.
 
-use mavlink::dialects::common::{
+use mavlink::dialects::ardupilotmega::{
     HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType,
 };
 use mavlink::{MavHeader, MavlinkVersion};

@@ -53,6 +53,11 @@ pub struct MavlinkSettings {
     /// every mapped channel back to the radio) or `"neutral"` (centre values, resent at rate;
     /// the only choice for manual_control, which has no release value).
     pub failsafe: Option<FailsafeAction>,
+    /// What rove does when the autopilot refuses (or never confirms) the mode it wished for the
+    /// operator: `"hold"` (absent: stop driving, release or neutral plus the safe mode, until the
+    /// operator picks another mode) or `"continue"` (keep sending the sticks; the refusal is
+    /// reported either way).
+    pub on_mode_refused: Option<OnModeRefused>,
     /// `[[output.channels]]`: rc_override channel map (absent: the autopilot's default RCMAP).
     #[serde(default)]
     pub channels: Vec<ChannelSettings>,
@@ -100,6 +105,16 @@ pub enum FailsafeAction {
     Release,
     /// Centred sticks, resent at rate.
     Neutral,
+}
+
+/// What to do when the autopilot refuses a driven mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnModeRefused {
+    /// Stop driving: the failsafe content and the safe mode, until the operator's mode changes.
+    Hold,
+    /// Keep driving in whatever mode the autopilot is in.
+    Continue,
 }
 
 /// One `[[output.channels]]` table: an axis on an RC channel.
@@ -380,6 +395,8 @@ pub struct MavlinkConfig {
     pub command_retries: u32,
     /// Failsafe content.
     pub failsafe: FailsafeAction,
+    /// Reaction to a refused driven mode.
+    pub on_mode_refused: OnModeRefused,
     /// rc_override channels (empty for manual_control).
     pub channels: Vec<ChannelConfig>,
     /// manual_control fields.
@@ -570,6 +587,7 @@ impl MavlinkSettings {
             command_timeout: Duration::from_millis(command_timeout.unwrap_or_default()),
             command_retries: command_retries.unwrap_or_default(),
             failsafe,
+            on_mode_refused: self.on_mode_refused.unwrap_or(OnModeRefused::Hold),
             channels,
             manual_control,
             modes,
@@ -775,6 +793,17 @@ mod tests {
         assert_eq!(c.modes.safe.custom_mode, 4);
         assert_eq!(c.modes.for_mode(Mode::Manual).custom_mode, 0);
         assert_eq!(c.manual_control.z_range, ZRange::Signed);
+        assert_eq!(c.on_mode_refused, OnModeRefused::Hold, "safe by default");
+    }
+
+    #[test]
+    fn on_mode_refused_takes_hold_or_continue_only() {
+        let c = parse("on_mode_refused = \"continue\"")
+            .validate()
+            .expect("valid");
+        assert_eq!(c.on_mode_refused, OnModeRefused::Continue);
+        let r: Result<MavlinkSettings, _> = toml::from_str("on_mode_refused = \"ignore\"");
+        assert!(r.is_err_and(|e| e.to_string().contains("on_mode_refused")));
     }
 
     #[test]

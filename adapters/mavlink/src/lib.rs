@@ -10,9 +10,23 @@
 //! # Layout
 //! - [`config`]: the `[output]` keys, validation, per-autopilot mode tables.
 //! - [`encode`]: sticks → override pulses / MANUAL_CONTROL fields; release and ignore values (pure).
+//! - [`frame`]: bytes → messages with immediate resynchronisation; messages → frame bytes (pure).
 //! - [`mode`]: the mode-command machine with retries (pure, stepped with `now`).
-//! - [`link`]: the transport (udpin/udpout/tcpout/serial) with its reader thread and reconnect.
+//! - [`link`]: the transport (udpin/udpout/tcpout with TCP_NODELAY/serial), opened here, with its
+//!   reader thread and reconnect.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
+//!
+//! Issue #20 (measured against ArduPilot Rover SITL): the reader decodes the `ardupilotmega`
+//! dialect and resynchronises at once on bytes that are not a message ([`frame`]), TCP links have
+//! `TCP_NODELAY`, the keep-alive sends only when no command did within the period, and a refused
+//! driven mode is reported (and, by default, stops the driving).
+//!
+//! # Known limitations (intentional, not bugs)
+//! - A frame still arriving whose payload holds a whole valid MAVLink frame yields to that inner
+//!   frame (no message an autopilot sends a GCS tunnels MAVLink).
+//! - Mode changes are not enforced continuously: a pilot's mode switch wins until rove's wish
+//!   changes.
+//! - rove never arms the vehicle.
 //!
 //! How ArduPilot treats a GCS (release values, override expiry, GCS failsafe) is recorded in
 //! docs/mavlink.md, "ArduPilot as a GCS sees it"; the project's pymavlink test autopilot
@@ -22,6 +36,7 @@
 
 pub mod config;
 pub mod encode;
+pub mod frame;
 pub mod link;
 pub mod mode;
 pub mod vehicle;

@@ -1,6 +1,11 @@
 //! The MAVLink link: a thread that (re)connects and reads, and a sender the adapter calls on its
 //! own thread (so a control message leaves in the same call that decided it).
 //!
+//! The transports are opened here rather than by the mavlink crate, so that the reader sees raw
+//! bytes ([`crate::frame::Decoder`] resynchronises at once on bytes that are not a message) and
+//! TCP gets `TCP_NODELAY` (without it the second of two back-to-back messages waited ~44 ms for
+//! Nagle's algorithm). The mavlink crate still encodes and decodes every message.
+//!
 //! The reader thread keeps what the adapter needs in [`LinkStatus`]: whether the transport is
 //! open, which autopilot we talk to (the configured target, else the first HEARTBEAT from a
 //! system that is not a GCS), when it was last heard, its mode and armed state, and the
@@ -9,20 +14,18 @@
 //! every [`RECONNECT`]; UDP needs no reconnect (a restarted autopilot just speaks again).
 
 use crate::config::{Endpoint, MavlinkConfig};
+use crate::frame::{Decoder, encode};
 use crate::mode::AckResult;
-use mavlink::dialects::common::{
+use mavlink::dialects::ardupilotmega::{
     MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavType,
 };
-use mavlink::error::{MessageReadError, MessageWriteError};
-use mavlink::{
-    Connectable, Connection, MavConnection, MavHeader, MavlinkVersion, SerialConfig, TcpConfig,
-    TcpMode, UdpConfig, UdpMode,
-};
+use mavlink::{MavHeader, MavlinkVersion};
 use rove_core::error::LinkError;
 use std::collections::VecDeque;
-use std::io;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::io::{self, Read, Write};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tracing::{debug, info, warn};
@@ -31,8 +34,12 @@ use tracing::{debug, info, warn};
 pub const RECONNECT: Duration = Duration::from_millis(500);
 /// Read timeout, so the thread notices a stop request.
 const READ_TIMEOUT: Duration = Duration::from_millis(100);
+/// TCP connect timeout: an unreachable host must not hold the reader past a few reconnects.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 /// COMMAND_ACKs kept for the adapter; older ones are dropped (a flood cannot grow memory).
 const ACK_QUEUE: usize = 32;
+/// Bytes read at once; a UDP datagram larger than this is cut (MAVLink frames are ≤ 280 bytes).
+const READ_CHUNK: usize = 2048;
 
 /// The autopilot as last heard.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,20 +71,61 @@ pub struct LinkStatus {
     pub last_heartbeat: Option<Instant>,
     /// Messages dropped because they came from another system.
     pub foreign: u64,
-    /// Reads that did not parse (garbage, bad CRC, unknown message).
+    /// Bytes skipped because they were not a message we know (garbage, bad CRC, unknown id).
     pub garbage: u64,
     /// Times the transport was (re)opened.
     pub connects: u64,
 }
 
+/// The sending half of an open transport.
+enum Writer {
+    Tcp(Mutex<TcpStream>),
+    /// The socket, and where to send: fixed (udpout) or the last sender (udpin).
+    Udp(Arc<UdpSocket>, Arc<Mutex<Option<SocketAddr>>>),
+    Serial(Mutex<serialport::TTYPort>),
+}
+
+/// The receiving half.
+enum Reader {
+    Tcp(TcpStream),
+    /// The socket, and the peer to update from each datagram's sender (udpin only).
+    Udp(Arc<UdpSocket>, Option<Arc<Mutex<Option<SocketAddr>>>>),
+    Serial(serialport::TTYPort),
+}
+
+impl Reader {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            Reader::Tcp(s) => match s.read(buf)? {
+                0 => Err(io::Error::new(
+                    io::ErrorKind::UnexpectedEof,
+                    "the autopilot closed the connection",
+                )),
+                n => Ok(n),
+            },
+            Reader::Udp(sock, peer) => {
+                let (n, from) = sock.recv_from(buf)?;
+                if let Some(peer) = peer {
+                    *lock(peer) = Some(from);
+                }
+                Ok(n)
+            }
+            Reader::Serial(p) => p.read(buf),
+        }
+    }
+}
+
 struct Shared {
     endpoint: Endpoint,
-    version: MavlinkVersion,
     target_system: Option<u8>,
     target_component: Option<u8>,
-    conn: Mutex<Option<Arc<Connection<MavMessage>>>>,
+    writer: Mutex<Option<Arc<Writer>>>,
     status: Mutex<LinkStatus>,
     acks: Mutex<VecDeque<AckResult>>,
+    /// Bumped when the transport opens and on every HEARTBEAT or COMMAND_ACK from our
+    /// autopilot; waiters wake on `news`.
+    generation: Mutex<u64>,
+    news: Condvar,
     stop: AtomicBool,
 }
 
@@ -88,7 +136,11 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 /// The link: owns the reader thread; sends on the caller's thread.
 pub struct Link {
     shared: Arc<Shared>,
-    header: MavHeader,
+    version: MavlinkVersion,
+    system_id: u8,
+    component_id: u8,
+    /// Every frame gets its own sequence number, so the autopilot can count losses.
+    sequence: AtomicU8,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -108,16 +160,13 @@ impl Link {
     pub fn start(config: &MavlinkConfig) -> Result<Link, LinkError> {
         let shared = Arc::new(Shared {
             endpoint: config.endpoint.clone(),
-            version: if config.mavlink_version == 1 {
-                MavlinkVersion::V1
-            } else {
-                MavlinkVersion::V2
-            },
             target_system: config.target_system,
             target_component: config.target_component,
-            conn: Mutex::new(None),
+            writer: Mutex::new(None),
             status: Mutex::new(LinkStatus::default()),
             acks: Mutex::new(VecDeque::new()),
+            generation: Mutex::new(0),
+            news: Condvar::new(),
             stop: AtomicBool::new(false),
         });
         let for_thread = Arc::clone(&shared);
@@ -127,11 +176,14 @@ impl Link {
             .map_err(|e| LinkError::transient(format!("mavlink reader thread: {e}")))?;
         Ok(Link {
             shared,
-            header: MavHeader {
-                system_id: u32::from(config.system_id),
-                component_id: config.component_id,
-                sequence: 0,
+            version: if config.mavlink_version == 1 {
+                MavlinkVersion::V1
+            } else {
+                MavlinkVersion::V2
             },
+            system_id: config.system_id,
+            component_id: config.component_id,
+            sequence: AtomicU8::new(0),
             thread: Some(thread),
         })
     }
@@ -139,6 +191,21 @@ impl Link {
     /// A snapshot of the link's state.
     pub fn status(&self) -> LinkStatus {
         lock(&self.shared.status).clone()
+    }
+
+    /// The count of transport opens, HEARTBEATs and COMMAND_ACKs from our autopilot so far;
+    /// pass it to [`Link::wait_for_news`].
+    pub fn generation(&self) -> u64 {
+        *lock(&self.shared.generation)
+    }
+
+    /// Blocks until news newer than `seen` (an open, a HEARTBEAT, a COMMAND_ACK) or `limit`.
+    pub fn wait_for_news(&self, seen: u64, limit: Duration) {
+        let guard = lock(&self.shared.generation);
+        let _ = self
+            .shared
+            .news
+            .wait_timeout_while(guard, limit, |g| *g == seen);
     }
 
     /// The (system, component) to address, once known.
@@ -165,14 +232,20 @@ impl Link {
         lock(&self.shared.acks).drain(..).collect()
     }
 
-    /// Sends `msg` now.
+    /// Whether the transport has never been open yet (the first connect is under way).
+    pub fn first_connect_pending(&self) -> bool {
+        let s = lock(&self.shared.status);
+        s.connects == 0 && s.error.is_none()
+    }
+
+    /// Sends `msg` now, as one write (one datagram, one TCP segment).
     ///
     /// # Errors
     /// Transient: not connected, nobody to send to yet (udpin before the first packet), or the
     /// write failed.
     pub fn send(&self, msg: &MavMessage) -> Result<(), LinkError> {
-        let conn = lock(&self.shared.conn).clone();
-        let Some(conn) = conn else {
+        let writer = lock(&self.shared.writer).clone();
+        let Some(writer) = writer else {
             let why = lock(&self.shared.status)
                 .error
                 .clone()
@@ -182,21 +255,37 @@ impl Link {
                 self.shared.endpoint
             )));
         };
-        match conn.send(&self.header, msg) {
-            Ok(0) => Err(LinkError::transient(format!(
-                "mavlink {}: no peer to send to yet (waiting for the autopilot's first packet)",
-                self.shared.endpoint
-            ))),
-            Ok(_) => Ok(()),
-            Err(MessageWriteError::Io(e)) => Err(LinkError::transient(format!(
-                "mavlink {}: send failed: {e}",
-                self.shared.endpoint
-            ))),
-            Err(e) => Err(LinkError::transient(format!(
+        let header = MavHeader {
+            system_id: u32::from(self.system_id),
+            component_id: self.component_id,
+            sequence: self.sequence.fetch_add(1, Ordering::Relaxed),
+        };
+        let bytes = encode(self.version, header, msg).map_err(|e| {
+            LinkError::transient(format!(
                 "mavlink {}: message not encoded: {e}",
                 self.shared.endpoint
-            ))),
-        }
+            ))
+        })?;
+        let written = match &*writer {
+            Writer::Tcp(s) => lock(s).write_all(&bytes),
+            Writer::Serial(p) => lock(p).write_all(&bytes),
+            Writer::Udp(sock, peer) => {
+                let Some(to) = *lock(peer) else {
+                    return Err(LinkError::transient(format!(
+                        "mavlink {}: no peer to send to yet (waiting for the autopilot's first \
+                         packet)",
+                        self.shared.endpoint
+                    )));
+                };
+                sock.send_to(&bytes, to).map(|_| ())
+            }
+        };
+        written.map_err(|e| {
+            LinkError::transient(format!(
+                "mavlink {}: send failed: {e}",
+                self.shared.endpoint
+            ))
+        })
     }
 }
 
@@ -209,22 +298,62 @@ impl Drop for Link {
     }
 }
 
-fn open(shared: &Shared) -> io::Result<Connection<MavMessage>> {
-    let mut conn: Connection<MavMessage> = match &shared.endpoint {
-        Endpoint::UdpIn(a) => UdpConfig::new(a.clone(), UdpMode::Udpin)
-            .read_timeout(READ_TIMEOUT)
-            .connect()?,
-        Endpoint::UdpOut(a) => UdpConfig::new(a.clone(), UdpMode::Udpout)
-            .read_timeout(READ_TIMEOUT)
-            .connect()?,
-        Endpoint::TcpOut(a) => TcpConfig::new(a.clone(), TcpMode::TcpOut).connect()?,
-        Endpoint::Serial { device, baud } => SerialConfig::new(device.clone(), *baud)
-            .timeout(READ_TIMEOUT)
-            .connect()?,
-    };
-    conn.set_protocol_version(shared.version);
-    conn.set_allow_recv_any_version(true);
-    Ok(conn)
+fn resolve(addr: &str) -> io::Result<SocketAddr> {
+    addr.to_socket_addrs()?.next().ok_or_else(|| {
+        io::Error::new(
+            io::ErrorKind::NotFound,
+            format!("{addr}: no address for this host"),
+        )
+    })
+}
+
+fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
+    Ok(match endpoint {
+        Endpoint::UdpIn(a) => {
+            let sock = Arc::new(UdpSocket::bind(resolve(a)?)?);
+            sock.set_read_timeout(Some(READ_TIMEOUT))?;
+            let peer = Arc::new(Mutex::new(None));
+            (
+                Reader::Udp(Arc::clone(&sock), Some(Arc::clone(&peer))),
+                Writer::Udp(sock, peer),
+            )
+        }
+        Endpoint::UdpOut(a) => {
+            let to = resolve(a)?;
+            let any: SocketAddr = if to.is_ipv4() {
+                ([0, 0, 0, 0], 0).into()
+            } else {
+                (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+            };
+            let sock = Arc::new(UdpSocket::bind(any)?);
+            sock.set_read_timeout(Some(READ_TIMEOUT))?;
+            (
+                Reader::Udp(Arc::clone(&sock), None),
+                Writer::Udp(sock, Arc::new(Mutex::new(Some(to)))),
+            )
+        }
+        Endpoint::TcpOut(a) => {
+            let stream = TcpStream::connect_timeout(&resolve(a)?, CONNECT_TIMEOUT)?;
+            // Each frame is one write and must leave at once (issue #20: Nagle held the second
+            // of two back-to-back messages ~44 ms).
+            stream.set_nodelay(true)?;
+            stream.set_read_timeout(Some(READ_TIMEOUT))?;
+            let writer = stream.try_clone()?;
+            (Reader::Tcp(stream), Writer::Tcp(Mutex::new(writer)))
+        }
+        Endpoint::Serial { device, baud } => {
+            let port = serialport::new(device, *baud)
+                .data_bits(serialport::DataBits::Eight)
+                .parity(serialport::Parity::None)
+                .stop_bits(serialport::StopBits::One)
+                .flow_control(serialport::FlowControl::None)
+                .timeout(READ_TIMEOUT)
+                .open_native()
+                .map_err(io::Error::from)?;
+            let writer = port.try_clone_native().map_err(io::Error::from)?;
+            (Reader::Serial(port), Writer::Serial(Mutex::new(writer)))
+        }
+    })
 }
 
 /// How a read error is handled.
@@ -232,32 +361,29 @@ fn open(shared: &Shared) -> io::Result<Connection<MavMessage>> {
 pub enum ReadOutcome {
     /// Nothing arrived in time: check for stop, read again.
     Idle,
-    /// Bytes that are not a message we know: count, read again.
-    Garbage,
     /// The transport is gone: reconnect.
     Reconnect,
 }
 
 /// Classifies a read error (pure, unit-tested).
-pub fn classify_read(e: &MessageReadError) -> ReadOutcome {
-    match e {
-        MessageReadError::Io(io) => match io.kind() {
-            io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted => {
-                ReadOutcome::Idle
-            }
-            // UDP: an ICMP port-unreachable from a peer that is not up yet surfaces here.
-            io::ErrorKind::ConnectionRefused => ReadOutcome::Idle,
-            _ => ReadOutcome::Reconnect,
-        },
-        MessageReadError::Parse(_) => ReadOutcome::Garbage,
+pub fn classify_read(e: &io::Error) -> ReadOutcome {
+    match e.kind() {
+        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted => {
+            ReadOutcome::Idle
+        }
+        // UDP: an ICMP port-unreachable from a peer that is not up yet surfaces here.
+        io::ErrorKind::ConnectionRefused => ReadOutcome::Idle,
+        _ => ReadOutcome::Reconnect,
     }
 }
 
 fn run(shared: &Shared) {
     let mut logged_error: Option<String> = None;
+    let mut decoder = Decoder::new();
+    let mut buf = vec![0u8; READ_CHUNK];
     while !shared.stop.load(Ordering::Relaxed) {
-        let conn = match open(shared) {
-            Ok(c) => Arc::new(c),
+        let (mut reader, writer) = match open(&shared.endpoint) {
+            Ok(c) => c,
             Err(e) => {
                 let why = format!("{}: {e}", shared.endpoint);
                 if logged_error.as_deref() != Some(why.as_str()) {
@@ -274,26 +400,35 @@ fn run(shared: &Shared) {
         };
         info!(endpoint = %shared.endpoint, "mavlink: link open");
         logged_error = None;
+        decoder.clear();
         {
             let mut s = lock(&shared.status);
             s.connected = true;
             s.error = None;
             s.connects += 1;
         }
-        *lock(&shared.conn) = Some(Arc::clone(&conn));
-        let serial = matches!(shared.endpoint, Endpoint::Serial { .. });
+        *lock(&shared.writer) = Some(Arc::new(writer));
+        // A waiter with a configured target needs only an open transport.
+        notify(shared);
         while !shared.stop.load(Ordering::Relaxed) {
-            // Serial's blocking `recv` retries every error internally (a removed device would
-            // spin there); `try_recv` returns them, with the port's read timeout.
-            let read = if serial { conn.try_recv() } else { conn.recv() };
-            match read {
-                Ok((header, msg)) => handle(shared, header, &msg),
+            match reader.read(&mut buf) {
+                Ok(n) => {
+                    decoder.push(buf.get(..n).unwrap_or(&buf));
+                    let skipped = decoder.skipped();
+                    while let Some(frame) = decoder.next_frame() {
+                        handle(shared, frame.header, &frame.message);
+                    }
+                    let more = decoder.skipped() - skipped;
+                    if more > 0 {
+                        debug!(
+                            bytes = more,
+                            "mavlink: skipped bytes that are not a message"
+                        );
+                        lock(&shared.status).garbage += more;
+                    }
+                }
                 Err(e) => match classify_read(&e) {
                     ReadOutcome::Idle => {}
-                    ReadOutcome::Garbage => {
-                        debug!(error = %e, "mavlink: skipped bytes that do not parse");
-                        lock(&shared.status).garbage += 1;
-                    }
                     ReadOutcome::Reconnect => {
                         warn!(endpoint = %shared.endpoint, error = %e, "mavlink: link lost; reconnecting");
                         let mut s = lock(&shared.status);
@@ -304,11 +439,16 @@ fn run(shared: &Shared) {
                 },
             }
         }
-        *lock(&shared.conn) = None;
+        *lock(&shared.writer) = None;
         if !shared.stop.load(Ordering::Relaxed) {
             std::thread::sleep(RECONNECT);
         }
     }
+}
+
+fn notify(shared: &Shared) {
+    *lock(&shared.generation) += 1;
+    shared.news.notify_all();
 }
 
 fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
@@ -358,6 +498,8 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
             }
             s.autopilot = Some(info);
             s.last_heartbeat = Some(Instant::now());
+            drop(s);
+            notify(shared);
         }
         MavMessage::COMMAND_ACK(ack) if s.autopilot.is_some() || shared.target_system.is_some() => {
             if ack.command != MavCmd::MAV_CMD_DO_SET_MODE {
@@ -378,6 +520,8 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                 acks.pop_front();
             }
             acks.push_back(result);
+            drop(acks);
+            notify(shared);
         }
         _ => {}
     }
@@ -389,29 +533,28 @@ mod tests {
 
     #[test]
     fn read_errors_are_classified() {
-        let io_err = |k| MessageReadError::Io(io::Error::from(k));
+        let e = |k| io::Error::from(k);
         assert_eq!(
-            classify_read(&io_err(io::ErrorKind::WouldBlock)),
+            classify_read(&e(io::ErrorKind::WouldBlock)),
             ReadOutcome::Idle
         );
         assert_eq!(
-            classify_read(&io_err(io::ErrorKind::TimedOut)),
+            classify_read(&e(io::ErrorKind::TimedOut)),
             ReadOutcome::Idle
         );
         assert_eq!(
-            classify_read(&io_err(io::ErrorKind::UnexpectedEof)),
+            classify_read(&e(io::ErrorKind::UnexpectedEof)),
             ReadOutcome::Reconnect,
             "TCP peer closed"
         );
         assert_eq!(
-            classify_read(&io_err(io::ErrorKind::ConnectionReset)),
+            classify_read(&e(io::ErrorKind::ConnectionReset)),
             ReadOutcome::Reconnect
         );
         assert_eq!(
-            classify_read(&MessageReadError::Parse(
-                mavlink::error::ParserError::UnknownMessage { id: 4242 }
-            )),
-            ReadOutcome::Garbage
+            classify_read(&e(io::ErrorKind::ConnectionRefused)),
+            ReadOutcome::Idle,
+            "udp peer not up yet"
         );
     }
 }

@@ -3,25 +3,35 @@
 //! | call | sends |
 //! |---|---|
 //! | `apply` | the control message for the setpoint (RC_CHANNELS_OVERRIDE or MANUAL_CONTROL) at once; a mode command when the wished mode changed |
-//! | `keepalive` (every `1/rate_hz`) | the GCS HEARTBEAT when 1 s has passed; while driving, the control message again; in failsafe, neutral sticks (`failsafe = "neutral"`) or the release message ([`RELEASE_SENDS`] times, then nothing); mode command resends |
+//! | `keepalive` (every `1/rate_hz`) | the GCS HEARTBEAT when 1 s has passed; while driving, the control message again unless one left within [`KEEPALIVE_SKIP`] of the period (one override per period, not one per command *plus* one per period); in failsafe, neutral sticks (`failsafe = "neutral"`) or the release message ([`RELEASE_SENDS`] times, then nothing); mode command resends |
 //! | `safe_state` | release or neutral at once; the safe mode, if rove was driving |
 //! | drop | as `safe_state`, then waits (bounded) for the safe mode's confirmation |
 //!
 //! The safe mode is commanded only when rove *stops* driving (or by [`failsafe`]), never at
 //! start: a gateway restarting must not yank a vehicle a pilot is flying on the radio into HOLD.
+//!
+//! A driven mode the autopilot refuses (ArduPilot Rover: AUTO without a mission →
+//! MAV_RESULT_FAILED) is logged once, shown in the health and detail, and with
+//! `on_mode_refused = "hold"` (the default) rove stops driving: failsafe content and the safe
+//! mode, until the operator's mode changes.
+//!
+//! On a serial link the control messages are kept within [`SERIAL_SHARE`] of the link's bytes
+//! (8N1: baud / 10 bytes/s): a rate above it is lowered, with a logged note, and commands that
+//! come faster are coalesced (the newest is sent when the budget allows).
 
-use crate::config::{FailsafeAction, MavlinkConfig, Method};
+use crate::config::AutopilotMode;
+use crate::config::{Endpoint, FailsafeAction, MavlinkConfig, Method, OnModeRefused};
 use crate::encode::{RC_CHANNELS, manual_control_values, override_values, release_values};
 use crate::link::{Link, LinkStatus};
 use crate::mode::{ModeControl, ModeState};
-use mavlink::dialects::common::{
+use mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage,
     MavModeFlag, MavState, MavType, RC_CHANNELS_OVERRIDE_DATA,
 };
 use rove_core::MonoTime;
 use rove_core::adapter::{Health, OutputAdapter};
 use rove_core::arbiter::Setpoint;
-use rove_core::error::LinkError;
+use rove_core::error::{Disposition, LinkError};
 use rove_core::msg::MovementCommand;
 use std::time::{Duration, Instant};
 use tracing::{info, warn};
@@ -31,6 +41,22 @@ pub const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 /// Release messages sent on entering failsafe (one at once, the rest at the resend rate), so
 /// a lost UDP datagram does not leave a channel overridden until the autopilot's timeout.
 pub const RELEASE_SENDS: u32 = 3;
+/// The keep-alive skips the control message when one left less than this fraction of the period
+/// ago (a command did): 3/4 rather than 1 so that the keep-alive's own phase jitter does not
+/// double a send; the longest gap when commands stop is then under 1.75 periods.
+pub const KEEPALIVE_SKIP: f64 = 0.75;
+/// Share of a serial link's bytes the control messages may use; the rest is for the heartbeat,
+/// mode commands and, on half-duplex radios (SiK), the autopilot's telemetry.
+pub const SERIAL_SHARE: f64 = 0.5;
+/// At start, the release (or neutral sticks) waits this long after the autopilot is first heard,
+/// and is not sent at all if a command comes first: an operator already streaming (the arbiter
+/// drops one silent for 100 ms, so a live one sends faster than that) would otherwise see its
+/// first override preceded by a release, a blip of radio values (issue #20). A restart after a
+/// crash still releases, 250 ms late (`rove failsafe` in ExecStopPost releases at once).
+pub const START_RELEASE_GRACE: Duration = Duration::from_millis(250);
+/// MAVLink 2 header (10) and CRC (2) around a payload; MAVLink 1: 6 + 2.
+const V2_OVERHEAD: usize = 12;
+const V1_OVERHEAD: usize = 8;
 /// MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, DO_SET_MODE's param1.
 const CUSTOM_MODE_ENABLED: f32 = 1.0;
 
@@ -55,6 +81,46 @@ pub struct MavlinkVehicle {
     link_up: bool,
     /// Maps the caller's `now` to wall time for [`Drop`], which gets no `now`.
     clock: (MonoTime, Instant),
+    /// When the last control message (override, MANUAL_CONTROL, release) left.
+    last_control: Option<MonoTime>,
+    /// The keep-alive period: `rate_hz`, or slower if a serial link's byte budget needs it.
+    period: Duration,
+    /// Serial byte budget: the shortest spacing of control messages (zero on UDP/TCP).
+    min_gap: Duration,
+    /// A command not sent yet because of `min_gap`: the keep-alive sends it.
+    deferred: bool,
+    /// A driven mode the autopilot refused (or never confirmed), and why.
+    refused: Option<(AutopilotMode, String)>,
+    /// Not driven since start: the start-up failsafe content waits for [`START_RELEASE_GRACE`].
+    fresh: bool,
+    /// When the autopilot's first HEARTBEAT was seen.
+    heard_at: Option<MonoTime>,
+    /// Commands arrived before the autopilot was heard (logged once).
+    warned_unheard: bool,
+}
+
+/// The shortest spacing of control messages a serial link at `baud` (8N1) carries within
+/// `share` of its bytes, for frames of `frame_bytes` (pure, unit-tested).
+pub fn serial_min_gap(baud: u32, frame_bytes: usize, share: f64) -> Duration {
+    let bytes_per_s = f64::from(baud) / 10.0 * share;
+    if bytes_per_s <= 0.0 {
+        return Duration::from_secs(1);
+    }
+    Duration::from_secs_f64((frame_bytes as f64 / bytes_per_s).min(1.0))
+}
+
+/// The largest control frame this configuration sends, in bytes.
+pub fn control_frame_bytes(config: &MavlinkConfig) -> usize {
+    let payload = match config.method {
+        Method::RcOverride => RC_CHANNELS_OVERRIDE_DATA::ENCODED_LEN,
+        Method::ManualControl => MANUAL_CONTROL_DATA::ENCODED_LEN,
+    };
+    payload
+        + if config.mavlink_version == 1 {
+            V1_OVERHEAD
+        } else {
+            V2_OVERHEAD
+        }
 }
 
 impl MavlinkVehicle {
@@ -65,6 +131,22 @@ impl MavlinkVehicle {
     pub fn new(config: MavlinkConfig, now: MonoTime) -> Result<MavlinkVehicle, LinkError> {
         let link = Link::start(&config)?;
         let mode = ModeControl::new(config.command_timeout, config.command_retries);
+        let min_gap = match &config.endpoint {
+            Endpoint::Serial { baud, .. } => {
+                serial_min_gap(*baud, control_frame_bytes(&config), SERIAL_SHARE)
+            }
+            _ => Duration::ZERO,
+        };
+        let period = config.period.max(min_gap);
+        if period > config.period {
+            info!(
+                endpoint = %config.endpoint,
+                rate_hz = 1.0 / config.period.as_secs_f64(),
+                lowered_to_hz = 1.0 / period.as_secs_f64(),
+                frame_bytes = control_frame_bytes(&config),
+                "mavlink: control rate lowered to fit the serial link's byte budget"
+            );
+        }
         info!(
             endpoint = %config.endpoint,
             system_id = config.system_id,
@@ -82,6 +164,14 @@ impl MavlinkVehicle {
             next_heartbeat: now,
             link_up: false,
             clock: (now, Instant::now()),
+            last_control: None,
+            period,
+            min_gap,
+            deferred: false,
+            refused: None,
+            fresh: true,
+            heard_at: None,
+            warned_unheard: false,
         })
     }
 
@@ -117,6 +207,10 @@ impl MavlinkVehicle {
         if let Some(a) = status.autopilot {
             self.mode.on_heartbeat(a.custom_mode);
         }
+        self.check_refusal(now);
+        if self.heard_at.is_none() && status.autopilot.is_some() {
+            self.heard_at = Some(now);
+        }
         let up = self.heard_recently(&status);
         if up != self.link_up {
             self.link_up = up;
@@ -130,6 +224,59 @@ impl MavlinkVehicle {
                     timeout = ?self.config.link_timeout,
                     "mavlink: no HEARTBEAT from the autopilot"
                 );
+            }
+        }
+    }
+
+    /// A driven mode that failed: report it once and, with `on_mode_refused = "hold"`, stop
+    /// driving. A refusal ends when the autopilot reports the mode after all (HEARTBEAT).
+    fn check_refusal(&mut self, now: MonoTime) {
+        if let Some((mode, _)) = &self.refused
+            && let Some(a) = self.link.status().autopilot
+            && a.custom_mode == mode.custom_mode
+        {
+            info!(mode = %mode.name, "mavlink: the autopilot is in the refused mode after all");
+            self.refused = None;
+        }
+        let ModeState::Failed { mode, reason } = self.mode.state() else {
+            return;
+        };
+        if *mode == self.config.modes.safe
+            || !matches!(self.drive, Drive::Driving(_))
+            || self.refused.as_ref().is_some_and(|(m, _)| m == mode)
+        {
+            return;
+        }
+        let (mode, reason) = (mode.clone(), reason.clone());
+        let hold = self.config.on_mode_refused == OnModeRefused::Hold;
+        warn!(
+            mode = %mode.name,
+            reason = %reason,
+            on_mode_refused = if hold { "hold" } else { "continue" },
+            "mavlink: the autopilot did not take the operator's mode{}",
+            if hold { "; stopping: failsafe and the safe mode until the operator's mode changes" } else { "; driving on in its current mode" }
+        );
+        self.refused = Some((mode, reason));
+        if hold {
+            self.enter_safe(now);
+        }
+    }
+
+    /// Whether commands for `wished` are held back by a refusal.
+    fn held_by_refusal(&self, wished: &AutopilotMode) -> bool {
+        self.config.on_mode_refused == OnModeRefused::Hold
+            && self.refused.as_ref().is_some_and(|(m, _)| m == wished)
+    }
+
+    /// Driving → safe: release (or neutral) and, if modes are ours, the safe mode.
+    fn enter_safe(&mut self, now: MonoTime) {
+        if matches!(self.drive, Drive::Driving(_)) {
+            self.drive = Drive::Safe {
+                releases_left: RELEASE_SENDS,
+            };
+            self.deferred = false;
+            if self.config.modes.set_mode {
+                self.mode.request(now, &self.config.modes.safe);
             }
         }
     }
@@ -160,7 +307,19 @@ impl MavlinkVehicle {
         Ok(())
     }
 
-    fn send_control(&self, movement: &MovementCommand) -> Result<(), LinkError> {
+    /// Whether the serial byte budget lets a control message leave now.
+    fn budget_allows(&self, now: MonoTime) -> bool {
+        self.last_control.is_none_or(|t| now >= t + self.min_gap)
+    }
+
+    /// Whether the keep-alive should repeat the control message (none left recently).
+    fn keepalive_due(&self, now: MonoTime) -> bool {
+        let skip = self.period.mul_f64(KEEPALIVE_SKIP);
+        self.last_control
+            .is_none_or(|t| now >= t + skip.max(self.min_gap))
+    }
+
+    fn send_control(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
         let (sys, comp) = self.target()?;
         let msg = match self.config.method {
             Method::RcOverride => {
@@ -178,16 +337,21 @@ impl MavlinkVehicle {
                 })
             }
         };
-        self.link.send(&msg)
+        self.link.send(&msg)?;
+        self.last_control = Some(now);
+        self.deferred = false;
+        Ok(())
     }
 
-    fn send_release(&self) -> Result<(), LinkError> {
+    fn send_release(&mut self, now: MonoTime) -> Result<(), LinkError> {
         let (sys, comp) = self.target()?;
         self.link.send(&rc_override(
             sys,
             comp,
             &release_values(&self.config.channels),
-        ))
+        ))?;
+        self.last_control = Some(now);
+        Ok(())
     }
 
     fn send_mode_if_due(&mut self, now: MonoTime) -> Result<(), LinkError> {
@@ -216,14 +380,33 @@ impl MavlinkVehicle {
     }
 
     /// The failsafe message for this step, if any.
-    fn send_failsafe(&mut self) -> Result<(), LinkError> {
+    fn send_failsafe(&mut self, now: MonoTime) -> Result<(), LinkError> {
+        if self.fresh && self.heard_at.is_none_or(|t| now < t + START_RELEASE_GRACE) {
+            return Ok(());
+        }
         match (self.config.failsafe, &mut self.drive) {
-            (FailsafeAction::Neutral, _) => self.send_control(&MovementCommand::CENTRED),
+            (FailsafeAction::Neutral, _) => self.send_control(now, &MovementCommand::CENTRED),
             (FailsafeAction::Release, Drive::Safe { releases_left }) if *releases_left > 0 => {
                 *releases_left -= 1;
-                self.send_release()
+                self.send_release(now)
             }
             _ => Ok(()),
+        }
+    }
+
+    /// Until the autopilot is first heard, a send that fails (the transport still opening, a
+    /// udpin link before the autopilot's first datagram) is routine: the health says why
+    /// ("connecting", "no autopilot heard yet") and the link thread logs a transport that cannot
+    /// open. Reported as silent so that the gateway neither logs an output failure nor holds the
+    /// outputs at start (issue #20). Once the autopilot was heard, failures are transient.
+    fn connecting(&self, e: LinkError) -> LinkError {
+        if self.link.first_connect_pending() || self.heard_at.is_none() {
+            LinkError {
+                disposition: Disposition::Silent,
+                ..e
+            }
+        } else {
+            e
         }
     }
 
@@ -284,55 +467,78 @@ impl OutputAdapter for MavlinkVehicle {
     fn apply(&mut self, now: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError> {
         self.clock = (now, Instant::now());
         self.observe(now);
-        self.drive = Drive::Driving(*setpoint);
+        if self.link.target().is_none() {
+            // Nobody to address yet (the autopilot's first HEARTBEAT): routine at start, and
+            // holding the outputs would only delay the first override once it is heard. Not
+            // driving either, so the safe state that follows commands no safe mode.
+            if !self.warned_unheard {
+                self.warned_unheard = true;
+                warn!(
+                    endpoint = %self.config.endpoint,
+                    "mavlink: commands arrive but no autopilot heard yet; they start when it is"
+                );
+            }
+            return Err(LinkError {
+                disposition: Disposition::Silent,
+                detail: format!("mavlink {}: no autopilot heard yet", self.config.endpoint),
+            });
+        }
         if self.config.modes.set_mode {
             let wished = self.config.modes.for_mode(setpoint.mode).clone();
+            if self.held_by_refusal(&wished) {
+                // Refused and on_mode_refused = "hold": stay safe until the operator's mode
+                // changes; the failsafe content goes out at the keep-alive rate.
+                return self.keepalive(now);
+            }
+            if self.refused.as_ref().is_some_and(|(m, _)| *m != wished) {
+                self.refused = None;
+            }
             self.mode.request(now, &wished);
         }
+        self.drive = Drive::Driving(*setpoint);
+        self.fresh = false;
         // The control message first: it is what the latency budget is about.
-        let control = self.send_control(&setpoint.movement);
+        let control = if self.budget_allows(now) {
+            self.send_control(now, &setpoint.movement)
+        } else {
+            self.deferred = true;
+            Ok(())
+        };
         let mode = self.send_mode_if_due(now);
         let heartbeat = self.send_heartbeat_if_due(now);
-        first_error([control, mode, heartbeat])
+        first_error([control, mode, heartbeat]).map_err(|e| self.connecting(e))
     }
 
     fn safe_state(&mut self, now: MonoTime) -> Result<(), LinkError> {
         self.clock = (now, Instant::now());
         self.observe(now);
-        let was_driving = matches!(self.drive, Drive::Driving(_));
-        if was_driving {
-            self.drive = Drive::Safe {
-                releases_left: RELEASE_SENDS,
-            };
-        }
-        if was_driving && self.config.modes.set_mode {
-            self.mode.request(now, &self.config.modes.safe);
-        }
+        self.enter_safe(now);
         let control = match self.link.target() {
             // Nothing to release on an autopilot never heard.
             None => Ok(()),
-            Some(_) => self.send_failsafe(),
+            Some(_) => self.send_failsafe(now),
         };
         let mode = self.send_mode_if_due(now);
         let heartbeat = self.send_heartbeat_if_due(now);
-        first_error([control, mode, heartbeat])
+        first_error([control, mode, heartbeat]).map_err(|e| self.connecting(e))
     }
 
     fn keepalive_period(&self) -> Option<Duration> {
-        Some(self.config.period)
+        Some(self.period)
     }
 
     fn keepalive(&mut self, now: MonoTime) -> Result<(), LinkError> {
         self.clock = (now, Instant::now());
         self.observe(now);
         let heartbeat = self.send_heartbeat_if_due(now);
+        let due = self.keepalive_due(now) || (self.deferred && self.budget_allows(now));
         let control = match self.drive {
-            Drive::Driving(setpoint) => self.send_control(&setpoint.movement),
-            Drive::Safe { .. } if self.link.target().is_some() => self.send_failsafe(),
-            Drive::Safe { .. } => Ok(()),
+            Drive::Driving(setpoint) if due => self.send_control(now, &setpoint.movement),
+            Drive::Safe { .. } if due && self.link.target().is_some() => self.send_failsafe(now),
+            _ => Ok(()),
         };
         let mode = self.send_mode_if_due(now);
-        first_error([heartbeat, control, mode])
+        first_error([heartbeat, control, mode]).map_err(|e| self.connecting(e))
     }
 
     fn health(&self) -> Health {
@@ -353,6 +559,15 @@ impl OutputAdapter for MavlinkVehicle {
                 self.config.endpoint, a.system_id, self.config.link_timeout
             ));
         }
+        if let Some((mode, reason)) = &self.refused {
+            return Health::Degraded(match self.config.on_mode_refused {
+                OnModeRefused::Hold => format!(
+                    "{reason}; holding in {} until the operator's mode changes",
+                    self.config.modes.safe.name
+                ),
+                OnModeRefused::Continue => format!("{reason}; driving on without {}", mode.name),
+            });
+        }
         match self.mode.state() {
             ModeState::Failed { reason, .. } => Health::Degraded(reason.clone()),
             _ => Health::Ok,
@@ -360,7 +575,11 @@ impl OutputAdapter for MavlinkVehicle {
     }
 
     fn detail(&self) -> Option<String> {
-        Some(self.autopilot_summary())
+        let summary = self.autopilot_summary();
+        Some(match &self.refused {
+            Some((mode, _)) => format!("{summary}; {} refused", mode.name),
+            None => summary,
+        })
     }
 }
 
@@ -389,11 +608,22 @@ impl MavlinkVehicle {
     fn settle_mode(&mut self, limit: Duration) {
         let deadline = Instant::now() + limit;
         while matches!(self.mode.state(), ModeState::Pending { .. }) && Instant::now() < deadline {
+            let seen = self.link.generation();
             let now = self.now_from_clock();
             if self.keepalive(now).is_err() && self.link.target().is_none() {
                 break;
             }
-            std::thread::sleep(Duration::from_millis(10));
+            if !matches!(self.mode.state(), ModeState::Pending { .. }) {
+                break;
+            }
+            // Woken by the autopilot's answer, else at the next resend or keep-alive.
+            let next = self
+                .mode
+                .next_deadline()
+                .map_or(self.period, |d| d.saturating_since(now))
+                .min(self.period)
+                .min(deadline.saturating_duration_since(Instant::now()));
+            self.link.wait_for_news(seen, next);
         }
     }
 
@@ -416,27 +646,75 @@ impl Drop for MavlinkVehicle {
 /// `rove failsafe` for a MAVLink vehicle: connect, wait (bounded by the link timeout) for the
 /// autopilot, release (or neutral), command the safe mode and wait for its confirmation.
 ///
+/// Discovering the autopilot waits for its first HEARTBEAT (1 Hz on ArduPilot and PX4), so
+/// this takes up to a second; with `target_system` set it starts as soon as the transport is
+/// open and takes milliseconds (the COMMAND_ACK confirms the mode).
+///
 /// # Errors
 /// The autopilot was not heard, or the safe mode was not confirmed.
 pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
     let start = Instant::now();
     let mut v = MavlinkVehicle::new(config.clone(), MonoTime::ZERO)?;
-    while v.link.target().is_none() && start.elapsed() < config.link_timeout {
+    // An open transport and a target: the first HEARTBEAT, or at once with `target_system`.
+    let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.status().connected;
+    while !ready(&v) && start.elapsed() < config.link_timeout {
+        let seen = v.link.generation();
         let now = v.now_from_clock();
         let _ = v.keepalive(now);
-        std::thread::sleep(Duration::from_millis(20));
+        // The first HEARTBEAT wakes this at once; the keep-alive keeps our heartbeat going.
+        v.link.wait_for_news(seen, v.period);
     }
     v.target()?;
-    let now = v.now_from_clock();
-    v.command_safe_mode(now);
-    v.safe_state(now)?;
-    v.settle_mode(v.mode_wait());
-    match v.mode.state() {
-        ModeState::Failed { reason, .. } => Err(LinkError::transient(reason.clone())),
-        ModeState::Pending { mode, .. } => Err(LinkError::transient(format!(
-            "{} not confirmed in time",
-            mode.name
-        ))),
-        _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
+    v.failsafe_now()
+}
+
+impl MavlinkVehicle {
+    /// `rove failsafe`'s work once the autopilot is known: release (or neutral), command the
+    /// safe mode, and wait (bounded) for its confirmation.
+    ///
+    /// # Errors
+    /// The messages cannot be sent, or the safe mode was refused or not confirmed in time.
+    pub fn failsafe_now(&mut self) -> Result<String, LinkError> {
+        let v = self;
+        let now = v.now_from_clock();
+        // `rove failsafe` releases at once, start-up grace or not.
+        v.fresh = false;
+        v.command_safe_mode(now);
+        v.safe_state(now)?;
+        v.settle_mode(v.mode_wait());
+        v.failsafe_result()
+    }
+
+    fn failsafe_result(&self) -> Result<String, LinkError> {
+        let v = self;
+        match v.mode.state() {
+            ModeState::Failed { reason, .. } => Err(LinkError::transient(reason.clone())),
+            ModeState::Pending { mode, .. } => Err(LinkError::transient(format!(
+                "{} not confirmed in time",
+                mode.name
+            ))),
+            _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn serial_budget_lowers_the_rate_only_on_slow_links() {
+        // RC_CHANNELS_OVERRIDE, MAVLink 2: 38-byte payload + 12 = 50 bytes.
+        let settings: crate::MavlinkSettings = toml::from_str("").expect("parses");
+        let config = settings.validate().expect("valid");
+        assert_eq!(control_frame_bytes(&config), 50);
+        // 57 600 baud: 5 760 B/s, half of it 2 880 B/s → 50 B every 17.4 ms (57 Hz): 25 Hz fits.
+        let gap = serial_min_gap(57_600, 50, SERIAL_SHARE);
+        assert!((17..=18).contains(&gap.as_millis()), "{gap:?}");
+        assert!(gap < config.period);
+        // 9 600 baud: 480 B/s → 104 ms (9.6 Hz): 25 Hz must be lowered.
+        let gap = serial_min_gap(9_600, 50, SERIAL_SHARE);
+        assert_eq!(gap.as_millis(), 104);
+        assert_eq!(serial_min_gap(0, 50, SERIAL_SHARE), Duration::from_secs(1));
     }
 }

@@ -1,6 +1,6 @@
 //! The MAVLink adapter against a real MAVLink peer: `testkit/fake_autopilot.py` (pymavlink, run
-//! by [`rove_testkit::FakeAutopilot`]), playing an ArduPilot (or PX4) autopilot on loopback
-//! UDP/TCP and on a pty pair (socat).
+//! by [`rove_testkit::FakeAutopilot`]), playing an
+//! ArduPilot (or PX4) autopilot on loopback UDP/TCP and on a pty pair (socat).
 //!
 //! Needs Python with `pymavlink` (and `socat` for the serial test); `scripts/test` installs
 //! them, and a test without them fails at once saying what is missing.
@@ -21,13 +21,8 @@ use std::time::{Duration, Instant};
 
 const WAIT: Duration = Duration::from_secs(10);
 
-fn free_port() -> u16 {
-    let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-    let t = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    // One port free for both UDP and TCP is not guaranteed; the UDP one is what most tests use.
-    drop(t);
-    s.local_addr().unwrap().port()
-}
+/// The shared test autopilot (rove-testkit).
+type Peer = FakeAutopilot;
 
 fn vehicle(toml: &str, clock: &Clock) -> MavlinkVehicle {
     let settings: MavlinkSettings = toml::from_str(toml).unwrap();
@@ -105,8 +100,8 @@ fn raw(e: &Value) -> Vec<u64> {
 
 #[test]
 fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\nsystem_id = 250\ncomponent_id = 191"),
@@ -138,8 +133,8 @@ fn gcs_heartbeat_at_1_hz_with_the_configured_ids() {
 
 #[test]
 fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -190,15 +185,15 @@ fn overrides_carry_mapped_values_ignore_the_rest_and_are_resent_at_rate() {
 
 #[test]
 fn manual_control_is_scaled_for_px4() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&[
+    let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--autopilot",
         "px4",
         "--vehicle",
         "copter",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -239,13 +234,13 @@ fn manual_control_is_scaled_for_px4() {
 
 #[test]
 fn mode_command_is_resent_until_acknowledged() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&[
+    let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--ignore-mode-commands",
         "2",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 200"),
@@ -289,28 +284,31 @@ fn mode_command_is_resent_until_acknowledged() {
 
 #[test]
 fn a_refused_mode_is_reported_not_retried() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&[
-        "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
-        "--deny-modes",
-    ]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0", "--deny-modes"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
     v.apply(clock.now(), &setpoint(0, 0, Mode::Auto)).unwrap();
+    // With on_mode_refused = "hold" (default) rove then commands HOLD, which this autopilot
+    // (already in HOLD) denies too but reports in its HEARTBEAT: the refusal of AUTO stays.
     run_until(&mut v, &clock, "refusal seen", |v| {
-        matches!(v.mode_state(), ModeState::Failed { .. })
+        matches!(v.health(), Health::Degraded(_))
     });
     run(&mut v, &clock, Duration::from_millis(500), None);
-    assert_eq!(peer.of("set_mode").len(), 1, "no resend after DENIED");
+    let auto: Vec<Value> = peer
+        .of("set_mode")
+        .into_iter()
+        .filter(|e| e["custom_mode"] == 10)
+        .collect();
+    assert_eq!(auto.len(), 1, "no resend after DENIED");
     assert!(matches!(v.health(), Health::Degraded(why) if why.contains("DENIED")));
 }
 
 #[test]
 fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"udpout:127.0.0.1:{port}\"\ncommand_timeout_ms = 300"),
@@ -361,8 +359,8 @@ fn failsafe_releases_the_channels_and_commands_the_safe_mode_at_once() {
 
 #[test]
 fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&["--connection", &format!("udpin:127.0.0.1:{port}")]);
+    let peer = Peer::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
@@ -385,9 +383,10 @@ fn dropping_the_adapter_releases_and_waits_for_the_safe_mode() {
 
 #[test]
 fn reconnects_after_the_autopilot_restarts_over_tcp() {
-    let port = free_port();
+    let mut peer = Peer::start(&["--connection", "tcpin:127.0.0.1:0"]);
+    let port = peer.port();
+    // The restarted autopilot listens where the first one did (the port the kernel gave it).
     let addr = format!("tcpin:127.0.0.1:{port}");
-    let mut peer = FakeAutopilot::start(&["--connection", &addr]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!("connection = \"tcpout:127.0.0.1:{port}\"\n[modes]\nset_mode = false"),
@@ -402,7 +401,7 @@ fn reconnects_after_the_autopilot_restarts_over_tcp() {
         !v.link_status().connected
     });
     assert!(matches!(v.health(), Health::Down(_)));
-    let peer2 = FakeAutopilot::start(&["--connection", &addr]);
+    let peer2 = Peer::start(&["--connection", &addr]);
     let start = Instant::now();
     while peer2.of("rc_override").is_empty() {
         assert!(
@@ -421,16 +420,16 @@ fn reconnects_after_the_autopilot_restarts_over_tcp() {
 
 #[test]
 fn garbage_and_other_systems_change_nothing() {
-    let port = free_port();
-    let peer = FakeAutopilot::start(&[
+    let peer = Peer::start(&[
         "--connection",
-        &format!("udpin:127.0.0.1:{port}"),
+        "udpin:127.0.0.1:0",
         "--garbage",
         "--foreign-sysid",
         "42",
         "--heartbeat-hz",
         "20",
     ]);
+    let port = peer.port();
     let clock = Clock::new();
     let mut v = vehicle(&format!("connection = \"udpout:127.0.0.1:{port}\""), &clock);
     run_until(&mut v, &clock, "autopilot discovered", discovered);
@@ -480,7 +479,7 @@ fn drives_over_a_serial_pty_pair() {
         assert!(start.elapsed() < WAIT, "socat made no ptys");
         std::thread::sleep(Duration::from_millis(10));
     }
-    let peer = FakeAutopilot::start(&["--connection", a.to_str().unwrap(), "--baud", "57600"]);
+    let peer = Peer::start(&["--connection", a.to_str().unwrap(), "--baud", "57600"]);
     let clock = Clock::new();
     let mut v = vehicle(
         &format!(
@@ -508,4 +507,281 @@ impl Drop for KillOnDrop {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+// Issue #20: the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
+// messages in bursts once a second, a stray 0xFE inside SIMSTATE, an unknown message), on TCP.
+// See: ../shared/notes/ardupilot.md, "rove against ArduRover V4.7.0-dev SITL", and docs/mavlink.md.
+
+/// A TCP autopilot with ArduPilot-like telemetry, and a vehicle connected to it.
+fn tcp_pair(peer_args: &[&str], extra_toml: &str, clock: &Clock) -> (Peer, MavlinkVehicle) {
+    let mut args = vec!["--connection", "tcpin:127.0.0.1:0"];
+    args.extend_from_slice(peer_args);
+    let peer = Peer::start(&args);
+    let port = peer.port();
+    let mut v = vehicle(
+        &format!("connection = \"tcpout:127.0.0.1:{port}\"\n{extra_toml}"),
+        clock,
+    );
+    run_until(&mut v, clock, "autopilot discovered", discovered);
+    (peer, v)
+}
+
+/// Applies `sp` (and keep-alives) until the mode machine confirms `name`.
+fn drive_until_confirmed(v: &mut MavlinkVehicle, clock: &Clock, sp: Setpoint, name: &str) {
+    let start = Instant::now();
+    while !matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == name) {
+        assert!(
+            start.elapsed() < WAIT,
+            "{name} not confirmed: {:?}",
+            v.mode_state()
+        );
+        let _ = v.apply(clock.now(), &sp);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn r20_failsafe_completes_in_under_200_ms_between_telemetry_bursts() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "", &clock);
+    let sp = setpoint(20000, 0, Mode::Manual);
+    let mut times_ms = Vec::new();
+    for run_no in 0..20u64 {
+        drive_until_confirmed(&mut v, &clock, sp, "MANUAL");
+        // Spread the failsafes over the autopilot's 1 s telemetry cycle.
+        run(
+            &mut v,
+            &clock,
+            Duration::from_millis(20 + run_no * 47 % 500),
+            Some(sp),
+        );
+        let t = Instant::now();
+        let done = v.failsafe_now();
+        let took = t.elapsed();
+        assert!(done.is_ok(), "run {run_no}: {done:?}");
+        times_ms.push(took.as_secs_f64() * 1000.0);
+    }
+    let max = times_ms.iter().copied().fold(0.0, f64::max);
+    let mean = times_ms.iter().sum::<f64>() / times_ms.len() as f64;
+    eprintln!(
+        "r20 failsafe (release + HOLD confirmed), 20 runs: max {max:.2} ms, mean {mean:.2} ms: {:?}",
+        times_ms
+            .iter()
+            .map(|t| format!("{t:.1}"))
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        times_ms.iter().all(|&t| t < 200.0),
+        "every failsafe under 200 ms: {times_ms:?}"
+    );
+    // Every mode command was answered at once: none was resent.
+    let sends = peer.of("set_mode");
+    assert_eq!(sends.len(), 40, "20 × MANUAL + 20 × HOLD: {sends:#?}");
+    assert!(sends.iter().all(|e| e["answered"] == true));
+    let releases = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] == 0 && raw(e)[2] == 0)
+        .count();
+    assert!(releases >= 20, "a release in every run ({releases})");
+    assert!(
+        v.link_status().garbage > 0,
+        "the unknown message in every burst was skipped: {:?}",
+        v.link_status()
+    );
+}
+
+#[test]
+fn r20_overrides_are_one_per_period_and_evenly_spaced_while_commands_stream_at_50_hz() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "rate_hz = 25\n[modes]\nset_mode = false", &clock);
+    let period = v.keepalive_period().unwrap();
+    let command_every = Duration::from_millis(20);
+    let span = Duration::from_secs(2);
+    // The gateway's two schedules: a command every 20 ms (operator at 50 Hz), and the
+    // keep-alive every period, each on its own clock.
+    let start = Instant::now();
+    let (mut next_cmd, mut next_keep) = (start, start + period / 3);
+    let mut throttle = 0i16;
+    while start.elapsed() < span {
+        let now = Instant::now();
+        if now >= next_cmd {
+            throttle = throttle.wrapping_add(100) % 30000;
+            let _ = v.apply(clock.now(), &setpoint(throttle, 0, Mode::Manual));
+            next_cmd += command_every;
+        }
+        if now >= next_keep {
+            let _ = v.keepalive(clock.now());
+            next_keep += period;
+        }
+        std::thread::sleep(
+            next_cmd
+                .min(next_keep)
+                .saturating_duration_since(Instant::now()),
+        );
+    }
+    let t_end = peer.events().last().unwrap()["t"].as_f64().unwrap();
+    let t_start = t_end - span.as_secs_f64() + 0.2;
+    let times: Vec<f64> = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] != 0)
+        .filter_map(|e| e["t"].as_f64())
+        .filter(|&t| t >= t_start)
+        .collect();
+    let gaps: Vec<f64> = times.windows(2).map(|w| (w[1] - w[0]) * 1000.0).collect();
+    let max = gaps.iter().copied().fold(0.0, f64::max);
+    let mean = gaps.iter().sum::<f64>() / gaps.len() as f64;
+    let rate = times.len() as f64 / (times.last().unwrap() - times[0]);
+    eprintln!(
+        "r20 overrides while commands stream at 50 Hz: {rate:.1}/s, gap mean {mean:.1} ms, max \
+         {max:.1} ms (period {:.0} ms)",
+        period.as_secs_f64() * 1000.0
+    );
+    assert!(
+        (40.0..=56.0).contains(&rate),
+        "one per command, no keep-alive on top: {rate:.1}/s"
+    );
+    assert!(
+        max < 2.0 * period.as_secs_f64() * 1000.0,
+        "no gap over 2× the period: {max:.1} ms; gaps {gaps:?}"
+    );
+
+    // Commands stop: the keep-alive alone, at rate_hz.
+    let before = peer.of("rc_override").len();
+    let t = Instant::now();
+    run(&mut v, &clock, Duration::from_secs(1), None);
+    let rate = (peer.of("rc_override").len() - before) as f64 / t.elapsed().as_secs_f64();
+    assert!(
+        (20.0..=30.0).contains(&rate),
+        "keep-alive alone: {rate:.1}/s"
+    );
+}
+
+#[test]
+fn r20_a_refused_mode_is_reported_and_holds_by_default() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&["--fail-modes", "10"], "", &clock);
+    drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
+    // AUTO with no mission: MAV_RESULT_FAILED.
+    let auto = setpoint(20000, 0, Mode::Auto);
+    let start = Instant::now();
+    while !matches!(v.health(), Health::Degraded(_)) {
+        assert!(start.elapsed() < WAIT, "refusal not reported");
+        let _ = v.apply(clock.now(), &auto);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let Health::Degraded(why) = v.health() else {
+        unreachable!()
+    };
+    assert!(
+        why.contains("MAV_RESULT_FAILED") && why.contains("HOLD"),
+        "{why}"
+    );
+    assert!(
+        v.detail().is_some_and(|d| d.contains("AUTO refused")),
+        "{:?}",
+        v.detail()
+    );
+    // The operator keeps asking for AUTO: rove holds (release, HOLD) and does not resend AUTO.
+    let t_refused = peer.events().last().unwrap()["t"].as_f64().unwrap();
+    run(&mut v, &clock, Duration::from_millis(600), Some(auto));
+    let after: Vec<Value> = peer
+        .events()
+        .into_iter()
+        .filter(|e| e["t"].as_f64().unwrap() > t_refused)
+        .collect();
+    let tail: Vec<&Value> = after.iter().rev().take(10).collect();
+    assert!(
+        tail.iter()
+            .filter(|e| e["event"] == "rc_override")
+            .all(|e| raw(e)[2] != 1805),
+        "no driven override while held: {tail:#?}"
+    );
+    let auto_sends = peer
+        .of("set_mode")
+        .into_iter()
+        .filter(|e| e["custom_mode"] == 10)
+        .count();
+    assert_eq!(auto_sends, 1, "AUTO not resent");
+    assert!(
+        matches!(v.mode_state(), ModeState::Confirmed(m) if m.name == "HOLD"),
+        "{:?}",
+        v.mode_state()
+    );
+    // Another mode from the operator: driving again.
+    drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
+    assert_eq!(v.health(), Health::Ok);
+}
+
+#[test]
+fn r20_a_refused_mode_with_continue_keeps_driving_and_is_reported() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(
+        &["--fail-modes", "10"],
+        "on_mode_refused = \"continue\"",
+        &clock,
+    );
+    let auto = setpoint(20000, 0, Mode::Auto);
+    let start = Instant::now();
+    while !matches!(v.mode_state(), ModeState::Failed { .. }) {
+        assert!(start.elapsed() < WAIT, "refusal not seen");
+        let _ = v.apply(clock.now(), &auto);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let before = peer.of("rc_override").len();
+    run(&mut v, &clock, Duration::from_millis(300), Some(auto));
+    let driven = peer.of("rc_override")[before..]
+        .iter()
+        .filter(|e| raw(e)[2] == 1805)
+        .count();
+    assert!(driven > 3, "overrides go on: {driven}");
+    assert!(
+        matches!(v.health(), Health::Degraded(why) if why.contains("MAV_RESULT_FAILED")),
+        "{:?}",
+        v.health()
+    );
+    assert!(
+        peer.of("set_mode").iter().all(|e| e["custom_mode"] != 4),
+        "no HOLD"
+    );
+}
+
+#[test]
+fn r20_no_start_up_release_when_a_command_comes_within_the_grace() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "[modes]\nset_mode = false", &clock);
+    let heard = Instant::now();
+    // Keep-alives only, for less than the grace: the start-up release is held back…
+    run(&mut v, &clock, Duration::from_millis(100), None);
+    // …and a command in time replaces it.
+    v.apply(clock.now(), &setpoint(20000, 0, Mode::Manual))
+        .unwrap();
+    run(
+        &mut v,
+        &clock,
+        Duration::from_millis(300),
+        Some(setpoint(20000, 0, Mode::Manual)),
+    );
+    assert!(heard.elapsed() > rove_mavlink::vehicle::START_RELEASE_GRACE);
+    let overrides = peer.of("rc_override");
+    assert!(overrides.len() > 5, "{overrides:#?}");
+    assert!(
+        overrides.iter().all(|e| raw(e)[2] == 1805),
+        "only driven overrides, no release first: {overrides:#?}"
+    );
+}
+
+#[test]
+fn r20_the_start_up_release_still_goes_out_when_nobody_drives() {
+    let clock = Clock::new();
+    let (peer, mut v) = tcp_pair(&[], "[modes]\nset_mode = false", &clock);
+    run(&mut v, &clock, Duration::from_millis(500), None);
+    let releases = peer
+        .of("rc_override")
+        .into_iter()
+        .filter(|e| raw(e)[0] == 0 && raw(e)[2] == 0)
+        .count();
+    assert_eq!(releases, 3, "the release, after the grace, 3 times");
 }
