@@ -17,7 +17,7 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
   SIMSTATE, EKF_STATUS_REPORT), half a second out of phase with the HEARTBEAT. SIMSTATE's roll
   carries the bytes FE F0 (a MAVLink 1 start claiming 240 bytes) and the burst ends with a
   well-formed frame of an id no dialect knows, whose payload also holds FE F0: a reader that
-  trusts a stray start byte's length waits for the next burst (issue #20).
+  trusts a stray start byte's length waits for the next burst.
 - A mode in --fail-modes (e.g. 10, Rover AUTO without a mission) is answered MAV_RESULT_FAILED
   with a STATUSTEXT, and the mode stays as it was.
 

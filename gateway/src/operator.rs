@@ -311,15 +311,38 @@ pub async fn run(
     // The FINISHes and disposals above are reliable writes; leaving the domain at once would
     // drop them before every reader has them (seen: a replier never resumed). Wait, bounded,
     // for the acknowledgments. Blocking is fine here: the event loop is over.
+    // Each writer is named: one that had nothing unacknowledged, or whose readers all
+    // answered, is quiet; a timeout means some matched reader (maybe one that has itself left)
+    // did not answer in time, and those peers fall back to the command timeout.
     let wait = SHUTDOWN_ACK_WAIT;
     let acked = [
-        writers.requests.wait_for_acknowledgments(wait),
-        writers.regular.wait_for_acknowledgments(wait),
-        writers.priority.wait_for_acknowledgments(wait),
-        info_writer.wait_for_acknowledgments(wait),
+        (
+            "RequestControl (FINISH)",
+            writers.requests.wait_for_acknowledgments(wait),
+        ),
+        (
+            "ControlCommand (release)",
+            writers.regular.wait_for_acknowledgments(wait),
+        ),
+        (
+            "priority ControlCommand (release)",
+            writers.priority.wait_for_acknowledgments(wait),
+        ),
+        (
+            "DeviceInfo (withdrawal)",
+            info_writer.wait_for_acknowledgments(wait),
+        ),
     ];
-    if !acked.iter().all(|r| matches!(r, Ok(true))) {
-        warn!("not every peer acknowledged the release before exit");
+    for (writer, result) in acked {
+        match result {
+            Ok(true) => {}
+            Ok(false) => warn!(
+                writer,
+                wait_ms = wait.as_millis() as u64,
+                "a matched reader did not acknowledge before exit; it falls back to its timeout"
+            ),
+            Err(e) => warn!(writer, cause = ?e, "cannot wait for acknowledgments"),
+        }
     }
     Ok(())
 }

@@ -134,7 +134,7 @@ impl ManagedOutput {
             Ok(()) => {
                 // The command was the retry and it worked: the hold is over. Left set, the next
                 // tick would end it by putting the adapter, already driving, in its safe state
-                // (issue #20: a start-up hold ending in the same turn as the first command made
+                // (seen against ArduPilot: a start-up hold ending in the same turn as the first command made
                 // the MAVLink adapter release and command HOLD).
                 self.hold_until = None;
                 self.recovered();

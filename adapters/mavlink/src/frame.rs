@@ -1,4 +1,4 @@
-//! Bytes → MAVLink messages, never stalling on bytes that are not a message (issue #20). Pure:
+//! Bytes → MAVLink messages, never stalling on bytes that are not a message. Pure:
 //! no I/O, no clock.
 //!
 //! The reader thread pushes whatever a read returned; [`Decoder::next_frame`] yields every complete

@@ -334,7 +334,7 @@ fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
         }
         Endpoint::TcpOut(a) => {
             let stream = TcpStream::connect_timeout(&resolve(a)?, CONNECT_TIMEOUT)?;
-            // Each frame is one write and must leave at once (issue #20: Nagle held the second
+            // Each frame is one write and must leave at once (seen against ArduPilot: Nagle held the second
             // of two back-to-back messages ~44 ms).
             stream.set_nodelay(true)?;
             stream.set_read_timeout(Some(READ_TIMEOUT))?;

@@ -51,7 +51,7 @@ pub const SERIAL_SHARE: f64 = 0.5;
 /// At start, the release (or neutral sticks) waits this long after the autopilot is first heard,
 /// and is not sent at all if a command comes first: an operator already streaming (the arbiter
 /// drops one silent for 100 ms, so a live one sends faster than that) would otherwise see its
-/// first override preceded by a release, a blip of radio values (issue #20). A restart after a
+/// first override preceded by a release, a blip of radio values. A restart after a
 /// crash still releases, 250 ms late (`rove failsafe` in ExecStopPost releases at once).
 pub const START_RELEASE_GRACE: Duration = Duration::from_millis(250);
 /// MAVLink 2 header (10) and CRC (2) around a payload; MAVLink 1: 6 + 2.
@@ -398,7 +398,7 @@ impl MavlinkVehicle {
     /// udpin link before the autopilot's first datagram) is routine: the health says why
     /// ("connecting", "no autopilot heard yet") and the link thread logs a transport that cannot
     /// open. Reported as silent so that the gateway neither logs an output failure nor holds the
-    /// outputs at start (issue #20). Once the autopilot was heard, failures are transient.
+    /// outputs at start. Once the autopilot was heard, failures are transient.
     fn connecting(&self, e: LinkError) -> LinkError {
         if self.link.first_connect_pending() || self.heard_at.is_none() {
             LinkError {

@@ -511,7 +511,7 @@ impl Drop for KillOnDrop {
 
 // Issue #20: the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
 // messages in bursts once a second, a stray 0xFE inside SIMSTATE, an unknown message), on TCP.
-// See: ../shared/notes/ardupilot.md, "rove against ArduRover V4.7.0-dev SITL", and docs/mavlink.md.
+// See: docs/mavlink.md, "ArduPilot as a GCS sees it".
 
 /// A TCP autopilot with ArduPilot-like telemetry, and a vehicle connected to it.
 fn tcp_pair(peer_args: &[&str], extra_toml: &str, clock: &Clock) -> (Peer, MavlinkVehicle) {
