@@ -176,3 +176,57 @@ fn r20_a_vehicle_starting_under_a_streaming_operator_neither_releases_nor_holds(
         "no output failure for a link still connecting:\n{log}"
     );
 }
+
+/// Regression (rove against ArduPilot SITL, where `rove failsafe` took about a second because
+/// the reader sat on a stray start byte): `rove failsafe` — release plus HOLD, confirmed —
+/// completes in under 200 ms, 20 runs in a row, against an autopilot that sends ArduPilot's
+/// default telemetry bursts. `target_system` is set, as docs/mavlink.md asks for `ExecStopPost`
+/// (without it the command first waits for the autopilot's 1 Hz HEARTBEAT). MAVLink only, on
+/// the host's loopback: no DDS participant is involved.
+#[test]
+fn r20_rove_failsafe_completes_within_200_ms_twenty_times() {
+    let ap = FakeAutopilot::start(&["--connection", "udpin:127.0.0.1:0"]);
+    let scratch = crate::util::Scratch::new("mavlink-failsafe");
+    let config = scratch.dir.join("vehicle.toml");
+    let output = format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:{}\"\ntarget_system = 1\n",
+        ap.port()
+    );
+    std::fs::write(&config, crate::util::vehicle_toml(V, &output)).expect("config");
+    let mut times = Vec::new();
+    for run in 0..20 {
+        let start = std::time::Instant::now();
+        let out = std::process::Command::new(crate::util::ROVE)
+            .args(["failsafe", "-c"])
+            .arg(&config)
+            .output()
+            .expect("run rove failsafe");
+        let took = start.elapsed();
+        assert!(
+            out.status.success(),
+            "run {run}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        times.push(took.as_secs_f64() * 1000.0);
+    }
+    eprintln!("rove failsafe, ms: {times:.1?}");
+    assert!(
+        times.iter().all(|&ms| ms < 200.0),
+        "every run under 200 ms: {times:.1?}"
+    );
+    // Each run commanded HOLD (custom mode 4) and released the channels.
+    let holds = ap
+        .of("set_mode")
+        .iter()
+        .filter(|e| e["custom_mode"] == 4)
+        .count();
+    let releases = ap
+        .of("rc_override")
+        .iter()
+        .filter(|e| raw(e).first() == Some(&0))
+        .count();
+    assert!(
+        holds >= 20 && releases >= 20,
+        "holds {holds}, releases {releases}"
+    );
+}
