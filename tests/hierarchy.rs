@@ -113,7 +113,47 @@ fn a_crashed_owner_hands_over_after_the_command_timeout_and_nobody_means_failsaf
 
 #[test]
 fn active_handover_accept_drive_and_finish() {
-    let mut rig = Rig::new("accept");
+    let (mut rig, record, laptop, tablet) = granted_to_the_tablet("accept");
+
+    // FINISH (the tablet stops gracefully): the laptop, standing by, drives again.
+    let finish = wall_us();
+    rig.procs[tablet].terminate();
+    let back = wait_for_output(&record, Some(11), finish).expect("laptop resumes");
+    eprintln!(
+        "FINISH → laptop applied after {:.1} ms",
+        (back.wall_us - finish) as f64 / 1000.0
+    );
+    // No ping-pong: once the laptop was back, the tablet never drove again.
+    assert!(
+        records(&record)
+            .iter()
+            .filter(|o| o.wall_us > back.wall_us)
+            .all(|o| o.owner != Some(13))
+    );
+    assert_the_bystander_never_drove(&record, laptop);
+}
+
+/// The grant holder crashes: no FINISH ever comes. The vehicle falls back to the standing-by
+/// owner once the holder's stream times out, and the owner, seeing itself named again, resumes.
+#[test]
+fn a_crashed_grant_holder_gives_the_vehicle_back_to_the_owner() {
+    let (mut rig, record, laptop, tablet) = granted_to_the_tablet("holder-crash");
+    let crash = wall_us();
+    rig.procs[tablet].crash();
+    let back = wait_for_output(&record, Some(11), crash).expect("laptop resumes");
+    assert_eq!(back.throttle, Some(1000));
+    eprintln!(
+        "holder crash → laptop applied after {:.1} ms",
+        (back.wall_us - crash) as f64 / 1000.0
+    );
+    assert_the_bystander_never_drove(&record, laptop);
+}
+
+/// A laptop (auto-accepts every request) drives; a weaker desktop bystander streams; a tablet
+/// requests and is granted. Returns the rig, the vehicle's record, the time the laptop first
+/// drove and the tablet's process index.
+fn granted_to_the_tablet(test: &str) -> (Rig, std::path::PathBuf, u64, usize) {
+    let mut rig = Rig::new(test);
     let record = rig.vehicle(V);
     rig.operator(
         11,
@@ -131,62 +171,14 @@ fn active_handover_accept_drive_and_finish() {
     let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     let granted = wait_for_output(&record, Some(13), asked).expect("tablet granted");
     assert_eq!(granted.throttle, Some(3000));
-
-    // FINISH (the tablet stops gracefully): the laptop, standing by, drives again.
-    let finish = wall_us();
-    rig.procs[tablet].terminate();
-    let back = wait_for_output(&record, Some(11), finish).expect("laptop resumes");
-    eprintln!(
-        "FINISH → laptop applied after {:.1} ms",
-        (back.wall_us - finish) as f64 / 1000.0
-    );
-    let all = records(&record);
-    // No ping-pong: once the laptop was back, the tablet never drove again.
-    assert!(
-        all.iter()
-            .filter(|o| o.wall_us > back.wall_us)
-            .all(|o| o.owner != Some(13))
-    );
-    assert!(
-        all.iter()
-            .filter(|o| o.wall_us > laptop.wall_us)
-            .all(|o| o.owner != Some(31)),
-        "the bystander drove"
-    );
+    (rig, record, laptop.wall_us, tablet)
 }
 
-/// The grant holder crashes: no FINISH ever comes. The vehicle falls back to the standing-by
-/// owner once the holder's stream times out, and the owner, seeing itself named again, resumes.
-#[test]
-fn a_crashed_grant_holder_gives_the_vehicle_back_to_the_owner() {
-    let mut rig = Rig::new("holder-crash");
-    let record = rig.vehicle(V);
-    rig.operator(
-        11,
-        "stationary",
-        "laptop",
-        &[V],
-        1000,
-        "[handover]\nauto_accept = \"always\"\n",
-        &[],
-    );
-    let laptop = wait_for_output(&record, Some(11), 0).expect("laptop drives");
-    rig.operator(31, "remote", "desktop", &[V], 500, "", &[]);
-    let asked = wall_us();
-    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
-    wait_for_output(&record, Some(13), asked).expect("tablet granted");
-    let crash = wall_us();
-    rig.procs[tablet].crash();
-    let back = wait_for_output(&record, Some(11), crash).expect("laptop resumes");
-    assert_eq!(back.throttle, Some(1000));
-    eprintln!(
-        "holder crash → laptop applied after {:.1} ms",
-        (back.wall_us - crash) as f64 / 1000.0
-    );
+fn assert_the_bystander_never_drove(record: &std::path::Path, since_us: u64) {
     assert!(
-        records(&record)
+        records(record)
             .iter()
-            .filter(|o| o.wall_us > laptop.wall_us)
+            .filter(|o| o.wall_us > since_us)
             .all(|o| o.owner != Some(31)),
         "the bystander drove"
     );

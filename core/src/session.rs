@@ -775,14 +775,11 @@ impl OperatorSession {
                         let probing =
                             self.handover.resume(vehicle) && self.standby.remove(&vehicle);
                         self.selected = Some(vehicle);
-                        self.drive(vehicle, DriveReason::Commanded, stamp, out);
-                        if probing && !self.input_live {
-                            // Our PROBEs kept us live on the vehicle: release (as on Resume).
-                            out.push(Effect::Release {
-                                writer: Writer::Regular,
-                                vehicle,
-                            });
-                        }
+                        out.report(Report::Driving {
+                            vehicle,
+                            why: DriveReason::Commanded,
+                        });
+                        self.drive_or_pause(vehicle, probing, stamp, out);
                     }
                 }
             }
@@ -842,6 +839,13 @@ impl OperatorSession {
     /// Drives `vehicle` with the regular writer now, or once the input is live.
     fn drive(&mut self, vehicle: DeviceId, why: DriveReason, stamp: TimeT, out: &mut Out) {
         out.report(Report::Driving { vehicle, why });
+        self.drive_or_pause(vehicle, false, stamp, out);
+    }
+
+    /// Streams to `vehicle` now if the input is live, else pauses it until it is. `probing`:
+    /// our standby PROBEs kept us live on the vehicle, so a pause releases it, and the vehicle
+    /// hands over at once rather than after a command timeout.
+    fn drive_or_pause(&mut self, vehicle: DeviceId, probing: bool, stamp: TimeT, out: &mut Out) {
         if self.input_live {
             self.driving.insert(vehicle);
             out.write(
@@ -850,6 +854,12 @@ impl OperatorSession {
             );
         } else {
             self.paused.insert(vehicle);
+            if probing {
+                out.push(Effect::Release {
+                    writer: Writer::Regular,
+                    vehicle,
+                });
+            }
         }
     }
 
@@ -975,21 +985,7 @@ impl OperatorSession {
                     self.standby.remove(&vehicle);
                     let live = self.input_live;
                     out.report(Report::Resumed { vehicle, live });
-                    if live {
-                        self.driving.insert(vehicle);
-                        out.write(
-                            Writer::Regular,
-                            self.command(vehicle, CommandType::Movement, stamp),
-                        );
-                    } else {
-                        // Our standby PROBEs kept us live on the vehicle: release, so that it
-                        // hands over at once rather than after a command timeout.
-                        self.paused.insert(vehicle);
-                        out.push(Effect::Release {
-                            writer: Writer::Regular,
-                            vehicle,
-                        });
-                    }
+                    self.drive_or_pause(vehicle, true, stamp, out);
                 }
             }
         }
