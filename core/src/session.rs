@@ -26,6 +26,7 @@
 //! - **Stop**: [`OperatorSession::stop`] finishes held grants and releases every instance.
 
 use crate::adapter::{InputAction, InputEvent};
+use crate::arbiter::{Event as ArbiterEvent, ParticipantId, WriterId};
 use crate::handover::{Action, Handover, HandoverConfig, Outcome};
 use crate::hierarchy::Strength;
 use crate::msg::{
@@ -161,6 +162,21 @@ pub enum Writer {
     Priority,
 }
 
+impl Writer {
+    /// The stream's identity when the session's effects go straight to an arbiter, as in the
+    /// in-process demo and the tests: writer 1 (regular) or 2 (priority) of `participant`.
+    /// Over DDS the binding derives writer ids from GUIDs instead.
+    pub fn id(self, participant: ParticipantId) -> WriterId {
+        WriterId {
+            participant,
+            entity: match self {
+                Writer::Regular => 1,
+                Writer::Priority => 2,
+            },
+        }
+    }
+}
+
 /// What the operator loop must do.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Effect {
@@ -187,6 +203,44 @@ pub enum Effect {
     Confirm(InputAction),
     /// The command in this step was not carried out, and why (for the person or API client).
     Refused(String),
+}
+
+impl Effect {
+    /// What this effect, delivered straight to `vehicle`'s arbiter at `arrival`, means to it:
+    /// a sample or a release of one of `participant`'s writers (the regular one at
+    /// `strength`, the priority one at [`Strength::PRIORITY`]), or a grant event for a
+    /// RequestControl ([`ArbiterEvent::from_request_control`]). For the in-process demo and
+    /// the tests; the operator loop carries effects out over DDS instead.
+    pub fn arbiter_event(
+        &self,
+        vehicle: DeviceId,
+        participant: ParticipantId,
+        strength: Strength,
+        arrival: MonoTime,
+    ) -> Option<ArbiterEvent> {
+        match self {
+            Effect::Write { writer, command } => Some(ArbiterEvent::Sample {
+                writer: writer.id(participant),
+                strength: match writer {
+                    Writer::Regular => strength,
+                    Writer::Priority => Strength::PRIORITY,
+                },
+                command: *command,
+                arrival,
+            }),
+            // A release is per instance: another vehicle's means nothing here.
+            Effect::Release { writer, vehicle: v } if *v == vehicle => {
+                Some(ArbiterEvent::Released {
+                    writer: writer.id(participant),
+                })
+            }
+            Effect::Send(msg) => ArbiterEvent::from_request_control(vehicle, msg),
+            Effect::Release { .. }
+            | Effect::Report(_)
+            | Effect::Confirm(_)
+            | Effect::Refused(_) => None,
+        }
+    }
 }
 
 /// Something worth telling the operator's log and console.
@@ -491,11 +545,6 @@ impl OperatorSession {
             pending_request: config.request.map(|v| (v, now + config.heartbeat * 2)),
             ask_after: now + config.heartbeat,
         }
-    }
-
-    /// Our device id.
-    pub fn me(&self) -> DeviceId {
-        self.me
     }
 
     /// Steps the session with `event` at `now`; `stamp` is the wall-clock time put on samples

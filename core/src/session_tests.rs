@@ -595,3 +595,44 @@ fn yielding_without_live_input_releases_instead_of_standing_by() {
     assert!(writes(&out).is_empty());
     assert!(s.streams().standby.is_empty());
 }
+
+#[test]
+fn direct_delivery_maps_writes_releases_and_grants_for_this_vehicle_only() {
+    let p = ParticipantId(7);
+    let write = Effect::Write {
+        writer: Writer::Priority,
+        command: sample(V, CommandType::Movement, 1, Mode::Manual, 1),
+    };
+    assert!(matches!(
+        write.arbiter_event(V, p, Strength(220), ms(1)),
+        Some(ArbiterEvent::Sample { writer, strength: Strength::PRIORITY, .. })
+            if writer == Writer::Priority.id(p)
+    ));
+    let release = |vehicle| Effect::Release {
+        writer: Writer::Regular,
+        vehicle,
+    };
+    assert_eq!(
+        release(V).arbiter_event(V, p, Strength(220), ms(1)),
+        Some(ArbiterEvent::Released {
+            writer: Writer::Regular.id(p)
+        })
+    );
+    assert_eq!(release(W).arbiter_event(V, p, Strength(220), ms(1)), None);
+    let finish = RequestControl {
+        src_id: ME,
+        dest_id: V,
+        current_controller_id: OTHER,
+        src_priority: 220,
+        ack: Ack::Finish,
+        timestamp: stamp(1),
+    };
+    assert!(matches!(
+        Effect::Send(finish).arbiter_event(V, p, Strength(220), ms(1)),
+        Some(ArbiterEvent::GrantFinished { holder: ME, .. })
+    ));
+    assert_eq!(
+        Effect::Refused("no".into()).arbiter_event(V, p, Strength(220), ms(1)),
+        None
+    );
+}

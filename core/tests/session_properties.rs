@@ -23,7 +23,7 @@
 use proptest::prelude::*;
 use rove_core::MonoTime;
 use rove_core::adapter::InputEvent;
-use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId, WriterId};
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId};
 use rove_core::handover::{AutoAccept, HandoverConfig};
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
@@ -89,14 +89,8 @@ fn policy() -> impl Strategy<Value = AutoAccept> {
     ])
 }
 
-fn writer(i: usize, w: Writer) -> WriterId {
-    WriterId {
-        participant: ParticipantId(u128::from(IDS[i].unsigned_abs())),
-        entity: match w {
-            Writer::Regular => 1,
-            Writer::Priority => 2,
-        },
-    }
+fn participant(i: usize) -> ParticipantId {
+    ParticipantId(u128::from(IDS[i].unsigned_abs()))
 }
 
 struct World {
@@ -165,58 +159,30 @@ impl World {
         while let Some((i, effect)) = queue.pop_front() {
             budget -= 1;
             prop_assert!(budget > 0, "effects never settle");
-            match effect {
-                Effect::Write { writer: w, command } => {
-                    let s = &self.sessions[i];
-                    if w == Writer::Regular && command.command_type == CommandType::Movement {
-                        prop_assert!(s.input().2, "op {i} drives without live input");
-                        prop_assert!(
-                            !s.handover().has_yielded(V),
-                            "op {i} drives a vehicle it yielded"
-                        );
-                    }
-                    let strength = match w {
-                        Writer::Regular => Strength(STRENGTHS[i]),
-                        Writer::Priority => Strength::PRIORITY,
-                    };
-                    let d = self.vehicle.step(
-                        self.now,
-                        Event::Sample {
-                            writer: writer(i, w),
-                            strength,
-                            command,
-                            arrival: self.now,
-                        },
+            if let Effect::Write { writer, command } = &effect {
+                let s = &self.sessions[i];
+                if *writer == Writer::Regular && command.command_type == CommandType::Movement {
+                    prop_assert!(s.input().2, "op {i} drives without live input");
+                    prop_assert!(
+                        !s.handover().has_yielded(V),
+                        "op {i} drives a vehicle it yielded"
                     );
-                    self.check_output(d.output)?;
                 }
-                Effect::Release { writer: w, .. } => {
-                    let d = self.vehicle.step(
-                        self.now,
-                        Event::Released {
-                            writer: writer(i, w),
-                        },
-                    );
-                    self.check_output(d.output)?;
-                }
-                Effect::Send(msg) => {
-                    if let Some(event) = Event::from_request_control(V, &msg) {
-                        let d = self.vehicle.step(self.now, event);
-                        self.check_output(d.output)?;
-                    }
-                    for j in 0..3 {
-                        if self.live(j) {
-                            let (now, stamp) = (self.now, self.stamp());
-                            let more = self.sessions[j].step(
-                                now,
-                                stamp,
-                                SessionEvent::RequestControl(msg),
-                            );
-                            queue.extend(more.into_iter().map(|e| (j, e)));
-                        }
+            }
+            let strength = Strength(STRENGTHS[i]);
+            if let Some(event) = effect.arbiter_event(V, participant(i), strength, self.now) {
+                let d = self.vehicle.step(self.now, event);
+                self.check_output(d.output)?;
+            }
+            if let Effect::Send(msg) = effect {
+                for j in 0..3 {
+                    if self.live(j) {
+                        let (now, stamp) = (self.now, self.stamp());
+                        let more =
+                            self.sessions[j].step(now, stamp, SessionEvent::RequestControl(msg));
+                        queue.extend(more.into_iter().map(|e| (j, e)));
                     }
                 }
-                Effect::Report(_) | Effect::Confirm(_) | Effect::Refused(_) => {}
             }
         }
         Ok(())
@@ -355,7 +321,7 @@ proptest! {
                         // values; it takes no more events.
                         w.gone[i] = Some(w.now);
                         w.deliver(i, effects)?;
-                        let participant = writer(i, Writer::Regular).participant;
+                        let participant = participant(i);
                         let d = w.vehicle.step(w.now, Event::ParticipantGone { participant });
                         w.check_output(d.output)?;
                     }

@@ -16,12 +16,12 @@
 
 use rove_core::MonoTime;
 use rove_core::adapter::{InputEvent, OutputAdapter};
-use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, Owner, ParticipantId, WriterId};
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, Owner, ParticipantId};
 use rove_core::handover::HandoverConfig;
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
 use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
 use rove_core::session::{
-    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
+    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput,
 };
 use rove_core::sim::{SimAction, SimOutput};
 use std::collections::VecDeque;
@@ -47,14 +47,8 @@ struct Operator {
 }
 
 impl Operator {
-    fn writer(&self, writer: Writer) -> WriterId {
-        WriterId {
-            participant: ParticipantId(u128::from(self.id.unsigned_abs())),
-            entity: match writer {
-                Writer::Regular => 1,
-                Writer::Priority => 2,
-            },
-        }
+    fn participant(&self) -> ParticipantId {
+        ParticipantId(u128::from(self.id.unsigned_abs()))
     }
 }
 
@@ -102,19 +96,8 @@ impl World<'_> {
         let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
         while let Some((i, effect)) = queue.pop_front() {
             let op = &self.ops[i];
-            let event = match effect {
-                Effect::Write { writer, command } => Some(Event::Sample {
-                    writer: op.writer(writer),
-                    strength: match writer {
-                        Writer::Regular => op.strength,
-                        Writer::Priority => Strength::PRIORITY,
-                    },
-                    command,
-                    arrival: self.now,
-                }),
-                Effect::Release { writer, .. } => Some(Event::Released {
-                    writer: op.writer(writer),
-                }),
+            let event = effect.arbiter_event(VEHICLE, op.participant(), op.strength, self.now);
+            match effect {
                 Effect::Send(msg) => {
                     for j in 0..self.ops.len() {
                         if self.ops[j].running {
@@ -127,18 +110,16 @@ impl World<'_> {
                             queue.extend(more.into_iter().map(|e| (j, e)));
                         }
                     }
-                    Event::from_request_control(VEHICLE, &msg)
                 }
                 Effect::Report(report) => {
                     if !matches!(report, Report::Selected { .. } | Report::InputLive { .. }) {
                         let line = format!("{}: {report}", op.name);
                         self.say(&line);
                     }
-                    None
                 }
-                Effect::Confirm(_) => None,
                 Effect::Refused(why) => anyhow::bail!("{}: {why}", op.name),
-            };
+                Effect::Write { .. } | Effect::Release { .. } | Effect::Confirm(_) => {}
+            }
             if let Some(event) = event {
                 self.vehicle_step(event)?;
             }
@@ -300,7 +281,7 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
                     let effects = world.ops[i].session.stop(stamp);
                     world.deliver(i, effects)?;
                     world.ops[i].running = false;
-                    let participant = world.ops[i].writer(Writer::Regular).participant;
+                    let participant = world.ops[i].participant();
                     world.vehicle_step(Event::ParticipantGone { participant })?;
                 }
                 Cue::Crash(i) => {

@@ -216,6 +216,10 @@ pub async fn run(
             |session: &mut OperatorSession, event| session.step(clock.now(), clock.stamp(), event);
         let mut reply = None;
         let mut polled = false;
+        // The status line only changes with what we stream to or the vehicles seen: recomputed
+        // when a step did more than write samples (the hot path: sticks, keep-alives), and on
+        // each heartbeat.
+        let mut heartbeat_due = false;
         let effects = tokio::select! {
             _ = &mut shutdown => break,
             ended = &mut terminal, if terminal_on => {
@@ -239,6 +243,7 @@ pub async fn run(
             }
             _ = stream_timer.tick() => step(&mut session, SessionEvent::StreamTick),
             _ = heartbeat.tick() => {
+                heartbeat_due = true;
                 publish_info();
                 ui.emit(Event::Tick);
                 Vec::new()
@@ -279,6 +284,7 @@ pub async fn run(
             },
             _ = sleep_until(deadline) => step(&mut session, SessionEvent::Tick),
         };
+        let changed = heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
         let refused = writers.carry_out(effects, &clock, record.as_mut(), &ui);
         if let Some(reply) = reply {
             if let Some(why) = &refused {
@@ -293,10 +299,12 @@ pub async fn run(
             link = input_link(device.as_ref());
         }
         ui.show(&session, &link);
-        let line = session.status_line();
-        if line != shown {
-            notify.status(&line);
-            shown = line;
+        if changed {
+            let line = session.status_line();
+            if line != shown {
+                notify.status(&line);
+                shown = line;
+            }
         }
     }
 
