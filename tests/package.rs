@@ -8,7 +8,7 @@
 //! default configs, and (as root) that postinst creates the `rove` user, against a copy of
 //! `/etc` in a private mount namespace so the machine's own users are untouched.
 
-use crate::util::{Scratch, workspace};
+use crate::util::{Scratch, repo_root};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -41,7 +41,7 @@ fn assets(deb: &toml::Table) -> Vec<(String, String, String)> {
 }
 
 fn unit_files() -> Vec<String> {
-    let mut units: Vec<String> = std::fs::read_dir(workspace().join("systemd"))
+    let mut units: Vec<String> = std::fs::read_dir(repo_root().join("systemd"))
         .expect("systemd/")
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter(|n| n.ends_with(".service"))
@@ -55,7 +55,7 @@ fn configs_named_by_units() -> BTreeSet<String> {
     let mut configs = BTreeSet::new();
     for unit in unit_files().iter().filter(|u| !u.contains('@')) {
         let text =
-            std::fs::read_to_string(workspace().join("systemd").join(unit)).expect("unit file");
+            std::fs::read_to_string(repo_root().join("systemd").join(unit)).expect("unit file");
         let exec_lines = text.lines().filter(|l| l.trim_start().starts_with("Exec"));
         for word in exec_lines.flat_map(str::split_whitespace) {
             if word.starts_with("/etc/rove/") {
@@ -175,7 +175,7 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     };
     // Tests run in gateway/; a relative path is taken from the workspace root, where
     // `cargo deb` is run.
-    let deb = workspace().join(deb);
+    let deb = repo_root().join(deb);
     // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
     let listing = dpkg_deb("--contents", &deb, &[]);
     let files: Vec<(&str, &str)> = listing

@@ -8,7 +8,7 @@
 
 use crate::util::{
     OperatorToml, PATIENCE, ROVE, Rig, Scratch, duty, eventually, eyedrive_sysfs, fake_sysfs,
-    vehicle_toml, wait_duty, wait_for_output, workspace,
+    repo_root, vehicle_toml, wait_duty, wait_for_output,
 };
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
@@ -21,7 +21,7 @@ const SAFE_NS: &str = "1500000";
 
 /// `systemd/`: the unit files.
 fn units() -> PathBuf {
-    workspace().join("systemd")
+    repo_root().join("systemd")
 }
 
 // ---------------------------------------------------------------------------------------------

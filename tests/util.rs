@@ -14,16 +14,11 @@ use std::process::Command;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 pub use rove_gateway::harness::{records, wait_for_output, wall_us};
-pub use rove_testkit::{FakeAutopilot, PATIENCE, eventually};
+pub use rove_testkit::{FakeAutopilot, PATIENCE, eventually, repo_root};
 
 /// The `rove` binary under test: Cargo builds it for this test target, which is declared in
 /// `gateway/Cargo.toml`, the package of the binary.
 pub const ROVE: &str = env!("CARGO_BIN_EXE_rove");
-
-/// The repository root (the test target belongs to `gateway/`).
-pub fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 // ---------------------------------------------------------------------------------------------
 // The rig

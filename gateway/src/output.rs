@@ -294,7 +294,7 @@ mod tests {
         }
     }
 
-    /// Issue #20: a hold that ends in the same loop turn as the first command must not put the
+    /// Regression (against ArduPilot SITL): a hold that ends in the same loop turn as the first command must not put the
     /// adapter, already driving, in its safe state.
     #[test]
     fn r20_a_successful_apply_ends_the_hold() {

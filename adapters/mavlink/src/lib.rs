@@ -16,7 +16,7 @@
 //!   reader thread and reconnect.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //!
-//! Issue #20 (measured against ArduPilot Rover SITL): the reader decodes the `ardupilotmega`
+//! Measured against ArduPilot Rover SITL: the reader decodes the `ardupilotmega`
 //! dialect and resynchronises at once on bytes that are not a message ([`frame`]), TCP links have
 //! `TCP_NODELAY`, the keep-alive sends only when no command did within the period, and a refused
 //! driven mode is reported (and, by default, stops the driving).

@@ -509,7 +509,7 @@ impl Drop for KillOnDrop {
     }
 }
 
-// Issue #20: the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
+// Regressions (against ArduPilot SITL): the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
 // messages in bursts once a second, a stray 0xFE inside SIMSTATE, an unknown message), on TCP.
 // See: docs/mavlink.md, "ArduPilot as a GCS sees it".
 
