@@ -36,6 +36,7 @@ use crate::msg::{
     Ack, CommandType, ControlCommand, DeviceId, Mode, MovementCommand, RequestControl, TimeT,
 };
 use crate::time::MonoTime;
+use crate::trust::{Access, Identities, Suspect, TrustConfig};
 use crate::watchdog::{CommandTimeout, Watchdog};
 use std::fmt;
 
@@ -129,7 +130,8 @@ pub enum Event {
         participant: ParticipantId,
     },
     /// A RequestControl ACCEPT for this vehicle was observed: `granted_by` (the owner asked)
-    /// gives the vehicle to `holder`.
+    /// gives the vehicle to `holder`. It counts only if `sender` is the participant
+    /// `granted_by` is pinned to.
     GrantAccepted {
         /// The requester, who will drive with a priority writer.
         holder: DeviceId,
@@ -137,8 +139,11 @@ pub enum Event {
         granted_by: DeviceId,
         /// The handover's stamp (the REQUEST's, echoed by rove peers).
         stamp: TimeT,
+        /// The participant the ACCEPT came from.
+        sender: ParticipantId,
     },
-    /// A RequestControl FINISH for this vehicle: `holder` gives its grant back.
+    /// A RequestControl FINISH for this vehicle: `holder` gives its grant back. It counts only
+    /// if `sender` is the participant `holder` is pinned to.
     GrantFinished {
         /// The grant holder.
         holder: DeviceId,
@@ -146,29 +151,46 @@ pub enum Event {
         /// grant belongs to an earlier handover (a replay, or a stale ACCEPT handed back) and
         /// does not end the current grant.
         stamp: TimeT,
+        /// The participant the FINISH came from.
+        sender: ParticipantId,
+    },
+    /// `sender` spoke as `device` (a DeviceInfo, or a RequestControl that is no grant event
+    /// here): pins the id at first sight, or reports the claim if the id is another's.
+    Heard {
+        /// The id claimed.
+        device: DeviceId,
+        /// The participant the message came from.
+        sender: ParticipantId,
     },
     /// Time passed: expire silent streams.
     Tick,
 }
 
 impl Event {
-    /// What a RequestControl sample means to `vehicle`'s arbiter: an ACCEPT is a grant, a
-    /// FINISH ends one; a REQUEST, a REFUSE or a sample for another vehicle means nothing to it.
-    pub fn from_request_control(vehicle: DeviceId, msg: &RequestControl) -> Option<Event> {
-        if msg.dest_id != vehicle {
-            return None;
-        }
+    /// What a RequestControl sample from `sender` means to `vehicle`'s arbiter: an ACCEPT is a
+    /// grant, a FINISH ends one; a REQUEST, a REFUSE or a sample for another vehicle only
+    /// shows who speaks for its sender's id ([`Event::Heard`]).
+    pub fn from_request_control(
+        vehicle: DeviceId,
+        msg: &RequestControl,
+        sender: ParticipantId,
+    ) -> Event {
         match msg.ack {
-            Ack::Accept => Some(Event::GrantAccepted {
+            Ack::Accept if msg.dest_id == vehicle => Event::GrantAccepted {
                 holder: msg.src_id,
                 granted_by: msg.current_controller_id,
                 stamp: msg.timestamp,
-            }),
-            Ack::Finish => Some(Event::GrantFinished {
+                sender,
+            },
+            Ack::Finish if msg.dest_id == vehicle => Event::GrantFinished {
                 holder: msg.src_id,
                 stamp: msg.timestamp,
-            }),
-            Ack::Request | Ack::Refuse => None,
+                sender,
+            },
+            _ => Event::Heard {
+                device: msg.sender_id(),
+                sender,
+            },
         }
     }
 }
@@ -278,6 +300,8 @@ pub enum Ignored {
     /// A FINISH that does not name the current grant: another device, or an earlier handover's
     /// stamp.
     NotGrantHolder,
+    /// The message was not believed: see [`Decision::suspect`].
+    Untrusted,
 }
 
 /// Everything one step decided. `Default` is "nothing happened".
@@ -289,6 +313,9 @@ pub struct Decision {
     pub output: Option<Output>,
     /// Set when the event was dropped or did not count (diagnostics).
     pub ignored: Option<Ignored>,
+    /// Set when the event was not believed (a claimed id of another participant, a strength
+    /// outside the hierarchy or the access list): to be reported, naming id and participant.
+    pub suspect: Option<Suspect>,
 }
 
 impl Decision {
@@ -315,6 +342,8 @@ pub struct ArbiterConfig {
     /// Sources are otherwise kept until their writer or participant leaves. 256 is far above any
     /// real fleet (the handover benchmarks use ≤ 32).
     pub max_sources: usize,
+    /// How long device ids stay pinned to their participants.
+    pub trust: TrustConfig,
 }
 
 impl Default for ArbiterConfig {
@@ -322,6 +351,7 @@ impl Default for ArbiterConfig {
         ArbiterConfig {
             command_timeout: CommandTimeout::DEFAULT,
             max_sources: 256,
+            trust: TrustConfig::default(),
         }
     }
 }
@@ -385,6 +415,8 @@ pub struct SourceStatus {
 pub struct Arbiter {
     vehicle: DeviceId,
     config: ArbiterConfig,
+    access: Access,
+    identities: Identities,
     sources: Vec<Source>,
     owner: Owner,
     grant: Option<DeviceId>,
@@ -404,6 +436,8 @@ impl Arbiter {
         Arbiter {
             vehicle,
             config,
+            access: Access::default(),
+            identities: Identities::new(config.trust),
             sources: Vec::new(),
             owner: Owner::Failsafe,
             grant: None,
@@ -413,6 +447,23 @@ impl Arbiter {
             last_now: MonoTime::ZERO,
             seq: 0,
         }
+    }
+
+    /// Believes only the strengths and ids `access` allows (default: any id, at any strength
+    /// the standard hierarchy gives).
+    pub fn with_access(mut self, access: Access) -> Self {
+        self.access = access;
+        self
+    }
+
+    /// Pins the vehicle's own id to its own participant: nobody else can speak as the vehicle.
+    pub fn pin_own(&mut self, participant: ParticipantId) {
+        self.identities.pin_own(self.vehicle, participant);
+    }
+
+    /// The participant `device` is pinned to at `now`, if any.
+    pub fn pinned(&self, now: MonoTime, device: DeviceId) -> Option<ParticipantId> {
+        self.identities.owner(now, device)
     }
 
     /// The current owner.
@@ -490,7 +541,8 @@ impl Arbiter {
                         decision.ignored = Some(Ignored::PriorityWithoutGrant);
                     }
                 }
-                Err(why) => decision.ignored = Some(why),
+                Err(Rejected::Ignored(why)) => decision.ignored = Some(why),
+                Err(Rejected::Suspect(suspect)) => decision.distrust(suspect),
             },
             Event::Released { writer } => match self.find(writer) {
                 Some(i) => {
@@ -511,6 +563,7 @@ impl Arbiter {
                 }
             }
             Event::ParticipantGone { participant } => {
+                self.identities.participant_gone(now, participant);
                 if !self.remove_where(|c| c.writer.participant == participant) {
                     decision.ignored = Some(Ignored::UnknownSource);
                 }
@@ -519,20 +572,41 @@ impl Arbiter {
                 holder,
                 granted_by,
                 stamp,
+                sender,
             } => {
-                if let Err(why) = self.accept_grant(now, holder, granted_by) {
-                    decision.ignored = Some(why);
-                } else {
-                    self.grant_stamp = stamp;
+                let trusted = (self.identities.check(now, granted_by, sender)).and_then(|()| {
+                    self.access.allows(holder).map_err(|why| Suspect {
+                        device: holder,
+                        sender,
+                        why,
+                    })
+                });
+                match trusted {
+                    Err(suspect) => decision.distrust(suspect),
+                    Ok(()) => match self.accept_grant(now, holder, granted_by) {
+                        Err(why) => decision.ignored = Some(why),
+                        Ok(()) => self.grant_stamp = stamp,
+                    },
                 }
             }
-            Event::GrantFinished { holder, stamp } => {
+            Event::GrantFinished {
+                holder,
+                stamp,
+                sender,
+            } => {
                 // `>=`: rove echoes the grant's stamp; a foreign peer stamping its FINISH at
                 // send time is later still.
-                if self.grant == Some(holder) && stamp >= self.grant_stamp {
+                if let Err(suspect) = self.identities.check(now, holder, sender) {
+                    decision.distrust(suspect);
+                } else if self.grant == Some(holder) && stamp >= self.grant_stamp {
                     self.grant = None;
                 } else {
                     decision.ignored = Some(Ignored::NotGrantHolder);
+                }
+            }
+            Event::Heard { device, sender } => {
+                if let Err(suspect) = self.identities.check(now, device, sender) {
+                    decision.distrust(suspect);
                 }
             }
             Event::Tick => {}
@@ -583,18 +657,29 @@ impl Arbiter {
         strength: Strength,
         command: &ControlCommand,
         arrival: MonoTime,
-    ) -> Result<bool, Ignored> {
+    ) -> Result<bool, Rejected> {
         if command.dest_id != self.vehicle {
-            return Err(Ignored::NotForThisVehicle);
+            return Err(Ignored::NotForThisVehicle.into());
         }
         if command.src_id == self.vehicle {
-            return Err(Ignored::FromThisVehicle);
+            return Err(Ignored::FromThisVehicle.into());
         }
         if strength == Strength::FAILSAFE {
-            return Err(Ignored::FailsafeStrength);
+            return Err(Ignored::FailsafeStrength.into());
         }
+        let suspect = |why| Suspect {
+            device: command.src_id,
+            sender: writer.participant,
+            why,
+        };
+        (self.access)
+            .check_strength(command.src_id, strength)
+            .map_err(suspect)?;
+        (self.identities)
+            .claim(now, command.src_id, writer.participant)
+            .map_err(suspect)?;
         if now.saturating_since(arrival) >= self.config.command_timeout.get() {
-            return Err(Ignored::Stale);
+            return Err(Ignored::Stale.into());
         }
         let index = match self.find(writer) {
             Some(i) => i,
@@ -602,10 +687,10 @@ impl Arbiter {
         };
         let source = &mut self.sources[index];
         if source.controller.device != command.src_id {
-            return Err(Ignored::SourceMismatch);
+            return Err(Ignored::SourceMismatch.into());
         }
         if arrival < source.high_water {
-            return Err(Ignored::OutOfOrder);
+            return Err(Ignored::OutOfOrder.into());
         }
         source.high_water = arrival;
         source.controller.strength = strength;
@@ -788,6 +873,31 @@ impl Arbiter {
                 seq,
             },
         }
+    }
+}
+
+/// Why a sample was not recorded.
+enum Rejected {
+    Ignored(Ignored),
+    Suspect(Suspect),
+}
+
+impl From<Ignored> for Rejected {
+    fn from(why: Ignored) -> Self {
+        Rejected::Ignored(why)
+    }
+}
+
+impl From<Suspect> for Rejected {
+    fn from(suspect: Suspect) -> Self {
+        Rejected::Suspect(suspect)
+    }
+}
+
+impl Decision {
+    fn distrust(&mut self, suspect: Suspect) {
+        self.ignored = Some(Ignored::Untrusted);
+        self.suspect = Some(suspect);
     }
 }
 

@@ -501,15 +501,34 @@ impl Handover {
         vec![Action::Resume { vehicle }]
     }
 
-    /// Acts on a RequestControl sample.
+    /// Acts on a RequestControl sample whose `src_priority` is taken as true (see
+    /// [`Handover::on_message_checked`]).
     pub fn on_message(&mut self, now: MonoTime, msg: &RequestControl) -> Vec<Action> {
+        self.on_message_checked(now, msg, true)
+    }
+
+    /// Acts on a RequestControl sample. `priority_verified`: a REQUEST's `src_priority` agrees
+    /// with what discovery says of the requester's writers. An unverified priority is never
+    /// auto-accepted by [`AutoAccept::HigherPriority`]: a person is asked instead.
+    pub fn on_message_checked(
+        &mut self,
+        now: MonoTime,
+        msg: &RequestControl,
+        priority_verified: bool,
+    ) -> Vec<Action> {
         if msg.src_id == self.me && msg.current_controller_id != self.me {
             self.as_requester(msg)
         } else if msg.current_controller_id == self.me && msg.src_id != self.me {
-            self.as_replier(now, msg)
+            self.as_replier(now, msg, priority_verified)
         } else {
             Vec::new()
         }
+    }
+
+    /// True while a request for `vehicle` is being answered here (asking a person, or yielded
+    /// to its requester): resends of it are answered even if we no longer look like the owner.
+    pub fn is_replying(&self, vehicle: DeviceId) -> bool {
+        self.replies.contains_key(&vehicle)
     }
 
     /// Resends and timeouts due at `now`.
@@ -632,7 +651,12 @@ impl Handover {
         }
     }
 
-    fn as_replier(&mut self, now: MonoTime, msg: &RequestControl) -> Vec<Action> {
+    fn as_replier(
+        &mut self,
+        now: MonoTime,
+        msg: &RequestControl,
+        priority_verified: bool,
+    ) -> Vec<Action> {
         let vehicle = msg.dest_id;
         let requester = msg.src_id;
         let state = self.replies.get(&vehicle).copied();
@@ -684,7 +708,7 @@ impl Handover {
                             Answer::Accepted | Answer::Closed => Vec::new(),
                         };
                     }
-                    if self.auto_accepts(vehicle, msg.src_priority) {
+                    if self.auto_accepts(vehicle, msg.src_priority, priority_verified) {
                         return self.answer(
                             now,
                             vehicle,
@@ -753,7 +777,7 @@ impl Handover {
         i32::from(self.strength.0)
     }
 
-    fn auto_accepts(&self, vehicle: DeviceId, src_priority: i32) -> bool {
+    fn auto_accepts(&self, vehicle: DeviceId, src_priority: i32, verified: bool) -> bool {
         let ours = if self.holds_grant(vehicle) {
             Strength::PRIORITY
         } else {
@@ -762,7 +786,7 @@ impl Handover {
         match self.config.auto_accept {
             AutoAccept::Never => false,
             AutoAccept::Always => true,
-            AutoAccept::HigherPriority => src_priority > i32::from(ours.0),
+            AutoAccept::HigherPriority => verified && src_priority > i32::from(ours.0),
         }
     }
 

@@ -212,6 +212,24 @@ impl Hierarchy {
     }
 }
 
+impl Hierarchy {
+    /// The base strength of `level` × `class` (fine offset 0).
+    pub fn base(&self, level: Level, class: DeviceClass) -> Strength {
+        Strength(self.base[level as usize][class as usize])
+    }
+
+    /// The rank and fine offset that give `strength`, if the hierarchy can give it.
+    pub fn rank_of(&self, strength: Strength) -> Option<(Level, DeviceClass, u8)> {
+        Level::ALL.into_iter().find_map(|level| {
+            DeviceClass::ALL.into_iter().find_map(|class| {
+                let offset = strength.0.checked_sub(self.base(level, class).0)?;
+                let offset = u8::try_from(offset).ok().filter(|o| *o <= MAX_OFFSET)?;
+                Some((level, class, offset))
+            })
+        })
+    }
+}
+
 fn rank_key(level: Level, class: DeviceClass) -> String {
     let l = match level {
         Level::Mobile => "mobile",
@@ -245,6 +263,22 @@ mod tests {
         assert_eq!(s(Level::Stationary, DeviceClass::Laptop, 0), Strength(220));
         assert_eq!(s(Level::Remote, DeviceClass::Tablet, 0), Strength(130));
         assert_eq!(s(Level::Remote, DeviceClass::Desktop, 9), Strength(119));
+    }
+
+    #[test]
+    fn rank_of_inverts_strength_and_rejects_the_gaps() {
+        for level in Level::ALL {
+            for class in DeviceClass::ALL {
+                for offset in 0..=MAX_OFFSET {
+                    let strength = s(level, class, offset);
+                    let rank = Hierarchy::STANDARD.rank_of(strength);
+                    assert_eq!(rank, Some((level, class, offset)));
+                }
+            }
+        }
+        for gap in [0, 1, 109, 150, 209, 250, 350, 65534, 65535] {
+            assert_eq!(Hierarchy::STANDARD.rank_of(Strength(gap)), None, "{gap}");
+        }
     }
 
     #[test]

@@ -22,6 +22,7 @@
 //! - [`adapter`]: output-adapter and input-source traits.
 //! - [`sim`]: a recording output and a scripted input.
 //! - [`time`]: monotonic instants.
+//! - [`trust`]: device ids pinned to participants, and the strengths a vehicle believes.
 //! - [`error`]: configuration errors (naming their keys) and classified link errors.
 //! - [`config`]: the shared config vocabulary: integer policy, range/required/unique checks,
 //!   unknown keys of tables built from shared pieces.
@@ -39,6 +40,7 @@ pub mod msg;
 pub mod session;
 pub mod sim;
 pub mod time;
+pub mod trust;
 pub mod watchdog;
 
 pub use error::{Error, Result};

@@ -175,6 +175,17 @@ pub struct RequestControl {
     pub timestamp: TimeT,
 }
 
+impl RequestControl {
+    /// The device that sends this stage of a handover, whose participant must be the sender:
+    /// the requester for REQUEST and FINISH, the owner asked for ACCEPT and REFUSE.
+    pub fn sender_id(&self) -> DeviceId {
+        match self.ack {
+            Ack::Request | Ack::Finish => self.src_id,
+            Ack::Accept | Ack::Refuse => self.current_controller_id,
+        }
+    }
+}
+
 /// OMG `TimeBase::TimeT`: an unsigned count of 100 ns intervals since 1582-10-15 00:00 UTC
 /// (the start of the Gregorian calendar).
 #[derive(

@@ -24,6 +24,12 @@
 //!   vehicle's owner is known from a live DeviceInfo; a vehicle that still looks ownerless two
 //!   heartbeats after start is free and simply driven.
 //! - **Stop**: [`OperatorSession::stop`] finishes held grants and releases every instance.
+//! - **Trust** (docs/design.md §4b): every DeviceInfo and RequestControl comes with its sender's
+//!   participant, and counts only if that participant is the one pinned for the id it claims
+//!   ([`Identities`]); others are reported ([`Report::Untrusted`]). A REQUEST is answered only
+//!   for a vehicle we drive and whose DeviceInfo names us; auto-accept believes `src_priority`
+//!   only when a ControlCommand writer of the requester's participant has that strength; a
+//!   FINISH or a DeviceInfo resumes only a vehicle we yielded.
 
 use crate::adapter::{InputAction, InputEvent};
 use crate::arbiter::{Event as ArbiterEvent, ParticipantId, WriterId};
@@ -34,6 +40,7 @@ use crate::msg::{
     RequestControl, TimeT,
 };
 use crate::time::MonoTime;
+use crate::trust::{Identities, Suspect, TrustConfig};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::time::Duration;
@@ -134,6 +141,10 @@ pub struct SessionConfig {
     pub confirm_actions: bool,
     /// Ask this vehicle's owner for control as soon as the owner is known (`--request`).
     pub request: Option<DeviceId>,
+    /// Our own participant: our id is pinned to it.
+    pub participant: ParticipantId,
+    /// How long other devices' ids stay pinned to their participants.
+    pub trust: TrustConfig,
 }
 
 /// An event the session acts on.
@@ -141,10 +152,37 @@ pub struct SessionConfig {
 pub enum SessionEvent {
     /// Something the input device reported.
     Input(InputEvent),
-    /// A DeviceInfo sample (any device).
-    DeviceInfo(DeviceInfo),
-    /// A RequestControl sample.
-    RequestControl(RequestControl),
+    /// A DeviceInfo sample (any device), from participant `from`.
+    DeviceInfo {
+        /// The sample.
+        info: DeviceInfo,
+        /// Its sender.
+        from: ParticipantId,
+    },
+    /// A RequestControl sample, from participant `from`.
+    RequestControl {
+        /// The sample.
+        msg: RequestControl,
+        /// Its sender.
+        from: ParticipantId,
+    },
+    /// Discovery found a ControlCommand writer (`strength` is its ownership strength).
+    WriterFound {
+        /// The writer.
+        writer: WriterId,
+        /// Its strength.
+        strength: Strength,
+    },
+    /// A ControlCommand writer left.
+    WriterLost {
+        /// The writer.
+        writer: WriterId,
+    },
+    /// A participant left the domain.
+    ParticipantGone {
+        /// The participant.
+        participant: ParticipantId,
+    },
     /// A command from the console, the local API or a confirmed button.
     Command(Command),
     /// The keep-alive period passed: stream to everything we drive or stand by for.
@@ -234,7 +272,11 @@ impl Effect {
                     writer: writer.id(participant),
                 })
             }
-            Effect::Send(msg) => ArbiterEvent::from_request_control(vehicle, msg),
+            Effect::Send(msg) => Some(ArbiterEvent::from_request_control(
+                vehicle,
+                msg,
+                participant,
+            )),
             Effect::Release { .. }
             | Effect::Report(_)
             | Effect::Confirm(_)
@@ -314,6 +356,17 @@ pub enum Report {
         /// How.
         outcome: Outcome,
     },
+    /// A message was not believed (its id belongs to another participant): a spoofing attempt
+    /// or a misconfigured duplicate id.
+    Untrusted(Suspect),
+    /// A REQUEST for a vehicle we do not drive (or whose DeviceInfo does not name us) got no
+    /// answer: only the owner answers.
+    RequestIgnored {
+        /// The vehicle.
+        vehicle: DeviceId,
+        /// Who asked.
+        requester: DeviceId,
+    },
     /// Our own request for `vehicle` ended.
     RequestEnded {
         /// The vehicle.
@@ -366,7 +419,7 @@ impl Report {
     pub fn is_warning(&self) -> bool {
         matches!(
             self,
-            Report::InputNotLive { .. } | Report::RequestFailed { .. }
+            Report::InputNotLive { .. } | Report::RequestFailed { .. } | Report::Untrusted(_)
         )
     }
 
@@ -375,7 +428,9 @@ impl Report {
         match self {
             Report::InputLive { .. }
             | Report::InputNotLive { .. }
-            | Report::ModeSelected { .. } => None,
+            | Report::ModeSelected { .. }
+            | Report::Untrusted(_) => None,
+            Report::RequestIgnored { vehicle, .. } => Some(*vehicle),
             Report::Selected { vehicle } => *vehicle,
             Report::Driving { vehicle, .. }
             | Report::Released { vehicle }
@@ -441,6 +496,11 @@ impl fmt::Display for Report {
                     "consent prompt for vehicle {vehicle} closed: {outcome:?}"
                 )
             }
+            Report::Untrusted(suspect) => write!(f, "not believed: {suspect}"),
+            Report::RequestIgnored { vehicle, requester } => write!(
+                f,
+                "{requester} requests vehicle {vehicle}, which we do not drive: not answered"
+            ),
             Report::RequestEnded { vehicle, outcome } => {
                 write!(f, "request ended: {outcome:?} (vehicle {vehicle})")
             }
@@ -514,7 +574,18 @@ pub struct OperatorSession {
     pending_request: Option<(DeviceId, MonoTime)>,
     /// DeviceInfo arriving before this may be history replay: no request decided on it.
     ask_after: MonoTime,
+    /// Device ids pinned to participants.
+    identities: Identities,
+    /// Strengths of the ControlCommand writers discovery found, to check a REQUEST's
+    /// `src_priority` against (bounded: see [`MAX_WRITERS`]).
+    writers: BTreeMap<WriterId, Strength>,
+    /// Vehicles we yielded to a grant holder: the only ones a FINISH or DeviceInfo may resume.
+    yielded: BTreeSet<DeviceId>,
 }
+
+/// Most ControlCommand writers remembered for checking priorities: a flood of writers beyond
+/// it is not remembered, so their REQUESTs are never auto-accepted.
+pub const MAX_WRITERS: usize = 1024;
 
 impl OperatorSession {
     /// A session starting at `now`.
@@ -544,6 +615,13 @@ impl OperatorSession {
             vehicles: BTreeMap::new(),
             pending_request: config.request.map(|v| (v, now + config.heartbeat * 2)),
             ask_after: now + config.heartbeat,
+            identities: {
+                let mut ids = Identities::new(config.trust);
+                ids.pin_own(config.me, config.participant);
+                ids
+            },
+            writers: BTreeMap::new(),
+            yielded: BTreeSet::new(),
         }
     }
 
@@ -553,10 +631,29 @@ impl OperatorSession {
         let mut out = Out::default();
         match event {
             SessionEvent::Input(input) => self.on_input(now, stamp, input, &mut out),
-            SessionEvent::DeviceInfo(info) => self.on_device_info(now, stamp, info, &mut out),
-            SessionEvent::RequestControl(msg) => {
-                let actions = self.handover.on_message(now, &msg);
-                self.carry_out(stamp, actions, &mut out);
+            SessionEvent::DeviceInfo { info, from } => {
+                match self.identities.check(now, info.device_id, from) {
+                    Ok(()) => self.on_device_info(now, stamp, info, &mut out),
+                    Err(suspect) => out.report(Report::Untrusted(suspect)),
+                }
+            }
+            SessionEvent::RequestControl { msg, from } => {
+                match self.identities.check(now, msg.sender_id(), from) {
+                    Ok(()) => self.on_request_control(now, stamp, &msg, &mut out),
+                    Err(suspect) => out.report(Report::Untrusted(suspect)),
+                }
+            }
+            SessionEvent::WriterFound { writer, strength } => {
+                if self.writers.len() < MAX_WRITERS || self.writers.contains_key(&writer) {
+                    self.writers.insert(writer, strength);
+                }
+            }
+            SessionEvent::WriterLost { writer } => {
+                self.writers.remove(&writer);
+            }
+            SessionEvent::ParticipantGone { participant } => {
+                self.identities.participant_gone(now, participant);
+                self.writers.retain(|w, _| w.participant != participant);
             }
             SessionEvent::Command(command) => self.on_command(now, stamp, command, &mut out),
             SessionEvent::StreamTick => {
@@ -821,6 +918,7 @@ impl OperatorSession {
                     Some(_) => {
                         // Still ours after we yielded it (the holder never took over): the
                         // person takes it back, so the standby ends and a late FINISH is moot.
+                        self.yielded.remove(&vehicle);
                         let probing =
                             self.handover.resume(vehicle) && self.standby.remove(&vehicle);
                         self.selected = Some(vehicle);
@@ -910,6 +1008,38 @@ impl OperatorSession {
                 });
             }
         }
+    }
+
+    /// A believed RequestControl: REQUESTs to us are answered only for a vehicle we drive and
+    /// whose DeviceInfo names us (or while we answer that vehicle's request already), and a
+    /// REQUEST's priority counts for auto-accept only if discovery agrees with it.
+    fn on_request_control(
+        &mut self,
+        now: MonoTime,
+        stamp: TimeT,
+        msg: &RequestControl,
+        out: &mut Out,
+    ) {
+        let to_us = msg.current_controller_id == self.me && msg.src_id != self.me;
+        if to_us && msg.ack == crate::msg::Ack::Request {
+            let vehicle = msg.dest_id;
+            let drives = self.streams_to(vehicle) || self.paused.contains(&vehicle);
+            let names_us =
+                (self.vehicles.get(&vehicle)).is_some_and(|i| i.controller_id == self.me);
+            if !(self.handover.is_replying(vehicle) || drives && names_us) {
+                out.report(Report::RequestIgnored {
+                    vehicle,
+                    requester: msg.src_id,
+                });
+                return;
+            }
+        }
+        let verified = (self.identities.owner(now, msg.src_id)).is_some_and(|p| {
+            (self.writers.iter())
+                .any(|(w, s)| w.participant == p && i32::from(s.0) == msg.src_priority)
+        });
+        let actions = self.handover.on_message_checked(now, msg, verified);
+        self.carry_out(stamp, actions, out);
     }
 
     fn on_device_info(&mut self, now: MonoTime, stamp: TimeT, info: DeviceInfo, out: &mut Out) {
@@ -1008,6 +1138,7 @@ impl OperatorSession {
                     });
                 }
                 Action::Yield { vehicle } => {
+                    self.yielded.insert(vehicle);
                     self.driving.remove(&vehicle);
                     self.paused.remove(&vehicle);
                     out.report(Report::Yielded { vehicle });
@@ -1031,6 +1162,10 @@ impl OperatorSession {
                     out.report(Report::StandbyEnded { vehicle });
                 }
                 Action::Resume { vehicle } => {
+                    // Only a vehicle we yielded: never a role we did not hold.
+                    if !self.yielded.remove(&vehicle) {
+                        continue;
+                    }
                     self.standby.remove(&vehicle);
                     let live = self.input_live;
                     out.report(Report::Resumed { vehicle, live });

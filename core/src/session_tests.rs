@@ -34,6 +34,21 @@ fn config(input: SessionInput) -> SessionConfig {
         heartbeat: Duration::from_millis(500),
         confirm_actions: false,
         request: None,
+        participant: participant(ME),
+        trust: crate::trust::TrustConfig::default(),
+    }
+}
+
+/// Each device's own participant in these tests.
+fn participant(id: DeviceId) -> ParticipantId {
+    ParticipantId(0x1000 + id as u128)
+}
+
+/// A RequestControl sample as it arrives from its sender's own participant.
+fn rc(msg: RequestControl) -> SessionEvent {
+    SessionEvent::RequestControl {
+        msg,
+        from: participant(msg.sender_id()),
     }
 }
 
@@ -49,12 +64,15 @@ fn device() -> OperatorSession {
 }
 
 fn vehicle(id: DeviceId, owner: DeviceId) -> SessionEvent {
-    SessionEvent::DeviceInfo(DeviceInfo {
-        device_id: id,
-        name: format!("v{id}"),
-        device_type: DeviceType::Vehicle,
-        controller_id: owner,
-    })
+    SessionEvent::DeviceInfo {
+        info: DeviceInfo {
+            device_id: id,
+            name: format!("v{id}"),
+            device_type: DeviceType::Vehicle,
+            controller_id: owner,
+        },
+        from: participant(id),
+    }
 }
 
 fn sample(
@@ -116,7 +134,7 @@ fn step(s: &mut OperatorSession, t: u64, event: SessionEvent) -> Vec<Effect> {
 }
 
 fn request_from(requester: DeviceId, priority: i32, t: u64) -> SessionEvent {
-    SessionEvent::RequestControl(RequestControl {
+    rc(RequestControl {
         src_id: requester,
         dest_id: V,
         current_controller_id: ME,
@@ -124,6 +142,15 @@ fn request_from(requester: DeviceId, priority: i32, t: u64) -> SessionEvent {
         ack: Ack::Request,
         timestamp: stamp(t),
     })
+}
+
+/// `requester`'s regular writer is discovered at `priority`, then its REQUEST for `V` arrives
+/// at `t`.
+fn request(s: &mut OperatorSession, requester: DeviceId, priority: i32, t: u64) -> Vec<Effect> {
+    let writer = Writer::Regular.id(participant(requester));
+    let strength = Strength(u16::try_from(priority).expect("an operator strength"));
+    step(s, t, SessionEvent::WriterFound { writer, strength });
+    step(s, t, request_from(requester, priority, t))
 }
 
 /// Requests vehicle `W` from OTHER at `t` and receives its ACCEPT: we then hold the grant.
@@ -139,7 +166,7 @@ fn hold_grant(s: &mut OperatorSession, t: u64) -> Vec<Effect> {
         ack: Ack::Accept,
         ..sent(&out)[0]
     };
-    step(s, t + 2, SessionEvent::RequestControl(accept))
+    step(s, t + 2, rc(accept))
 }
 
 #[test]
@@ -293,7 +320,7 @@ fn request_asks_the_owner_and_drives_a_free_vehicle_instead() {
 fn a_stronger_requester_is_auto_accepted_and_we_stand_by_with_probes() {
     let mut s = constant();
     step(&mut s, 1, vehicle(V, ME));
-    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    let out = request(&mut s, OTHER, 340, 2);
     let msgs = sent(&out);
     assert_eq!(msgs.len(), 1);
     assert_eq!((msgs[0].ack, msgs[0].src_id), (Ack::Accept, OTHER));
@@ -309,7 +336,7 @@ fn a_stronger_requester_is_auto_accepted_and_we_stand_by_with_probes() {
     );
     assert_eq!(s.status_line(), "standing by for 100; 1 vehicle seen");
     // The holder's FINISH: we drive again at once.
-    let finish = SessionEvent::RequestControl(RequestControl {
+    let finish = rc(RequestControl {
         ack: Ack::Finish,
         ..msgs[0]
     });
@@ -331,7 +358,7 @@ fn a_stronger_requester_is_auto_accepted_and_we_stand_by_with_probes() {
 fn a_weaker_requester_prompts_and_the_person_decides() {
     let mut s = constant();
     step(&mut s, 1, vehicle(V, ME));
-    let out = step(&mut s, 2, request_from(OTHER, 130, 2));
+    let out = request(&mut s, OTHER, 130, 2);
     assert!(sent(&out).is_empty());
     assert!(matches!(
         out.as_slice(),
@@ -524,7 +551,7 @@ fn auto_accept_never_always_asks() {
     c.handover.auto_accept = AutoAccept::Never;
     let mut s = OperatorSession::new(c, ms(0));
     step(&mut s, 1, vehicle(V, ME));
-    let out = step(&mut s, 2, request_from(OTHER, 65_000, 2));
+    let out = request(&mut s, OTHER, 65_000, 2);
     assert!(sent(&out).is_empty());
     // Refused at the consent timeout.
     let deadline = s.next_deadline().expect("a consent deadline");
@@ -539,7 +566,7 @@ fn status_line_says_what_we_drive_hold_and_stand_by_for() {
     step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(1))));
     step(&mut s, 2, vehicle(V, ME));
     assert_eq!(s.status_line(), "driving 100; 1 vehicle seen");
-    step(&mut s, 3, request_from(OTHER, 340, 3));
+    request(&mut s, OTHER, 340, 3);
     hold_grant(&mut s, 4);
     assert_eq!(
         s.status_line(),
@@ -551,7 +578,7 @@ fn status_line_says_what_we_drive_hold_and_stand_by_for() {
 fn driving_a_yielded_vehicle_that_is_still_ours_takes_it_back_from_standby() {
     let mut s = constant();
     step(&mut s, 1, vehicle(V, ME));
-    step(&mut s, 2, request_from(OTHER, 340, 2));
+    request(&mut s, OTHER, 340, 2);
     assert!(s.handover().has_yielded(V));
     // The holder never shows up on the vehicle; the person drives it again.
     let out = step(
@@ -576,7 +603,7 @@ fn losing_the_input_while_standing_by_stops_the_probes_and_releases() {
     let mut s = device();
     step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(1))));
     step(&mut s, 2, vehicle(V, ME));
-    step(&mut s, 3, request_from(OTHER, 340, 3));
+    request(&mut s, OTHER, 340, 3);
     assert_eq!(s.streams().standby, vec![V]);
     let out = step(&mut s, 4, SessionEvent::Input(InputEvent::Deadman(false)));
     assert_eq!(releases(&out), vec![(Writer::Regular, V)]);
@@ -589,7 +616,7 @@ fn losing_the_input_while_standing_by_stops_the_probes_and_releases() {
 fn yielding_without_live_input_releases_instead_of_standing_by() {
     let mut s = device();
     step(&mut s, 1, vehicle(V, ME));
-    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    let out = request(&mut s, OTHER, 340, 2);
     assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Accept));
     assert_eq!(releases(&out), vec![(Writer::Regular, V)]);
     assert!(writes(&out).is_empty());
@@ -635,4 +662,153 @@ fn direct_delivery_maps_writes_releases_and_grants_for_this_vehicle_only() {
         Effect::Refused("no".into()).arbiter_event(V, p, Strength(220), ms(1)),
         None
     );
+}
+
+#[test]
+fn a_priority_that_discovery_does_not_confirm_is_put_to_a_person() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    // OTHER's writer announces 130, its REQUEST claims 340.
+    let writer = Writer::Regular.id(participant(OTHER));
+    step(
+        &mut s,
+        2,
+        SessionEvent::WriterFound {
+            writer,
+            strength: Strength(130),
+        },
+    );
+    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    assert!(sent(&out).is_empty(), "not auto-accepted: {out:?}");
+    assert!(matches!(
+        out[..],
+        [Effect::Report(Report::Prompt {
+            requester: OTHER,
+            ..
+        })]
+    ));
+    assert!(s.streams_to(V));
+}
+
+#[test]
+fn a_request_for_a_vehicle_we_do_not_drive_or_that_names_another_owner_is_not_answered() {
+    let mut s = constant();
+    // W is not driven by us (only V is).
+    step(&mut s, 1, vehicle(W, ME));
+    let forged = RequestControl {
+        dest_id: W,
+        ..match request_from(OTHER, 340, 2) {
+            SessionEvent::RequestControl { msg, .. } => msg,
+            _ => unreachable!(),
+        }
+    };
+    let writer = Writer::Regular.id(participant(OTHER));
+    step(
+        &mut s,
+        2,
+        SessionEvent::WriterFound {
+            writer,
+            strength: Strength(340),
+        },
+    );
+    let out = step(&mut s, 2, rc(forged));
+    assert_eq!(
+        out,
+        vec![Effect::Report(Report::RequestIgnored {
+            vehicle: W,
+            requester: OTHER
+        })]
+    );
+    // V is driven by us, but its DeviceInfo names someone else: not ours to give.
+    step(&mut s, 3, vehicle(V, 13));
+    let out = request(&mut s, OTHER, 340, 4);
+    assert_eq!(
+        out,
+        vec![Effect::Report(Report::RequestIgnored {
+            vehicle: V,
+            requester: OTHER
+        })]
+    );
+    // A later FINISH cannot make us resume what we never yielded.
+    let finish = RequestControl {
+        ack: Ack::Finish,
+        ..forged
+    };
+    let out = step(&mut s, 5, rc(finish));
+    assert!(out.is_empty(), "{out:?}");
+    assert!(!s.streams_to(W));
+}
+
+#[test]
+fn messages_claiming_an_id_pinned_to_another_participant_are_reported_and_ignored() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    let rogue = ParticipantId(0xbad);
+    // A DeviceInfo for V from the rogue, naming another owner: not believed.
+    let forged = SessionEvent::DeviceInfo {
+        info: DeviceInfo {
+            controller_id: 99,
+            ..s.vehicles()[&V].clone()
+        },
+        from: rogue,
+    };
+    let out = step(&mut s, 2, forged);
+    assert_eq!(
+        out,
+        vec![Effect::Report(Report::Untrusted(Suspect {
+            device: V,
+            sender: rogue,
+            why: crate::trust::Distrust::IdOfAnotherParticipant {
+                owner: participant(V)
+            },
+        }))]
+    );
+    assert_eq!(s.vehicles()[&V].controller_id, ME);
+    // A REQUEST in OTHER's name from the rogue, once OTHER has spoken: not believed.
+    request(&mut s, OTHER, 340, 3);
+    let SessionEvent::RequestControl { msg, .. } = request_from(OTHER, 340, 4) else {
+        unreachable!()
+    };
+    let out = step(
+        &mut s,
+        4,
+        SessionEvent::RequestControl {
+            msg: RequestControl {
+                ack: Ack::Finish,
+                ..msg
+            },
+            from: rogue,
+        },
+    );
+    assert!(
+        matches!(
+            out[..],
+            [Effect::Report(Report::Untrusted(Suspect {
+                device: OTHER,
+                ..
+            }))]
+        ),
+        "{out:?}"
+    );
+    assert_eq!(
+        s.streams().standby,
+        vec![V],
+        "the forged FINISH did not end the yield"
+    );
+    // Our own id cannot be taken either.
+    let out = step(
+        &mut s,
+        5,
+        SessionEvent::RequestControl {
+            msg: RequestControl { src_id: ME, ..msg },
+            from: rogue,
+        },
+    );
+    assert!(matches!(
+        out[..],
+        [Effect::Report(Report::Untrusted(Suspect {
+            device: ME,
+            ..
+        }))]
+    ));
 }

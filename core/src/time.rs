@@ -16,6 +16,8 @@ pub struct MonoTime(u64);
 impl MonoTime {
     /// The origin.
     pub const ZERO: MonoTime = MonoTime(0);
+    /// The far end of time: later than any instant a clock gives.
+    pub const MAX: MonoTime = MonoTime(u64::MAX);
 
     /// An instant `nanos` nanoseconds after the origin.
     pub const fn from_nanos(nanos: u64) -> Self {

@@ -6,11 +6,12 @@ mod common;
 
 use common::*;
 use rove_core::arbiter::{
-    ArbiterConfig, Controller, Decision, Event, Ignored, Output, Owner, OwnerChange, ParticipantId,
-    Reason, Setpoint,
+    Arbiter, ArbiterConfig, Controller, Decision, Event, Ignored, Output, Owner, OwnerChange,
+    ParticipantId, Reason, Setpoint, WriterId,
 };
-use rove_core::hierarchy::Strength;
+use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
 use rove_core::msg::{CommandType, Mode, TimeT};
+use rove_core::trust::{Access, Distrust, Grant, Suspect};
 
 /// The stamp of the handovers in these tests.
 const S: TimeT = TimeT(7);
@@ -19,6 +20,11 @@ use rove_core::watchdog::CommandTimeout;
 const OP_A: i64 = 1; // stationary laptop
 const OP_B: i64 = 2; // mobile phone
 const OP_C: i64 = 3;
+
+/// The participant each operator speaks from: its writers' (`w(n)`, `pw(n)`).
+fn by(device: i64) -> ParticipantId {
+    ParticipantId(u128::try_from(device).expect("a test operator id"))
+}
 
 fn ctl(writer: rove_core::arbiter::WriterId, device: i64, strength: u16) -> Controller {
     Controller {
@@ -130,16 +136,127 @@ fn with_no_incumbent_the_lowest_device_id_wins_a_tie() {
 }
 
 #[test]
-fn two_writers_claiming_one_device_id_tie_break_on_writer_id() {
+fn two_writers_of_one_participant_claiming_one_device_id_tie_break_on_writer_id() {
     let mut rig = Rig::new();
+    let writer = |entity| WriterId {
+        participant: ParticipantId(5),
+        entity,
+    };
     rig.drive(0, w(9), 9, 340, 0);
-    rig.drive(1, w(5), OP_A, 220, 5);
-    rig.drive(2, w(4), OP_A, 220, 4);
+    rig.drive(1, writer(7), OP_A, 220, 5);
+    rig.drive(2, writer(4), OP_A, 220, 4);
     let d = rig.at(3, Event::WriterGone { writer: w(9) });
     assert_eq!(
         d.owner_change.map(|c| c.to),
-        Some(Owner::Controller(ctl(w(4), OP_A, 220)))
+        Some(Owner::Controller(ctl(writer(4), OP_A, 220)))
     );
+}
+
+// ---- Trust: ids pinned to participants, strengths inside the hierarchy ------------------------
+
+#[test]
+fn a_device_id_speaking_from_another_participant_is_ignored_and_reported() {
+    let mut rig = Rig::new();
+    rig.drive(0, w(1), OP_A, 220, 1);
+    // Participant 6 streams as OP_A, stronger: nothing changes, and it is named.
+    let d = rig.drive(1, w(6), OP_A, 340, 66);
+    assert_eq!(d.ignored, Some(Ignored::Untrusted));
+    assert_eq!(
+        d.suspect,
+        Some(Suspect {
+            device: OP_A,
+            sender: ParticipantId(6),
+            why: Distrust::IdOfAnotherParticipant {
+                owner: ParticipantId(1)
+            },
+        })
+    );
+    assert_eq!((d.owner_change, d.output), (None, None));
+    // Nor can it consent in OP_A's name, or end a grant in the holder's name.
+    let d = rig.at(
+        2,
+        Event::GrantAccepted {
+            holder: OP_C,
+            granted_by: OP_A,
+            stamp: S,
+            sender: ParticipantId(6),
+        },
+    );
+    assert_eq!(d.ignored, Some(Ignored::Untrusted));
+    assert_eq!(rig.arb.grant_holder(), None);
+    // Once OP_A's participant has left (and the grace period passed), the id is free again.
+    rig.at(
+        3,
+        Event::ParticipantGone {
+            participant: ParticipantId(1),
+        },
+    );
+    let d = rig.drive(600, w(6), OP_A, 340, 66);
+    assert_eq!(d.ignored, None);
+    assert_eq!(rig.arb.controller_id(), OP_A);
+}
+
+#[test]
+fn a_finish_in_the_holders_name_from_another_participant_does_not_end_the_grant() {
+    let mut rig = granted_rig();
+    let d = rig.at(
+        10,
+        Event::GrantFinished {
+            holder: OP_B,
+            stamp: S,
+            sender: ParticipantId(1),
+        },
+    );
+    assert_eq!(d.ignored, Some(Ignored::Untrusted));
+    assert_eq!(rig.arb.grant_holder(), Some(OP_B));
+}
+
+#[test]
+fn strengths_the_hierarchy_cannot_give_are_ignored_and_an_access_list_limits_ids() {
+    let mut rig = Rig::new();
+    for strength in [1, 150, 350, 65534] {
+        let d = rig.drive(0, w(1), OP_A, strength, 1);
+        assert_eq!(
+            d.suspect.map(|s| s.why),
+            Some(Distrust::StrengthOutsideHierarchy(Strength(strength)))
+        );
+        assert_eq!(rig.arb.owner(), Owner::Failsafe);
+    }
+    let access = Access::listed(
+        Hierarchy::STANDARD,
+        &[Grant {
+            id: OP_A,
+            level: Level::Stationary,
+            device_class: DeviceClass::Laptop,
+        }],
+    );
+    let mut rig = Rig {
+        arb: Arbiter::new(VEHICLE, ArbiterConfig::default()).with_access(access),
+    };
+    let d = rig.drive(0, w(2), OP_B, 340, 2);
+    assert_eq!(d.suspect.map(|s| s.why), Some(Distrust::NotAllowed));
+    let d = rig.drive(1, w(1), OP_A, 240, 1);
+    assert_eq!(
+        d.suspect.map(|s| s.why),
+        Some(Distrust::AboveAccess {
+            claimed: Strength(240),
+            max: Strength(229)
+        })
+    );
+    rig.drive(2, w(1), OP_A, 220, 1);
+    assert_eq!(rig.arb.controller_id(), OP_A);
+    // A grant to an id outside the list is not taken.
+    let d = rig.at(
+        3,
+        Event::GrantAccepted {
+            holder: OP_B,
+            granted_by: OP_A,
+            stamp: S,
+            sender: by(OP_A),
+        },
+    );
+    assert_eq!(d.suspect.map(|s| s.why), Some(Distrust::NotAllowed));
+    assert_eq!(rig.arb.grant_holder(), None);
 }
 
 // ---- Liveness: release, departure, timeout -----------------------------------------------
@@ -458,6 +575,7 @@ fn granted_rig() -> Rig {
             holder: OP_B,
             granted_by: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(d.ignored, None);
@@ -505,6 +623,7 @@ fn a_grant_seen_after_the_holder_started_streaming_takes_effect_at_once() {
             holder: OP_B,
             granted_by: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Granted)));
@@ -520,6 +639,7 @@ fn finish_returns_control_to_the_strongest_live_controller() {
         Event::GrantFinished {
             holder: OP_B,
             stamp: S,
+            sender: by(OP_B),
         },
     );
     assert_eq!(
@@ -547,6 +667,7 @@ fn finish_returns_control_to_a_standing_by_owner_before_a_bystander() {
         Event::GrantFinished {
             holder: OP_B,
             stamp: S,
+            sender: by(OP_B),
         },
     );
     assert_eq!(
@@ -570,6 +691,7 @@ fn a_late_sample_from_a_previous_holder_cannot_win_control_back() {
             holder: OP_C,
             granted_by: OP_B,
             stamp: S,
+            sender: by(OP_B),
         },
     );
     assert_eq!(change(&d), Some((Some(OP_B), Some(OP_C), Reason::Granted)));
@@ -594,6 +716,7 @@ fn a_finish_of_an_earlier_handover_does_not_end_the_current_grant() {
         Event::GrantFinished {
             holder: OP_B,
             stamp: TimeT(S.0 - 1),
+            sender: by(OP_B),
         },
     );
     assert_eq!(d.ignored, Some(Ignored::NotGrantHolder));
@@ -604,6 +727,7 @@ fn a_finish_of_an_earlier_handover_does_not_end_the_current_grant() {
         Event::GrantFinished {
             holder: OP_B,
             stamp: TimeT(S.0 + 1),
+            sender: by(OP_B),
         },
     );
     assert_eq!(d.ignored, None);
@@ -618,6 +742,7 @@ fn a_finish_from_a_non_holder_is_ignored() {
         Event::GrantFinished {
             holder: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(d.ignored, Some(Ignored::NotGrantHolder));
@@ -670,6 +795,7 @@ fn consent_from_a_device_that_does_not_own_the_vehicle_is_ignored() {
                 holder,
                 granted_by,
                 stamp: S,
+                sender: by(granted_by),
             },
         );
         assert_eq!(d.ignored, Some(why));
@@ -690,6 +816,7 @@ fn consent_of_an_owner_that_just_released_counts_for_one_timeout() {
             holder: OP_B,
             granted_by: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(change(&d), Some((None, Some(OP_B), Reason::Granted)));
@@ -704,6 +831,7 @@ fn consent_of_an_owner_that_just_released_counts_for_one_timeout() {
             holder: OP_B,
             granted_by: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(d.ignored, Some(Ignored::ConsentNotFromOwner));
@@ -720,6 +848,7 @@ fn consent_of_a_preempted_owner_does_not_count() {
             holder: OP_B,
             granted_by: OP_A,
             stamp: S,
+            sender: by(OP_A),
         },
     );
     assert_eq!(d.ignored, Some(Ignored::ConsentNotFromOwner));

@@ -13,7 +13,11 @@
 //! - the failsafe takes over no later than the timeout after the last live sample, and
 //!   `next_deadline` names exactly that instant;
 //! - only the owner's own latest, fresh sample is ever applied;
-//! - the same event sequence gives the same decisions.
+//! - the same event sequence gives the same decisions;
+//! - trust (docs/design.md §4b): a device id is pinned to the first participant heard speaking
+//!   for it; samples, consent and FINISH claiming an id pinned to another participant, and
+//!   strengths outside the hierarchy, change nothing; whoever owns speaks from the participant
+//!   its id is pinned to.
 
 mod common;
 
@@ -24,15 +28,20 @@ use rove_core::arbiter::{
     Arbiter, ArbiterConfig, Decision, Event, Ignored, Output, Owner, ParticipantId, Reason,
     Setpoint, WriterId,
 };
-use rove_core::hierarchy::Strength;
+use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
 use rove_core::msg::{CommandType, DeviceId, MovementCommand, TimeT};
 use std::collections::BTreeMap;
 use std::time::Duration;
 
 const TIMEOUT: Duration = Duration::from_millis(100);
 
-/// The writers in play: (writer, device, strength). Equal strengths (220) and a duplicate
-/// device id (device 1 on two writers) make ties common.
+/// Pins lapse this long after their participant last spoke, or left (the defaults).
+const HOLD: Duration = Duration::from_secs(3);
+const GRACE: Duration = Duration::from_millis(500);
+
+/// The writers in play: (writer, device, strength). Equal strengths (220) and a device id on
+/// two participants' writers (device 1 on participants 1 and 5, device 2 on 2 and 6) make ties
+/// and spoofing attempts common; participant 7 streams at a strength the hierarchy cannot give.
 fn cast() -> Vec<(WriterId, DeviceId, u16)> {
     vec![
         (w(1), 1, 220),
@@ -43,6 +52,9 @@ fn cast() -> Vec<(WriterId, DeviceId, u16)> {
         (pw(1), 1, 65535),
         (pw(2), 2, 65535),
         (pw(3), 3, 65535),
+        (w(6), 2, 230),
+        (pw(6), 2, 65535),
+        (w(7), 4, 65534),
     ]
 }
 
@@ -59,13 +71,18 @@ enum Gen {
     Release(usize),
     WriterGone(usize),
     ParticipantGone(u32),
-    /// `granted_by: None` = whoever owns the vehicle when the event is played.
+    /// `granted_by: None` = whoever owns the vehicle when the event is played; `sender: None`
+    /// = the participant `granted_by` is pinned to.
     Accept {
         holder: DeviceId,
         granted_by: Option<DeviceId>,
         stamp: u64,
+        sender: Option<u32>,
     },
-    Finish(DeviceId, u64),
+    /// (holder, stamp, sender: `None` = the holder's pinned participant)
+    Finish(DeviceId, u64, Option<u32>),
+    /// A participant speaks as a device (DeviceInfo, REQUEST…).
+    Heard(DeviceId, u32),
     Tick,
 }
 
@@ -77,9 +94,10 @@ fn gen_event() -> impl Strategy<Value = Gen> {
         1 => (0..n).prop_map(Gen::Release),
         1 => (0..n).prop_map(Gen::WriterGone),
         1 => (1u32..=5).prop_map(Gen::ParticipantGone),
-        1 => (prop::sample::select(vec![1, 2, 3, VEHICLE]), prop::option::weighted(0.4, 1i64..=4), 0u64..4)
-            .prop_map(|(holder, granted_by, stamp)| Gen::Accept { holder, granted_by, stamp }),
-        1 => (1i64..=4, 0u64..4).prop_map(|(holder, stamp)| Gen::Finish(holder, stamp)),
+        1 => (prop::sample::select(vec![1, 2, 3, VEHICLE]), prop::option::weighted(0.4, 1i64..=4), 0u64..4, prop::option::weighted(0.3, 1u32..=8))
+            .prop_map(|(holder, granted_by, stamp, sender)| Gen::Accept { holder, granted_by, stamp, sender }),
+        1 => (1i64..=4, 0u64..4, prop::option::weighted(0.3, 1u32..=8)).prop_map(|(holder, stamp, sender)| Gen::Finish(holder, stamp, sender)),
+        1 => (prop::sample::select(vec![1, 2, 3, 4, VEHICLE]), 1u32..=8).prop_map(|(d, p)| Gen::Heard(d, p)),
         3 => Just(Gen::Tick),
     ]
 }
@@ -93,8 +111,10 @@ fn scenario() -> impl Strategy<Value = Vec<(u64, Gen)>> {
 fn play(steps: &[(u64, Gen)]) -> (Vec<(MonoTime, Event)>, Vec<Decision>) {
     let cast = cast();
     let mut arb = Arbiter::new(VEHICLE, ArbiterConfig::default());
+    arb.pin_own(ParticipantId(1000));
     let mut now = 0;
     let mut played = Vec::new();
+    let participant = |p: u32| ParticipantId(u128::from(p));
     let mut decisions = Vec::new();
     for (dt, g) in steps {
         now += dt;
@@ -132,14 +152,28 @@ fn play(steps: &[(u64, Gen)]) -> (Vec<(MonoTime, Event)>, Vec<Decision>) {
                 holder,
                 granted_by,
                 stamp,
-            } => Event::GrantAccepted {
-                holder: *holder,
-                granted_by: granted_by.unwrap_or(arb.controller_id()),
-                stamp: TimeT(*stamp),
-            },
-            Gen::Finish(holder, stamp) => Event::GrantFinished {
-                holder: *holder,
-                stamp: TimeT(*stamp),
+                sender,
+            } => {
+                let granted_by = granted_by.unwrap_or(arb.controller_id());
+                let pinned = arb.pinned(ms(now), granted_by);
+                Event::GrantAccepted {
+                    holder: *holder,
+                    granted_by,
+                    stamp: TimeT(*stamp),
+                    sender: sender.map(participant).or(pinned).unwrap_or(participant(8)),
+                }
+            }
+            Gen::Finish(holder, stamp, sender) => {
+                let pinned = arb.pinned(ms(now), *holder);
+                Event::GrantFinished {
+                    holder: *holder,
+                    stamp: TimeT(*stamp),
+                    sender: sender.map(participant).or(pinned).unwrap_or(participant(8)),
+                }
+            }
+            Gen::Heard(device, p) => Event::Heard {
+                device: *device,
+                sender: participant(*p),
             },
             Gen::Tick => Event::Tick,
         };
@@ -162,6 +196,8 @@ struct Shadow {
 
 #[derive(Debug, Default)]
 struct Model {
+    /// device → (participant, pinned until).
+    pins: BTreeMap<DeviceId, (ParticipantId, MonoTime)>,
     writers: BTreeMap<WriterId, Shadow>,
     grant: Option<DeviceId>,
     grant_stamp: TimeT,
@@ -170,6 +206,37 @@ struct Model {
 }
 
 impl Model {
+    fn new() -> Self {
+        let mut model = Model::default();
+        model
+            .pins
+            .insert(VEHICLE, (ParticipantId(1000), MonoTime::MAX));
+        model
+    }
+
+    /// Whether `p` may speak as `device` at `now`; pins or refreshes if so.
+    fn claim(&mut self, now: MonoTime, device: DeviceId, p: ParticipantId) -> bool {
+        match self.pins.get(&device) {
+            Some((owner, until)) if *owner != p && now < *until => false,
+            Some((owner, until)) if *owner == p => {
+                let until = (*until).max(now + HOLD);
+                self.pins.insert(device, (p, until));
+                true
+            }
+            _ => {
+                self.pins.insert(device, (p, now + HOLD));
+                true
+            }
+        }
+    }
+
+    fn pinned(&self, now: MonoTime, device: DeviceId) -> Option<ParticipantId> {
+        self.pins
+            .get(&device)
+            .filter(|(_, until)| now < *until)
+            .map(|(p, _)| *p)
+    }
+
     fn live(&self, s: &Shadow, now: MonoTime) -> bool {
         s.last.is_some_and(|t| now < t + TIMEOUT)
     }
@@ -223,8 +290,12 @@ impl Model {
                 arrival,
             } => {
                 let arrival = arrival.min(now);
+                let in_hierarchy = strength == Strength::PRIORITY
+                    || Hierarchy::STANDARD.rank_of(strength).is_some();
                 if command.dest_id != VEHICLE
                     || strength.0 == 0
+                    || !in_hierarchy
+                    || !self.claim(now, command.src_id, writer.participant)
                     || now.saturating_since(arrival) >= TIMEOUT
                 {
                     return false;
@@ -282,6 +353,11 @@ impl Model {
                 false
             }
             Event::ParticipantGone { participant } => {
+                for (p, until) in self.pins.values_mut() {
+                    if *p == participant {
+                        *until = (*until).min(now + GRACE);
+                    }
+                }
                 let gone: Vec<_> = self
                     .writers
                     .keys()
@@ -295,17 +371,38 @@ impl Model {
                 }
                 false
             }
-            Event::GrantAccepted { holder, stamp, .. } => {
+            Event::GrantAccepted {
+                holder,
+                stamp,
+                granted_by,
+                sender,
+            } => {
+                let believed = self.claim(now, granted_by, sender);
+                assert!(
+                    believed || !grant_taken,
+                    "a grant on consent from a stranger"
+                );
                 if grant_taken {
                     self.grant = Some(holder);
                     self.grant_stamp = stamp;
                 }
                 false
             }
-            Event::GrantFinished { holder, stamp } => {
-                if self.grant == Some(holder) && stamp >= self.grant_stamp {
+            Event::GrantFinished {
+                holder,
+                stamp,
+                sender,
+            } => {
+                if self.claim(now, holder, sender)
+                    && self.grant == Some(holder)
+                    && stamp >= self.grant_stamp
+                {
                     self.grant = None;
                 }
+                false
+            }
+            Event::Heard { device, sender } => {
+                self.claim(now, device, sender);
                 false
             }
             Event::Tick => false,
@@ -314,8 +411,9 @@ impl Model {
 }
 
 fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), TestCaseError> {
-    let mut model = Model::default();
+    let mut model = Model::new();
     let mut arb = Arbiter::new(VEHICLE, ArbiterConfig::default());
+    arb.pin_own(ParticipantId(1000));
     let mut last_output_seq = 0;
     let mut driving = false;
     for (i, ((now, event), d)) in played.iter().zip(decisions).enumerate() {
@@ -348,6 +446,19 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
             let arbiter_took_it = matches!(d.ignored, None | Some(Ignored::PriorityWithoutGrant));
             prop_assert_eq!(arbiter_took_it, accepted, "sample acceptance at step {}", i);
         }
+
+        // Trust: whoever owns speaks from the participant its id is pinned to, and a message
+        // not believed says who sent it and which id it claimed.
+        if let Owner::Controller(c) = after {
+            prop_assert_eq!(
+                model.pinned(now, c.device),
+                Some(c.writer.participant),
+                "owner {:?} speaks for an id pinned elsewhere at step {}",
+                c,
+                i
+            );
+        }
+        prop_assert_eq!(d.suspect.is_some(), d.ignored == Some(Ignored::Untrusted));
 
         // At most one owner, consistently reported.
         match d.owner_change {
@@ -486,8 +597,14 @@ proptest! {
     #[test]
     fn failsafe_no_later_than_timeout_after_last_sample(
         gaps in prop::collection::vec(0u64..99, 1..40),
-        strength in 1u16..65535,
+        level in 0usize..3,
+        class in 0usize..4,
+        offset in 0u8..=9,
     ) {
+        let strength = Hierarchy::STANDARD
+            .strength(Level::ALL[level], DeviceClass::ALL[class], offset)
+            .expect("valid offset")
+            .0;
         let mut arb = Arbiter::new(VEHICLE, ArbiterConfig::default());
         let mut now = ms(0);
         for gap in gaps {

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{VEHICLE, command, ms, pw, w};
-use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, WriterId};
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, ParticipantId, WriterId};
 use rove_core::handover::{
     Action, AutoAccept, Handover, HandoverConfig, HandoverSettings, Outcome, Refusal,
 };
@@ -464,9 +464,9 @@ impl Bus {
         while let Some((who, action)) = queue.pop() {
             match action {
                 Action::Send(m) => {
-                    if let Some(e) = Event::from_request_control(VEHICLE, &m) {
-                        self.event(t, e);
-                    }
+                    // Operator i speaks from participant i + 1 (its writers `w`/`pw(i + 1)`).
+                    let sender = ParticipantId(who as u128 + 1);
+                    self.event(t, Event::from_request_control(VEHICLE, &m, sender));
                     for i in 0..self.ops.len() {
                         if i != who {
                             let out = self.ops[i].on_message(ms(t), &m);

@@ -30,6 +30,7 @@ use rove_core::msg::{CommandType, DeviceId, DeviceInfo, DeviceType, MovementComm
 use rove_core::session::{
     Command, Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
 };
+use rove_core::trust::TrustConfig;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -89,6 +90,9 @@ fn policy() -> impl Strategy<Value = AutoAccept> {
     ])
 }
 
+/// The vehicle's own participant, which its DeviceInfo comes from.
+const VEHICLE_PARTICIPANT: ParticipantId = ParticipantId(0xffff);
+
 fn participant(i: usize) -> ParticipantId {
     ParticipantId(u128::from(IDS[i].unsigned_abs()))
 }
@@ -122,11 +126,25 @@ impl World {
                         heartbeat: Duration::from_millis(500),
                         confirm_actions: false,
                         request: None,
+                        participant: participant(i),
+                        trust: TrustConfig::default(),
                     },
                     now,
                 )
             })
-            .collect();
+            .collect::<Vec<_>>();
+        // Discovery: every session knows the others' regular writers and their strengths.
+        let mut sessions = sessions;
+        for (i, session) in sessions.iter_mut().enumerate() {
+            for j in (0..3).filter(|&j| j != i) {
+                let writer = Writer::Regular.id(participant(j));
+                let found = SessionEvent::WriterFound {
+                    writer,
+                    strength: Strength(STRENGTHS[j]),
+                };
+                session.step(now, TimeT(0), found);
+            }
+        }
         World {
             now,
             sessions,
@@ -178,8 +196,14 @@ impl World {
                 for j in 0..3 {
                     if self.live(j) {
                         let (now, stamp) = (self.now, self.stamp());
-                        let more =
-                            self.sessions[j].step(now, stamp, SessionEvent::RequestControl(msg));
+                        let more = self.sessions[j].step(
+                            now,
+                            stamp,
+                            SessionEvent::RequestControl {
+                                msg,
+                                from: participant(i),
+                            },
+                        );
                         queue.extend(more.into_iter().map(|e| (j, e)));
                     }
                 }
@@ -221,7 +245,14 @@ impl World {
             controller_id: self.vehicle.controller_id(),
         };
         for i in 0..3 {
-            self.step(i, SessionEvent::DeviceInfo(info.clone()))?;
+            let from = VEHICLE_PARTICIPANT;
+            self.step(
+                i,
+                SessionEvent::DeviceInfo {
+                    info: info.clone(),
+                    from,
+                },
+            )?;
         }
         Ok(())
     }

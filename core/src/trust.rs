@@ -1,0 +1,423 @@
+//! Who may say what (docs/design.md §4b): device ids pinned to participants, and the strengths
+//! a vehicle believes.
+//!
+//! Identity is never taken from a payload field. `src_id`, `current_controller_id` and a
+//! DeviceInfo's `device_id` are *claims*; the sender is the DDS participant the sample came from.
+//! [`Identities`] pins each device id to the first participant heard claiming it, and refuses
+//! the claim from any other participant while the pin holds:
+//! - a pin is refreshed by every message its participant sends as that id;
+//! - it lapses [`TrustConfig::hold`] after the last one (a crashed device, whose participant
+//!   lease rustdds only notices after ~50 s, frees its id as it leaves the device lists), or
+//!   [`TrustConfig::grace`] after its participant left (a restarted process gets a new
+//!   participant and takes its id back, but nobody can snatch the id the instant it is free).
+//!
+//! Without DDS Security the first participant to speak for an id wins it. That cannot stop a
+//! rogue that speaks first or while the device is away; it stops every takeover of a device
+//! that is present, which is what an operator relies on. Under security the certificate, not
+//! first sight, will say which participant owns an id.
+//!
+//! [`Access`] bounds the strengths a vehicle believes: only strengths the configured hierarchy
+//! can give (any level, class and fine offset), the failsafe's 0 never, a priority grant's 65535
+//! only through the arbiter's grant rules; with an access list, only listed ids, each up to
+//! the highest rank it may claim.
+
+use crate::arbiter::ParticipantId;
+use crate::hierarchy::{DeviceClass, Hierarchy, Level, MAX_OFFSET, Strength};
+use crate::msg::DeviceId;
+use crate::time::MonoTime;
+use std::collections::BTreeMap;
+use std::fmt;
+use std::time::Duration;
+
+/// How long pins hold, and how many ids are tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TrustConfig {
+    /// A pin lapses this long after its participant last spoke as the id. Default 3 s: three
+    /// missed DeviceInfo heartbeats at the slowest default, like the device lists.
+    pub hold: Duration,
+    /// A pin lapses this long after its participant left the domain. Default 500 ms.
+    pub grace: Duration,
+    /// Most ids pinned at once: a flood of invented ids cannot grow the table beyond it; when it
+    /// is full, lapsed pins make room, and a new id is refused if none has lapsed.
+    pub max_ids: usize,
+}
+
+impl Default for TrustConfig {
+    fn default() -> Self {
+        TrustConfig {
+            hold: Duration::from_secs(3),
+            grace: Duration::from_millis(500),
+            max_ids: 1024,
+        }
+    }
+}
+
+/// Why a message was not believed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Distrust {
+    /// The id belongs to another participant.
+    IdOfAnotherParticipant {
+        /// The participant the id is pinned to.
+        owner: ParticipantId,
+    },
+    /// The id table is full of live pins.
+    TooManyIds,
+    /// A ControlCommand writer's strength that the hierarchy cannot give.
+    StrengthOutsideHierarchy(Strength),
+    /// The id is not in the vehicle's access list.
+    NotAllowed,
+    /// A strength above the highest rank the access list gives this id.
+    AboveAccess {
+        /// The strength claimed.
+        claimed: Strength,
+        /// The highest the id may have.
+        max: Strength,
+    },
+}
+
+/// A message that was not believed: which id it claimed, who sent it, and why.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Suspect {
+    /// The device id the message claimed to speak for.
+    pub device: DeviceId,
+    /// The participant it came from.
+    pub sender: ParticipantId,
+    /// Why it was not believed.
+    pub why: Distrust,
+}
+
+impl fmt::Display for ParticipantId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:024x}", self.0)
+    }
+}
+
+impl fmt::Display for Suspect {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (id, sender) = (self.device, self.sender);
+        match self.why {
+            Distrust::IdOfAnotherParticipant { owner } => write!(
+                f,
+                "participant {sender} claims device id {id}, which belongs to participant {owner}"
+            ),
+            Distrust::TooManyIds => write!(
+                f,
+                "participant {sender} claims device id {id}, but the id table is full"
+            ),
+            Distrust::StrengthOutsideHierarchy(s) => write!(
+                f,
+                "participant {sender} streams as device {id} at strength {s}, which the \
+                 hierarchy cannot give"
+            ),
+            Distrust::NotAllowed => write!(
+                f,
+                "participant {sender} streams as device {id}, which is not in [access]"
+            ),
+            Distrust::AboveAccess { claimed, max } => write!(
+                f,
+                "participant {sender} streams as device {id} at strength {claimed}, above its \
+                 [access] rank ({max} at most)"
+            ),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Pin {
+    participant: ParticipantId,
+    until: MonoTime,
+}
+
+/// Device ids pinned to participants; see the module docs.
+#[derive(Debug, Clone)]
+pub struct Identities {
+    config: TrustConfig,
+    pins: BTreeMap<DeviceId, Pin>,
+}
+
+impl Identities {
+    /// An empty table.
+    pub fn new(config: TrustConfig) -> Self {
+        Identities {
+            config,
+            pins: BTreeMap::new(),
+        }
+    }
+
+    /// Pins `device` to `participant` for good (a node's own id): nobody else can claim it.
+    pub fn pin_own(&mut self, device: DeviceId, participant: ParticipantId) {
+        self.pins.insert(
+            device,
+            Pin {
+                participant,
+                until: MonoTime::MAX,
+            },
+        );
+    }
+
+    /// `participant` speaks as `device` at `now`: believed (and the pin refreshed, or made at
+    /// first sight), or the reason it is not.
+    pub fn claim(
+        &mut self,
+        now: MonoTime,
+        device: DeviceId,
+        participant: ParticipantId,
+    ) -> Result<(), Distrust> {
+        let until = now + self.config.hold;
+        match self.pins.get_mut(&device) {
+            Some(pin) if pin.participant == participant => {
+                pin.until = pin.until.max(until);
+                return Ok(());
+            }
+            Some(pin) if now < pin.until => {
+                return Err(Distrust::IdOfAnotherParticipant {
+                    owner: pin.participant,
+                });
+            }
+            _ => {}
+        }
+        if !self.pins.contains_key(&device) && self.pins.len() >= self.config.max_ids {
+            self.pins.retain(|_, pin| now < pin.until);
+            if self.pins.len() >= self.config.max_ids {
+                return Err(Distrust::TooManyIds);
+            }
+        }
+        self.pins.insert(device, Pin { participant, until });
+        Ok(())
+    }
+
+    /// [`Identities::claim`] as a [`Suspect`] report.
+    pub fn check(
+        &mut self,
+        now: MonoTime,
+        device: DeviceId,
+        sender: ParticipantId,
+    ) -> Result<(), Suspect> {
+        self.claim(now, device, sender).map_err(|why| Suspect {
+            device,
+            sender,
+            why,
+        })
+    }
+
+    /// The participant `device` is pinned to at `now`, if the pin holds.
+    pub fn owner(&self, now: MonoTime, device: DeviceId) -> Option<ParticipantId> {
+        self.pins
+            .get(&device)
+            .filter(|pin| now < pin.until)
+            .map(|pin| pin.participant)
+    }
+
+    /// `participant` left the domain at `now`: its pins lapse after the grace period.
+    pub fn participant_gone(&mut self, now: MonoTime, participant: ParticipantId) {
+        let until = now + self.config.grace;
+        for pin in self.pins.values_mut() {
+            if pin.participant == participant {
+                pin.until = pin.until.min(until);
+            }
+        }
+    }
+
+    /// How many ids are pinned (lapsed pins included until they are replaced or evicted).
+    pub fn len(&self) -> usize {
+        self.pins.len()
+    }
+
+    /// True when no id is pinned.
+    pub fn is_empty(&self) -> bool {
+        self.pins.is_empty()
+    }
+}
+
+/// One entry of a vehicle's access list: an operator id and the highest rank it may claim.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Grant {
+    /// The operator's device id.
+    pub id: DeviceId,
+    /// The highest level it may claim.
+    pub level: Level,
+    /// The highest device class it may claim at that level.
+    pub device_class: DeviceClass,
+}
+
+/// The strengths a vehicle believes; see the module docs.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Access {
+    hierarchy: Hierarchy,
+    /// `None`: every id inside the hierarchy (no `[access]`).
+    allowed: Option<BTreeMap<DeviceId, Strength>>,
+}
+
+impl Access {
+    /// Every id may drive at any strength `hierarchy` can give.
+    pub fn open(hierarchy: Hierarchy) -> Self {
+        Access {
+            hierarchy,
+            allowed: None,
+        }
+    }
+
+    /// Only the listed ids may drive, each up to its rank (with the largest fine offset).
+    pub fn listed(hierarchy: Hierarchy, grants: &[Grant]) -> Self {
+        let allowed = grants
+            .iter()
+            .map(|g| {
+                let max = hierarchy.base(g.level, g.device_class).0 + u16::from(MAX_OFFSET);
+                (g.id, Strength(max))
+            })
+            .collect();
+        Access {
+            hierarchy,
+            allowed: Some(allowed),
+        }
+    }
+
+    /// True when any id inside the hierarchy may drive (no access list).
+    pub fn is_open(&self) -> bool {
+        self.allowed.is_none()
+    }
+
+    /// Whether `device` may drive at all.
+    pub fn allows(&self, device: DeviceId) -> Result<(), Distrust> {
+        match &self.allowed {
+            Some(list) if !list.contains_key(&device) => Err(Distrust::NotAllowed),
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether a ControlCommand writer at `strength` may speak for `device`. The priority
+    /// strength passes here: the arbiter lets it drive only while `device` holds a grant.
+    pub fn check_strength(&self, device: DeviceId, strength: Strength) -> Result<(), Distrust> {
+        self.allows(device)?;
+        if strength == Strength::PRIORITY {
+            return Ok(());
+        }
+        if self.hierarchy.rank_of(strength).is_none() {
+            return Err(Distrust::StrengthOutsideHierarchy(strength));
+        }
+        match self.allowed.as_ref().and_then(|list| list.get(&device)) {
+            Some(&max) if strength > max => Err(Distrust::AboveAccess {
+                claimed: strength,
+                max,
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const A: ParticipantId = ParticipantId(0xa);
+    const B: ParticipantId = ParticipantId(0xb);
+
+    fn at(ms: u64) -> MonoTime {
+        MonoTime::from_millis(ms)
+    }
+
+    fn ids() -> Identities {
+        Identities::new(TrustConfig {
+            hold: Duration::from_secs(3),
+            grace: Duration::from_millis(500),
+            max_ids: 4,
+        })
+    }
+
+    #[test]
+    fn first_participant_to_speak_for_an_id_owns_it_while_it_speaks() {
+        let mut ids = ids();
+        assert_eq!(ids.claim(at(0), 11, A), Ok(()));
+        assert_eq!(
+            ids.claim(at(10), 11, B),
+            Err(Distrust::IdOfAnotherParticipant { owner: A })
+        );
+        // A keeps speaking: the pin never lapses.
+        for t in (1000..=9000).step_by(1000) {
+            assert_eq!(ids.claim(at(t), 11, A), Ok(()));
+            assert!(ids.claim(at(t + 500), 11, B).is_err());
+        }
+        assert_eq!(ids.owner(at(9000), 11), Some(A));
+    }
+
+    #[test]
+    fn a_silent_pin_lapses_after_hold_and_a_departed_one_after_grace() {
+        let mut ids = ids();
+        ids.claim(at(0), 11, A).expect("first sight");
+        assert!(ids.claim(at(2999), 11, B).is_err());
+        assert_eq!(ids.claim(at(3000), 11, B), Ok(()));
+        assert_eq!(ids.owner(at(3000), 11), Some(B));
+
+        ids.claim(at(4000), 12, A).expect("first sight");
+        ids.participant_gone(at(4100), A);
+        assert!(ids.claim(at(4599), 12, B).is_err());
+        assert_eq!(ids.claim(at(4600), 12, B), Ok(()));
+    }
+
+    #[test]
+    fn own_id_is_never_given_away() {
+        let mut ids = ids();
+        ids.pin_own(100, A);
+        ids.participant_gone(at(0), B);
+        assert!(ids.claim(at(1_000_000), 100, B).is_err());
+        // Leaving lapses even our own pin: a node that left has no id.
+        ids.participant_gone(at(1_000_000), A);
+        assert_eq!(ids.claim(at(1_000_500), 100, B), Ok(()));
+    }
+
+    #[test]
+    fn a_full_table_evicts_lapsed_pins_and_refuses_when_all_hold() {
+        let mut ids = ids();
+        for id in 1..=4 {
+            ids.claim(at(0), id, A).expect("room");
+        }
+        assert_eq!(ids.claim(at(100), 5, B), Err(Distrust::TooManyIds));
+        // Known ids are still believed when the table is full.
+        assert_eq!(ids.claim(at(100), 1, A), Ok(()));
+        assert_eq!(ids.claim(at(3000), 5, B), Ok(()));
+        assert!(ids.len() <= 4);
+        assert_eq!(ids.owner(at(3000), 1), Some(A), "refreshed at 100 ms");
+    }
+
+    #[test]
+    fn open_access_takes_every_hierarchy_strength_and_nothing_else() {
+        let access = Access::open(Hierarchy::STANDARD);
+        for s in [110, 119, 220, 229, 349, 65535] {
+            assert_eq!(access.check_strength(11, Strength(s)), Ok(()), "{s}");
+        }
+        for s in [1, 109, 150, 350, 65534] {
+            assert_eq!(
+                access.check_strength(11, Strength(s)),
+                Err(Distrust::StrengthOutsideHierarchy(Strength(s)))
+            );
+        }
+    }
+
+    #[test]
+    fn an_access_list_limits_ids_and_their_rank() {
+        let access = Access::listed(
+            Hierarchy::STANDARD,
+            &[Grant {
+                id: 11,
+                level: Level::Stationary,
+                device_class: DeviceClass::Laptop,
+            }],
+        );
+        assert!(!access.is_open());
+        assert_eq!(access.check_strength(11, Strength(229)), Ok(()));
+        assert_eq!(access.check_strength(11, Strength(110)), Ok(()));
+        assert_eq!(access.check_strength(11, Strength::PRIORITY), Ok(()));
+        assert_eq!(
+            access.check_strength(11, Strength(240)),
+            Err(Distrust::AboveAccess {
+                claimed: Strength(240),
+                max: Strength(229)
+            })
+        );
+        assert_eq!(
+            access.check_strength(12, Strength(110)),
+            Err(Distrust::NotAllowed)
+        );
+        assert_eq!(access.allows(12), Err(Distrust::NotAllowed));
+    }
+}
