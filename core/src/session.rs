@@ -734,6 +734,14 @@ impl OperatorSession {
         self.selected
     }
 
+    /// Whether `participant` may speak for `device` at `now` (its pin, or no pin): a
+    /// DeviceInfo disposal from anyone else is not believed.
+    pub fn speaks_for(&self, now: MonoTime, device: DeviceId, participant: ParticipantId) -> bool {
+        self.identities
+            .owner(now, device)
+            .is_none_or(|p| p == participant)
+    }
+
     /// The handover state (for tests and status).
     pub fn handover(&self) -> &Handover {
         &self.handover

@@ -7,11 +7,12 @@
 
 use anyhow::{Context, anyhow};
 use rove_core::arbiter::ArbiterConfig;
-use rove_core::config::Int;
+use rove_core::config::{Int, Unique};
 use rove_core::error::ConfigErrors;
 use rove_core::handover::{HandoverConfig, HandoverSettings};
 use rove_core::hierarchy::{DeviceClass, Hierarchy, HierarchyTable, Level, Strength};
 use rove_core::msg::{DeviceId, Mode, MovementCommand};
+use rove_core::trust::{Access, Grant, TrustConfig};
 use rove_core::watchdog::CommandTimeout;
 use serde::{Deserialize, Serialize};
 use std::net::Ipv4Addr;
@@ -59,6 +60,28 @@ pub struct LogSection {
 pub struct VehicleSection {
     /// Owner silence before re-arbitration (absent: 100).
     pub command_timeout_ms: Option<Int>,
+}
+
+/// `[access]`: who may drive this vehicle. Absent: any id, at any strength inside the
+/// hierarchy (docs/design.md §4b).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccessSection {
+    /// The operators allowed to drive (`[[access.operators]]`).
+    #[serde(default)]
+    pub operators: Vec<AccessEntry>,
+}
+
+/// One operator allowed to drive, with the highest rank it may claim.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccessEntry {
+    /// Its device id.
+    pub id: DeviceId,
+    /// The highest level it may claim.
+    pub level: Level,
+    /// The highest device class it may claim at that level.
+    pub device_class: DeviceClass,
 }
 
 /// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
@@ -133,6 +156,9 @@ struct VehicleFile<T> {
     #[serde(default)]
     vehicle: VehicleSection,
     #[serde(default)]
+    hierarchy: HierarchyTable,
+    access: Option<AccessSection>,
+    #[serde(default)]
     output: T,
 }
 
@@ -160,6 +186,8 @@ fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle> {
             network: file.network,
             log: file.log,
             vehicle: file.vehicle,
+            hierarchy: file.hierarchy,
+            access: file.access,
             output: wrap(file.output),
         })
     }
@@ -217,6 +245,11 @@ pub struct RawVehicle {
     /// `[vehicle]`.
     #[serde(default)]
     pub vehicle: VehicleSection,
+    /// `[hierarchy]`: the strengths operators may have (absent: docs/design.md §3).
+    #[serde(default)]
+    pub hierarchy: HierarchyTable,
+    /// `[access]`: who may drive.
+    pub access: Option<AccessSection>,
     /// `[output]`.
     pub output: OutputSection,
 }
@@ -351,6 +384,19 @@ pub struct Common {
     pub log_filter: Option<String>,
 }
 
+impl Common {
+    /// How long device ids stay pinned to their participants: three heartbeats after a
+    /// device's last message (it leaves the device lists then too), one after its participant
+    /// left the domain.
+    pub fn trust(&self) -> TrustConfig {
+        TrustConfig {
+            hold: self.heartbeat * 3,
+            grace: self.heartbeat,
+            ..TrustConfig::default()
+        }
+    }
+}
+
 /// A validated vehicle configuration.
 #[derive(Debug, Clone)]
 pub struct VehicleConfig {
@@ -358,6 +404,8 @@ pub struct VehicleConfig {
     pub common: Common,
     /// Arbiter settings.
     pub arbiter: ArbiterConfig,
+    /// The ids and strengths this vehicle believes.
+    pub access: Access,
     /// Output adapter.
     pub output: OutputConfig,
 }
@@ -641,12 +689,38 @@ impl RawVehicle {
         let timeout = errors
             .int(key, millis, 0..=Int::MAX, "")
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
+        let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
+        let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
+        let access = match &self.access {
+            None => Access::open(hierarchy),
+            Some(section) => {
+                let mut unique = Unique::default();
+                for (i, entry) in section.operators.iter().enumerate() {
+                    let key = format!("access.operators[{i}].id");
+                    if entry.id <= 0 {
+                        errors.add(&key, entry.id, "must be a positive device id");
+                    }
+                    let shown = (key.as_str(), entry.id);
+                    unique.check(&mut errors, entry.id, format!("operators[{i}]"), shown, "");
+                }
+                let grants: Vec<Grant> = (section.operators.iter())
+                    .map(|e| Grant {
+                        id: e.id,
+                        level: e.level,
+                        device_class: e.device_class,
+                    })
+                    .collect();
+                Access::listed(hierarchy, &grants)
+            }
+        };
         errors.into_result(VehicleConfig {
-            common,
             arbiter: ArbiterConfig {
                 command_timeout: timeout.unwrap_or(CommandTimeout::DEFAULT),
+                trust: common.trust(),
                 ..ArbiterConfig::default()
             },
+            common,
+            access,
             output,
         })
     }

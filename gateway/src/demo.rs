@@ -24,11 +24,14 @@ use rove_core::session::{
     Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput,
 };
 use rove_core::sim::{SimAction, SimOutput};
+use rove_core::trust::TrustConfig;
 use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::time::Duration;
 
 const VEHICLE: DeviceId = 100;
+/// The vehicle's participant, which its DeviceInfo comes from.
+const VEHICLE_PARTICIPANT: ParticipantId = ParticipantId(0x100_0000);
 /// Operators stream at the default 50 Hz.
 const STREAM_PERIOD_MS: u64 = 20;
 /// The vehicle publishes its DeviceInfo at the default heartbeat, and at once on owner changes.
@@ -95,8 +98,8 @@ impl World<'_> {
     fn deliver(&mut self, from: usize, effects: Vec<Effect>) -> anyhow::Result<()> {
         let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
         while let Some((i, effect)) = queue.pop_front() {
-            let op = &self.ops[i];
-            let event = effect.arbiter_event(VEHICLE, op.participant(), op.strength, self.now);
+            let (from, name) = (self.ops[i].participant(), self.ops[i].name);
+            let event = effect.arbiter_event(VEHICLE, from, self.ops[i].strength, self.now);
             match effect {
                 Effect::Send(msg) => {
                     for j in 0..self.ops.len() {
@@ -105,7 +108,7 @@ impl World<'_> {
                             let more = self.ops[j].session.step(
                                 now,
                                 stamp,
-                                SessionEvent::RequestControl(msg),
+                                SessionEvent::RequestControl { msg, from },
                             );
                             queue.extend(more.into_iter().map(|e| (j, e)));
                         }
@@ -113,11 +116,11 @@ impl World<'_> {
                 }
                 Effect::Report(report) => {
                     if !matches!(report, Report::Selected { .. } | Report::InputLive { .. }) {
-                        let line = format!("{}: {report}", op.name);
+                        let line = format!("{name}: {report}");
                         self.say(&line);
                     }
                 }
-                Effect::Refused(why) => anyhow::bail!("{}: {why}", op.name),
+                Effect::Refused(why) => anyhow::bail!("{name}: {why}"),
                 Effect::Write { .. } | Effect::Release { .. } | Effect::Confirm(_) => {}
             }
             if let Some(event) = event {
@@ -159,7 +162,14 @@ impl World<'_> {
             controller_id: self.vehicle.controller_id(),
         };
         for i in 0..self.ops.len() {
-            self.step(i, SessionEvent::DeviceInfo(info.clone()))?;
+            let from = VEHICLE_PARTICIPANT;
+            self.step(
+                i,
+                SessionEvent::DeviceInfo {
+                    info: info.clone(),
+                    from,
+                },
+            )?;
         }
         Ok(())
     }
@@ -180,6 +190,8 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
             heartbeat: Duration::from_millis(HEARTBEAT_MS),
             confirm_actions: false,
             request: None,
+            participant: ParticipantId(u128::from(id.unsigned_abs())),
+            trust: TrustConfig::default(),
         };
         Ok(Operator {
             name,

@@ -13,7 +13,7 @@
 //! at once), and the participant leaves.
 
 use crate::config::{InputChoice, OperatorConfig};
-use crate::dds::{Domain, KeyedControlCommand, KeyedDeviceInfo};
+use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo};
 use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
@@ -26,6 +26,7 @@ use rove_core::session::{
     Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
 use rustdds::with_key::Sample;
+use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
 use std::path::PathBuf;
 use std::sync::Arc;
 use tracing::{info, warn};
@@ -57,6 +58,30 @@ pub struct Options {
 
 /// Runs the operator role until `shutdown` completes or the console is closed.
 ///
+/// What a discovery event tells the session: ControlCommand writers found (with their
+/// strength) and lost, participants gone.
+fn discovery_event(event: DomainParticipantStatusEvent) -> Option<SessionEvent> {
+    match event {
+        DomainParticipantStatusEvent::WriterDetected { writer }
+            if writer.topic_name == rove_core::msg::topic_names::CONTROL_COMMAND =>
+        {
+            Some(SessionEvent::WriterFound {
+                writer: dds::writer_id(writer.guid),
+                strength: dds::strength_of(writer.qos.ownership())?,
+            })
+        }
+        DomainParticipantStatusEvent::WriterLost { guid, .. } => Some(SessionEvent::WriterLost {
+            writer: dds::writer_id(guid),
+        }),
+        DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+            Some(SessionEvent::ParticipantGone {
+                participant: dds::participant_id(id.as_ref()),
+            })
+        }
+        _ => None,
+    }
+}
+
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, the input cannot be opened,
 /// the API socket cannot be bound, or the record cannot be opened.
@@ -83,6 +108,8 @@ pub async fn run(
     let info_writer = domain.device_info_writer()?;
     let infos = domain.device_info_reader()?;
     let requests = domain.request_reader()?;
+    let listener = domain.participant.status_listener();
+    let my_participant = dds::writer_id(domain.participant.guid()).participant;
     info!(
         config = %options.config_path.display(),
         device = me,
@@ -119,6 +146,8 @@ pub async fn run(
             heartbeat: config.common.heartbeat,
             confirm_actions: options.console,
             request: options.request,
+            participant: my_participant,
+            trust: config.common.trust(),
         },
         clock.now(),
     );
@@ -142,6 +171,7 @@ pub async fn run(
         actions: actions_tx,
         shown_input: None,
         shown_streams: None,
+        untrusted_told: std::cell::Cell::new(None),
     };
     if let Some(path) = &config.api_socket {
         let socket = rove_console::ApiSocket::bind(path)
@@ -197,6 +227,7 @@ pub async fn run(
 
     let mut infos = infos.async_sample_stream();
     let mut requests = requests.async_sample_stream();
+    let mut status = listener.as_async_status_stream();
     let mut stream_timer = tokio::time::interval(config.stream_period);
     stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut heartbeat = tokio::time::interval(config.common.heartbeat);
@@ -251,36 +282,51 @@ pub async fn run(
             // From this loop, so that a hung loop stops the keep-alives.
             _ = keepalive.tick() => { notify.keepalive(); Vec::new() }
             sample = infos.next() => match sample {
-                Some(Ok(s)) => match s.into_value() {
-                    Sample::Value(KeyedDeviceInfo(info)) => {
-                        ui.emit(Event::DeviceSeen {
-                            id: info.device_id,
-                            name: info.name.clone(),
-                            kind: if info.device_type == DeviceType::Vehicle {
-                                DeviceKind::Vehicle
-                            } else {
-                                DeviceKind::Controller
-                            },
-                            owner: info.controller_id,
-                        });
-                        step(&mut session, SessionEvent::DeviceInfo(info))
+                Some(Ok(s)) => {
+                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    match s.into_value() {
+                        Sample::Value(KeyedDeviceInfo(info)) => {
+                            let seen = Event::DeviceSeen {
+                                id: info.device_id,
+                                name: info.name.clone(),
+                                kind: if info.device_type == DeviceType::Vehicle {
+                                    DeviceKind::Vehicle
+                                } else {
+                                    DeviceKind::Controller
+                                },
+                                owner: info.controller_id,
+                            };
+                            let effects = step(&mut session, SessionEvent::DeviceInfo { info, from });
+                            // Shown only if believed; the session reports it otherwise.
+                            if !effects.iter().any(|e| matches!(e, Effect::Report(Report::Untrusted(_)))) {
+                                ui.emit(seen);
+                            }
+                            effects
+                        }
+                        // Only the participant that speaks for a device can withdraw it.
+                        Sample::Dispose(id) if session.speaks_for(clock.now(), id, from) => {
+                            ui.emit(Event::DeviceGone { id });
+                            Vec::new()
+                        }
+                        Sample::Dispose(_) => Vec::new(),
                     }
-                    Sample::Dispose(id) => {
-                        ui.emit(Event::DeviceGone { id });
-                        Vec::new()
-                    }
-                },
+                }
                 Some(Err(e)) => { malformed.warn(&e); Vec::new() }
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
             sample = requests.next() => match sample {
                 Some(Ok(s)) => {
-                    let rc = *s.value();
-                    tracing::debug!(?rc.ack, rc.src_id, rc.current_controller_id, stamp = rc.timestamp.0, "RequestControl");
-                    step(&mut session, SessionEvent::RequestControl(rc))
+                    let msg = *s.value();
+                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    tracing::debug!(?msg.ack, msg.src_id, msg.current_controller_id, stamp = msg.timestamp.0, %from, "RequestControl");
+                    step(&mut session, SessionEvent::RequestControl { msg, from })
                 }
                 Some(Err(e)) => { malformed.warn(&e); Vec::new() }
                 None => anyhow::bail!("RequestControl stream ended"),
+            },
+            ev = status.next() => match ev.and_then(discovery_event) {
+                Some(event) => step(&mut session, event),
+                None => Vec::new(),
             },
             _ = sleep_until(deadline) => step(&mut session, SessionEvent::Tick),
         };
@@ -456,6 +502,9 @@ struct Ui {
     /// The last input and stream snapshots sent, so only changes go out.
     shown_input: Option<UiInput>,
     shown_streams: Option<rove_core::session::Streams>,
+    /// When a message that was not believed was last logged and shown: a flood of them is
+    /// told at most once per [`RateLimited::INTERVAL`].
+    untrusted_told: std::cell::Cell<Option<std::time::Instant>>,
 }
 
 impl Ui {
@@ -503,6 +552,13 @@ impl Ui {
 
     /// Logs a session report and tells the console what it shows.
     fn report(&self, report: Report) {
+        if let Report::Untrusted(_) = report {
+            let last = self.untrusted_told.get();
+            if last.is_some_and(|t| t.elapsed() < RateLimited::INTERVAL) {
+                return;
+            }
+            self.untrusted_told.set(Some(std::time::Instant::now()));
+        }
         let vehicle = report.vehicle();
         if report.is_warning() {
             warn!(vehicle, "{report}");
@@ -530,6 +586,9 @@ impl Ui {
             Report::RequestEnded { vehicle, outcome } => Event::RequestEnded {
                 vehicle,
                 outcome: outcome.into(),
+            },
+            Report::Untrusted(suspect) => Event::Notice {
+                text: format!("not believed: {suspect}"),
             },
             _ => return,
         };

@@ -4,11 +4,14 @@
 //! sample at once, devices re-publish it as a heartbeat, a graceful exit disposes it, and a
 //! device not heard for three heartbeats is shown offline (rustdds's own participant lease is
 //! ~50 s, far too slow for a crash). The same device id from two processes is reported as a
-//! duplicate, never merged.
+//! duplicate, never merged: the row shows what the participant the id is pinned to says
+//! (docs/design.md §4b), and the warning names every participant that claimed it.
 
-use crate::dds::{Domain, KeyedDeviceInfo};
+use crate::dds::{self, Domain, KeyedDeviceInfo};
 use futures::StreamExt;
+use rove_core::arbiter::ParticipantId;
 use rove_core::msg::{DeviceId, DeviceInfo, DeviceType};
+use rove_core::trust::{Identities, TrustConfig};
 use rustdds::with_key::Sample;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -40,6 +43,19 @@ pub struct Snapshot {
     pub devices: Vec<DeviceRow>,
     /// Ids announced by more than one process.
     pub duplicates: Vec<DeviceId>,
+    /// For each duplicate id: who claimed it, the believed participant first.
+    pub claims: Vec<Claim>,
+}
+
+/// A device id claimed by more than one participant.
+#[derive(Debug, Clone, Serialize)]
+pub struct Claim {
+    /// The id.
+    pub id: DeviceId,
+    /// The participant it is pinned to (its DeviceInfo is the one shown).
+    pub believed: String,
+    /// The others that claimed it.
+    pub others: Vec<String>,
 }
 
 #[derive(Debug)]
@@ -47,7 +63,9 @@ struct Seen {
     info: DeviceInfo,
     at: Instant,
     withdrawn: bool,
-    participants: BTreeSet<[u8; 12]>,
+    /// The participant the row's info comes from (the id's pin).
+    believed: ParticipantId,
+    participants: BTreeSet<ParticipantId>,
 }
 
 /// Options of `rove status`.
@@ -80,19 +98,28 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     let mut requests = domain.request_reader()?.async_sample_stream();
     let clock = crate::runtime::Clock::start();
     let mut seen: BTreeMap<DeviceId, Seen> = BTreeMap::new();
+    let mut ids = Identities::new(TrustConfig {
+        hold: options.heartbeat * 3,
+        grace: options.heartbeat,
+        ..TrustConfig::default()
+    });
     let mut next_print = tokio::time::Instant::now() + options.listen;
     loop {
         tokio::select! {
             sample = samples.next() => match sample {
                 Some(Ok(s)) => {
-                    let mut prefix = [0u8; 12];
-                    prefix.copy_from_slice(&s.sample_info().writer_guid().to_bytes()[..12]);
+                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
                     match s.into_value() {
                         Sample::Value(KeyedDeviceInfo(info)) => {
+                            let believed = ids.claim(clock.now(), info.device_id, from).is_ok();
                             let entry = seen.entry(info.device_id).or_insert_with(|| Seen {
                                 info: info.clone(), at: Instant::now(), withdrawn: false,
-                                participants: BTreeSet::new(),
+                                believed: from, participants: BTreeSet::new(),
                             });
+                            entry.participants.insert(from);
+                            if !believed {
+                                continue;
+                            }
                             if options.events {
                                 println!("{}", serde_json::json!({
                                     "wall_us": clock.wall_micros(), "kind": "device",
@@ -102,12 +129,14 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                             entry.info = info;
                             entry.at = Instant::now();
                             entry.withdrawn = false;
-                            entry.participants.insert(prefix);
+                            entry.believed = from;
                         }
                         Sample::Dispose(id) => {
                             if let Some(entry) = seen.get_mut(&id) {
-                                entry.participants.remove(&prefix);
-                                entry.withdrawn = entry.participants.is_empty();
+                                entry.participants.remove(&from);
+                                if entry.believed == from {
+                                    entry.withdrawn = true;
+                                }
                             }
                         }
                     }
@@ -154,14 +183,22 @@ fn snapshot(seen: &BTreeMap<DeviceId, Seen>, offline_after: Duration) -> Snapsho
             last_seen_ms: u64::try_from(s.at.elapsed().as_millis()).unwrap_or(u64::MAX),
         })
         .collect();
-    let duplicates = seen
+    let claims: Vec<Claim> = seen
         .values()
         .filter(|s| s.participants.len() > 1)
-        .map(|s| s.info.device_id)
+        .map(|s| Claim {
+            id: s.info.device_id,
+            believed: s.believed.to_string(),
+            others: (s.participants.iter())
+                .filter(|p| **p != s.believed)
+                .map(ToString::to_string)
+                .collect(),
+        })
         .collect();
     Snapshot {
         devices,
-        duplicates,
+        duplicates: claims.iter().map(|c| c.id).collect(),
+        claims,
     }
 }
 
@@ -186,9 +223,13 @@ pub fn table(snap: &Snapshot) -> String {
         .collect();
     let mut out = rove_console::view::status_text(&rows, 100);
     out.push('\n');
-    for id in &snap.duplicates {
+    for claim in &snap.claims {
         out.push_str(&format!(
-            "warning: device id {id} is used by more than one process\n"
+            "warning: device id {} is used by more than one process: shown as participant {} \
+             says; also claimed by {}\n",
+            claim.id,
+            claim.believed,
+            claim.others.join(", ")
         ));
     }
     out

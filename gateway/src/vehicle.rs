@@ -15,6 +15,12 @@
 //! live and the output's health, and is updated on every owner change and every heartbeat;
 //! `WATCHDOG=1` keep-alives are sent by this loop itself, so a hung loop stops them.
 //!
+//! Trust (docs/design.md §4b): every event carries the participant it came from; the arbiter
+//! pins device ids to participants and believes only strengths inside the hierarchy (or the
+//! `[access]` list). What it does not believe is logged (once per id and participant every
+//! 5 s) and counted in `STATUS=`. The vehicle reads DeviceInfo too, so that every present
+//! device's id is pinned to its participant before anyone else can claim it.
+//!
 //! Test hook: with the hidden `--test-stall-on-sigusr1 MS`, SIGUSR1 blocks this loop (the
 //! whole thread) for MS milliseconds, the way a hung device write would, after saying so in
 //! `STATUS=`. The sd_notify test uses it to see keep-alives stop. Without the option SIGUSR1
@@ -26,10 +32,11 @@ use crate::output::ManagedOutput;
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
-use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
+use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, ParticipantId};
 use rove_core::msg::{DeviceInfo, DeviceType};
+use rove_core::trust::Suspect;
 use rustdds::with_key::Sample;
-use rustdds::{DomainParticipantStatusEvent, StatusEvented};
+use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -72,7 +79,9 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     let info_writer = domain.device_info_writer()?;
     let commands = domain.command_reader()?;
     let requests = domain.request_reader()?;
+    let infos = domain.device_info_reader()?;
     let listener = domain.participant.status_listener();
+    let my_participant = dds::writer_id(domain.participant.guid()).participant;
     info!(
         config = %options.config_path.display(),
         device = me,
@@ -85,8 +94,16 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "vehicle started"
     );
+    if config.access.is_open() {
+        warn!(
+            "no [access] in the config: this vehicle trusts every participant on its network \
+             (any operator id may drive it, at any strength inside the hierarchy)"
+        );
+    }
 
-    let mut arbiter = Arbiter::new(me, config.arbiter);
+    let mut arbiter = Arbiter::new(me, config.arbiter).with_access(config.access.clone());
+    arbiter.pin_own(my_participant);
+    let mut suspects = Suspects::default();
     let mut strengths = HashMap::new();
     let publish = |controller_id| {
         let info = DeviceInfo {
@@ -103,6 +120,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
 
     let mut commands = commands.async_sample_stream();
     let mut requests = requests.async_sample_stream();
+    let mut infos = infos.async_sample_stream();
     let mut status = listener.as_async_status_stream();
     let mut heartbeat = tokio::time::interval(config.common.heartbeat);
     let shutdown = shutdown_signal()?;
@@ -157,9 +175,25 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                 None => anyhow::bail!("ControlCommand stream ended"),
             },
             request = requests.next() => match request {
-                Some(Ok(sample)) => Event::from_request_control(me, sample.value()),
+                Some(Ok(sample)) => {
+                    let sender = dds::writer_id(sample.sample_info().writer_guid()).participant;
+                    Some(Event::from_request_control(me, sample.value(), sender))
+                }
                 Some(Err(e)) => { malformed.warn(&e); None }
                 None => anyhow::bail!("RequestControl stream ended"),
+            },
+            info = infos.next() => match info {
+                Some(Ok(sample)) => {
+                    let sender = dds::writer_id(sample.sample_info().writer_guid()).participant;
+                    match sample.into_value() {
+                        Sample::Value(KeyedDeviceInfo(info)) => {
+                            Some(Event::Heard { device: info.device_id, sender })
+                        }
+                        Sample::Dispose(_) => None,
+                    }
+                }
+                Some(Err(e)) => { malformed.warn(&e); None }
+                None => anyhow::bail!("DeviceInfo stream ended"),
             },
             ev = status.next() => match ev {
                 Some(DomainParticipantStatusEvent::WriterDetected { writer }) => {
@@ -179,7 +213,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             },
             _ = heartbeat.tick() => {
                 publish(arbiter.controller_id());
-                let line = status_line(&arbiter, &output, clock.now());
+                let line = suspects.annotate(status_line(&arbiter, &output, clock.now()));
                 if line != shown {
                     notify.status(&line);
                     shown = line;
@@ -208,8 +242,11 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         let now = clock.now();
         let decision = arbiter.step(now, event);
         carry_out(me, &decision, &mut output, log.as_mut(), &clock, &publish);
+        if let Some(suspect) = decision.suspect {
+            suspects.report(suspect);
+        }
         if decision.owner_change.is_some() {
-            shown = status_line(&arbiter, &output, clock.now());
+            shown = suspects.annotate(status_line(&arbiter, &output, clock.now()));
             notify.status(&shown);
         }
     }
@@ -255,6 +292,55 @@ fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTi
             output.health()
         ),
         None => format!("{owner} ({operators}); output {}", output.health()),
+    }
+}
+
+/// Messages the arbiter did not believe: each (id, participant) pair is logged at once, then at
+/// most every [`RateLimited::INTERVAL`](crate::runtime::RateLimited::INTERVAL); all are counted.
+#[derive(Debug, Default)]
+struct Suspects {
+    logged: HashMap<(i64, ParticipantId), std::time::Instant>,
+    total: u64,
+    last: Option<Suspect>,
+}
+
+impl Suspects {
+    /// Pairs remembered for rate limiting; a flood of invented ids beyond it starts afresh.
+    const MAX_PAIRS: usize = 256;
+
+    fn report(&mut self, suspect: Suspect) {
+        self.total += 1;
+        self.last = Some(suspect);
+        let key = (suspect.device, suspect.sender);
+        let interval = crate::runtime::RateLimited::INTERVAL;
+        if self
+            .logged
+            .get(&key)
+            .is_some_and(|t| t.elapsed() < interval)
+        {
+            return;
+        }
+        if self.logged.len() >= Self::MAX_PAIRS {
+            self.logged.clear();
+        }
+        self.logged.insert(key, std::time::Instant::now());
+        warn!(
+            device = suspect.device,
+            participant = %suspect.sender,
+            total = self.total,
+            "not believed: {suspect}"
+        );
+    }
+
+    /// `line` with the count and the last one, once there is one.
+    fn annotate(&self, line: String) -> String {
+        match &self.last {
+            Some(last) => format!(
+                "{line}; {} untrusted messages ignored (last: device {} from participant {})",
+                self.total, last.device, last.sender
+            ),
+            None => line,
+        }
     }
 }
 
@@ -392,7 +478,7 @@ mod tests {
         // Device 11 streams on two writers (regular and priority): one operator.
         arbiter.step(t, sample(writer(1, 1), 11, 220, t));
         arbiter.step(t, sample(writer(1, 2), 11, 65535, t));
-        arbiter.step(t, sample(writer(2, 1), 12, 100, t));
+        arbiter.step(t, sample(writer(2, 1), 12, 110, t));
         assert_eq!(
             status_line(&arbiter, &output, t),
             "driven by 11 (2 operators live); output ok"
