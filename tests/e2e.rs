@@ -14,3 +14,4 @@ mod mavlink;
 mod outputs;
 mod package;
 mod service;
+mod trust;

@@ -295,23 +295,24 @@ fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTi
     }
 }
 
-/// Messages the arbiter did not believe: each (id, participant) pair is logged at once, then at
-/// most every [`RateLimited::INTERVAL`](crate::runtime::RateLimited::INTERVAL); all are counted.
+/// Messages the arbiter did not believe: the first from each participant is logged at once,
+/// then at most one per [`RateLimited::INTERVAL`](crate::runtime::RateLimited::INTERVAL) (a
+/// rogue inventing ids cannot flood the journal); all are counted.
 #[derive(Debug, Default)]
 struct Suspects {
-    logged: HashMap<(i64, ParticipantId), std::time::Instant>,
+    logged: HashMap<ParticipantId, std::time::Instant>,
     total: u64,
     last: Option<Suspect>,
 }
 
 impl Suspects {
-    /// Pairs remembered for rate limiting; a flood of invented ids beyond it starts afresh.
-    const MAX_PAIRS: usize = 256;
+    /// Participants remembered for rate limiting; beyond it the table starts afresh.
+    const MAX_PARTICIPANTS: usize = 256;
 
     fn report(&mut self, suspect: Suspect) {
         self.total += 1;
         self.last = Some(suspect);
-        let key = (suspect.device, suspect.sender);
+        let key = suspect.sender;
         let interval = crate::runtime::RateLimited::INTERVAL;
         if self
             .logged
@@ -320,7 +321,7 @@ impl Suspects {
         {
             return;
         }
-        if self.logged.len() >= Self::MAX_PAIRS {
+        if self.logged.len() >= Self::MAX_PARTICIPANTS {
             self.logged.clear();
         }
         self.logged.insert(key, std::time::Instant::now());

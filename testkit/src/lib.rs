@@ -73,9 +73,11 @@ pub fn repo_root() -> PathBuf {
 
 /// How to install the test peers, for failure messages.
 const INSTALL: &str = "run `scripts/test` (it installs the prerequisites and creates .venv), \
-     or `python3 -m venv .venv && .venv/bin/pip install pymavlink==2.4.50 pyserial==3.5`";
+     or `python3 -m venv .venv && .venv/bin/pip install pymavlink==2.4.50 pyserial==3.5 \
+     cyclonedds==11.0.1`";
 
-/// Checks, once per test binary, that [`python`] runs and imports pymavlink and pyserial.
+/// Checks, once per test binary, that [`python`] runs and imports pymavlink, pyserial and
+/// cyclonedds (the rogue DDS peer).
 ///
 /// # Panics
 /// At once, naming the interpreter, what it lacks and the command that installs it (instead
@@ -85,7 +87,7 @@ pub fn require_python_peers() {
     let checked = CHECKED.get_or_init(|| {
         let python = python();
         let out = Command::new(&python)
-            .args(["-c", "import pymavlink, serial"])
+            .args(["-c", "import pymavlink, serial, cyclonedds"])
             .stdin(Stdio::null())
             .output()
             .map_err(|e| format!("{} does not run ({e}): {INSTALL}", python.display()))?;
@@ -119,6 +121,12 @@ pub fn require_tool(tool: &str, package: &str) {
         found,
         "{tool} is not installed: run `scripts/test`, or `apt-get install {package}`"
     );
+}
+
+/// The rogue DDS peer (Cyclone DDS speaking rove's wire model); its docstring lists the
+/// attacks and their options.
+pub fn rogue_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("rogue.py")
 }
 
 /// The pymavlink autopilot script (ArduPilot or PX4 as a ground station sees it); its

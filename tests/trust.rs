@@ -1,0 +1,203 @@
+//! Trust between real processes (docs/design.md §4b): a rogue DDS peer — Cyclone DDS speaking
+//! rove's wire model (`testkit/rogue.py`), a foreign participant on the vehicle's network —
+//! tries to take or disturb a vehicle an honest laptop (id 11) drives. For each attack:
+//! - the vehicle never applies a rogue sample (every rogue command carries throttle 31111);
+//! - the honest owner keeps control;
+//! - no honest operator writes to a vehicle it did not drive;
+//! - the attempt is reported (the vehicle's or the operator's log names it).
+
+use crate::util::{Rig, records, wait_for_output, wall_us};
+use std::path::Path;
+use std::process::Command;
+
+const V: i64 = 100;
+const LAPTOP: i64 = 11;
+const LAPTOP_THROTTLE: i16 = 1000;
+const ROGUE_THROTTLE: i64 = 31111;
+
+/// Runs one attack of the rogue in the rig's namespace, to its end (bounded by `--seconds`
+/// plus its discovery wait); returns its summary line.
+fn rogue(rig: &Rig, args: &[&str]) -> serde_json::Value {
+    rove_testkit::require_python_peers();
+    let out = Command::new("ip")
+        .args(["netns", "exec", &rig.ns])
+        .arg(rove_testkit::python())
+        .arg(rove_testkit::rogue_script())
+        .args(args)
+        .output()
+        .expect("run the rogue");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "rogue {args:?} failed: {text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_str(text.trim()).expect("summary JSON");
+    assert_eq!(
+        summary["matched"], true,
+        "the rogue never matched a reader: {summary}"
+    );
+    summary
+}
+
+/// The laptop drives `V` (sim output recorded); returns the record path. `access` is put in
+/// the vehicle's config before `[output]`.
+fn honest_rig(rig: &mut Rig, access: &str) -> std::path::PathBuf {
+    let output = format!("{access}[output]\nadapter = \"sim\"\n");
+    let record = rig.vehicle_with_output(V, &output);
+    rig.operator(
+        LAPTOP,
+        "stationary",
+        "laptop",
+        &[V],
+        LAPTOP_THROTTLE,
+        "",
+        &[],
+    );
+    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+    record
+}
+
+/// No rogue sample was applied, and after the attack the laptop still drives.
+fn assert_vehicle_kept(record: &Path, rogue_ids: &[i64]) {
+    let after = wall_us();
+    wait_for_output(record, Some(LAPTOP), after).expect("the laptop still drives");
+    let outs = records(record);
+    let rogue = outs.iter().find(|o| {
+        o.throttle == Some(ROGUE_THROTTLE) || o.owner.is_some_and(|id| rogue_ids.contains(&id))
+    });
+    assert!(rogue.is_none(), "a rogue sample was applied: {rogue:?}");
+    let first = outs
+        .iter()
+        .position(|o| o.owner == Some(LAPTOP))
+        .unwrap_or(0);
+    assert!(
+        outs[first..].iter().all(|o| o.owner == Some(LAPTOP)),
+        "the laptop lost the vehicle during the attack"
+    );
+}
+
+fn log_of(rig: &Rig, name: &str) -> String {
+    let proc = rig.procs.iter().find(|p| p.name == name).expect("process");
+    std::fs::read_to_string(&proc.log).unwrap_or_default()
+}
+
+fn assert_reported(rig: &Rig, name: &str, needle: &str) {
+    let log = log_of(rig, name);
+    assert!(
+        log.contains(needle),
+        "{name} did not report {needle:?}:\n{log}"
+    );
+}
+
+#[test]
+fn inflated_strength_takes_nothing() {
+    let mut rig = Rig::new("rogue-inflate");
+    let record = honest_rig(&mut rig, "");
+    let s = rogue(&rig, &["inflate", "--id", "13", "--strength", "65534"]);
+    eprintln!("inflate: {s}");
+    assert_vehicle_kept(&record, &[13]);
+    assert_reported(&rig, "vehicle-100", "which the hierarchy cannot give");
+}
+
+#[test]
+fn forged_accept_naming_the_owner_grants_nothing() {
+    let mut rig = Rig::new("rogue-accept");
+    let record = honest_rig(&mut rig, "");
+    let s = rogue(&rig, &["forge-accept", "--id", "13", "--owner", "11"]);
+    eprintln!("forge-accept: {s}");
+    assert_vehicle_kept(&record, &[13]);
+    assert_reported(&rig, "vehicle-100", "claims device id 11");
+}
+
+#[test]
+fn the_owners_id_from_another_participant_drives_nothing() {
+    let mut rig = Rig::new("rogue-src");
+    let record = honest_rig(&mut rig, "");
+    let s = rogue(&rig, &["spoof-src", "--id", "11", "--strength", "240"]);
+    eprintln!("spoof-src: {s}");
+    assert_vehicle_kept(&record, &[]);
+    assert_reported(&rig, "vehicle-100", "claims device id 11");
+}
+
+#[test]
+fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle() {
+    let mut rig = Rig::new("rogue-request");
+    let record = honest_rig(&mut rig, "");
+    // Vehicle 101 exists, but the laptop does not drive it.
+    let other = rig.vehicle(101);
+    wait_for_output(&other, None, 0).expect("vehicle 101 safe at start");
+    let args = [
+        "request-finish",
+        "--id",
+        "13",
+        "--dest",
+        "101",
+        "--owner",
+        "11",
+        "--priority",
+        "400",
+    ];
+    let s = rogue(&rig, &args);
+    eprintln!("request-finish (101): {s}");
+    // And for the vehicle it drives, a priority discovery does not confirm is not auto-accepted.
+    let args = [
+        "request-finish",
+        "--id",
+        "13",
+        "--dest",
+        "100",
+        "--owner",
+        "11",
+        "--priority",
+        "400",
+    ];
+    rogue(&rig, &args);
+    assert_vehicle_kept(&record, &[13]);
+    let driven = records(&other).into_iter().find(|o| o.action == "apply");
+    assert!(driven.is_none(), "vehicle 101 was driven: {driven:?}");
+    assert_reported(&rig, "operator-11", "which we do not drive: not answered");
+    let log = log_of(&rig, "operator-11");
+    assert!(
+        !log.contains("yielding vehicle"),
+        "the laptop yielded:\n{log}"
+    );
+}
+
+#[test]
+fn a_false_device_info_for_the_vehicle_is_not_believed() {
+    let mut rig = Rig::new("rogue-info");
+    let record = honest_rig(&mut rig, "");
+    let s = rogue(&rig, &["device-info", "--id", "100", "--controller", "13"]);
+    eprintln!("device-info: {s}");
+    assert_vehicle_kept(&record, &[13]);
+    assert_reported(&rig, "operator-11", "claims device id 100");
+    assert_reported(&rig, "vehicle-100", "claims device id 100");
+    let status = rig.status();
+    let vehicle = Rig::device(&status, V).expect("vehicle listed");
+    assert_eq!(vehicle["controller_id"], LAPTOP, "{status}");
+}
+
+#[test]
+fn three_hundred_rogue_writers_move_nothing_past_an_access_list() {
+    let mut rig = Rig::new("rogue-flood");
+    let access =
+        "[access]\noperators = [{ id = 11, level = \"stationary\", device_class = \"laptop\" }]\n";
+    let record = honest_rig(&mut rig, access);
+    let s = rogue(
+        &rig,
+        &[
+            "flood",
+            "--writers",
+            "300",
+            "--id",
+            "1000",
+            "--strength",
+            "340",
+        ],
+    );
+    eprintln!("flood: {s}");
+    let ids: Vec<i64> = (1000..1300).collect();
+    assert_vehicle_kept(&record, &ids);
+    assert_reported(&rig, "vehicle-100", "which is not in [access]");
+}
