@@ -866,6 +866,39 @@ mod tests {
     }
 
     #[test]
+    fn access_lists_who_may_drive_and_its_errors_name_their_keys() {
+        let head = "[device]\nid = 100\n[output]\nadapter = \"sim\"\n";
+        let open = load_vehicle(&write("open.toml", head)).expect("loads");
+        assert!(open.access.is_open());
+        let listed = format!(
+            "{head}[access]\noperators = [\n  {{ id = 11, level = \"stationary\", \
+             device_class = \"laptop\" }},\n]\n"
+        );
+        let config = load_vehicle(&write("access.toml", &listed)).expect("loads");
+        assert!(!config.access.is_open());
+        assert_eq!(config.access.check_strength(11, Strength(229)), Ok(()));
+        assert!(config.access.check_strength(12, Strength(110)).is_err());
+        let bad = format!(
+            "{head}[access]\noperators = [\n  {{ id = 11, level = \"mobile\", device_class = \"phone\" }},\n  \
+             {{ id = 11, level = \"remote\", device_class = \"desktop\" }},\n]\n"
+        );
+        let e = format!(
+            "{:#}",
+            load_vehicle(&write("bad-access.toml", &bad)).expect_err("dup")
+        );
+        assert!(
+            e.contains("access.operators[1].id = 11: must be unique"),
+            "{e}"
+        );
+        let typo = format!("{head}[access]\noperators = [{{ id = 11, levle = \"mobile\" }}]\n");
+        let e = format!(
+            "{:#}",
+            load_vehicle(&write("typo.toml", &typo)).expect_err("typo")
+        );
+        assert!(e.contains("levle"), "{e}");
+    }
+
+    #[test]
     fn output_errors_name_the_line_of_the_channel_key() {
         let text = "[device]\nid = 7\n[output]\nadapter = \"pwm\"\nbackend = \"sim\"\n\
                     [[output.channels]]\nname = \"a\"\nsource = \"roll\"\nchannel = 0\n\
