@@ -201,3 +201,47 @@ fn three_hundred_rogue_writers_move_nothing_past_an_access_list() {
     assert_vehicle_kept(&record, &ids);
     assert_reported(&rig, "vehicle-100", "which is not in [access]");
 }
+
+#[test]
+fn a_forged_finish_in_the_holders_name_ends_no_grant() {
+    let mut rig = Rig::new("rogue-finish");
+    let record = rig.vehicle(V);
+    let always = "[handover]\nauto_accept = \"always\"\n";
+    rig.operator(
+        LAPTOP,
+        "stationary",
+        "laptop",
+        &[V],
+        LAPTOP_THROTTLE,
+        always,
+        &[],
+    );
+    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+    let asked = wall_us();
+    rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    let granted = wait_for_output(&record, Some(13), asked).expect("the tablet is granted");
+    let s = rogue(
+        &rig,
+        &[
+            "forge-finish",
+            "--id",
+            "13",
+            "--owner",
+            "11",
+            "--dest",
+            "100",
+        ],
+    );
+    eprintln!("forge-finish: {s}");
+    let after = wall_us();
+    wait_for_output(&record, Some(13), after).expect("the tablet still drives");
+    let outs = records(&record);
+    let lost = outs
+        .iter()
+        .find(|o| o.wall_us > granted.wall_us && o.owner != Some(13));
+    assert!(lost.is_none(), "the grant ended: {lost:?}");
+    assert_reported(&rig, "vehicle-100", "claims device id 13");
+    assert_reported(&rig, "operator-11", "claims device id 13");
+    let log = log_of(&rig, "operator-11");
+    assert!(!log.contains("driving again"), "the laptop resumed:\n{log}");
+}
