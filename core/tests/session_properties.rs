@@ -18,19 +18,25 @@
 //!   honours owns the vehicle;
 //! - the owner is the failsafe, a crashed operator not yet timed out, or a session that streams
 //!   to the vehicle or stands by for it;
-//! - with no grant and no standby, the strongest operator that drives owns the vehicle.
+//! - with no grant and no standby, the strongest operator that drives owns the vehicle;
+//! - a rogue participant injecting forged messages (ControlCommand in a present operator's
+//!   name or an id outside the vehicle's `[access]`, RequestControl of any stage in anyone's
+//!   name, a DeviceInfo for the vehicle naming any owner) never has a sample applied, and every
+//!   property above still holds. Operators announce themselves (DeviceInfo) every heartbeat, so
+//!   their ids stay pinned while they run.
 
 use proptest::prelude::*;
 use rove_core::MonoTime;
 use rove_core::adapter::InputEvent;
 use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId};
 use rove_core::handover::{AutoAccept, HandoverConfig};
-use rove_core::hierarchy::Strength;
+use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
+use rove_core::msg::Ack;
 use rove_core::msg::{CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
 use rove_core::session::{
-    Command, Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
+    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
-use rove_core::trust::TrustConfig;
+use rove_core::trust::{Access, Grant, TrustConfig};
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -52,6 +58,70 @@ enum Op {
     Crash(usize),
     /// Advance by this many keep-alive periods.
     Advance(u64),
+    /// The rogue sends something forged.
+    Rogue(Forgery),
+}
+
+/// What the rogue forges; `claim` picks the id it speaks as: a running operator's, or 99
+/// (not in the vehicle's access list).
+#[derive(Debug, Clone)]
+enum Forgery {
+    Sample {
+        claim: usize,
+        strength: u16,
+        throttle: i16,
+    },
+    Request {
+        ack: u8,
+        src: usize,
+        owner: usize,
+        priority: i32,
+        stamp: u64,
+    },
+    Info {
+        owner: usize,
+    },
+    /// A FINISH in the current grant holder's name to every owner that yielded, stamped at the
+    /// far end of time; or, with no grant, an ACCEPT in the vehicle's owner's name for `holder`.
+    Targeted {
+        holder: usize,
+    },
+}
+
+/// The rogue's participant and writer.
+const ROGUE: ParticipantId = ParticipantId(0xbad);
+/// An id the vehicle's access list does not name.
+const STRANGER: DeviceId = 99;
+/// Heartbeat period in keep-alive periods (500 ms).
+const HEARTBEAT_PERIODS: u64 = 25;
+
+fn forgery() -> impl Strategy<Value = Forgery> {
+    let strength = prop::sample::select(vec![130u16, 220, 229, 240, 340, 349, 65535]);
+    prop_oneof![
+        (0usize..4, strength, any::<i16>()).prop_map(|(claim, strength, throttle)| {
+            Forgery::Sample {
+                claim,
+                strength,
+                throttle,
+            }
+        }),
+        (
+            0u8..4,
+            0usize..4,
+            0usize..4,
+            prop::sample::select(vec![0, 131, 400, i32::MAX]),
+            prop::sample::select(vec![0u64, 1_000_000, u64::MAX])
+        )
+            .prop_map(|(ack, src, owner, priority, stamp)| Forgery::Request {
+                ack,
+                src,
+                owner,
+                priority,
+                stamp
+            }),
+        (0usize..4).prop_map(|owner| Forgery::Info { owner }),
+        (0usize..4).prop_map(|holder| Forgery::Targeted { holder }),
+    ]
 }
 
 fn who() -> impl Strategy<Value = usize> {
@@ -79,6 +149,7 @@ fn op() -> impl Strategy<Value = Op> {
         1 => who().prop_map(Op::Quit),
         1 => who().prop_map(Op::Crash),
         4 => prop_oneof![1u64..8, 10u64..40].prop_map(Op::Advance),
+        3 => forgery().prop_map(Op::Rogue),
     ]
 }
 
@@ -88,6 +159,23 @@ fn policy() -> impl Strategy<Value = AutoAccept> {
         AutoAccept::HigherPriority,
         AutoAccept::Always,
     ])
+}
+
+/// The vehicle's access list: each operator up to its own rank.
+fn access() -> Access {
+    let grant = |id, level, device_class| Grant {
+        id,
+        level,
+        device_class,
+    };
+    Access::listed(
+        Hierarchy::STANDARD,
+        &[
+            grant(IDS[0], Level::Remote, DeviceClass::Tablet),
+            grant(IDS[1], Level::Stationary, DeviceClass::Laptop),
+            grant(IDS[2], Level::Mobile, DeviceClass::Phone),
+        ],
+    )
 }
 
 /// The vehicle's own participant, which its DeviceInfo comes from.
@@ -103,6 +191,10 @@ struct World {
     /// When each operator crashed or quit (it takes no more events).
     gone: [Option<MonoTime>; 3],
     vehicle: Arbiter,
+    /// Keep-alive periods so far (for the heartbeat).
+    periods: u64,
+    /// The operator each one last yielded the vehicle to (its ACCEPT).
+    yielded_to: [Option<usize>; 3],
 }
 
 impl World {
@@ -149,8 +241,158 @@ impl World {
             now,
             sessions,
             gone: [None; 3],
-            vehicle: Arbiter::new(V, ArbiterConfig::default()),
+            vehicle: Arbiter::new(V, ArbiterConfig::default()).with_access(access()),
+            periods: 0,
+            yielded_to: [None; 3],
         }
+    }
+
+    /// Every running operator's DeviceInfo, to the vehicle and the other sessions.
+    fn presence(&mut self) -> Result<(), TestCaseError> {
+        let running: Vec<usize> = (0..3).filter(|&i| self.live(i)).collect();
+        for i in running {
+            let (device, sender) = (IDS[i], participant(i));
+            let d = self.vehicle.step(self.now, Event::Heard { device, sender });
+            prop_assert!(d.suspect.is_none(), "operator {i}'s id taken: {d:?}");
+            let info = DeviceInfo {
+                device_id: device,
+                name: format!("op{device}"),
+                device_type: DeviceType::Controller,
+                controller_id: device,
+            };
+            for j in (0..3).filter(|&j| j != i) {
+                self.step(
+                    j,
+                    SessionEvent::DeviceInfo {
+                        info: info.clone(),
+                        from: sender,
+                    },
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The id a forgery claims: a running operator's, else the stranger's.
+    fn claimed(&self, claim: usize) -> DeviceId {
+        if claim < 3 && self.live(claim) {
+            IDS[claim]
+        } else {
+            STRANGER
+        }
+    }
+
+    /// Delivers a forgery to the vehicle and every session.
+    fn rogue(&mut self, forgery: Forgery) -> Result<(), TestCaseError> {
+        match forgery {
+            Forgery::Sample {
+                claim,
+                strength,
+                throttle,
+            } => {
+                let command = rove_core::msg::ControlCommand {
+                    src_id: self.claimed(claim),
+                    dest_id: V,
+                    command_type: CommandType::Movement,
+                    movement_command: MovementCommand {
+                        throttle,
+                        ..MovementCommand::CENTRED
+                    },
+                    mode: rove_core::msg::Mode::Manual,
+                    timestamp: self.stamp(),
+                };
+                let writer = Writer::Regular.id(ROGUE);
+                let event = Event::Sample {
+                    writer,
+                    strength: Strength(strength),
+                    command,
+                    arrival: self.now,
+                };
+                let d = self.vehicle.step(self.now, event);
+                self.check_output(d.output)?;
+            }
+            Forgery::Request {
+                ack,
+                src,
+                owner,
+                priority,
+                stamp,
+            } => {
+                let msg = rove_core::msg::RequestControl {
+                    src_id: self.claimed(src),
+                    dest_id: V,
+                    current_controller_id: self.claimed(owner),
+                    src_priority: priority,
+                    ack: [Ack::Request, Ack::Accept, Ack::Refuse, Ack::Finish]
+                        [usize::from(ack % 4)],
+                    timestamp: TimeT(stamp),
+                };
+                let d = self
+                    .vehicle
+                    .step(self.now, Event::from_request_control(V, &msg, ROGUE));
+                self.check_output(d.output)?;
+                for j in 0..3 {
+                    if self.live(j) {
+                        let (now, stamp) = (self.now, self.stamp());
+                        let more = self.sessions[j].step(
+                            now,
+                            stamp,
+                            SessionEvent::RequestControl { msg, from: ROGUE },
+                        );
+                        self.deliver(j, more)?;
+                    }
+                }
+            }
+            Forgery::Targeted { holder } => {
+                let (ack, src, owner) = match self.vehicle.grant_holder() {
+                    Some(h) => {
+                        let yielded = (0..3).find(|&r| self.sessions[r].handover().has_yielded(V));
+                        (Ack::Finish, h, yielded.map_or(STRANGER, |r| IDS[r]))
+                    }
+                    None => (
+                        Ack::Accept,
+                        self.claimed(holder),
+                        self.vehicle.controller_id(),
+                    ),
+                };
+                let msg = rove_core::msg::RequestControl {
+                    src_id: src,
+                    dest_id: V,
+                    current_controller_id: owner,
+                    src_priority: 400,
+                    ack,
+                    timestamp: TimeT(u64::MAX),
+                };
+                let d = self
+                    .vehicle
+                    .step(self.now, Event::from_request_control(V, &msg, ROGUE));
+                self.check_output(d.output)?;
+                for j in (0..3).filter(|&j| self.live(j)).collect::<Vec<_>>() {
+                    let (now, stamp) = (self.now, self.stamp());
+                    let event = SessionEvent::RequestControl { msg, from: ROGUE };
+                    let more = self.sessions[j].step(now, stamp, event);
+                    self.deliver(j, more)?;
+                }
+            }
+            Forgery::Info { owner } => {
+                let info = DeviceInfo {
+                    device_id: V,
+                    name: "v".into(),
+                    device_type: DeviceType::Vehicle,
+                    controller_id: self.claimed(owner),
+                };
+                for i in 0..3 {
+                    self.step(
+                        i,
+                        SessionEvent::DeviceInfo {
+                            info: info.clone(),
+                            from: ROGUE,
+                        },
+                    )?;
+                }
+            }
+        }
+        Ok(())
     }
 
     fn stamp(&self) -> TimeT {
@@ -177,6 +419,25 @@ impl World {
         while let Some((i, effect)) = queue.pop_front() {
             budget -= 1;
             prop_assert!(budget > 0, "effects never settle");
+            // A yielded owner resumes only once the grant it yielded to is over: no forged
+            // FINISH or DeviceInfo makes it drive beside a live holder.
+            if let Effect::Send(msg) = &effect
+                && msg.ack == Ack::Accept
+                && msg.current_controller_id == IDS[i]
+            {
+                self.yielded_to[i] = IDS.iter().position(|&d| d == msg.src_id);
+            }
+            if let Effect::Report(Report::Resumed { .. }) = &effect
+                && let Some(h) = self.yielded_to[i].take()
+            {
+                let honoured = self.live(h)
+                    && self.sessions[h].streams().holding.contains(&V)
+                    && self.vehicle.grant_holder() == Some(IDS[h]);
+                prop_assert!(
+                    !honoured,
+                    "op {i} resumed while op {h} still holds its grant"
+                );
+            }
             if let Effect::Write { writer, command } = &effect {
                 let s = &self.sessions[i];
                 if *writer == Writer::Regular && command.command_type == CommandType::Movement {
@@ -215,6 +476,7 @@ impl World {
     /// Values are applied only from an operator that drives the vehicle.
     fn check_output(&self, output: Option<Output>) -> Result<(), TestCaseError> {
         if let Some(Output::Apply { by, .. }) = output {
+            prop_assert_ne!(by.writer.participant, ROGUE, "a rogue sample was applied");
             let i = IDS
                 .iter()
                 .position(|&d| d == by.device)
@@ -260,6 +522,10 @@ impl World {
     fn advance(&mut self, periods: u64) -> Result<(), TestCaseError> {
         for _ in 0..periods {
             self.now = self.now + Duration::from_millis(STREAM_MS);
+            self.periods += 1;
+            if self.periods % HEARTBEAT_PERIODS == 0 {
+                self.presence()?;
+            }
             let d = self.vehicle.step(self.now, Event::Tick);
             self.check_output(d.output)?;
             for i in 0..3 {
@@ -334,6 +600,7 @@ proptest! {
         ops in prop::collection::vec(op(), 1..60),
     ) {
         let mut w = World::new(policies, drive);
+        w.presence()?;
         w.publish_owner()?;
         for op in ops {
             match op {
@@ -363,6 +630,7 @@ proptest! {
                     }
                 }
                 Op::Advance(n) => w.advance(n)?,
+                Op::Rogue(f) => w.rogue(f)?,
             }
             w.publish_owner()?;
             w.check_ownership()?;
