@@ -41,8 +41,8 @@ fn rogue(rig: &Rig, args: &[&str]) -> serde_json::Value {
 }
 
 /// The laptop drives `V` (sim output recorded); returns the record path. `access` is put in
-/// the vehicle's config before `[output]`.
-fn honest_rig(rig: &mut Rig, access: &str) -> std::path::PathBuf {
+/// the vehicle's config before `[output]`, `laptop_toml` at the end of the laptop's.
+fn honest_rig(rig: &mut Rig, access: &str, laptop_toml: &str) -> std::path::PathBuf {
     let output = format!("{access}[output]\nadapter = \"sim\"\n");
     let record = rig.vehicle_with_output(V, &output);
     rig.operator(
@@ -51,7 +51,7 @@ fn honest_rig(rig: &mut Rig, access: &str) -> std::path::PathBuf {
         "laptop",
         &[V],
         LAPTOP_THROTTLE,
-        "",
+        laptop_toml,
         &[],
     );
     wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
@@ -90,40 +90,45 @@ fn assert_reported(rig: &Rig, name: &str, needle: &str) {
     );
 }
 
+/// One attack on the vehicle the laptop drives: no sample of `rogue_ids` (or with the rogue's
+/// throttle) applied, the laptop kept, and the vehicle's log says `reported`.
+fn vehicle_attack(test: &str, access: &str, args: &[&str], rogue_ids: &[i64], reported: &str) {
+    let mut rig = Rig::new(test);
+    let record = honest_rig(&mut rig, access, "");
+    let s = rogue(&rig, args);
+    eprintln!("{}: {s}", args[0]);
+    assert_vehicle_kept(&record, rogue_ids);
+    assert_reported(&rig, "vehicle-100", reported);
+}
+
 #[test]
 fn inflated_strength_takes_nothing() {
-    let mut rig = Rig::new("rogue-inflate");
-    let record = honest_rig(&mut rig, "");
-    let s = rogue(&rig, &["inflate", "--id", "13", "--strength", "65534"]);
-    eprintln!("inflate: {s}");
-    assert_vehicle_kept(&record, &[13]);
-    assert_reported(&rig, "vehicle-100", "which the hierarchy cannot give");
+    let args = ["inflate", "--id", "13", "--strength", "65534"];
+    vehicle_attack(
+        "rogue-inflate",
+        "",
+        &args,
+        &[13],
+        "which the hierarchy cannot give",
+    );
 }
 
 #[test]
 fn forged_accept_naming_the_owner_grants_nothing() {
-    let mut rig = Rig::new("rogue-accept");
-    let record = honest_rig(&mut rig, "");
-    let s = rogue(&rig, &["forge-accept", "--id", "13", "--owner", "11"]);
-    eprintln!("forge-accept: {s}");
-    assert_vehicle_kept(&record, &[13]);
-    assert_reported(&rig, "vehicle-100", "claims device id 11");
+    let args = ["forge-accept", "--id", "13", "--owner", "11"];
+    vehicle_attack("rogue-accept", "", &args, &[13], "claims device id 11");
 }
 
 #[test]
 fn the_owners_id_from_another_participant_drives_nothing() {
-    let mut rig = Rig::new("rogue-src");
-    let record = honest_rig(&mut rig, "");
-    let s = rogue(&rig, &["spoof-src", "--id", "11", "--strength", "240"]);
-    eprintln!("spoof-src: {s}");
-    assert_vehicle_kept(&record, &[]);
-    assert_reported(&rig, "vehicle-100", "claims device id 11");
+    let args = ["spoof-src", "--id", "11", "--strength", "240"];
+    vehicle_attack("rogue-src", "", &args, &[], "claims device id 11");
 }
 
 #[test]
 fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle() {
     let mut rig = Rig::new("rogue-request");
-    let record = honest_rig(&mut rig, "");
+    let record = honest_rig(&mut rig, "", "");
     // Vehicle 101 exists, but the laptop does not drive it.
     let other = rig.vehicle(101);
     wait_for_output(&other, None, 0).expect("vehicle 101 safe at start");
@@ -167,7 +172,7 @@ fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle(
 #[test]
 fn a_false_device_info_for_the_vehicle_is_not_believed() {
     let mut rig = Rig::new("rogue-info");
-    let record = honest_rig(&mut rig, "");
+    let record = honest_rig(&mut rig, "", "");
     let s = rogue(&rig, &["device-info", "--id", "100", "--controller", "13"]);
     eprintln!("device-info: {s}");
     assert_vehicle_kept(&record, &[13]);
@@ -180,43 +185,32 @@ fn a_false_device_info_for_the_vehicle_is_not_believed() {
 
 #[test]
 fn three_hundred_rogue_writers_move_nothing_past_an_access_list() {
-    let mut rig = Rig::new("rogue-flood");
     let access =
         "[access]\noperators = [{ id = 11, level = \"stationary\", device_class = \"laptop\" }]\n";
-    let record = honest_rig(&mut rig, access);
-    let s = rogue(
-        &rig,
-        &[
-            "flood",
-            "--writers",
-            "300",
-            "--id",
-            "1000",
-            "--strength",
-            "340",
-        ],
-    );
-    eprintln!("flood: {s}");
+    let args = [
+        "flood",
+        "--writers",
+        "300",
+        "--id",
+        "1000",
+        "--strength",
+        "340",
+    ];
     let ids: Vec<i64> = (1000..1300).collect();
-    assert_vehicle_kept(&record, &ids);
-    assert_reported(&rig, "vehicle-100", "which is not in [access]");
+    vehicle_attack(
+        "rogue-flood",
+        access,
+        &args,
+        &ids,
+        "which is not in [access]",
+    );
 }
 
 #[test]
 fn a_forged_finish_in_the_holders_name_ends_no_grant() {
     let mut rig = Rig::new("rogue-finish");
-    let record = rig.vehicle(V);
     let always = "[handover]\nauto_accept = \"always\"\n";
-    rig.operator(
-        LAPTOP,
-        "stationary",
-        "laptop",
-        &[V],
-        LAPTOP_THROTTLE,
-        always,
-        &[],
-    );
-    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+    let record = honest_rig(&mut rig, "", always);
     let asked = wall_us();
     rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     let granted = wait_for_output(&record, Some(13), asked).expect("the tablet is granted");

@@ -282,6 +282,19 @@ impl World {
         }
     }
 
+    /// A forged RequestControl, from the rogue, to the vehicle and every running session.
+    fn forge_request(&mut self, msg: rove_core::msg::RequestControl) -> Result<(), TestCaseError> {
+        let d = (self.vehicle).step(self.now, Event::from_request_control(V, &msg, ROGUE));
+        self.check_output(d.output)?;
+        for j in (0..3).filter(|&j| self.live(j)).collect::<Vec<_>>() {
+            let (now, stamp) = (self.now, self.stamp());
+            let event = SessionEvent::RequestControl { msg, from: ROGUE };
+            let more = self.sessions[j].step(now, stamp, event);
+            self.deliver(j, more)?;
+        }
+        Ok(())
+    }
+
     /// Delivers a forgery to the vehicle and every session.
     fn rogue(&mut self, forgery: Forgery) -> Result<(), TestCaseError> {
         match forgery {
@@ -327,21 +340,7 @@ impl World {
                         [usize::from(ack % 4)],
                     timestamp: TimeT(stamp),
                 };
-                let d = self
-                    .vehicle
-                    .step(self.now, Event::from_request_control(V, &msg, ROGUE));
-                self.check_output(d.output)?;
-                for j in 0..3 {
-                    if self.live(j) {
-                        let (now, stamp) = (self.now, self.stamp());
-                        let more = self.sessions[j].step(
-                            now,
-                            stamp,
-                            SessionEvent::RequestControl { msg, from: ROGUE },
-                        );
-                        self.deliver(j, more)?;
-                    }
-                }
+                self.forge_request(msg)?;
             }
             Forgery::Targeted { holder } => {
                 let (ack, src, owner) = match self.vehicle.grant_holder() {
@@ -363,16 +362,7 @@ impl World {
                     ack,
                     timestamp: TimeT(u64::MAX),
                 };
-                let d = self
-                    .vehicle
-                    .step(self.now, Event::from_request_control(V, &msg, ROGUE));
-                self.check_output(d.output)?;
-                for j in (0..3).filter(|&j| self.live(j)).collect::<Vec<_>>() {
-                    let (now, stamp) = (self.now, self.stamp());
-                    let event = SessionEvent::RequestControl { msg, from: ROGUE };
-                    let more = self.sessions[j].step(now, stamp, event);
-                    self.deliver(j, more)?;
-                }
+                self.forge_request(msg)?;
             }
             Forgery::Info { owner } => {
                 let info = DeviceInfo {
