@@ -13,5 +13,6 @@ mod inputs;
 mod mavlink;
 mod outputs;
 mod package;
+mod security;
 mod service;
 mod trust;

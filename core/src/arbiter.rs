@@ -461,6 +461,11 @@ impl Arbiter {
         self.identities.pin_own(self.vehicle, participant);
     }
 
+    /// Under DDS Security: a participant may speak for an id only if `certifier` says so.
+    pub fn certify(&mut self, certifier: crate::trust::Certifier) {
+        self.identities.certify(certifier);
+    }
+
     /// The participant `device` is pinned to at `now`, if any.
     pub fn pinned(&self, now: MonoTime, device: DeviceId) -> Option<ParticipantId> {
         self.identities.owner(now, device)

@@ -734,6 +734,11 @@ impl OperatorSession {
         self.selected
     }
 
+    /// Under DDS Security: a participant may speak for an id only if `certifier` says so.
+    pub fn certify(&mut self, certifier: crate::trust::Certifier) {
+        self.identities.certify(certifier);
+    }
+
     /// Whether `participant` may speak for `device` at `now` (its pin, or no pin): a
     /// DeviceInfo disposal from anyone else is not believed.
     pub fn speaks_for(&self, now: MonoTime, device: DeviceId, participant: ParticipantId) -> bool {

@@ -13,8 +13,9 @@
 //!
 //! Without DDS Security the first participant to speak for an id wins it. That cannot stop a
 //! rogue that speaks first or while the device is away; it stops every takeover of a device
-//! that is present, which is what an operator relies on. Under security the certificate, not
-//! first sight, will say which participant owns an id.
+//! that is present, which is what an operator relies on. Under security a [`Certifier`] (the
+//! certificate, checked by the binding) says which participant may speak for an id, and first
+//! sight no longer counts.
 //!
 //! [`Access`] bounds the strengths a vehicle believes: only strengths the configured hierarchy
 //! can give (any level, class and fine offset), the failsafe's 0 never, a priority grant's 65535
@@ -62,6 +63,8 @@ pub enum Distrust {
     },
     /// The id table is full of live pins.
     TooManyIds,
+    /// Under DDS Security: the participant's certificate names another device.
+    NotCertified,
     /// A ControlCommand writer's strength that the hierarchy cannot give.
     StrengthOutsideHierarchy(Strength),
     /// The id is not in the vehicle's access list.
@@ -100,6 +103,10 @@ impl fmt::Display for Suspect {
                 f,
                 "participant {sender} claims device id {id}, which belongs to participant {owner}"
             ),
+            Distrust::NotCertified => write!(
+                f,
+                "participant {sender} claims device id {id}, which its certificate does not name"
+            ),
             Distrust::TooManyIds => write!(
                 f,
                 "participant {sender} claims device id {id}, but the id table is full"
@@ -122,6 +129,10 @@ impl fmt::Display for Suspect {
     }
 }
 
+/// Whether a participant holds the certificate of a device id (under DDS Security; the
+/// binding derives it from the authenticated participant's GUID).
+pub type Certifier = std::sync::Arc<dyn Fn(DeviceId, ParticipantId) -> bool + Send + Sync>;
+
 #[derive(Debug, Clone, Copy)]
 struct Pin {
     participant: ParticipantId,
@@ -129,10 +140,21 @@ struct Pin {
 }
 
 /// Device ids pinned to participants; see the module docs.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Identities {
     config: TrustConfig,
     pins: BTreeMap<DeviceId, Pin>,
+    certifier: Option<Certifier>,
+}
+
+impl fmt::Debug for Identities {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Identities")
+            .field("config", &self.config)
+            .field("pins", &self.pins)
+            .field("certified", &self.certifier.is_some())
+            .finish()
+    }
 }
 
 impl Identities {
@@ -141,7 +163,14 @@ impl Identities {
         Identities {
             config,
             pins: BTreeMap::new(),
+            certifier: None,
         }
+    }
+
+    /// From now on a participant may speak for an id only if `certifier` says it holds that
+    /// id's certificate; first sight no longer counts.
+    pub fn certify(&mut self, certifier: Certifier) {
+        self.certifier = Some(certifier);
     }
 
     /// Pins `device` to `participant` for good (a node's own id): nobody else can claim it.
@@ -164,6 +193,17 @@ impl Identities {
         participant: ParticipantId,
     ) -> Result<(), Distrust> {
         let until = now + self.config.hold;
+        if let Some(certifier) = &self.certifier {
+            if !certifier(device, participant) {
+                return Err(Distrust::NotCertified);
+            }
+            // Certified: the pin follows the certificate (a restarted device takes its id back
+            // at once); kept for `owner`.
+            if self.pins.contains_key(&device) || self.pins.len() < self.config.max_ids {
+                self.pins.insert(device, Pin { participant, until });
+            }
+            return Ok(());
+        }
         match self.pins.get_mut(&device) {
             Some(pin) if pin.participant == participant => {
                 pin.until = pin.until.max(until);
@@ -363,6 +403,23 @@ mod tests {
         // Leaving lapses even our own pin: a node that left has no id.
         ids.participant_gone(at(1_000_000), A);
         assert_eq!(ids.claim(at(1_000_500), 100, B), Ok(()));
+    }
+
+    #[test]
+    fn under_a_certifier_only_the_certified_participant_speaks_for_an_id() {
+        let mut ids = ids();
+        ids.certify(std::sync::Arc::new(|device, p| {
+            (device, p) == (11, A) || (device, p) == (12, B)
+        }));
+        assert_eq!(
+            ids.claim(at(0), 11, B),
+            Err(Distrust::NotCertified),
+            "first sight is no proof"
+        );
+        assert_eq!(ids.claim(at(1), 11, A), Ok(()));
+        assert_eq!(ids.claim(at(2), 12, A), Err(Distrust::NotCertified));
+        assert_eq!(ids.claim(at(3), 12, B), Ok(()));
+        assert_eq!(ids.owner(at(3), 11), Some(A));
     }
 
     #[test]

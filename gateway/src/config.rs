@@ -62,6 +62,15 @@ pub struct VehicleSection {
     pub command_timeout_ms: Option<Int>,
 }
 
+/// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SecuritySection {
+    /// This device's directory from `rove keys add` (relative paths: to the config file):
+    /// identity CA, certificate, private key, permissions CA, governance and permissions.
+    pub dir: std::path::PathBuf,
+}
+
 /// `[access]`: who may drive this vehicle. Absent: any id, at any strength inside the
 /// hierarchy (docs/design.md §4b).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -158,6 +167,7 @@ struct VehicleFile<T> {
     #[serde(default)]
     hierarchy: HierarchyTable,
     access: Option<AccessSection>,
+    security: Option<SecuritySection>,
     #[serde(default)]
     output: T,
 }
@@ -188,6 +198,7 @@ fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle> {
             vehicle: file.vehicle,
             hierarchy: file.hierarchy,
             access: file.access,
+            security: file.security,
             output: wrap(file.output),
         })
     }
@@ -250,6 +261,8 @@ pub struct RawVehicle {
     pub hierarchy: HierarchyTable,
     /// `[access]`: who may drive.
     pub access: Option<AccessSection>,
+    /// `[security]`.
+    pub security: Option<SecuritySection>,
     /// `[output]`.
     pub output: OutputSection,
 }
@@ -357,6 +370,8 @@ pub struct RawOperator {
     /// `[console]`.
     #[serde(default)]
     pub console: ConsoleSection,
+    /// `[security]`.
+    pub security: Option<SecuritySection>,
 }
 
 /// `[console]`: the local API for other front ends (docs/api.md).
@@ -382,9 +397,21 @@ pub struct Common {
     pub heartbeat: Duration,
     /// The log filter from `[log] level`, if any.
     pub log_filter: Option<String>,
+    /// `[security] dir`: join authenticated, with the DDS Security files there.
+    pub security: Option<std::path::PathBuf>,
 }
 
 impl Common {
+    /// Makes a relative `[security] dir` relative to the config file's directory.
+    pub fn resolve_paths(&mut self, config_path: &Path) {
+        let dir = config_path.parent().unwrap_or(Path::new("."));
+        if let Some(security) = &mut self.security
+            && security.is_relative()
+        {
+            *security = dir.join(&*security);
+        }
+    }
+
     /// How long device ids stay pinned to their participants: three heartbeats after a
     /// device's last message (it leaves the device lists then too), one after its participant
     /// left the domain.
@@ -441,7 +468,9 @@ pub struct OperatorConfig {
 pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
     let text = read(path)?;
     let raw = parse_vehicle(path, &text)?;
-    raw.validate().map_err(|e| located(path, &text, e))
+    let mut config = raw.validate().map_err(|e| located(path, &text, e))?;
+    config.common.resolve_paths(path);
+    Ok(config)
 }
 
 /// Reads and validates an operator config.
@@ -459,6 +488,7 @@ pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
 impl OperatorConfig {
     /// Makes relative paths in the config (a replay `file`) relative to the file's directory.
     pub fn resolve_paths(&mut self, config_path: &Path) {
+        self.common.resolve_paths(config_path);
         let dir = config_path.parent().unwrap_or(Path::new("."));
         if let InputChoice::Device(input) = &mut self.input {
             input.resolve_relative_to(dir);
@@ -659,6 +689,7 @@ fn validate_common(
                 format!("{level},rustdds=warn")
             }
         }),
+        security: None,
     }
 }
 
@@ -682,7 +713,8 @@ impl RawVehicle {
     /// [`rove_core::Error::Config`] listing every invalid key.
     pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let mut common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        common.security = self.security.as_ref().map(|s| s.dir.clone());
         let output = self.output.validate(&mut errors);
         let key = "vehicle.command_timeout_ms";
         let millis = self.vehicle.command_timeout_ms.unwrap_or(100);
@@ -733,7 +765,8 @@ impl RawOperator {
     /// [`rove_core::Error::Config`] listing every invalid key.
     pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let mut common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        common.security = self.security.as_ref().map(|s| s.dir.clone());
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let offset = self.operator.offset.unwrap_or(0);

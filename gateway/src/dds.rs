@@ -125,14 +125,36 @@ impl std::fmt::Debug for Domain {
 }
 
 impl Domain {
-    /// Joins `domain_id`, confined to `interfaces`.
+    /// Joins `domain_id`, confined to `interfaces`; with `security`, as the device whose DDS
+    /// Security files are in that directory (`rove keys`).
     ///
     /// # Errors
-    /// rustdds cannot create the participant (ports in use, no such interface) or a topic.
-    pub fn join(domain_id: u16, interfaces: &[Ipv4Addr]) -> anyhow::Result<Domain> {
-        let participant = DomainParticipantBuilder::new(domain_id)
+    /// rustdds cannot create the participant (ports in use, no such interface, security files
+    /// it rejects) or a topic, or security is asked of a build without it.
+    pub fn join(
+        domain_id: u16,
+        interfaces: &[Ipv4Addr],
+        security: Option<&std::path::Path>,
+    ) -> anyhow::Result<Domain> {
+        let builder = DomainParticipantBuilder::new(domain_id)
             .with_only_networks(interfaces.iter().copied())
-            .same_host_loopback(true)
+            .same_host_loopback(true);
+        let builder = match security {
+            None => builder,
+            #[cfg(feature = "security")]
+            Some(dir) => builder.builtin_security(
+                rustdds::DomainParticipantSecurityConfigFiles::with_ros_default_names(
+                    dir,
+                    String::new(),
+                ),
+            ),
+            #[cfg(not(feature = "security"))]
+            Some(dir) => anyhow::bail!(
+                "[security] {}: this rove was built without the `security` feature",
+                dir.display()
+            ),
+        };
+        let participant = builder
             .build()
             .with_context(|| format!("cannot join DDS domain {domain_id} on {interfaces:?}"))?;
         let default = QosPolicyBuilder::new().build();
@@ -265,6 +287,60 @@ impl Domain {
             .into_iter()
             .find(|w| w.publication_topic_data.key == writer)
             .and_then(|w| strength_of(w.publication_topic_data.ownership))
+    }
+}
+
+/// Under `[security]`: checks this device's DDS Security directory and returns who may speak
+/// for which id (a participant only for the id in its certificate, `keys::FleetIdentity`).
+/// `None` without `[security]`. `any_id` (a test hook) lets a device run with another device's
+/// certificate, to see the others refuse it.
+///
+/// # Errors
+/// The directory is incomplete, the certificate is another device's, or this build has no
+/// security.
+pub fn certifier(
+    common: &crate::config::Common,
+    any_id: bool,
+) -> anyhow::Result<Option<rove_core::trust::Certifier>> {
+    let Some(dir) = &common.security else {
+        tracing::warn!(
+            "no [security] in the config: participants are not authenticated, device ids are \
+             pinned to whichever participant speaks for them first (docs/security.md)"
+        );
+        return Ok(None);
+    };
+    #[cfg(feature = "security")]
+    {
+        use std::collections::HashMap;
+        use std::sync::{Arc, Mutex};
+        let fleet = crate::keys::check_device_dir(dir, common.id, any_id)?;
+        tracing::info!(
+            dir = %dir.display(),
+            fleet = fleet.fleet(),
+            "DDS Security on: only this fleet's authenticated participants match, each speaking \
+             only for the device id in its certificate"
+        );
+        // The expected GUID start per id, computed once (bounded: a flood of invented ids
+        // starts the cache afresh).
+        let cache: Mutex<HashMap<i64, Option<[u8; 6]>>> = Mutex::new(HashMap::new());
+        Ok(Some(Arc::new(move |id, participant| {
+            let mut cache = cache
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            if cache.len() > 4096 {
+                cache.clear();
+            }
+            let expected = *cache.entry(id).or_insert_with(|| fleet.guid_start(id).ok());
+            expected.is_some_and(|start| crate::keys::guid_start_of(participant) == start)
+        })))
+    }
+    #[cfg(not(feature = "security"))]
+    {
+        let _ = any_id;
+        anyhow::bail!(
+            "[security] {}: this rove was built without the `security` feature",
+            dir.display()
+        )
     }
 }
 

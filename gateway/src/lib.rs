@@ -9,6 +9,7 @@
 //! - [`status`]: device list and ownership, table / JSON / event stream.
 //! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover`.
 //! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
+//! - `keys` (with the `security` feature): `rove keys`, a fleet's DDS Security files.
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
 //! - [`sdnotify`]: systemd readiness, status, watchdog keep-alives and stopping.
 
@@ -19,6 +20,8 @@ pub mod config;
 pub mod dds;
 pub mod demo;
 pub mod harness;
+#[cfg(feature = "security")]
+pub mod keys;
 pub mod operator;
 pub mod output;
 pub mod runtime;

@@ -67,6 +67,10 @@ enum Command {
         /// Where the log goes while the console owns the terminal.
         #[arg(long, value_name = "FILE")]
         log_file: Option<std::path::PathBuf>,
+        /// Test hook, hidden from --help: run with another device's certificate
+        /// (`[security]`), so a test can see the others refuse it.
+        #[arg(long, hide = true)]
+        test_any_certificate: bool,
     },
     /// Show the devices on the network and who drives each vehicle.
     Status {
@@ -89,11 +93,21 @@ enum Command {
         /// time, until stopped.
         #[arg(long)]
         events: bool,
+        /// Join a secured fleet with the DDS Security files in this directory (`rove keys add`).
+        #[arg(long, value_name = "DIR")]
+        security: Option<std::path::PathBuf>,
     },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
         what: BenchCommand,
+    },
+    /// A fleet's DDS Security files: its CA and governance, each device's certificate, key and
+    /// permissions (docs/security.md).
+    #[cfg(feature = "security")]
+    Keys {
+        #[command(subcommand)]
+        what: KeysCommand,
     },
     /// Validate a vehicle or operator config; print the effective config with `--print`.
     CheckConfig {
@@ -102,6 +116,32 @@ enum Command {
         /// Print the effective configuration (defaults filled in).
         #[arg(long)]
         print: bool,
+    },
+}
+
+#[cfg(feature = "security")]
+#[derive(Debug, Subcommand)]
+enum KeysCommand {
+    /// Create a fleet: its CA (identity and permissions) and its signed governance.
+    Init {
+        /// The fleet's directory (created).
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The fleet's name (the certificates' organisation).
+        #[arg(long, default_value = "rove fleet")]
+        fleet: String,
+        /// The DDS domain the fleet runs in.
+        #[arg(long, default_value_t = 0)]
+        domain: u16,
+    },
+    /// Issue a device's certificate (subject CN=rove-ID), key and signed permissions in DIR/ID/.
+    Add {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The device id (vehicle or operator).
+        #[arg(long)]
+        id: i64,
     },
 }
 
@@ -221,6 +261,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             record,
             headless,
             log_file,
+            test_any_certificate,
         } => {
             use std::io::IsTerminal;
             let config = config::load_operator(&path).map_err(bad_config)?;
@@ -244,6 +285,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 request,
                 record,
                 console,
+                any_certificate: test_any_certificate,
             };
             tokio_runtime()?.block_on(async {
                 operator::run(config, options, runtime::shutdown_signal()?).await
@@ -256,6 +298,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             watch,
             listen_ms,
             events,
+            security,
         } => {
             let interfaces = if interfaces.is_empty() {
                 vec![std::net::Ipv4Addr::LOCALHOST]
@@ -270,6 +313,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 json,
                 watch,
                 events,
+                security,
             }))
         }
         Command::Demo { in_process, fast } => {
@@ -328,6 +372,25 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let outputs = bench::Outputs { json, svg };
             bench::handover_cli(&std::env::current_exe()?, options, &controllers, &outputs)
         }
+        #[cfg(feature = "security")]
+        Command::Keys { what } => match what {
+            KeysCommand::Init { dir, fleet, domain } => {
+                rove_gateway::keys::init(&dir, &fleet, domain)?;
+                println!(
+                    "fleet {fleet:?} created in {} (domain {domain})",
+                    dir.display()
+                );
+                Ok(())
+            }
+            KeysCommand::Add { dir, id } => {
+                let out = rove_gateway::keys::add(&dir, id)?;
+                println!(
+                    "device {id}: certificate, key and permissions in {}",
+                    out.display()
+                );
+                Ok(())
+            }
+        },
         Command::CheckConfig { file, print } => {
             let loaded = config::load_any(&file)?;
             let role = match &loaded {

@@ -54,10 +54,11 @@ pub struct Options {
     pub record: Option<PathBuf>,
     /// Run the console on this terminal.
     pub console: bool,
+    /// Test hook: run with another device's certificate (`[security]`), to see the others
+    /// refuse what it sends in this device's name.
+    pub any_certificate: bool,
 }
 
-/// Runs the operator role until `shutdown` completes or the console is closed.
-///
 /// What a discovery event tells the session: ControlCommand writers found (with their
 /// strength) and lost, participants gone.
 fn discovery_event(event: DomainParticipantStatusEvent) -> Option<SessionEvent> {
@@ -82,6 +83,8 @@ fn discovery_event(event: DomainParticipantStatusEvent) -> Option<SessionEvent> 
     }
 }
 
+/// Runs the operator role until `shutdown` completes or the console is closed.
+///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, the input cannot be opened,
 /// the API socket cannot be bound, or the record cannot be opened.
@@ -98,7 +101,9 @@ pub async fn run(
         .map(JsonLines::create)
         .transpose()?;
     let me = config.common.id;
-    let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
+    let certifier = dds::certifier(&config.common, options.any_certificate)?;
+    let security = config.common.security.as_deref();
+    let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
     let mut writers = Writers {
         regular: domain.command_writer(config.strength)?,
         priority: domain.command_writer(Strength::PRIORITY)?,
@@ -151,6 +156,9 @@ pub async fn run(
         },
         clock.now(),
     );
+    if let Some(certifier) = certifier {
+        session.certify(certifier);
+    }
 
     // The console and the local API see the operator through events and act through commands
     // (rove-console); both are optional.

@@ -83,6 +83,8 @@ pub struct Options {
     pub json: bool,
     /// Keep printing.
     pub watch: bool,
+    /// Join a secured fleet with the DDS Security files in this directory (`rove keys add`).
+    pub security: Option<std::path::PathBuf>,
     /// Print every DeviceInfo and RequestControl sample as a JSON line with its arrival time
     /// (for benchmarks and scripts), instead of snapshots.
     pub events: bool,
@@ -93,7 +95,11 @@ pub struct Options {
 /// # Errors
 /// The participant or reader cannot be created.
 pub async fn run(options: Options) -> anyhow::Result<()> {
-    let domain = Domain::join(options.domain_id, &options.interfaces)?;
+    let domain = Domain::join(
+        options.domain_id,
+        &options.interfaces,
+        options.security.as_deref(),
+    )?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
     let mut requests = domain.request_reader()?.async_sample_stream();
     let clock = crate::runtime::Clock::start();

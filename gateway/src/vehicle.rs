@@ -75,7 +75,9 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
 
-    let domain = Domain::join(config.common.domain_id, &config.common.interfaces)?;
+    let certifier = dds::certifier(&config.common, false)?;
+    let security = config.common.security.as_deref();
+    let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
     let info_writer = domain.device_info_writer()?;
     let commands = domain.command_reader()?;
     let requests = domain.request_reader()?;
@@ -103,6 +105,9 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
 
     let mut arbiter = Arbiter::new(me, config.arbiter).with_access(config.access.clone());
     arbiter.pin_own(my_participant);
+    if let Some(certifier) = certifier {
+        arbiter.certify(certifier);
+    }
     let mut suspects = Suspects::default();
     let mut strengths = HashMap::new();
     let publish = |controller_id| {

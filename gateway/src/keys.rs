@@ -1,0 +1,436 @@
+//! `rove keys`: a fleet's DDS Security files (docs/security.md), and the device id a secured
+//! participant speaks for.
+//!
+//! Layout of a fleet directory:
+//! - `ca.cert.pem`, `ca.key.pem`: the fleet CA. It is both the identity CA (it signs every
+//!   device certificate) and the permissions CA (it signs the governance and every permissions
+//!   document): one fleet, one root of trust.
+//! - `governance.p7s`: the domain's rules, S/MIME signed: no unauthenticated participant, join
+//!   access control, every topic read/write access controlled, and every RTPS message
+//!   (discovery, liveliness, data) encrypted with origin authentication as a whole.
+//!   Submessage-level protection (discovery, liveliness, metadata or data kinds other than
+//!   NONE) is left off: with rustdds 0.15.1, two rove processes then completed their endpoint
+//!   key exchange in only 2 of 7 runs (1 of 4 with every kind at ENCRYPT_WITH_ORIGIN_
+//!   AUTHENTICATION), against 10 of 10 with RTPS protection alone (docs/security.md).
+//! - `ID/`: what device `ID` needs, under the file names rustdds (and ROS 2) expect, so that
+//!   `[security] dir` names one directory: `cert.pem` (subject `O=<fleet>, CN=rove-ID`),
+//!   `key.pem` (PKCS#8 PEM, unencrypted: rustdds ignores key passwords; mode 0600),
+//!   `permissions.p7s` (publish and subscribe rove's three topics in the fleet's domain), and
+//!   copies of the CA (`identity_ca.cert.pem`, `permissions_ca.cert.pem`) and the governance.
+//!
+//! Keys are EC P-256 and signatures SHA-256, as rustdds's builtin plugins expect. The files are
+//! made with the OpenSSL library rustdds's security links anyway; no second crypto stack.
+//!
+//! # Which id a participant speaks for
+//! Under DDS Security the first six bytes of a participant's GUID prefix are derived from the
+//! SHA-256 of its certificate's subject (DDS Security §9.3.3; rustdds checks it for every remote
+//! participant during authentication). [`FleetIdentity::speaks_for`] recomputes that prefix for
+//! the subject `rove keys` gives device `id`, so a participant may speak only for the id in its
+//! certificate.
+
+use anyhow::{Context, anyhow, bail};
+use openssl::asn1::Asn1Time;
+use openssl::bn::{BigNum, MsbOption};
+use openssl::ec::{EcGroup, EcKey};
+use openssl::hash::{MessageDigest, hash};
+use openssl::nid::Nid;
+use openssl::pkcs7::{Pkcs7, Pkcs7Flags};
+use openssl::pkey::{PKey, Private};
+use openssl::stack::Stack;
+use openssl::x509::extension::{BasicConstraints, KeyUsage};
+use openssl::x509::{X509, X509Builder, X509Name, X509NameBuilder};
+use rove_core::arbiter::ParticipantId;
+use rove_core::msg::DeviceId;
+use std::path::{Path, PathBuf};
+
+/// How long certificates and permissions are valid: 10 years. rustdds checks no revocation
+/// list, so an operator is withdrawn through the vehicles' `[access]` lists, and a stolen key
+/// by re-keying the fleet (docs/security.md).
+const VALID_DAYS: u32 = 3650;
+
+/// The topics every device may publish and subscribe.
+const TOPICS: [&str; 3] = ["DeviceInfo", "ControlCommand", "RequestControl"];
+
+/// The common name of device `id`'s certificate.
+pub fn common_name(id: DeviceId) -> String {
+    format!("rove-{id}")
+}
+
+/// Creates a fleet in `dir`: its CA and its governance for DDS domain `domain`.
+///
+/// # Errors
+/// `dir` already holds a fleet, or a file cannot be written, or OpenSSL fails.
+pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
+    if dir.join("ca.cert.pem").exists() {
+        bail!("{} already holds a fleet (ca.cert.pem)", dir.display());
+    }
+    if fleet.is_empty() || fleet.contains([',', '=', '+', '<', '>', '#', ';', '"', '\\']) {
+        bail!("fleet name {fleet:?}: use letters, digits, spaces, '-', '_' or '.'");
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("create {}", dir.display()))?;
+    let key = new_key()?;
+    let name = subject(fleet, "rove fleet CA")?;
+    let mut cert = builder(&name, &name, &key)?;
+    cert.append_extension(BasicConstraints::new().critical().ca().build()?)?;
+    cert.append_extension(
+        KeyUsage::new()
+            .critical()
+            .key_cert_sign()
+            .crl_sign()
+            .build()?,
+    )?;
+    cert.sign(&key, MessageDigest::sha256())?;
+    let cert = cert.build();
+    write(&dir.join("ca.cert.pem"), &cert.to_pem()?, false)?;
+    write(
+        &dir.join("ca.key.pem"),
+        &key.private_key_to_pem_pkcs8()?,
+        true,
+    )?;
+    let governance = governance_xml(domain);
+    write(
+        &dir.join("governance.p7s"),
+        &sign(&cert, &key, &governance)?,
+        false,
+    )?;
+    write(&dir.join("domain"), domain.to_string().as_bytes(), false)
+}
+
+/// Issues device `id`'s certificate, key and permissions in `dir/ID/`; returns that directory.
+///
+/// # Errors
+/// `dir` holds no fleet, the device exists already, or a file cannot be read or written.
+pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
+    if id <= 0 {
+        bail!("device id {id}: must be positive");
+    }
+    let read = |name: &str| {
+        let path = dir.join(name);
+        std::fs::read(&path)
+            .with_context(|| format!("read {} (run `rove keys init`)", path.display()))
+    };
+    let ca = X509::from_pem(&read("ca.cert.pem")?)?;
+    let ca_key = PKey::private_key_from_pem(&read("ca.key.pem")?)?;
+    let domain: u16 = String::from_utf8_lossy(&read("domain")?)
+        .trim()
+        .parse()
+        .context("the fleet's domain file")?;
+    let fleet = fleet_of(&ca)?;
+    let out = dir.join(id.to_string());
+    if out.join("cert.pem").exists() {
+        bail!("device {id} exists already in {}", out.display());
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
+    let key = new_key()?;
+    let name = subject(&fleet, &common_name(id))?;
+    let mut cert = builder(&name, ca.subject_name(), &key)?;
+    cert.append_extension(BasicConstraints::new().critical().build()?)?;
+    cert.append_extension(
+        KeyUsage::new()
+            .critical()
+            .digital_signature()
+            .key_agreement()
+            .build()?,
+    )?;
+    cert.sign(&ca_key, MessageDigest::sha256())?;
+    let cert = cert.build();
+    write(&out.join("cert.pem"), &cert.to_pem()?, false)?;
+    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
+    let permissions = permissions_xml(&fleet, id, domain);
+    write(
+        &out.join("permissions.p7s"),
+        &sign(&ca, &ca_key, &permissions)?,
+        false,
+    )?;
+    let ca_pem = ca.to_pem()?;
+    write(&out.join("identity_ca.cert.pem"), &ca_pem, false)?;
+    write(&out.join("permissions_ca.cert.pem"), &ca_pem, false)?;
+    write(&out.join("governance.p7s"), &read("governance.p7s")?, false)?;
+    Ok(out)
+}
+
+/// The files of a device directory (`[security] dir`), as rustdds reads them.
+pub const DEVICE_FILES: [&str; 6] = [
+    "identity_ca.cert.pem",
+    "cert.pem",
+    "key.pem",
+    "permissions_ca.cert.pem",
+    "governance.p7s",
+    "permissions.p7s",
+];
+
+/// Checks a device directory before joining: every file is there, and the certificate is
+/// device `id`'s (unless `any_id`, a test hook). Returns the fleet identity for pinning ids.
+///
+/// # Errors
+/// A file is missing or unreadable, or the certificate is another device's.
+pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Result<FleetIdentity> {
+    for name in DEVICE_FILES {
+        let path = dir.join(name);
+        std::fs::metadata(&path)
+            .with_context(|| format!("[security] {}: missing {name}", dir.display()))?;
+    }
+    let pem = std::fs::read(dir.join("cert.pem"))?;
+    let cert = X509::from_pem(&pem).context("cert.pem is not a PEM certificate")?;
+    let cn = (cert.subject_name().entries_by_nid(Nid::COMMONNAME).next())
+        .map(|e| e.data().to_string())
+        .transpose()?
+        .unwrap_or_default();
+    if cn != common_name(id) && !any_id {
+        bail!(
+            "[security] {}: the certificate is {cn:?}'s, not device {id}'s ({:?})",
+            dir.display(),
+            common_name(id)
+        );
+    }
+    FleetIdentity::from_certificate(&pem)
+}
+
+/// Who may speak for which device id in a secured fleet; see the module docs.
+#[derive(Debug, Clone)]
+pub struct FleetIdentity {
+    fleet: String,
+}
+
+impl FleetIdentity {
+    /// The fleet's name (the certificates' organisation).
+    pub fn fleet(&self) -> &str {
+        &self.fleet
+    }
+
+    /// The fleet a device's own certificate (PEM) belongs to.
+    ///
+    /// # Errors
+    /// The certificate cannot be read or names no organisation.
+    pub fn from_certificate(pem: &[u8]) -> anyhow::Result<FleetIdentity> {
+        Ok(FleetIdentity {
+            fleet: fleet_of(&X509::from_pem(pem)?)?,
+        })
+    }
+
+    /// The first six bytes of the GUID prefix a participant certified as device `id` has.
+    ///
+    /// # Errors
+    /// OpenSSL fails to encode the subject.
+    pub fn guid_start(&self, id: DeviceId) -> anyhow::Result<[u8; 6]> {
+        let der = subject(&self.fleet, &common_name(id))?.to_der()?;
+        let digest = hash(MessageDigest::sha256(), &der)?;
+        let mut first = [0u8; 8];
+        first.copy_from_slice(&digest[..8]);
+        let bits = (u64::from_be_bytes(first) >> 1) | (1 << 63);
+        let mut start = [0u8; 6];
+        start.copy_from_slice(&bits.to_be_bytes()[..6]);
+        Ok(start)
+    }
+
+    /// Whether `participant` (authenticated by DDS Security) holds device `id`'s certificate.
+    pub fn speaks_for(&self, id: DeviceId, participant: ParticipantId) -> bool {
+        self.guid_start(id)
+            .is_ok_and(|start| guid_start_of(participant) == start)
+    }
+}
+
+/// The first six bytes of `participant`'s GUID prefix (which `ParticipantId` holds in its low
+/// 12 bytes, `dds::participant_id`).
+pub fn guid_start_of(participant: ParticipantId) -> [u8; 6] {
+    let bytes = participant.0.to_be_bytes();
+    let mut start = [0u8; 6];
+    start.copy_from_slice(&bytes[4..10]);
+    start
+}
+
+fn new_key() -> anyhow::Result<PKey<Private>> {
+    let group = EcGroup::from_curve_name(Nid::X9_62_PRIME256V1)?;
+    Ok(PKey::from_ec_key(EcKey::generate(&group)?)?)
+}
+
+fn subject(fleet: &str, common_name: &str) -> anyhow::Result<X509Name> {
+    let mut name = X509NameBuilder::new()?;
+    name.append_entry_by_nid(Nid::ORGANIZATIONNAME, fleet)?;
+    name.append_entry_by_nid(Nid::COMMONNAME, common_name)?;
+    Ok(name.build())
+}
+
+fn fleet_of(cert: &X509) -> anyhow::Result<String> {
+    let entry = (cert
+        .subject_name()
+        .entries_by_nid(Nid::ORGANIZATIONNAME)
+        .next())
+    .ok_or_else(|| anyhow!("the certificate names no organisation (O=): not a rove fleet's"))?;
+    Ok(entry.data().to_string()?)
+}
+
+fn builder(
+    subject: &openssl::x509::X509NameRef,
+    issuer: &openssl::x509::X509NameRef,
+    key: &PKey<Private>,
+) -> anyhow::Result<X509Builder> {
+    let mut cert = X509Builder::new()?;
+    cert.set_version(2)?;
+    let mut serial = BigNum::new()?;
+    serial.rand(127, MsbOption::MAYBE_ZERO, false)?;
+    let serial = serial.to_asn1_integer()?;
+    cert.set_serial_number(&serial)?;
+    cert.set_subject_name(subject)?;
+    cert.set_issuer_name(issuer)?;
+    cert.set_pubkey(key)?;
+    let (from, until) = (
+        Asn1Time::days_from_now(0)?,
+        Asn1Time::days_from_now(VALID_DAYS)?,
+    );
+    cert.set_not_before(&from)?;
+    cert.set_not_after(&until)?;
+    Ok(cert)
+}
+
+/// `document` S/MIME clear-signed (as `openssl smime -sign -text`) by `cert`.
+fn sign(cert: &X509, key: &PKey<Private>, document: &str) -> anyhow::Result<Vec<u8>> {
+    let flags = Pkcs7Flags::DETACHED | Pkcs7Flags::TEXT;
+    let certs = Stack::new()?;
+    let signed = Pkcs7::sign(cert, key, &certs, document.as_bytes(), flags)?;
+    Ok(signed.to_smime(document.as_bytes(), flags)?)
+}
+
+fn write(path: &Path, contents: &[u8], secret: bool) -> anyhow::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mode = if secret { 0o600 } else { 0o644 };
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(mode)
+        .open(path)
+        .with_context(|| format!("create {}", path.display()))?;
+    file.write_all(contents)
+        .with_context(|| format!("write {}", path.display()))
+}
+
+fn governance_xml(domain: u16) -> String {
+    format!(
+        r#"<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-SECURITY/20170901/omg_shared_ca_governance.xsd">
+    <domain_access_rules>
+        <domain_rule>
+            <domains>
+                <id>{domain}</id>
+            </domains>
+            <allow_unauthenticated_participants>false</allow_unauthenticated_participants>
+            <enable_join_access_control>true</enable_join_access_control>
+            <discovery_protection_kind>NONE</discovery_protection_kind>
+            <liveliness_protection_kind>NONE</liveliness_protection_kind>
+            <rtps_protection_kind>ENCRYPT_WITH_ORIGIN_AUTHENTICATION</rtps_protection_kind>
+            <topic_access_rules>
+                <topic_rule>
+                    <topic_expression>*</topic_expression>
+                    <enable_discovery_protection>false</enable_discovery_protection>
+                    <enable_liveliness_protection>false</enable_liveliness_protection>
+                    <enable_read_access_control>true</enable_read_access_control>
+                    <enable_write_access_control>true</enable_write_access_control>
+                    <metadata_protection_kind>NONE</metadata_protection_kind>
+                    <data_protection_kind>NONE</data_protection_kind>
+                </topic_rule>
+            </topic_access_rules>
+        </domain_rule>
+    </domain_access_rules>
+</dds>
+"#
+    )
+}
+
+fn permissions_xml(fleet: &str, id: DeviceId, domain: u16) -> String {
+    let topics: String = TOPICS
+        .iter()
+        .map(|t| format!("                        <topic>{t}</topic>\n"))
+        .collect();
+    let not_before = "2020-01-01T00:00:00";
+    let not_after = "9999-01-01T00:00:00";
+    let cn = common_name(id);
+    format!(
+        r#"<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-Security/20170901/omg_shared_ca_permissions.xsd">
+    <permissions>
+        <grant name="{cn}">
+            <subject_name>CN={cn},O={fleet}</subject_name>
+            <validity>
+                <not_before>{not_before}</not_before>
+                <not_after>{not_after}</not_after>
+            </validity>
+            <allow_rule>
+                <domains>
+                    <id>{domain}</id>
+                </domains>
+                <publish>
+                    <topics>
+{topics}                    </topics>
+                </publish>
+                <subscribe>
+                    <topics>
+{topics}                    </topics>
+                </subscribe>
+            </allow_rule>
+            <default>DENY</default>
+        </grant>
+    </permissions>
+</dds>
+"#
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(test: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("rove-keys-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn a_fleet_issues_device_certificates_that_verify_against_its_ca() {
+        let dir = scratch("issue");
+        init(&dir, "test fleet", 0).expect("init");
+        let out = add(&dir, 11).expect("add");
+        let ca = X509::from_pem(&std::fs::read(dir.join("ca.cert.pem")).expect("ca")).expect("pem");
+        let cert =
+            X509::from_pem(&std::fs::read(out.join("cert.pem")).expect("cert")).expect("pem");
+        assert!(cert.verify(&ca.public_key().expect("key")).expect("verify"));
+        let cn = cert
+            .subject_name()
+            .entries_by_nid(Nid::COMMONNAME)
+            .next()
+            .expect("CN");
+        assert_eq!(cn.data().to_string().expect("utf-8"), "rove-11");
+        let mode = std::os::unix::fs::PermissionsExt::mode(
+            &std::fs::metadata(out.join("key.pem"))
+                .expect("key")
+                .permissions(),
+        );
+        assert_eq!(mode & 0o777, 0o600);
+        let signed = std::fs::read_to_string(out.join("permissions.p7s")).expect("p7s");
+        assert!(signed.contains("multipart/signed") && signed.contains("CN=rove-11,O=test fleet"));
+        assert!(add(&dir, 11).is_err(), "a device is issued once");
+        let fleet = check_device_dir(&out, 11, false).expect("complete");
+        assert_eq!(fleet.fleet(), "test fleet");
+        let e = check_device_dir(&out, 12, false).expect_err("another's");
+        assert!(format!("{e:#}").contains("not device 12's"), "{e:#}");
+        assert!(init(&dir, "again", 0).is_err(), "a fleet is created once");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_guid_start_names_one_device() {
+        let fleet = FleetIdentity {
+            fleet: "test fleet".into(),
+        };
+        let a = fleet.guid_start(11).expect("hash");
+        let b = fleet.guid_start(12).expect("hash");
+        assert_ne!(a, b);
+        assert_eq!(a[0] & 0x80, 0x80, "the first bit is set");
+        let mut prefix = [0u8; 16];
+        prefix[4..10].copy_from_slice(&a);
+        let participant = ParticipantId(u128::from_be_bytes(prefix));
+        assert!(fleet.speaks_for(11, participant));
+        assert!(!fleet.speaks_for(12, participant));
+    }
+}
