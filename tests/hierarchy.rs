@@ -242,8 +242,19 @@ fn status_lists_every_device_and_reports_duplicate_ids() {
 /// The README's demo runs its whole story over DDS between real processes.
 #[test]
 fn the_demo_tells_its_story_between_real_processes() {
+    demo_story(false);
+}
+
+/// `rove demo --secure`: the same story, every process authenticated with a certificate.
+#[test]
+fn the_secure_demo_tells_the_same_story_with_certificates() {
+    demo_story(true);
+}
+
+fn demo_story(secure: bool) {
     let mut lines = Vec::new();
-    rove_gateway::demo::run_processes(Path::new(ROVE), &mut |l| lines.push(l.to_string()))
+    let mut print = |l: &str| lines.push(l.to_string());
+    rove_gateway::demo::run_processes(Path::new(ROVE), secure, &mut print)
         .unwrap_or_else(|e| panic!("{e:#}"));
     let story = lines.join("\n");
     for expected in [

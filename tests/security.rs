@@ -32,7 +32,7 @@ fn fleet(rig: &Rig, ids: &[i64]) -> PathBuf {
 }
 
 fn security(fleet: &Path, id: i64) -> String {
-    format!("[security]\ndir = {:?}\n", fleet.join(id.to_string()))
+    rove_gateway::harness::security_toml(Some(fleet), id)
 }
 
 fn log_of(rig: &Rig, name: &str) -> String {

@@ -574,6 +574,12 @@ pub struct OperatorSession {
     pending_request: Option<(DeviceId, MonoTime)>,
     /// DeviceInfo arriving before this may be history replay: no request decided on it.
     ask_after: MonoTime,
+    /// When the `--request` vehicle's first DeviceInfo arrived: a joiner may get the writer's
+    /// history (older owners) in one burst, late when discovery is slow (DDS Security's
+    /// handshake takes over a second), so the decision waits one heartbeat more, for a live
+    /// sample.
+    request_seen: Option<MonoTime>,
+    heartbeat: Duration,
     /// Device ids pinned to participants.
     identities: Identities,
     /// Strengths of the ControlCommand writers discovery found, to check a REQUEST's
@@ -615,6 +621,8 @@ impl OperatorSession {
             vehicles: BTreeMap::new(),
             pending_request: config.request.map(|v| (v, now + config.heartbeat * 2)),
             ask_after: now + config.heartbeat,
+            request_seen: None,
+            heartbeat: config.heartbeat,
             identities: {
                 let mut ids = Identities::new(config.trust);
                 ids.pin_own(config.me, config.participant);
@@ -1065,15 +1073,16 @@ impl OperatorSession {
             self.carry_out(stamp, actions, out);
         }
         // `--request`: ask once the vehicle and its owner are known from a live sample.
-        if now < self.ask_after {
-            return;
-        }
         let Some((wanted, free_after)) = self.pending_request else {
             return;
         };
         let Some(v) = self.vehicles.get(&wanted) else {
             return;
         };
+        let first_seen = *self.request_seen.get_or_insert(now);
+        if now < self.ask_after || now < first_seen + self.heartbeat {
+            return;
+        }
         let (vehicle, owner) = (v.device_id, v.controller_id);
         if owner == self.me {
             // Names us: true only if we stream to it; otherwise it is an older sample (a

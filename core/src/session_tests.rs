@@ -507,16 +507,25 @@ fn request_when_seen_waits_for_live_info_then_asks_or_drives_a_free_vehicle() {
     let out = step(&mut s, 600, vehicle(W, OTHER));
     assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
     assert!(sent(&step(&mut s, 1100, vehicle(W, OTHER))).is_empty());
-    // Ownerless: free only after two heartbeats.
+    // Ownerless: free only after two heartbeats, and a heartbeat after it was first seen.
     let mut s = OperatorSession::new(c.clone(), ms(0));
     assert!(step(&mut s, 600, vehicle(W, W)).is_empty());
+    assert!(step(&mut s, 1000, vehicle(W, W)).is_empty());
     assert!(!s.streams_to(W));
-    let out = step(&mut s, 1000, vehicle(W, W));
+    let out = step(&mut s, 1100, vehicle(W, W));
     assert!(s.streams_to(W));
     assert!(out.contains(&Effect::Report(Report::Driving {
         vehicle: W,
         why: DriveReason::Free
     })));
+    // Discovery was slow (as under DDS Security): the history burst arrives late with an old
+    // "free" sample; the live heartbeat that follows names the owner, and it is asked.
+    let mut s = OperatorSession::new(c.clone(), ms(0));
+    assert!(step(&mut s, 1200, vehicle(W, W)).is_empty());
+    assert!(!s.streams_to(W));
+    let out = step(&mut s, 1700, vehicle(W, OTHER));
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
+    assert!(!s.streams_to(W));
     // Names us without our stream: an old sample; wait.
     let mut s = OperatorSession::new(c, ms(0));
     step(&mut s, 600, vehicle(W, ME));

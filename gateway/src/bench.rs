@@ -205,6 +205,8 @@ pub struct Report {
     pub applied: Option<Stats>,
     /// Returns to the previous owner within 1 s.
     pub ping_pong: usize,
+    /// Every process joined with DDS Security.
+    pub secure: bool,
     /// Raw samples, ms.
     #[serde(skip)]
     pub raw: (Vec<f64>, Vec<f64>),
@@ -222,6 +224,45 @@ pub struct Options {
     pub devices: usize,
     /// Runs.
     pub runs: usize,
+    /// Every process joins with DDS Security (a fleet made for the run).
+    pub secure: bool,
+}
+
+/// The ids a bench fleet issues certificates for: the vehicle, owner, requester, backups,
+/// bystanders, late-join devices and the observers (`status`, id 999).
+fn bench_ids(options: &Options) -> Vec<i64> {
+    let mut ids = std::collections::BTreeSet::from([VEHICLE, 11, 13, OBSERVER]);
+    ids.extend(21..21 + RANKS.len() as i64);
+    ids.extend(31..31 + options.controllers as i64);
+    ids.extend(200..200 + options.devices as i64);
+    ids.into_iter().collect()
+}
+
+/// The id whose certificate `rove status` observers use in a secured bench.
+const OBSERVER: i64 = 999;
+
+/// `[security]` for device `id` when the bench is secured.
+struct Sec(Option<PathBuf>);
+
+impl Sec {
+    fn toml(&self, id: i64) -> String {
+        harness::security_toml(self.0.as_deref(), id)
+    }
+
+    /// `rove status --events`, secured like everyone else.
+    fn status_args(&self) -> Vec<String> {
+        let mut args = vec!["status".to_string(), "--events".to_string()];
+        if let Some(fleet) = &self.0 {
+            args.push("--security".into());
+            args.push(fleet.join(OBSERVER.to_string()).display().to_string());
+        }
+        args
+    }
+
+    fn vehicle(&self, rig: &mut Rig) -> PathBuf {
+        let output = format!("{}[output]\nadapter = \"sim\"\n", self.toml(VEHICLE));
+        rig.vehicle_with_output(VEHICLE, &output)
+    }
 }
 
 /// Backup ranks, weakest first: (level, class, strength).
@@ -250,29 +291,38 @@ pub fn run(
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let mut rig = Rig::new(rove, "bench")?;
-    let observer = rig.spawn("observer", &["status", "--events"]);
+    let sec = Sec(match options.secure {
+        true => Some(rig.fleet(&bench_ids(options))?),
+        false => None,
+    });
+    let status = sec.status_args();
+    let status: Vec<&str> = status.iter().map(String::as_str).collect();
+    let observer = rig.spawn("observer", &status);
     let events_path = rig.procs[observer].log.clone();
-    match options.scenario {
-        Scenario::Latejoin => latejoin(&mut rig, options, progress),
+    let mut events = Follow::new(&events_path);
+    let report = match options.scenario {
+        Scenario::Latejoin => latejoin(&mut rig, &sec, options, progress),
         Scenario::Graceful | Scenario::Crash => {
-            passive(&mut rig, options, &mut Follow::new(&events_path), progress)
+            passive(&mut rig, &sec, options, &mut events, progress)
         }
-        Scenario::Active => active(&mut rig, options, &mut Follow::new(&events_path), progress),
-    }
+        Scenario::Active => active(&mut rig, &sec, options, &mut events, progress),
+    }?;
+    Ok(report)
 }
 
 fn passive(
     rig: &mut Rig,
+    sec: &Sec,
     options: &Options,
     events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let record = rig.vehicle(VEHICLE);
+    let record = sec.vehicle(rig);
     let backups = options.controllers.saturating_sub(1).min(RANKS.len() - 1);
     let mut successor = None;
     for (i, (level, class)) in RANKS.iter().take(backups).enumerate() {
         let id = 21 + i as i64;
-        rig.operator(id, level, class, &[VEHICLE], 100, "", &[]);
+        rig.operator(id, level, class, &[VEHICLE], 100, &sec.toml(id), &[]);
         successor = Some(id);
     }
     if let Some(s) = successor {
@@ -281,7 +331,7 @@ fn passive(
     let (mut info, mut applied, mut ping_pong) = (Vec::new(), Vec::new(), 0);
     for run in 0..options.runs {
         // The owner: a mobile phone, above every backup.
-        let owner = rig.operator(11, "mobile", "phone", &[VEHICLE], 2000, "", &[]);
+        let owner = rig.operator(11, "mobile", "phone", &[VEHICLE], 2000, &sec.toml(11), &[]);
         harness::wait_for_output(&record, Some(11), wall_us()).map_err(anyhow::Error::msg)?;
         let t0 = wall_us();
         if options.scenario == Scenario::Crash {
@@ -313,11 +363,12 @@ fn passive(
 
 fn active(
     rig: &mut Rig,
+    sec: &Sec,
     options: &Options,
     events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let record = rig.vehicle(VEHICLE);
+    let record = sec.vehicle(rig);
     // The owner accepts every request, as the seed's experiment did.
     // It is the strongest passive controller, so bystanders (all weaker, ranks repeating
     // when there are more bystanders than ranks) never take the vehicle themselves.
@@ -330,7 +381,7 @@ fn active(
         "phone",
         &[VEHICLE],
         1000,
-        "[handover]\nauto_accept = \"always\"\n",
+        &format!("{}[handover]\nauto_accept = \"always\"\n", sec.toml(11)),
         &["--record", sent_path.to_str().unwrap_or_default()],
     );
     let mut sent = Follow::new(&sent_path);
@@ -340,12 +391,14 @@ fn active(
         .take(options.controllers.saturating_sub(2))
         .enumerate()
     {
-        rig.operator(31 + i as i64, level, class, &[VEHICLE], 100, "", &[]);
+        let id = 31 + i as i64;
+        rig.operator(id, level, class, &[VEHICLE], 100, &sec.toml(id), &[]);
     }
     let (mut info, mut applied, mut ping_pong) = (Vec::new(), Vec::new(), 0);
     for run in 0..options.runs {
         let start = wall_us();
-        let requester = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+        let request = ["--request", "100"];
+        let requester = rig.operator(13, "remote", "tablet", &[], 3000, &sec.toml(13), &request);
         let accept = wait_event(&mut sent, start, |e| {
             e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13 && e["current"] == 11
         })?;
@@ -378,19 +431,23 @@ fn active(
 
 fn latejoin(
     rig: &mut Rig,
+    sec: &Sec,
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let devices = options.devices.max(1);
-    rig.vehicle(VEHICLE);
+    sec.vehicle(rig);
     for i in 1..devices {
         let (level, class) = RANKS[i % RANKS.len()];
-        rig.operator(200 + i as i64, level, class, &[], 0, "", &[]);
+        let id = 200 + i as i64;
+        rig.operator(id, level, class, &[], 0, &sec.toml(id), &[]);
     }
     let mut listed = Vec::new();
     for run in 0..options.runs {
         let t0 = wall_us();
-        let p = rig.spawn(&format!("joiner-{run}"), &["status", "--events"]);
+        let status = sec.status_args();
+        let status: Vec<&str> = status.iter().map(String::as_str).collect();
+        let p = rig.spawn(&format!("joiner-{run}"), &status);
         let path = rig.procs[p].log.clone();
         let deadline = Instant::now() + harness::PATIENCE;
         let done = loop {
@@ -437,6 +494,7 @@ fn report(options: &Options, info: Vec<f64>, applied: Vec<f64>, ping_pong: usize
         deviceinfo: Stats::of(&info),
         applied: Stats::of(&applied),
         ping_pong,
+        secure: options.secure,
         raw: (info, applied),
     }
 }
@@ -520,7 +578,7 @@ pub fn table(reports: &[Report]) -> String {
             let _ = writeln!(
                 out,
                 "{:<9} {:>4} {:>5} {:<10} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>4}  {}",
-                format!("{:?}", r.scenario).to_lowercase(),
+                format!("{:?}{}", r.scenario, if r.secure { "+sec" } else { "" }).to_lowercase(),
                 r.controllers,
                 r.runs,
                 name,
@@ -686,17 +744,22 @@ pub fn handover_cli(
     rove: &Path,
     options: Options,
     controllers: &[usize],
+    security: &[bool],
     outputs: &Outputs,
 ) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for &n in controllers {
-        let options = Options {
-            controllers: n,
-            ..options.clone()
-        };
-        let report = run(rove, &options, &mut |line| eprintln!("  {line}"))?;
-        print!("{}", table(std::slice::from_ref(&report)));
-        reports.push(report);
+        // Security off and on back to back, so that their cost compares on one machine state.
+        for &secure in security {
+            let options = Options {
+                controllers: n,
+                secure,
+                ..options.clone()
+            };
+            let report = run(rove, &options, &mut |line| eprintln!("  {line}"))?;
+            print!("{}", table(std::slice::from_ref(&report)));
+            reports.push(report);
+        }
         if options.scenario == Scenario::Latejoin {
             break;
         }

@@ -350,14 +350,32 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
 }
 
 /// The story with real processes over DDS. Each step waits for the vehicle's output to show the
-/// expected owner and prints how long that took from the trigger.
+/// expected owner and prints how long that took from the trigger. With `secure`, every process
+/// joins with DDS Security, its certificate from a fleet made for the story (`rove keys`).
 ///
 /// # Errors
-/// The namespace cannot be created (not root, no iproute2), or a step's outcome never shows.
-pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> anyhow::Result<()> {
-    use crate::harness::{Rig, wait_for_output, wall_us};
+/// The namespace cannot be created (not root, no iproute2), the keys cannot be made, or a
+/// step's outcome never shows.
+pub fn run_processes(
+    rove: &std::path::Path,
+    secure: bool,
+    print: &mut dyn FnMut(&str),
+) -> anyhow::Result<()> {
+    use crate::harness::{Rig, security_toml, wait_for_output, wall_us};
     let mut rig = Rig::new(rove, "demo")?;
-    let record = rig.vehicle(VEHICLE);
+    let fleet = if secure {
+        let dir = rig.fleet(&[VEHICLE, 11, 12, 13])?;
+        print(&format!(
+            "DDS Security: fleet CA, governance and certificates for 100, 11, 12, 13 in {}",
+            dir.display()
+        ));
+        Some(dir)
+    } else {
+        None
+    };
+    let sec = |id| security_toml(fleet.as_deref(), id);
+    let output = format!("{}[output]\nadapter = \"sim\"\n", sec(VEHICLE));
+    let record = rig.vehicle_with_output(VEHICLE, &output);
     print(&format!(
         "vehicle {VEHICLE} (sim output) started in a private network namespace (loopback only)"
     ));
@@ -377,7 +395,7 @@ pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> any
         "laptop",
         &[VEHICLE],
         1000,
-        "[handover]\nauto_accept = \"always\"\n",
+        &format!("{}[handover]\nauto_accept = \"always\"\n", sec(11)),
         &[],
     );
     step(
@@ -386,13 +404,14 @@ pub fn run_processes(rove: &std::path::Path, print: &mut dyn FnMut(&str)) -> any
         start,
     )?;
     let t = wall_us();
-    let phone = rig.operator(12, "mobile", "phone", &[VEHICLE], 2000, "", &[]);
+    let phone = rig.operator(12, "mobile", "phone", &[VEHICLE], 2000, &sec(12), &[]);
     step("phone 12 (mobile, 340) starts and preempts", Some(12), t)?;
     let t = wall_us();
     rig.procs[phone].terminate();
     step("phone quits (releases)", Some(11), t)?;
     let t = wall_us();
-    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
+    let request = ["--request", "100"];
+    let tablet = rig.operator(13, "remote", "tablet", &[], 3000, &sec(13), &request);
     step(
         "tablet 13 (remote, 130) starts and requests; the laptop accepts",
         Some(13),

@@ -160,6 +160,31 @@ impl Rig {
         self.procs.len() - 1
     }
 
+    /// A DDS Security fleet for `ids` in the rig's directory (`rove keys init`, then `add` for
+    /// each id); returns its directory. Each device's `[security]` is [`security_toml`].
+    ///
+    /// # Errors
+    /// The keys cannot be made, or this build has no security.
+    pub fn fleet(&self, ids: &[i64]) -> anyhow::Result<PathBuf> {
+        let dir = self.dir.join("fleet");
+        #[cfg(feature = "security")]
+        {
+            crate::keys::init(&dir, "rove demo fleet", 0)?;
+            for &id in ids {
+                crate::keys::add(&dir, id)?;
+            }
+            Ok(dir)
+        }
+        #[cfg(not(feature = "security"))]
+        {
+            let _ = ids;
+            anyhow::bail!(
+                "{}: this rove was built without the `security` feature",
+                dir.display()
+            )
+        }
+    }
+
     /// Starts vehicle `id` (sim adapter) recording its outputs; returns the record path.
     pub fn vehicle(&mut self, id: i64) -> PathBuf {
         self.vehicle_with_output(id, "[output]\nadapter = \"sim\"\n")
@@ -229,6 +254,13 @@ impl Drop for Rig {
             let _ = std::fs::remove_dir_all(&self.dir);
         }
     }
+}
+
+/// The `[security]` table of device `id` in `fleet` (a [`Rig::fleet`]), empty without one.
+pub fn security_toml(fleet: Option<&Path>, id: i64) -> String {
+    fleet.map_or_else(String::new, |f| {
+        format!("[security]\ndir = {:?}\n", f.join(id.to_string()))
+    })
 }
 
 /// One output of the vehicle's record.

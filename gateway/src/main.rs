@@ -24,6 +24,9 @@ enum Command {
         /// With `--in-process`: do not pace the story in real time; print it at once.
         #[arg(long)]
         fast: bool,
+        /// Every process joins with DDS Security, with certificates made for the story.
+        #[arg(long, conflicts_with = "in_process")]
+        secure: bool,
     },
     /// Run the vehicle role: take commands from the current owner only, drive the output.
     Vehicle {
@@ -145,6 +148,17 @@ enum KeysCommand {
     },
 }
 
+/// `rove bench handover --security`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum SecurityMode {
+    /// Plain DDS.
+    Off,
+    /// DDS Security.
+    On,
+    /// Both, back to back.
+    Both,
+}
+
 #[derive(Debug, Subcommand)]
 enum InputsCommand {
     /// Input devices (/dev/input/event*) with their axes, buttons and keys.
@@ -187,6 +201,10 @@ enum BenchCommand {
         /// Runs per controller count.
         #[arg(long, default_value_t = 100)]
         runs: usize,
+        /// DDS Security: off, on (every process authenticated, RTPS messages encrypted), or
+        /// both, back to back for each controller count.
+        #[arg(long, value_enum, default_value = "off")]
+        security: SecurityMode,
         /// Write one JSON object per scenario run to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -316,13 +334,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 security,
             }))
         }
-        Command::Demo { in_process, fast } => {
+        Command::Demo {
+            in_process,
+            fast,
+            secure,
+        } => {
             if !in_process {
                 let rove = std::env::current_exe()?;
-                match demo::run_processes(&rove, &mut |line| println!("{line}")) {
+                match demo::run_processes(&rove, secure, &mut |line| println!("{line}")) {
                     Ok(()) => return Ok(()),
                     // Without namespaces (not root), fall back to the in-process story.
-                    Err(e) if e.is::<harness::NoNamespace>() => {
+                    Err(e) if e.is::<harness::NoNamespace>() && !secure => {
                         eprintln!("rove demo: {e:#}; playing the story in-process instead");
                     }
                     Err(e) => return Err(e),
@@ -359,6 +381,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     controllers,
                     devices,
                     runs,
+                    security,
                     json,
                     svg,
                 },
@@ -368,9 +391,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 controllers: 0,
                 devices,
                 runs,
+                secure: false,
             };
             let outputs = bench::Outputs { json, svg };
-            bench::handover_cli(&std::env::current_exe()?, options, &controllers, &outputs)
+            let modes: &[bool] = match security {
+                SecurityMode::Off => &[false],
+                SecurityMode::On => &[true],
+                SecurityMode::Both => &[false, true],
+            };
+            let rove = std::env::current_exe()?;
+            bench::handover_cli(&rove, options, &controllers, modes, &outputs)
         }
         #[cfg(feature = "security")]
         Command::Keys { what } => match what {
