@@ -720,6 +720,7 @@ mod tests {
             deviceinfo: None,
             applied: None,
             ping_pong: 0,
+            secure: false,
             raw: (vec![1.0, 2.0], vec![3.0, 4.0]),
         };
         assert_eq!(svg(&[r]).matches("<rect").count(), 2);
