@@ -23,6 +23,7 @@ use std::collections::HashMap;
 use std::fmt;
 use std::hash::Hash;
 use std::ops::RangeInclusive;
+use std::time::Duration;
 
 /// How every integer key is read: wide, then range-checked by [`ConfigErrors::int`].
 pub type Int = i64;
@@ -61,6 +62,39 @@ impl ConfigErrors {
         unit: &str,
     ) -> Option<T> {
         value.and_then(|v| self.int(key, v, range, unit))
+    }
+
+    /// [`ConfigErrors::int`] for a required key: records `key = (absent): is required` if absent.
+    pub fn req_int<T: TryFrom<Int>>(
+        &mut self,
+        key: &str,
+        value: Option<Int>,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<T> {
+        self.required(key, &value)
+            .and_then(|v| self.int(key, v, range, unit))
+    }
+
+    /// [`ConfigErrors::int`] of a key in milliseconds, as a [`Duration`].
+    pub fn millis(
+        &mut self,
+        key: &str,
+        value: Int,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<Duration> {
+        self.int(key, value, range, unit).map(Duration::from_millis)
+    }
+
+    /// Runs `check` on a list of its own and files what it records under `prefix`; returns
+    /// its value and whether it recorded nothing.
+    pub fn within<T>(&mut self, prefix: &str, check: impl FnOnce(&mut Self) -> T) -> (T, bool) {
+        let mut inner = ConfigErrors::default();
+        let value = check(&mut inner);
+        let clean = inner.0.is_empty();
+        self.extend_within(prefix, inner);
+        (value, clean)
     }
 
     /// `value` if it is finite and lies in `range`; otherwise records `key = value: rule`.
@@ -188,7 +222,7 @@ impl<'de> Deserialize<'de> for UnknownKeys {
             ) -> std::result::Result<UnknownKeys, A::Error> {
                 let mut keys = Vec::new();
                 while let Some(key) = map.next_key::<String>()? {
-                    keys.push((key, map.next_value::<Shown>()?.0));
+                    keys.push((key, map.next_value::<Shown>()?.to_string()));
                 }
                 Ok(UnknownKeys(keys))
             }
@@ -198,47 +232,28 @@ impl<'de> Deserialize<'de> for UnknownKeys {
 }
 
 /// A value of any type, kept only as text for an error message.
-struct Shown(String);
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Shown {
+    Bool(bool),
+    Int(i64),
+    Float(f64),
+    Str(String),
+    // The items are read only to be skipped.
+    Seq(#[allow(dead_code)] Vec<IgnoredAny>),
+    Map(#[allow(dead_code)] HashMap<String, IgnoredAny>),
+}
 
-impl<'de> Deserialize<'de> for Shown {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
-        struct V;
-        impl<'de> Visitor<'de> for V {
-            type Value = Shown;
-            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str("any value")
-            }
-            fn visit_bool<E>(self, v: bool) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_i64<E>(self, v: i64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_u64<E>(self, v: u64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_f64<E>(self, v: f64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_str<E>(self, v: &str) -> std::result::Result<Shown, E> {
-                Ok(Shown(format!("{v:?}")))
-            }
-            fn visit_seq<A: de::SeqAccess<'de>>(
-                self,
-                mut seq: A,
-            ) -> std::result::Result<Shown, A::Error> {
-                while seq.next_element::<IgnoredAny>()?.is_some() {}
-                Ok(Shown("[…]".into()))
-            }
-            fn visit_map<A: MapAccess<'de>>(
-                self,
-                mut map: A,
-            ) -> std::result::Result<Shown, A::Error> {
-                while map.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-                Ok(Shown("{…}".into()))
-            }
+impl fmt::Display for Shown {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Shown::Bool(v) => write!(f, "{v}"),
+            Shown::Int(v) => write!(f, "{v}"),
+            Shown::Float(v) => write!(f, "{v}"),
+            Shown::Str(v) => write!(f, "{v:?}"),
+            Shown::Seq(_) => f.write_str("[…]"),
+            Shown::Map(_) => f.write_str("{…}"),
         }
-        deserializer.deserialize_any(V)
     }
 }
 

@@ -105,7 +105,7 @@ pub enum OutputConfig {
 }
 
 impl OutputSection {
-    fn validate(&self, errors: &mut ConfigErrors) -> OutputConfig {
+    fn validate(&mut self, errors: &mut ConfigErrors) -> OutputConfig {
         let config = match self {
             OutputSection::Sim(_) => Ok(OutputConfig::Sim),
             OutputSection::Pwm(s) => s.validate().map(OutputConfig::Pwm),
@@ -392,7 +392,7 @@ pub struct OperatorConfig {
 /// message names the file, line and key.
 pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
     let text = read(path)?;
-    let raw = parse_vehicle(path, &text)?;
+    let mut raw = parse_vehicle(path, &text)?;
     raw.validate().map_err(|e| located(path, &text, e))
 }
 
@@ -446,7 +446,7 @@ pub fn load_any(path: &Path) -> anyhow::Result<AnyConfig> {
         let config = raw.validate().map_err(|e| located(path, &text, e))?;
         Ok(AnyConfig::Operator(config))
     } else if table.contains_key("output") || table.contains_key("vehicle") {
-        let raw = parse_vehicle(path, &text)?;
+        let mut raw = parse_vehicle(path, &text)?;
         let config = raw.validate().map_err(|e| located(path, &text, e))?;
         Ok(AnyConfig::Vehicle(config))
     } else {
@@ -632,7 +632,7 @@ impl RawVehicle {
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every invalid key.
-    pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
         let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
         let output = self.output.validate(&mut errors);
