@@ -25,6 +25,33 @@ use std::hash::Hash;
 use std::ops::RangeInclusive;
 use std::time::Duration;
 
+/// Config types written one documented field or variant a line: in a struct,
+/// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum of keywords,
+/// `Name => "doc",` for `#[doc = "doc"] Name,`. Attributes (docs, derives, serde's) before an
+/// item, a field or a variant are kept.
+#[macro_export]
+macro_rules! config_types {
+    () => {};
+    ($(#[$attr:meta])* pub struct $name:ident $(<$($g:ident),+>)? {
+        $($(#[$field_attr:meta])* $field:ident: $ty:ty => $doc:literal,)*
+    } $($rest:tt)*) => {
+        $(#[$attr])*
+        pub struct $name $(<$($g),+>)? {
+            $($(#[$field_attr])* #[doc = $doc] pub $field: $ty,)*
+        }
+        $crate::config_types!($($rest)*);
+    };
+    ($(#[$attr:meta])* pub enum $name:ident {
+        $($(#[$variant_attr:meta])* $variant:ident => $doc:literal,)*
+    } $($rest:tt)*) => {
+        $(#[$attr])*
+        pub enum $name {
+            $($(#[$variant_attr])* #[doc = $doc] $variant,)*
+        }
+        $crate::config_types!($($rest)*);
+    };
+}
+
 /// How every integer key is read: wide, then range-checked by [`ConfigErrors::int`].
 pub type Int = i64;
 

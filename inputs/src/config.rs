@@ -39,136 +39,103 @@ pub const DEFAULT_SPRING_BACK_MS: Int = 150;
 /// Longest accepted ramp-up or spring-back, ms; beyond ten seconds a key axis is unusable.
 pub const MAX_RAMP_MS: Int = 10_000;
 
-/// Which kind of input `[input] source` selects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SourceKind {
-    /// An evdev joystick or gamepad (absent `device`/`name`: the first device with sticks).
-    Joystick,
-    /// An evdev keyboard (absent `device`/`name`: the first device with letter keys).
-    Keyboard,
-    /// A recorded event stream played from `file`.
-    Replay,
-}
+rove_core::config_types! {
+    /// Which kind of input `[input] source` selects.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum SourceKind {
+        Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first device with \
+            sticks).",
+        Keyboard => "An evdev keyboard (absent `device`/`name`: the first device with letter \
+            keys).",
+        Replay => "A recorded event stream played from `file`.",
+    }
 
-/// `[input]` as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InputSettings {
-    /// What to read: `"joystick"`, `"keyboard"` or `"replay"`.
-    pub source: Option<SourceKind>,
-    /// Joystick/keyboard: device path, e.g. `/dev/input/event3` or a
-    /// `/dev/input/by-id/…-event-joystick` link (stable across replugs).
-    pub device: Option<PathBuf>,
-    /// Joystick/keyboard: device name pattern, case-insensitive, `*` matches any text.
-    pub name: Option<String>,
-    /// Joystick/keyboard: take the device exclusively (EVIOCGRAB) so other programs do not see
-    /// its events (absent: false).
-    pub grab: Option<bool>,
-    /// Joystick/keyboard: time between reopen attempts after an unplug, ms (absent: 500).
-    pub reopen_interval_ms: Option<Int>,
-    /// Replay: the recording to play.
-    pub file: Option<PathBuf>,
-    /// No event at all from the device for this long → lost (absent: off; see the crate docs).
-    pub silence_timeout_ms: Option<Int>,
-    /// `[input.axes.*]`: what drives each movement axis.
-    #[serde(default)]
-    pub axes: AxesSettings,
-    /// `[input.buttons]`: which button or key triggers each action.
-    #[serde(default)]
-    pub buttons: ButtonSettings,
-}
+    /// `[input]` as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct InputSettings {
+        source: Option<SourceKind> => "What to read: `\"joystick\"`, `\"keyboard\"` or \
+            `\"replay\"`.",
+        device: Option<PathBuf> => "Joystick/keyboard: device path, e.g. `/dev/input/event3` or a \
+            `/dev/input/by-id/…-event-joystick` link (stable across replugs).",
+        name: Option<String> => "Joystick/keyboard: device name pattern, case-insensitive, `*` \
+            matches any text.",
+        grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB) so other \
+            programs do not see its events (absent: false).",
+        reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts after \
+            an unplug, ms (absent: 500).",
+        file: Option<PathBuf> => "Replay: the recording to play.",
+        silence_timeout_ms: Option<Int> => "No event at all from the device for this long → lost \
+            (absent: off; see the crate docs).",
+        #[serde(default)] axes: AxesSettings => "`[input.axes.*]`: what drives each movement axis.",
+        #[serde(default)] buttons: ButtonSettings => "`[input.buttons]`: which button or key \
+            triggers each action.",
+    }
 
-/// `[input.axes]` as written: one optional table per movement axis.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxesSettings {
-    /// `[input.axes.throttle]`.
-    pub throttle: Option<AxisSettings>,
-    /// `[input.axes.roll]` (UGV steering).
-    pub roll: Option<AxisSettings>,
-    /// `[input.axes.pitch]`.
-    pub pitch: Option<AxisSettings>,
-    /// `[input.axes.yaw]`.
-    pub yaw: Option<AxisSettings>,
-}
+    /// `[input.axes]` as written: one optional table per movement axis.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct AxesSettings {
+        throttle: Option<AxisSettings> => "`[input.axes.throttle]`.",
+        roll: Option<AxisSettings> => "`[input.axes.roll]` (UGV steering).",
+        pitch: Option<AxisSettings> => "`[input.axes.pitch]`.",
+        yaw: Option<AxisSettings> => "`[input.axes.yaw]`.",
+    }
 
-/// Where an axis must rest before driving starts or resumes (the no-jump rule).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Rest {
-    /// Within 5 % of centre (self-centring sticks, key axes).
-    #[default]
-    Centre,
-    /// Within 5 % of −full scale (a throttle lever at idle).
-    Low,
-    /// Within 5 % of +full scale.
-    High,
-}
+    /// Where an axis must rest before driving starts or resumes (the no-jump rule).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum Rest {
+        #[default] Centre => "Within 5 % of centre (self-centring sticks, key axes).",
+        Low => "Within 5 % of −full scale (a throttle lever at idle).",
+        High => "Within 5 % of +full scale.",
+    }
 
-/// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
-/// keys) or a pair of keys (`negative`/`positive` with ramp keys).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxisSettings {
-    /// The absolute axis, e.g. `"ABS_Y"`, `"ABS_HAT0X"`.
-    pub abs: Option<String>,
-    /// Key or button driving towards −full scale, e.g. `"KEY_S"`.
-    pub negative: Option<String>,
-    /// Key or button driving towards +full scale, e.g. `"KEY_W"`.
-    pub positive: Option<String>,
-    /// Negate the axis (absent: false; `invert` is accepted as an older spelling).
-    #[serde(alias = "invert")]
-    pub reverse: Option<bool>,
-    /// Abs: dead zone around centre, percent of the half range, 0..=50 (absent: the device's
-    /// `flat`; `deadzone_pct` is accepted as an older spelling).
-    #[serde(alias = "deadzone_pct")]
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1 (absent: 0, linear).
-    pub expo: Option<f64>,
-    /// Output at full deflection, percent of full scale, >0..=100 (absent: 100).
-    pub scale_pct: Option<f64>,
-    /// Abs: raw value at −full scale (absent: the device's minimum).
-    pub min: Option<Int>,
-    /// Abs: raw value at centre (absent: midpoint of min and max).
-    pub centre: Option<Int>,
-    /// Abs: raw value at +full scale (absent: the device's maximum).
-    pub max: Option<Int>,
-    /// Keys: time from centre to full scale while a key is held, ms (absent: 250).
-    pub ramp_up_ms: Option<Int>,
-    /// Keys: time from full scale back to centre when released, ms (absent: 150).
-    pub spring_back_ms: Option<Int>,
-    /// Where the axis must be before driving resumes (absent: `"centre"`).
-    pub rest: Option<Rest>,
-}
+    /// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
+    /// keys) or a pair of keys (`negative`/`positive` with ramp keys).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct AxisSettings {
+        abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
+        negative: Option<String> => "Key or button driving towards −full scale, e.g. `\"KEY_S\"`.",
+        positive: Option<String> => "Key or button driving towards +full scale, e.g. `\"KEY_W\"`.",
+        #[serde(alias = "invert")] reverse: Option<bool> => "Negate the axis (absent: false; \
+            `invert` is accepted as an older spelling).",
+        #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Abs: dead zone around \
+            centre, percent of the half range, 0..=50 (absent: the device's `flat`; `deadzone_pct` \
+            is accepted as an older spelling).",
+        expo: Option<f64> => "Expo 0..=1 (absent: 0, linear).",
+        scale_pct: Option<f64> => "Output at full deflection, percent of full scale, >0..=100 \
+            (absent: 100).",
+        min: Option<Int> => "Abs: raw value at −full scale (absent: the device's minimum).",
+        centre: Option<Int> => "Abs: raw value at centre (absent: midpoint of min and max).",
+        max: Option<Int> => "Abs: raw value at +full scale (absent: the device's maximum).",
+        ramp_up_ms: Option<Int> => "Keys: time from centre to full scale while a key is held, ms \
+            (absent: 250).",
+        spring_back_ms: Option<Int> => "Keys: time from full scale back to centre when released, \
+            ms (absent: 150).",
+        rest: Option<Rest> => "Where the axis must be before driving resumes (absent: \
+            `\"centre\"`).",
+    }
 
-/// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
-/// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ButtonSettings {
-    /// Hold to drive; when set, axes are neutral unless it is held.
-    pub deadman: Option<String>,
-    /// Switch to MANUAL.
-    pub mode_manual: Option<String>,
-    /// Switch to ASSISTED.
-    pub mode_assisted: Option<String>,
-    /// Switch to AUTO.
-    pub mode_auto: Option<String>,
-    /// Ask the selected vehicle's owner for control.
-    pub request_control: Option<String>,
-    /// Accept an incoming request.
-    pub accept: Option<String>,
-    /// Refuse an incoming request.
-    pub refuse: Option<String>,
-    /// Give a grant back.
-    pub finish: Option<String>,
-    /// Stop driving the selected vehicle.
-    pub release: Option<String>,
-    /// Select the next vehicle.
-    pub next_vehicle: Option<String>,
-    /// Select the previous vehicle.
-    pub previous_vehicle: Option<String>,
+    /// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
+    /// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct ButtonSettings {
+        deadman: Option<String> => "Hold to drive; when set, axes are neutral unless it is held.",
+        mode_manual: Option<String> => "Switch to MANUAL.",
+        mode_assisted: Option<String> => "Switch to ASSISTED.",
+        mode_auto: Option<String> => "Switch to AUTO.",
+        request_control: Option<String> => "Ask the selected vehicle's owner for control.",
+        accept: Option<String> => "Accept an incoming request.",
+        refuse: Option<String> => "Refuse an incoming request.",
+        finish: Option<String> => "Give a grant back.",
+        release: Option<String> => "Stop driving the selected vehicle.",
+        next_vehicle: Option<String> => "Select the next vehicle.",
+        previous_vehicle: Option<String> => "Select the previous vehicle.",
+    }
 }
 
 /// How a device is chosen.
@@ -244,32 +211,25 @@ pub enum AxisInput {
     },
 }
 
-/// A validated axis mapping.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AxisConfig {
-    /// The input.
-    pub input: AxisInput,
-    /// Negate.
-    pub reverse: bool,
-    /// Expo 0..=1.
-    pub expo: f64,
-    /// Full-deflection output, fraction 0..=1.
-    pub scale: f64,
-    /// Resting position required by the no-jump rule.
-    pub rest: Rest,
-}
+rove_core::config_types! {
+    /// A validated axis mapping.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct AxisConfig {
+        input: AxisInput => "The input.",
+        reverse: bool => "Negate.",
+        expo: f64 => "Expo 0..=1.",
+        scale: f64 => "Full-deflection output, fraction 0..=1.",
+        rest: Rest => "Resting position required by the no-jump rule.",
+    }
 
-/// The validated mapping: axes, deadman, action buttons and silence timeout.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct MappingConfig {
-    /// Throttle, roll, pitch, yaw, in [`Axis`] order.
-    pub axes: [Option<AxisConfig>; 4],
-    /// The hold-to-drive control.
-    pub deadman: Option<Control>,
-    /// Action controls.
-    pub actions: Vec<(Control, InputAction)>,
-    /// No events for this long → lost.
-    pub silence_timeout: Option<Duration>,
+    /// The validated mapping: axes, deadman, action buttons and silence timeout.
+    #[derive(Debug, Clone, PartialEq, Default)]
+    pub struct MappingConfig {
+        axes: [Option<AxisConfig>; 4] => "Throttle, roll, pitch, yaw, in [`Axis`] order.",
+        deadman: Option<Control> => "The hold-to-drive control.",
+        actions: Vec<(Control, InputAction)> => "Action controls.",
+        silence_timeout: Option<Duration> => "No events for this long → lost.",
+    }
 }
 
 /// The four axes in the order of [`MappingConfig::axes`].

@@ -44,127 +44,90 @@ pub const DEFAULT_PRIORITY: i64 = 16;
 /// Longest Linux interface name (`IFNAMSIZ` 16 less the terminating NUL).
 pub const INTERFACE_NAME_MAX: usize = 15;
 
-/// `[output]` for `adapter = "can"`, as written (the gateway consumes `adapter`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CanSettings {
-    /// SocketCAN interface name.
-    pub interface: Option<String>,
-    /// CAN FD mode.
-    pub fd: Option<bool>,
-    /// Send rate of every frame and command, Hz.
-    pub rate_hz: Option<i64>,
-    /// `[[output.frames]]`.
-    #[serde(default)]
-    pub frames: Vec<FrameSettings>,
-    /// `[output.dronecan]`.
-    pub dronecan: Option<DroneCanSettings>,
-}
+rove_core::config_types! {
+    /// `[output]` for `adapter = "can"`, as written (the gateway consumes `adapter`).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct CanSettings {
+        interface: Option<String> => "SocketCAN interface name.",
+        fd: Option<bool> => "CAN FD mode.",
+        rate_hz: Option<i64> => "Send rate of every frame and command, Hz.",
+        #[serde(default)] frames: Vec<FrameSettings> => "`[[output.frames]]`.",
+        dronecan: Option<DroneCanSettings> => "`[output.dronecan]`.",
+    }
 
-/// One raw frame (`[[output.frames]]`), as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FrameSettings {
-    /// CAN identifier.
-    pub id: Option<i64>,
-    /// 29-bit identifier.
-    pub extended: Option<bool>,
-    /// Data length, bytes.
-    pub length: Option<i64>,
-    /// This frame's send rate, Hz.
-    pub rate_hz: Option<i64>,
-    /// `[[output.frames.outputs]]`.
-    #[serde(default)]
-    pub outputs: Vec<FieldSettings>,
-}
+    /// One raw frame (`[[output.frames]]`), as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct FrameSettings {
+        id: Option<i64> => "CAN identifier.",
+        extended: Option<bool> => "29-bit identifier.",
+        length: Option<i64> => "Data length, bytes.",
+        rate_hz: Option<i64> => "This frame's send rate, Hz.",
+        #[serde(default)] outputs: Vec<FieldSettings> => "`[[output.frames.outputs]]`.",
+    }
 
-/// One value in a raw frame (`[[output.frames.outputs]]`), as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct FieldSettings {
-    /// Name for logs and status.
-    pub name: Option<String>,
-    /// What drives it.
-    pub source: Option<SourceSettings>,
-    /// First byte.
-    pub offset: Option<i64>,
-    /// Bits: 8, 16 or 32.
-    pub width: Option<i64>,
-    /// Byte order.
-    pub endian: Option<Endian>,
-    /// Two's complement.
-    pub signed: Option<bool>,
-    /// `min`, `centre`, `max`, `failsafe` in device units.
-    #[serde(flatten)]
-    pub scale: ScaleSettings<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+    /// One value in a raw frame (`[[output.frames.outputs]]`), as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct FieldSettings {
+        name: Option<String> => "Name for logs and status.",
+        source: Option<SourceSettings> => "What drives it.",
+        offset: Option<i64> => "First byte.",
+        width: Option<i64> => "Bits: 8, 16 or 32.",
+        endian: Option<Endian> => "Byte order.",
+        signed: Option<bool> => "Two's complement.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe` in \
+            device units.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 
-/// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScaleSettings<T> {
-    /// Value at −full scale.
-    pub min: Option<T>,
-    /// Value at centre.
-    pub centre: Option<T>,
-    /// Value at +full scale.
-    pub max: Option<T>,
-    /// Value in the safe state.
-    pub failsafe: Option<T>,
-}
+    /// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct ScaleSettings<T> {
+        min: Option<T> => "Value at −full scale.",
+        centre: Option<T> => "Value at centre.",
+        max: Option<T> => "Value at +full scale.",
+        failsafe: Option<T> => "Value in the safe state.",
+    }
 
-/// `[output.dronecan]`, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DroneCanSettings {
-    /// Our node id.
-    pub node_id: Option<i64>,
-    /// Priority of the commands.
-    pub priority: Option<i64>,
-    /// Command rate, Hz.
-    pub rate_hz: Option<i64>,
-    /// Servos, sent as one `uavcan.equipment.actuator.ArrayCommand`.
-    #[serde(default)]
-    pub servos: Vec<ServoSettings>,
-    /// ESCs, sent as one `uavcan.equipment.esc.RawCommand`.
-    #[serde(default)]
-    pub escs: Vec<EscSettings>,
-}
+    /// `[output.dronecan]`, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DroneCanSettings {
+        node_id: Option<i64> => "Our node id.",
+        priority: Option<i64> => "Priority of the commands.",
+        rate_hz: Option<i64> => "Command rate, Hz.",
+        #[serde(default)] servos: Vec<ServoSettings> => "Servos, sent as one \
+            `uavcan.equipment.actuator.ArrayCommand`.",
+        #[serde(default)] escs: Vec<EscSettings> => "ESCs, sent as one \
+            `uavcan.equipment.esc.RawCommand`.",
+    }
 
-/// One DroneCAN servo, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ServoSettings {
-    /// Name for logs and status.
-    pub name: Option<String>,
-    /// The actuator's id.
-    pub actuator_id: Option<Int>,
-    /// What drives it.
-    pub source: Option<SourceSettings>,
-    /// `min`, `centre`, `max`, `failsafe`: commands −1..=1.
-    #[serde(flatten)]
-    pub scale: ScaleSettings<f64>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+    /// One DroneCAN servo, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct ServoSettings {
+        name: Option<String> => "Name for logs and status.",
+        actuator_id: Option<Int> => "The actuator's id.",
+        source: Option<SourceSettings> => "What drives it.",
+        #[serde(flatten)] scale: ScaleSettings<f64> => "`min`, `centre`, `max`, `failsafe`: \
+            commands −1..=1.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 
-/// One DroneCAN ESC channel, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct EscSettings {
-    /// Name for logs and status.
-    pub name: Option<String>,
-    /// Index in the RawCommand array.
-    pub index: Option<Int>,
-    /// What drives it.
-    pub source: Option<SourceSettings>,
-    /// `min`, `centre`, `max`, `failsafe`: raw commands.
-    #[serde(flatten)]
-    pub scale: ScaleSettings<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+    /// One DroneCAN ESC channel, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct EscSettings {
+        name: Option<String> => "Name for logs and status.",
+        index: Option<Int> => "Index in the RawCommand array.",
+        source: Option<SourceSettings> => "What drives it.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`: raw \
+            commands.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 }
 
 /// `source = …` as written: an axis name, or `{ mix = [["throttle", 1.0], ["roll", -1.0]] }`.
@@ -254,90 +217,64 @@ impl SourceSettings {
     }
 }
 
-/// A validated CAN vehicle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CanConfig {
-    /// The SocketCAN interface name.
-    pub interface: String,
-    /// Whether the interface is opened in CAN FD mode.
-    pub fd: bool,
-    /// The raw frames, in config order.
-    pub frames: Vec<RawFrameConfig>,
-    /// The DroneCAN settings, if any.
-    pub dronecan: Option<DroneCanConfig>,
-}
+rove_core::config_types! {
+    /// A validated CAN vehicle.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct CanConfig {
+        interface: String => "The SocketCAN interface name.",
+        fd: bool => "Whether the interface is opened in CAN FD mode.",
+        frames: Vec<RawFrameConfig> => "The raw frames, in config order.",
+        dronecan: Option<DroneCanConfig> => "The DroneCAN settings, if any.",
+    }
 
-/// A validated raw frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawFrameConfig {
-    /// The identifier.
-    pub id: CanId,
-    /// Data length, bytes.
-    pub length: usize,
-    /// Send period.
-    pub period: Duration,
-    /// The values in the frame.
-    pub outputs: Vec<RawOutputConfig>,
-}
+    /// A validated raw frame.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct RawFrameConfig {
+        id: CanId => "The identifier.",
+        length: usize => "Data length, bytes.",
+        period: Duration => "Send period.",
+        outputs: Vec<RawOutputConfig> => "The values in the frame.",
+    }
 
-/// A validated value in a raw frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawOutputConfig {
-    /// Name.
-    pub name: String,
-    /// What drives it.
-    pub source: Source,
-    /// Where it sits in the frame.
-    pub layout: FieldLayout,
-    /// Axis → device units.
-    pub scale: Scale,
-    /// Safe-state value, device units.
-    pub failsafe: i64,
-}
+    /// A validated value in a raw frame.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct RawOutputConfig {
+        name: String => "Name.",
+        source: Source => "What drives it.",
+        layout: FieldLayout => "Where it sits in the frame.",
+        scale: Scale => "Axis → device units.",
+        failsafe: i64 => "Safe-state value, device units.",
+    }
 
-/// Validated DroneCAN settings.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DroneCanConfig {
-    /// Our node id.
-    pub node_id: u8,
-    /// Priority of the commands.
-    pub priority: u8,
-    /// Command period.
-    pub period: Duration,
-    /// Servos, in ArrayCommand order.
-    pub servos: Vec<ServoConfig>,
-    /// ESC channels.
-    pub escs: Vec<EscConfig>,
-}
+    /// Validated DroneCAN settings.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct DroneCanConfig {
+        node_id: u8 => "Our node id.",
+        priority: u8 => "Priority of the commands.",
+        period: Duration => "Command period.",
+        servos: Vec<ServoConfig> => "Servos, in ArrayCommand order.",
+        escs: Vec<EscConfig> => "ESC channels.",
+    }
 
-/// A validated DroneCAN servo.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ServoConfig {
-    /// Name.
-    pub name: String,
-    /// The actuator id.
-    pub actuator_id: u8,
-    /// What drives it.
-    pub source: Source,
-    /// Axis → normalised command.
-    pub scale: UnitScale,
-    /// Safe-state command.
-    pub failsafe: f32,
-}
+    /// A validated DroneCAN servo.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct ServoConfig {
+        name: String => "Name.",
+        actuator_id: u8 => "The actuator id.",
+        source: Source => "What drives it.",
+        scale: UnitScale => "Axis → normalised command.",
+        failsafe: f32 => "Safe-state command.",
+    }
 
-/// A validated DroneCAN ESC channel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct EscConfig {
-    /// Name.
-    pub name: String,
-    /// Index in the RawCommand array.
-    pub index: u8,
-    /// What drives it.
-    pub source: Source,
-    /// Axis → raw command.
-    pub scale: Scale,
-    /// Safe-state command.
-    pub failsafe: i64,
+    /// A validated DroneCAN ESC channel.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct EscConfig {
+        name: String => "Name.",
+        index: u8 => "Index in the RawCommand array.",
+        source: Source => "What drives it.",
+        scale: Scale => "Axis → raw command.",
+        failsafe: i64 => "Safe-state command.",
+    }
 }
 
 impl CanConfig {

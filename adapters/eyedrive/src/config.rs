@@ -8,19 +8,16 @@ use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys
 use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
 use serde::{Deserialize, Serialize};
 
-/// `[output]` for the Eyedrive, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct EyedriveSettings {
-    /// rove-pwm's backend keys.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// `[output.steering]`.
-    pub steering: Option<EyedriveChannelSettings>,
-    /// `[output.throttle]`.
-    pub throttle: Option<EyedriveChannelSettings>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+rove_core::config_types! {
+    /// `[output]` for the Eyedrive, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct EyedriveSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
+        steering: Option<EyedriveChannelSettings> => "`[output.steering]`.",
+        throttle: Option<EyedriveChannelSettings> => "`[output.throttle]`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 }
 
 /// `[output.steering]` / `[output.throttle]`: the address, and optional limits (defaults

@@ -46,39 +46,33 @@ pub const LAND_RAMP_RANGE_MS: std::ops::RangeInclusive<Int> = 100..=60_000;
 /// above the 10 % (1100 µs) at which the Naza's default "Immediately" stop type cuts motors.
 pub const DEFAULT_LAND_FRACTION: f64 = 0.4;
 
-/// Mode the U channel is put in by the failsafe.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FailsafeMode {
-    /// ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.
-    Atti,
-    /// GPS: also holds position; needs a GPS lock.
-    Gps,
-}
+rove_core::config_types! {
+    /// Mode the U channel is put in by the failsafe.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum FailsafeMode {
+        Atti => "ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.",
+        Gps => "GPS: also holds position; needs a GPS lock.",
+    }
 
-/// What the failsafe does with the throttle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FailsafePolicy {
-    /// Throttle centred: hold altitude.
-    Hover,
-    /// Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.
-    Land,
-}
+    /// What the failsafe does with the throttle.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum FailsafePolicy {
+        Hover => "Throttle centred: hold altitude.",
+        Land => "Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.",
+    }
 
-/// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
-/// pitch/roll; both always at the bottom).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CscPattern {
-    /// Left stick bottom-left, right stick bottom-right.
-    Outer,
-    /// Left stick bottom-right, right stick bottom-left.
-    Inner,
-    /// Both sticks bottom-left.
-    Left,
-    /// Both sticks bottom-right.
-    Right,
+    /// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
+    /// pitch/roll; both always at the bottom).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum CscPattern {
+        Outer => "Left stick bottom-left, right stick bottom-right.",
+        Inner => "Left stick bottom-right, right stick bottom-left.",
+        Left => "Both sticks bottom-left.",
+        Right => "Both sticks bottom-right.",
+    }
 }
 
 impl CscPattern {
@@ -104,54 +98,37 @@ impl CscPattern {
 /// limit defaults to [`DEFAULT_THROTTLE_SLEW_US_PER_S`].
 pub type StickSettings = rove_pwm::ServoChannelSettings;
 
-/// `[output.mode]`: the U channel's address and levels (µs).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ModeChannelSettings {
-    /// The address keys (rove-pwm's).
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// Level for Manual (MANUAL).
-    pub manual_us: Option<Int>,
-    /// Level for ATTI (ASSISTED).
-    pub atti_us: Option<Int>,
-    /// Level for GPS (AUTO).
-    pub gps_us: Option<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+rove_core::config_types! {
+    /// `[output.mode]`: the U channel's address and levels (µs).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct ModeChannelSettings {
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys (rove-pwm's).",
+        manual_us: Option<Int> => "Level for Manual (MANUAL).",
+        atti_us: Option<Int> => "Level for ATTI (ASSISTED).",
+        gps_us: Option<Int> => "Level for GPS (AUTO).",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 
-/// `[output]` for the Naza-M, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct NazaSettings {
-    /// rove-pwm's backend keys.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// A: roll.
-    pub aileron: Option<StickSettings>,
-    /// E: pitch.
-    pub elevator: Option<StickSettings>,
-    /// T: throttle.
-    pub throttle: Option<StickSettings>,
-    /// R: yaw.
-    pub rudder: Option<StickSettings>,
-    /// U: mode switch.
-    pub mode: Option<ModeChannelSettings>,
-    /// U level in failsafe.
-    pub failsafe_mode: Option<FailsafeMode>,
-    /// Throttle in failsafe.
-    pub failsafe_policy: Option<FailsafePolicy>,
-    /// `land`: throttle floor, µs (absent: see [`DEFAULT_LAND_FRACTION`]).
-    pub land_throttle_us: Option<Int>,
-    /// `land`: ramp time from centre to the floor, ms.
-    pub land_ramp_ms: Option<Int>,
-    /// CSC corners.
-    pub csc: Option<CscPattern>,
-    /// How long the CSC is held, ms.
-    pub csc_hold_ms: Option<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+    /// `[output]` for the Naza-M, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct NazaSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
+        aileron: Option<StickSettings> => "A: roll.",
+        elevator: Option<StickSettings> => "E: pitch.",
+        throttle: Option<StickSettings> => "T: throttle.",
+        rudder: Option<StickSettings> => "R: yaw.",
+        mode: Option<ModeChannelSettings> => "U: mode switch.",
+        failsafe_mode: Option<FailsafeMode> => "U level in failsafe.",
+        failsafe_policy: Option<FailsafePolicy> => "Throttle in failsafe.",
+        land_throttle_us: Option<Int> => "`land`: throttle floor, µs (absent: see \
+            [`DEFAULT_LAND_FRACTION`]).",
+        land_ramp_ms: Option<Int> => "`land`: ramp time from centre to the floor, ms.",
+        csc: Option<CscPattern> => "CSC corners.",
+        csc_hold_ms: Option<Int> => "How long the CSC is held, ms.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 }
 
 /// The keys of `[output]` for the Naza-M besides the backend keys.
@@ -187,19 +164,16 @@ pub enum FailsafeThrottle {
     },
 }
 
-/// A validated Naza-M output.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NazaConfig {
-    /// The generic PWM vehicle (channels in the order A, E, T, R, U).
-    pub pwm: PwmVehicleConfig,
-    /// The mode the failsafe selects (ASSISTED = ATTI, AUTO = GPS).
-    pub failsafe_mode: Mode,
-    /// The throttle policy in failsafe.
-    pub failsafe_throttle: FailsafeThrottle,
-    /// The CSC corners.
-    pub csc: CscPattern,
-    /// How long the CSC is held.
-    pub csc_hold: Duration,
+rove_core::config_types! {
+    /// A validated Naza-M output.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct NazaConfig {
+        pwm: PwmVehicleConfig => "The generic PWM vehicle (channels in the order A, E, T, R, U).",
+        failsafe_mode: Mode => "The mode the failsafe selects (ASSISTED = ATTI, AUTO = GPS).",
+        failsafe_throttle: FailsafeThrottle => "The throttle policy in failsafe.",
+        csc: CscPattern => "The CSC corners.",
+        csc_hold: Duration => "How long the CSC is held.",
+    }
 }
 
 impl NazaConfig {

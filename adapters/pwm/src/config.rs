@@ -38,44 +38,35 @@ pub const HARDWARE_PWM_CHANNEL_RANGE: std::ops::RangeInclusive<i64> = 0..=1;
 /// servo standard's ends and centre. Device presets (Naza-M) bring their own.
 pub const DEFAULT_MODE_LEVELS: ModeLevels = ModeLevels::new(1000, 1500, 2000);
 
-/// Which PWM device drives the channels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BackendKind {
-    /// Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).
-    Sysfs,
-    /// Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.
-    Rppal,
-    /// Records pulses in memory.
-    Sim,
-}
+rove_core::config_types! {
+    /// Which PWM device drives the channels.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum BackendKind {
+        Sysfs => "Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).",
+        Rppal => "Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.",
+        Sim => "Records pulses in memory.",
+    }
 
-/// What a channel outputs, as written in `source = …`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ChannelSourceKind {
-    /// The throttle axis.
-    Throttle,
-    /// The roll axis (UGV steering).
-    Roll,
-    /// The pitch axis.
-    Pitch,
-    /// The yaw axis.
-    Yaw,
-    /// The mode, as one of three levels.
-    Mode,
-    /// A fixed pulse (`value_us`).
-    Constant,
-}
+    /// What a channel outputs, as written in `source = …`.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ChannelSourceKind {
+        Throttle => "The throttle axis.",
+        Roll => "The roll axis (UGV steering).",
+        Pitch => "The pitch axis.",
+        Yaw => "The yaw axis.",
+        Mode => "The mode, as one of three levels.",
+        Constant => "A fixed pulse (`value_us`).",
+    }
 
-/// Output polarity, as the kernel's sysfs `polarity` file spells it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Polarity {
-    /// Active high (the pulse is high).
-    Normal,
-    /// Active low, for an inverting level shifter.
-    Inversed,
+    /// Output polarity, as the kernel's sysfs `polarity` file spells it.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum Polarity {
+        Normal => "Active high (the pulse is high).",
+        Inversed => "Active low, for an inverting level shifter.",
+    }
 }
 
 impl Polarity {
@@ -88,67 +79,50 @@ impl Polarity {
     }
 }
 
-/// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
-/// `"eyedrive"` and `"naza"` (flattened into each).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PwmBackendSettings {
-    /// Which device drives the channels.
-    pub backend: Option<BackendKind>,
-    /// PWM period, µs.
-    pub period_us: Option<Int>,
-    /// sysfs: the PWM class directory.
-    pub sysfs_root: Option<PathBuf>,
-    /// sysfs: the `pwmchipN` of channels that name no `chip`.
-    pub chip: Option<Int>,
-}
+rove_core::config_types! {
+    /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
+    /// `"eyedrive"` and `"naza"` (flattened into each).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct PwmBackendSettings {
+        backend: Option<BackendKind> => "Which device drives the channels.",
+        period_us: Option<Int> => "PWM period, µs.",
+        sysfs_root: Option<PathBuf> => "sysfs: the PWM class directory.",
+        chip: Option<Int> => "sysfs: the `pwmchipN` of channels that name no `chip`.",
+    }
 
-/// Where a channel is wired, as written: the one definition of the address keys, shared by
-/// generic channels and the preset tables (flattened into each).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PwmAddressSettings {
-    /// sysfs: the `pwmchipN`.
-    pub chip: Option<Int>,
-    /// sysfs: the channel within the chip (`pwmchipN/pwmM`).
-    pub channel: Option<Int>,
-    /// rppal: software PWM on this BCM GPIO pin.
-    pub pin: Option<Int>,
-    /// rppal: hardware PWM channel.
-    pub pwm_channel: Option<Int>,
-    /// sysfs and rppal hardware PWM: output polarity.
-    pub polarity: Option<Polarity>,
-}
+    /// Where a channel is wired, as written: the one definition of the address keys, shared by
+    /// generic channels and the preset tables (flattened into each).
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct PwmAddressSettings {
+        chip: Option<Int> => "sysfs: the `pwmchipN`.",
+        channel: Option<Int> => "sysfs: the channel within the chip (`pwmchipN/pwmM`).",
+        pin: Option<Int> => "rppal: software PWM on this BCM GPIO pin.",
+        pwm_channel: Option<Int> => "rppal: hardware PWM channel.",
+        polarity: Option<Polarity> => "sysfs and rppal hardware PWM: output polarity.",
+    }
 
-/// `[output]` for `adapter = "pwm"`, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct PwmVehicleSettings {
-    /// The backend keys.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// `[[output.channels]]`.
-    #[serde(default)]
-    pub channels: Vec<ChannelSettings>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+    /// `[output]` for `adapter = "pwm"`, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct PwmVehicleSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "The backend keys.",
+        #[serde(default)] channels: Vec<ChannelSettings> => "`[[output.channels]]`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 
-/// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
-/// sticks): where it is wired, and optional limits. Presets turn it into a generic
-/// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
-/// the generic channel's.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ServoChannelSettings {
-    /// The address keys.
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// The mapping keys.
-    #[serde(flatten)]
-    pub map: AxisMapSettings,
-    /// Keys nothing above took: reported by [`preset_tables`].
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+    /// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
+    /// sticks): where it is wired, and optional limits. Presets turn it into a generic
+    /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
+    /// the generic channel's.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct ServoChannelSettings {
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
+        #[serde(flatten)] map: AxisMapSettings => "The mapping keys.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            [`preset_tables`].",
+    }
 }
 
 impl ServoChannelSettings {
@@ -165,29 +139,20 @@ impl ServoChannelSettings {
     }
 }
 
-/// One `[[output.channels]]` table, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ChannelSettings {
-    /// Unique name, for logs and status.
-    pub name: Option<String>,
-    /// What the channel outputs.
-    pub source: Option<ChannelSourceKind>,
-    /// `source = "constant"`: the pulse, µs.
-    pub value_us: Option<Int>,
-    /// Pulse in the safe state, µs.
-    pub failsafe_us: Option<Int>,
-    /// The address keys.
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// Axis sources: the mapping keys.
-    #[serde(flatten)]
-    pub map: AxisMapSettings,
-    /// `source = "mode"`: the levels.
-    #[serde(flatten)]
-    pub levels: ModeLevelsSettings,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+rove_core::config_types! {
+    /// One `[[output.channels]]` table, as written.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    pub struct ChannelSettings {
+        name: Option<String> => "Unique name, for logs and status.",
+        source: Option<ChannelSourceKind> => "What the channel outputs.",
+        value_us: Option<Int> => "`source = \"constant\"`: the pulse, µs.",
+        failsafe_us: Option<Int> => "Pulse in the safe state, µs.",
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
+        #[serde(flatten)] map: AxisMapSettings => "Axis sources: the mapping keys.",
+        #[serde(flatten)] levels: ModeLevelsSettings => "`source = \"mode\"`: the levels.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
+            `validate`.",
+    }
 }
 
 /// The keys of a `[[output.channels]]` table that are not in a flattened piece.
@@ -233,19 +198,16 @@ pub enum ChannelSource {
     Constant(u16),
 }
 
-/// A validated channel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ChannelConfig {
-    /// The channel's name.
-    pub name: String,
-    /// Where it is wired.
-    pub address: ChannelAddress,
-    /// Polarity to set, if configured.
-    pub polarity: Option<Polarity>,
-    /// What drives it.
-    pub source: ChannelSource,
-    /// Its safe-state pulse, µs.
-    pub failsafe_us: u16,
+rove_core::config_types! {
+    /// A validated channel.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct ChannelConfig {
+        name: String => "The channel's name.",
+        address: ChannelAddress => "Where it is wired.",
+        polarity: Option<Polarity> => "Polarity to set, if configured.",
+        source: ChannelSource => "What drives it.",
+        failsafe_us: u16 => "Its safe-state pulse, µs.",
+    }
 }
 
 /// Validated backend choice with its options.
@@ -262,15 +224,15 @@ pub enum BackendConfig {
     Sim,
 }
 
-/// A validated PWM vehicle: only this type crosses crate boundaries.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PwmVehicleConfig {
-    /// The backend and its options.
-    pub backend: BackendConfig,
-    /// The PWM period.
-    pub period: Duration,
-    /// The channels, in config order (backends and the vehicle index them the same way).
-    pub channels: Vec<ChannelConfig>,
+rove_core::config_types! {
+    /// A validated PWM vehicle: only this type crosses crate boundaries.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct PwmVehicleConfig {
+        backend: BackendConfig => "The backend and its options.",
+        period: Duration => "The PWM period.",
+        channels: Vec<ChannelConfig> => "The channels, in config order (backends and the vehicle \
+            index them the same way).",
+    }
 }
 
 impl PwmVehicleConfig {
