@@ -402,7 +402,7 @@ pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
 /// As [`load_vehicle`].
 pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
     let text = read(path)?;
-    let raw: RawOperator = parse(path, &text)?;
+    let mut raw: RawOperator = parse(path, &text)?;
     let mut config = raw.validate().map_err(|e| located(path, &text, e))?;
     config.resolve_paths(path);
     Ok(config)
@@ -433,28 +433,42 @@ pub enum AnyConfig {
 }
 
 /// Loads a file of either role, telling them apart by their `[vehicle]`/`[output]` or
-/// `[operator]` table.
+/// `[operator]` table; also returns the effective config: the file's settings with every
+/// default filled in, as TOML that loads again as the same config.
 ///
 /// # Errors
 /// As [`load_vehicle`]; also when the file has neither role's table.
-pub fn load_any(path: &Path) -> anyhow::Result<AnyConfig> {
-    let text = read(path)?;
-    let table: toml::Table = toml::from_str(&text)
+pub fn load_any(path: &Path) -> anyhow::Result<(AnyConfig, String)> {
+    any_from_text(path, &read(path)?)
+}
+
+/// [`load_any`] of `text`, read from `path`.
+fn any_from_text(path: &Path, text: &str) -> anyhow::Result<(AnyConfig, String)> {
+    let table: toml::Table = toml::from_str(text)
         .map_err(|e| anyhow!("{}: {}", path.display(), e.to_string().trim_end()))?;
-    if table.contains_key("operator") {
-        let raw: RawOperator = parse(path, &text)?;
-        let config = raw.validate().map_err(|e| located(path, &text, e))?;
-        Ok(AnyConfig::Operator(config))
+    let located = |e| located(path, text, e);
+    let (config, effective) = if table.contains_key("operator") {
+        let mut raw: RawOperator = parse(path, text)?;
+        (
+            AnyConfig::Operator(raw.validate().map_err(located)?),
+            toml::to_string(&raw),
+        )
     } else if table.contains_key("output") || table.contains_key("vehicle") {
-        let mut raw = parse_vehicle(path, &text)?;
-        let config = raw.validate().map_err(|e| located(path, &text, e))?;
-        Ok(AnyConfig::Vehicle(config))
+        let mut raw = parse_vehicle(path, text)?;
+        (
+            AnyConfig::Vehicle(raw.validate().map_err(located)?),
+            toml::to_string(&raw),
+        )
     } else {
-        Err(anyhow!(
+        return Err(anyhow!(
             "{}: neither a vehicle config ([output]) nor an operator config ([operator])",
             path.display()
-        ))
-    }
+        ));
+    };
+    Ok((
+        config,
+        effective.context("cannot write the effective config as TOML")?,
+    ))
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -560,17 +574,17 @@ const DEFAULT_HEARTBEAT_MS: Int = 500;
 const DEFAULT_STREAM_HZ: Int = 50;
 
 fn validate_common(
-    device: &DeviceSection,
-    network: &NetworkSection,
+    device: &mut DeviceSection,
+    network: &mut NetworkSection,
     log: &LogSection,
     errors: &mut ConfigErrors,
 ) -> Common {
-    let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
-    let heartbeat_ms = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
+    let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
+    let heartbeat = errors.millis("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
-    let domain_id = network.domain_id.unwrap_or(0);
+    let domain_id = *network.domain_id.get_or_insert(0);
     // RTPS maps domain ids to ports (7400 + 250 × domain); above 232 the ports overflow.
     let rule = " (RTPS port mapping)";
     let domain_id = errors.int("network.domain_id", domain_id, 0..=232, rule);
@@ -584,26 +598,20 @@ fn validate_common(
              `target=level` directives",
         );
     }
-    let interfaces = network
-        .interfaces
-        .clone()
-        .unwrap_or_else(|| vec![Ipv4Addr::LOCALHOST]);
+    let interfaces = (network.interfaces).get_or_insert_with(|| vec![Ipv4Addr::LOCALHOST]);
     if interfaces.is_empty() {
-        errors.add(
-            "network.interfaces",
-            "[]",
-            "must name at least one interface address (absent: loopback)",
-        );
+        let rule = "must name at least one interface address (absent: loopback)";
+        errors.add("network.interfaces", "[]", rule);
     }
     Common {
         id: device.id,
-        name: device
+        name: (device
             .name
-            .clone()
-            .unwrap_or_else(|| format!("rove-{}", device.id)),
+            .get_or_insert_with(|| format!("rove-{}", device.id)))
+        .clone(),
         domain_id: domain_id.unwrap_or(0),
-        interfaces,
-        heartbeat: Duration::from_millis(heartbeat_ms.unwrap_or(500)),
+        interfaces: interfaces.clone(),
+        heartbeat: heartbeat.unwrap_or(Duration::from_millis(500)),
         log_filter: log.level.as_ref().map(|level| {
             if level.contains("rustdds") {
                 level.clone()
@@ -634,10 +642,10 @@ impl RawVehicle {
     /// [`rove_core::Error::Config`] listing every invalid key.
     pub fn validate(&mut self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let common = validate_common(&mut self.device, &mut self.network, &self.log, &mut errors);
         let output = self.output.validate(&mut errors);
         let key = "vehicle.command_timeout_ms";
-        let millis = self.vehicle.command_timeout_ms.unwrap_or(100);
+        let millis = *self.vehicle.command_timeout_ms.get_or_insert(100);
         let timeout = errors
             .int(key, millis, 0..=Int::MAX, "")
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
@@ -653,82 +661,80 @@ impl RawVehicle {
 }
 
 impl RawOperator {
-    /// Validates, filling defaults.
+    /// Validates, filling defaults into `self`.
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every invalid key.
-    pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
-        let common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let common = validate_common(&mut self.device, &mut self.network, &self.log, &mut errors);
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
-        let offset = self.operator.offset.unwrap_or(0);
-        let (level, class) = (self.operator.level, self.operator.device_class);
+        let op = &mut self.operator;
+        let (level, class, offset) = (op.level, op.device_class, *op.offset.get_or_insert(0));
         let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
         let strength = (errors.int("operator.offset", offset, offset_range, ""))
             .and_then(|o| hierarchy.strength(level, class, o).ok())
             .unwrap_or(Strength(1));
-        let stream_hz = self.operator.stream_hz.unwrap_or(DEFAULT_STREAM_HZ);
+        let stream_hz = *op.stream_hz.get_or_insert(DEFAULT_STREAM_HZ);
         let rule = "; at least 10 keeps a vehicle with the default 100 ms command timeout from \
                     timing out between samples";
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        for (i, v) in self.operator.drive.iter().enumerate() {
-            if *v == self.device.id {
-                errors.add(
-                    format!("operator.drive[{i}]"),
-                    v,
-                    "is this operator's own device id",
-                );
-            }
+        for (i, v) in op
+            .drive
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| **v == self.device.id)
+        {
+            errors.add(
+                format!("operator.drive[{i}]"),
+                v,
+                "is this operator's own device id",
+            );
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
-        let device = |settings: &rove_inputs::InputSettings,
-                      kind: rove_inputs::SourceKind,
-                      errors: &mut ConfigErrors| {
+        let mut device = |settings: &mut rove_inputs::InputSettings, kind| {
             let input = settings
                 .validate_as(kind)
                 .map(|c| InputChoice::Device(Box::new(c)));
             errors.section("input", input).unwrap_or(constant.clone())
         };
-        let input = match &self.input {
-            None => constant.clone(),
-            Some(InputSection::Constant {
+        let input = match self.input.get_or_insert_with(InputSection::centred) {
+            InputSection::Constant {
                 throttle,
                 roll,
                 pitch,
                 yaw,
                 mode,
-            }) => {
-                let mut axis = |key: &str, v: Int| {
-                    let key = format!("input.{key}");
-                    errors
-                        .int(&key, v, i16::MIN.into()..=i16::MAX.into(), "")
-                        .unwrap_or(0)
-                };
+            } => {
+                let sticks = [
+                    ("throttle", throttle),
+                    ("roll", roll),
+                    ("pitch", pitch),
+                    ("yaw", yaw),
+                ];
+                let [throttle, roll, pitch, yaw] = sticks.map(|(key, v)| {
+                    let range = i16::MIN.into()..=i16::MAX.into();
+                    (errors.int(&format!("input.{key}"), *v, range, "")).unwrap_or(0)
+                });
                 let movement = MovementCommand {
-                    throttle: axis("throttle", *throttle),
-                    roll: axis("roll", *roll),
-                    pitch: axis("pitch", *pitch),
-                    yaw: axis("yaw", *yaw),
+                    throttle,
+                    roll,
+                    pitch,
+                    yaw,
                 };
-                InputChoice::Constant(movement, mode.map_or(Mode::Manual, Mode::from))
+                InputChoice::Constant(movement, (*mode.get_or_insert(ModeName::Manual)).into())
             }
-            Some(InputSection::Joystick(s)) => {
-                device(s, rove_inputs::SourceKind::Joystick, &mut errors)
-            }
-            Some(InputSection::Keyboard(s)) => {
-                device(s, rove_inputs::SourceKind::Keyboard, &mut errors)
-            }
-            Some(InputSection::Replay(s)) => {
-                device(s, rove_inputs::SourceKind::Replay, &mut errors)
-            }
+            InputSection::Joystick(s) => device(s, rove_inputs::SourceKind::Joystick),
+            InputSection::Keyboard(s) => device(s, rove_inputs::SourceKind::Keyboard),
+            InputSection::Replay(s) => device(s, rove_inputs::SourceKind::Replay),
         };
         errors.into_result(OperatorConfig {
             common,
-            level: self.operator.level,
-            device_class: self.operator.device_class,
+            level,
+            device_class: class,
             strength,
             stream_period: Duration::from_secs_f64(1.0 / f64::from(stream_hz.unwrap_or(1))),
             drive: self.operator.drive.clone(),
@@ -736,6 +742,21 @@ impl RawOperator {
             input,
             api_socket: self.console.api_socket.clone(),
         })
+    }
+}
+
+impl InputSection {
+    /// No `[input]`: centred sticks in MANUAL.
+    fn centred() -> Self {
+        let (throttle, roll, pitch, yaw) = (0, 0, 0, 0);
+        let mode = Some(ModeName::Manual);
+        InputSection::Constant {
+            throttle,
+            roll,
+            pitch,
+            yaw,
+            mode,
+        }
     }
 }
 
@@ -767,7 +788,18 @@ mod tests {
         for entry in std::fs::read_dir(&dir).expect("configs/ exists") {
             let path = entry.expect("entry").path();
             if path.extension().is_some_and(|e| e == "toml") {
-                load_any(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                let (config, effective) = load_any(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                // The effective config loads again as the same config, and is a fixed point.
+                let again = any_from_text(Path::new("effective.toml"), &effective);
+                let (again, effective_again) =
+                    again.unwrap_or_else(|e| panic!("{e:#}\n{effective}"));
+                assert_eq!(
+                    format!("{again:?}"),
+                    format!("{config:?}"),
+                    "{}",
+                    path.display()
+                );
+                assert_eq!(effective_again, effective, "{}", path.display());
                 seen += 1;
             }
         }

@@ -7,7 +7,7 @@
 
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
-use rove_core::config::Int;
+use rove_core::config::{ABSENT, Int};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
@@ -248,36 +248,15 @@ pub fn axis_key(axis: Axis) -> &'static str {
 /// A validated `[input]`: only this type crosses crate boundaries.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InputConfig {
-    kind: SourceKind,
-    source: SourceConfig,
-    mapping: MappingConfig,
+    /// The kind of source.
+    pub kind: SourceKind,
+    /// Device or recording.
+    pub source: SourceConfig,
+    /// The mapping.
+    pub mapping: MappingConfig,
 }
 
 impl InputConfig {
-    /// A config from parts (tests, `rove inputs show`).
-    pub fn new(kind: SourceKind, source: SourceConfig, mapping: MappingConfig) -> Self {
-        InputConfig {
-            kind,
-            source,
-            mapping,
-        }
-    }
-
-    /// The kind of source.
-    pub fn kind(&self) -> SourceKind {
-        self.kind
-    }
-
-    /// Device or recording.
-    pub fn source(&self) -> &SourceConfig {
-        &self.source
-    }
-
-    /// The mapping.
-    pub fn mapping(&self) -> &MappingConfig {
-        &self.mapping
-    }
-
     /// The same mapping read from another device (for `rove inputs show DEVICE`): the source
     /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
     /// when the source already was a device.
@@ -333,7 +312,7 @@ impl InputSettings {
     /// axis mapped; per axis (`axes.NAME.key`): neither or both of `abs` and keys, unknown
     /// code names, abs-only keys on a key axis and vice versa, `min`/`centre`/`max` out of
     /// order; per button (`buttons.ACTION`): unknown control names; a control used twice.
-    pub fn validate(&self) -> rove_core::Result<InputConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {
             errors.add(
@@ -353,7 +332,7 @@ impl InputSettings {
     ///
     /// # Errors
     /// As [`InputSettings::validate`].
-    pub fn validate_as(&self, kind: SourceKind) -> rove_core::Result<InputConfig> {
+    pub fn validate_as(&mut self, kind: SourceKind) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         if let Some(s) = self.source {
             if s != kind {
@@ -368,7 +347,7 @@ impl InputSettings {
         errors.into_result(config)
     }
 
-    fn validate_inner(&self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
+    fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
         let source = self.validate_source(kind, errors);
         let rule = " ms (leave it out to turn silence detection off)";
         let silence_ms = self.silence_timeout_ms;
@@ -397,12 +376,9 @@ impl InputSettings {
                 used.insert(control, key.to_string());
             }
         };
-        let raw_axes = [
-            &self.axes.throttle,
-            &self.axes.roll,
-            &self.axes.pitch,
-            &self.axes.yaw,
-        ];
+        let a = &mut self.axes;
+        let raw_axes = [&mut a.throttle, &mut a.roll, &mut a.pitch, &mut a.yaw];
+        let none_mapped = raw_axes.iter().all(|a| a.is_none());
         for (slot, (axis, raw)) in AXES.iter().zip(raw_axes).enumerate() {
             let Some(raw) = raw else { continue };
             let prefix = format!("axes.{}", axis_key(*axis));
@@ -447,31 +423,17 @@ impl InputSettings {
             }
             mapping.axes[slot] = config;
         }
-        if raw_axes.iter().all(|a| a.is_none()) {
-            errors.add(
-                "axes",
-                "(none)",
-                "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
-            );
+        if none_mapped {
+            let rule = "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])";
+            errors.add("axes", "(none)", rule);
         }
         let b = &self.buttons;
-        let buttons: [(&str, &Option<String>, Option<InputAction>); 11] = [
+        let mode = |m| Some(InputAction::Mode(m));
+        let buttons = [
             ("deadman", &b.deadman, None),
-            (
-                "mode_manual",
-                &b.mode_manual,
-                Some(InputAction::Mode(Mode::Manual)),
-            ),
-            (
-                "mode_assisted",
-                &b.mode_assisted,
-                Some(InputAction::Mode(Mode::Assisted)),
-            ),
-            (
-                "mode_auto",
-                &b.mode_auto,
-                Some(InputAction::Mode(Mode::Auto)),
-            ),
+            ("mode_manual", &b.mode_manual, mode(Mode::Manual)),
+            ("mode_assisted", &b.mode_assisted, mode(Mode::Assisted)),
+            ("mode_auto", &b.mode_auto, mode(Mode::Auto)),
             (
                 "request_control",
                 &b.request_control,
@@ -496,12 +458,9 @@ impl InputSettings {
             let Some(value) = value else { continue };
             let key = format!("buttons.{name}");
             let Some(control) = Control::parse(value) else {
-                errors.add(
-                    key,
-                    format!("{value:?}"),
-                    "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
-                     direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
-                );
+                let rule = "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
+                            direction (\"ABS_HAT0Y-\", \"ABS_Z+\")";
+                errors.add(key, format!("{value:?}"), rule);
                 continue;
             };
             claim(errors, control, &key, value);
@@ -517,7 +476,7 @@ impl InputSettings {
         }
     }
 
-    fn validate_source(&self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
+    fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
         match kind {
             SourceKind::Replay => {
                 let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
@@ -572,19 +531,19 @@ impl InputSettings {
                     (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
                     (None, None) => DeviceSelector::AnyJoystick,
                 };
-                let reopen_ms = self
+                let reopen = *self
                     .reopen_interval_ms
-                    .unwrap_or(DEFAULT_REOPEN_INTERVAL_MS);
-                let reopen = errors.int(
+                    .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
+                let reopen = errors.millis(
                     "reopen_interval_ms",
-                    reopen_ms,
+                    reopen,
                     REOPEN_INTERVAL_RANGE_MS,
                     " ms",
                 );
                 SourceConfig::Evdev {
                     selector,
-                    grab: self.grab.unwrap_or(false),
-                    reopen_interval: Duration::from_millis(reopen.unwrap_or_default()),
+                    grab: *self.grab.get_or_insert(false),
+                    reopen_interval: reopen.unwrap_or_default(),
                 }
             }
         }
@@ -593,50 +552,37 @@ impl InputSettings {
 
 impl AxisSettings {
     /// Validates one axis; keys in errors are relative to the axis table.
-    fn validate(&self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
+    fn validate(&mut self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
         let before = errors.0.len();
-        let expo = errors.float(
-            "expo",
-            self.expo.unwrap_or(0.0),
-            EXPO_RANGE,
-            "must be 0..=1",
-        );
-        let scale_pct = self.scale_pct.unwrap_or(100.0);
+        let expo = *self.expo.get_or_insert(0.0);
+        let expo = errors.float("expo", expo, EXPO_RANGE, "must be 0..=1");
+        let scale_pct = *self.scale_pct.get_or_insert(100.0);
         if !(scale_pct > 0.0 && scale_pct <= 100.0) {
-            errors.add(
-                "scale_pct",
-                scale_pct,
-                "must be greater than 0 and at most 100",
-            );
+            let rule = "must be greater than 0 and at most 100";
+            errors.add("scale_pct", scale_pct, rule);
         }
         let has_keys = self.negative.is_some() || self.positive.is_some();
-        let input = match (&self.abs, has_keys) {
-            (Some(_), true) => {
-                errors.add(
-                    "abs",
-                    format!("{:?}", self.abs.as_deref().unwrap_or_default()),
-                    "give either abs or negative/positive keys, not both",
-                );
+        let input = match (self.abs.clone(), has_keys) {
+            (Some(name), true) => {
+                let rule = "give either abs or negative/positive keys, not both";
+                errors.add("abs", format!("{name:?}"), rule);
                 None
             }
             (None, false) => {
-                errors.add(
-                    "abs",
-                    "(absent)",
-                    "must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
-                );
+                let rule = "must name an absolute axis (\"ABS_X\"), or give negative/positive keys";
+                errors.add("abs", ABSENT, rule);
                 None
             }
-            (Some(name), false) => self.validate_abs(name, errors),
+            (Some(name), false) => self.validate_abs(&name, errors),
             (None, true) => self.validate_keys(errors),
         };
         let input = input?;
         (errors.0.len() == before).then_some(AxisConfig {
             input,
-            reverse: self.reverse.unwrap_or(false),
+            reverse: *self.reverse.get_or_insert(false),
             expo,
             scale: scale_pct / 100.0,
-            rest: self.rest.unwrap_or_default(),
+            rest: *self.rest.get_or_insert_default(),
         })
     }
 
@@ -689,7 +635,7 @@ impl AxisSettings {
         })
     }
 
-    fn validate_keys(&self, errors: &mut ConfigErrors) -> Option<AxisInput> {
+    fn validate_keys(&mut self, errors: &mut ConfigErrors) -> Option<AxisInput> {
         let not_for_keys = "only applies to abs axes";
         errors.not_for("deadband_pct", self.deadband_pct, not_for_keys);
         errors.not_for("min", self.min, not_for_keys);
@@ -722,14 +668,16 @@ impl AxisSettings {
                 );
             }
         }
-        let mut ms = |field: &str, value: Option<Int>, default: Int| {
-            let v = errors.int(field, value.unwrap_or(default), 0..=MAX_RAMP_MS, " ms");
-            Duration::from_millis(v.unwrap_or_default())
+        let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
+            let v = *value.get_or_insert(default);
+            errors
+                .millis(field, v, 0..=MAX_RAMP_MS, " ms")
+                .unwrap_or_default()
         };
-        let ramp_up = ms("ramp_up_ms", self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
+        let ramp_up = ms("ramp_up_ms", &mut self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
         let spring_back = ms(
             "spring_back_ms",
-            self.spring_back_ms,
+            &mut self.spring_back_ms,
             DEFAULT_SPRING_BACK_MS,
         );
         Some(AxisInput::Keys {
@@ -770,16 +718,16 @@ mod tests {
         )
         .validate()
         .expect("valid");
-        assert_eq!(c.kind(), SourceKind::Joystick);
+        assert_eq!(c.kind, SourceKind::Joystick);
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Evdev {
                 selector: DeviceSelector::AnyJoystick,
                 grab: false,
                 reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS as u64),
             }
         );
-        let roll = c.mapping().axes[1].expect("roll mapped");
+        let roll = c.mapping.axes[1].expect("roll mapped");
         assert_eq!(
             roll.input,
             AxisInput::Abs {
@@ -792,8 +740,8 @@ mod tests {
         );
         assert_eq!((roll.reverse, roll.expo, roll.scale), (false, 0.0, 1.0));
         assert_eq!(roll.rest, Rest::Centre);
-        assert_eq!(c.mapping().silence_timeout, None);
-        assert_eq!(c.mapping().deadman, None);
+        assert_eq!(c.mapping.silence_timeout, None);
+        assert_eq!(c.mapping.deadman, None);
     }
 
     #[test]
@@ -812,14 +760,14 @@ mod tests {
         .validate()
         .expect("valid");
         assert!(matches!(
-            c.source(),
+            &c.source,
             SourceConfig::Evdev {
                 selector: DeviceSelector::AnyKeyboard,
                 ..
             }
         ));
         assert_eq!(
-            c.mapping().axes[0].map(|a| a.input),
+            c.mapping.axes[0].map(|a| a.input),
             Some(AxisInput::Keys {
                 negative: Some(31),
                 positive: Some(17),
@@ -827,9 +775,9 @@ mod tests {
                 spring_back: Duration::from_millis(DEFAULT_SPRING_BACK_MS as u64),
             })
         );
-        assert_eq!(c.mapping().deadman, Some(Control::Key(57)));
+        assert_eq!(c.mapping.deadman, Some(Control::Key(57)));
         assert_eq!(
-            c.mapping().actions,
+            c.mapping.actions,
             vec![(Control::Key(1), InputAction::Release)]
         );
     }
@@ -913,7 +861,7 @@ mod tests {
         let c = parse("source = \"joystick\"\n[axes.roll]\nabs = \"ABS_X\"\ninvert = true\ndeadzone_pct = 5.0")
             .validate()
             .expect("aliases");
-        let roll = c.mapping().axes[1].expect("roll mapped");
+        let roll = c.mapping.axes[1].expect("roll mapped");
         assert!(roll.reverse);
         assert!(matches!(roll.input, AxisInput::Abs { deadzone: Some(d), .. } if d == 0.05));
         let got = errors_of(
@@ -989,15 +937,15 @@ mod tests {
 
     #[test]
     fn validate_as_accepts_a_consumed_tag_and_rejects_a_contradiction() {
-        let s = parse("file = \"r.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n");
+        let mut s = parse("file = \"r.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n");
         let c = s.validate_as(SourceKind::Replay).expect("valid replay");
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Replay {
                 file: "r.txt".into()
             }
         );
-        let contradicting = InputSettings {
+        let mut contradicting = InputSettings {
             source: Some(SourceKind::Joystick),
             ..s
         };
@@ -1012,13 +960,13 @@ mod tests {
                 .expect("valid");
         c.resolve_relative_to(Path::new("/etc/rove"));
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Replay {
                 file: "/etc/rove/rec.txt".into()
             }
         );
         let c = c.with_device(DeviceSelector::Path("/dev/input/event7".into()));
-        assert_eq!(c.kind(), SourceKind::Joystick);
-        assert!(matches!(c.source(), SourceConfig::Evdev { .. }));
+        assert_eq!(c.kind, SourceKind::Joystick);
+        assert!(matches!(&c.source, SourceConfig::Evdev { .. }));
     }
 }
