@@ -26,9 +26,10 @@ use std::ops::RangeInclusive;
 use std::time::Duration;
 
 /// Config types written one documented field or variant a line: in a struct,
-/// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum of keywords,
-/// `Name => "doc",` for `#[doc = "doc"] Name,`. Attributes (docs, derives, serde's) before an
-/// item, a field or a variant are kept.
+/// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum,
+/// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
+/// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. Attributes (docs,
+/// derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
@@ -42,11 +43,13 @@ macro_rules! config_types {
         $crate::config_types!($($rest)*);
     };
     ($(#[$attr:meta])* pub enum $name:ident {
-        $($(#[$variant_attr:meta])* $variant:ident => $doc:literal,)*
+        $($(#[$variant_attr:meta])* $variant:ident => $doc:literal $(($($ty:ty),+))?
+            $({ $($field:ident: $field_ty:ty => $field_doc:literal,)* })?,)*
     } $($rest:tt)*) => {
         $(#[$attr])*
         pub enum $name {
-            $($(#[$variant_attr])* #[doc = $doc] $variant,)*
+            $($(#[$variant_attr])* #[doc = $doc] $variant $(($($ty),+))?
+                $({ $(#[doc = $field_doc] $field: $field_ty,)* })?,)*
         }
         $crate::config_types!($($rest)*);
     };

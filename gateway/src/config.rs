@@ -20,37 +20,36 @@ use std::path::Path;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// `[device]`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DeviceSection {
-    /// This device's id on the network; unique per device.
-    pub id: DeviceId,
-    /// Human-readable name (absent: `rove-<id>`).
-    pub name: Option<String>,
-}
+rove_core::config_types! {
+    /// `[device]`.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DeviceSection {
+        id: DeviceId => "This device's id on the network; unique per device.",
+        name: Option<String> => "Human-readable name (absent: `rove-<id>`).",
+    }
 
-/// `[network]`.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NetworkSection {
-    /// DDS domain id (absent: 0).
-    pub domain_id: Option<Int>,
-    /// IPv4 addresses of the interfaces DDS may use (absent: loopback only).
-    pub interfaces: Option<Vec<Ipv4Addr>>,
-    /// Presence heartbeat period, ms (absent: 500). Crashed devices drop from device lists
-    /// after three missed heartbeats, because rustdds's own participant lease is ~50 s.
-    pub heartbeat_ms: Option<Int>,
-}
+    /// `[network]`.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct NetworkSection {
+        domain_id: Option<Int> => "DDS domain id (absent: 0).",
+        interfaces: Option<Vec<Ipv4Addr>> => "IPv4 addresses of the interfaces DDS may use \
+            (absent: loopback only).",
+        heartbeat_ms: Option<Int> => "Presence heartbeat period, ms (absent: 500). Crashed devices \
+            drop from device lists after three missed heartbeats, because rustdds's own \
+            participant lease is ~50 s.",
+    }
 
-/// `[log]`.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LogSection {
-    /// A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing filter directives such as
-    /// `"info,rove_gateway=debug"` (absent: `info`). rustdds stays at `warn` unless a directive
-    /// names it (its `info` is very chatty). `RUST_LOG`, when set, overrides all of this.
-    pub level: Option<String>,
+    /// `[log]`.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct LogSection {
+        level: Option<String> => "A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing \
+            filter directives such as `\"info,rove_gateway=debug\"` (absent: `info`). rustdds \
+            stays at `warn` unless a directive names it (its `info` is very chatty). `RUST_LOG`, \
+            when set, overrides all of this.",
+    }
 }
 
 /// `[vehicle]`.
@@ -221,21 +220,17 @@ pub struct RawVehicle {
     pub output: OutputSection,
 }
 
-/// `[operator]`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OperatorSection {
-    /// Where the operator is: mobile, stationary or remote.
-    pub level: Level,
-    /// The device: desktop, laptop, tablet or phone.
-    pub device_class: DeviceClass,
-    /// Fine offset 0..=9 within the rank (absent: 0).
-    pub offset: Option<Int>,
-    /// Keep-alive stream rate while driving, Hz (absent: 50).
-    pub stream_hz: Option<Int>,
-    /// Vehicles to drive from the start.
-    #[serde(default)]
-    pub drive: Vec<DeviceId>,
+rove_core::config_types! {
+    /// `[operator]`.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct OperatorSection {
+        level: Level => "Where the operator is: mobile, stationary or remote.",
+        device_class: DeviceClass => "The device: desktop, laptop, tablet or phone.",
+        offset: Option<Int> => "Fine offset 0..=9 within the rank (absent: 0).",
+        stream_hz: Option<Int> => "Keep-alive stream rate while driving, Hz (absent: 50).",
+        #[serde(default)] drive: Vec<DeviceId> => "Vehicles to drive from the start.",
+    }
 }
 
 /// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
@@ -268,25 +263,22 @@ pub enum InputSection {
     Replay(Box<rove_inputs::InputSettings>),
 }
 
-/// A validated `[input]`.
-#[derive(Debug, Clone)]
-pub enum InputChoice {
-    /// The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving starts at once.
-    Constant(MovementCommand, Mode),
-    /// A device or recording; driving waits until it reports live, centred sticks.
-    Device(Box<rove_inputs::InputConfig>),
-}
+rove_core::config_types! {
+    /// A validated `[input]`.
+    #[derive(Debug, Clone)]
+    pub enum InputChoice {
+        Constant => "The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving starts at once." (MovementCommand, Mode),
+        Device => "A device or recording; driving waits until it reports live, centred sticks." (Box<rove_inputs::InputConfig>),
+    }
 
-/// Mode names in config.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ModeName {
-    /// MANUAL.
-    Manual,
-    /// ASSISTED.
-    Assisted,
-    /// AUTO.
-    Auto,
+    /// Mode names in config.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ModeName {
+        Manual => "MANUAL.",
+        Assisted => "ASSISTED.",
+        Auto => "AUTO.",
+    }
 }
 
 impl From<ModeName> for Mode {
@@ -299,56 +291,40 @@ impl From<ModeName> for Mode {
     }
 }
 
-/// An operator's file as written.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawOperator {
-    /// `[device]`.
-    pub device: DeviceSection,
-    /// `[network]`.
-    #[serde(default)]
-    pub network: NetworkSection,
-    /// `[log]`.
-    #[serde(default)]
-    pub log: LogSection,
-    /// `[operator]`.
-    pub operator: OperatorSection,
-    /// `[hierarchy]`: a custom strength table (absent: docs/design.md §3).
-    #[serde(default)]
-    pub hierarchy: HierarchyTable,
-    /// `[handover]`.
-    #[serde(default)]
-    pub handover: HandoverSettings,
-    /// `[input]` (absent: centred sticks).
-    pub input: Option<InputSection>,
-    /// `[console]`.
-    #[serde(default)]
-    pub console: ConsoleSection,
-}
+rove_core::config_types! {
+    /// An operator's file as written.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct RawOperator {
+        device: DeviceSection => "`[device]`.",
+        #[serde(default)] network: NetworkSection => "`[network]`.",
+        #[serde(default)] log: LogSection => "`[log]`.",
+        operator: OperatorSection => "`[operator]`.",
+        #[serde(default)] hierarchy: HierarchyTable => "`[hierarchy]`: a custom strength table \
+            (absent: docs/design.md §3).",
+        #[serde(default)] handover: HandoverSettings => "`[handover]`.",
+        input: Option<InputSection> => "`[input]` (absent: centred sticks).",
+        #[serde(default)] console: ConsoleSection => "`[console]`.",
+    }
 
-/// `[console]`: the local API for other front ends (docs/api.md).
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConsoleSection {
-    /// Unix socket path of the local API, created with mode 0660 (absent: no API).
-    pub api_socket: Option<std::path::PathBuf>,
-}
+    /// `[console]`: the local API for other front ends (docs/api.md).
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct ConsoleSection {
+        api_socket: Option<std::path::PathBuf> => "Unix socket path of the local API, created with \
+            mode 0660 (absent: no API).",
+    }
 
-/// Validated identity and network settings, shared by both roles.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Common {
-    /// Device id.
-    pub id: DeviceId,
-    /// Device name.
-    pub name: String,
-    /// DDS domain.
-    pub domain_id: u16,
-    /// Interfaces DDS is confined to.
-    pub interfaces: Vec<Ipv4Addr>,
-    /// Presence heartbeat period.
-    pub heartbeat: Duration,
-    /// The log filter from `[log] level`, if any.
-    pub log_filter: Option<String>,
+    /// Validated identity and network settings, shared by both roles.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub struct Common {
+        id: DeviceId => "Device id.",
+        name: String => "Device name.",
+        domain_id: u16 => "DDS domain.",
+        interfaces: Vec<Ipv4Addr> => "Interfaces DDS is confined to.",
+        heartbeat: Duration => "Presence heartbeat period.",
+        log_filter: Option<String> => "The log filter from `[log] level`, if any.",
+    }
 }
 
 /// A validated vehicle configuration.
@@ -362,27 +338,20 @@ pub struct VehicleConfig {
     pub output: OutputConfig,
 }
 
-/// A validated operator configuration.
-#[derive(Debug, Clone)]
-pub struct OperatorConfig {
-    /// Identity and network.
-    pub common: Common,
-    /// Rank in the hierarchy.
-    pub level: Level,
-    /// Device class.
-    pub device_class: DeviceClass,
-    /// Ownership strength of the regular writer.
-    pub strength: Strength,
-    /// Keep-alive period.
-    pub stream_period: Duration,
-    /// Vehicles driven from the start.
-    pub drive: Vec<DeviceId>,
-    /// Active-handover settings.
-    pub handover: HandoverConfig,
-    /// Where stick values and mode come from.
-    pub input: InputChoice,
-    /// The local API's socket, if any.
-    pub api_socket: Option<std::path::PathBuf>,
+rove_core::config_types! {
+    /// A validated operator configuration.
+    #[derive(Debug, Clone)]
+    pub struct OperatorConfig {
+        common: Common => "Identity and network.",
+        level: Level => "Rank in the hierarchy.",
+        device_class: DeviceClass => "Device class.",
+        strength: Strength => "Ownership strength of the regular writer.",
+        stream_period: Duration => "Keep-alive period.",
+        drive: Vec<DeviceId> => "Vehicles driven from the start.",
+        handover: HandoverConfig => "Active-handover settings.",
+        input: InputChoice => "Where stick values and mode come from.",
+        api_socket: Option<std::path::PathBuf> => "The local API's socket, if any.",
+    }
 }
 
 /// Reads and validates a vehicle config.
@@ -423,13 +392,13 @@ impl OperatorConfig {
     }
 }
 
-/// A config file, either role, for `rove check-config`.
-#[derive(Debug)]
-pub enum AnyConfig {
-    /// A vehicle's file.
-    Vehicle(VehicleConfig),
-    /// An operator's file.
-    Operator(OperatorConfig),
+rove_core::config_types! {
+    /// A config file, either role, for `rove check-config`.
+    #[derive(Debug)]
+    pub enum AnyConfig {
+        Vehicle => "A vehicle's file." (VehicleConfig),
+        Operator => "An operator's file." (OperatorConfig),
+    }
 }
 
 /// Loads a file of either role, telling them apart by their `[vehicle]`/`[output]` or

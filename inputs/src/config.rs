@@ -136,19 +136,16 @@ rove_core::config_types! {
         next_vehicle: Option<String> => "Select the next vehicle.",
         previous_vehicle: Option<String> => "Select the previous vehicle.",
     }
-}
 
-/// How a device is chosen.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum DeviceSelector {
-    /// A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same path.
-    Path(PathBuf),
-    /// The first device whose name matches the pattern (case-insensitive, `*` wildcard).
-    Name(String),
-    /// The first device that looks like a joystick or gamepad (has `ABS_X` and `ABS_Y`).
-    AnyJoystick,
-    /// The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).
-    AnyKeyboard,
+    /// How a device is chosen.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum DeviceSelector {
+        Path => "A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same path." (PathBuf),
+        Name => "The first device whose name matches the pattern (case-insensitive, `*` wildcard)." (String),
+        AnyJoystick => "The first device that looks like a joystick or gamepad (has `ABS_X` and \
+            `ABS_Y`).",
+        AnyKeyboard => "The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).",
+    }
 }
 
 impl std::fmt::Display for DeviceSelector {
@@ -162,56 +159,40 @@ impl std::fmt::Display for DeviceSelector {
     }
 }
 
-/// Validated source choice.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum SourceConfig {
-    /// An evdev device.
-    Evdev {
-        /// Which device.
-        selector: DeviceSelector,
-        /// Take it exclusively.
-        grab: bool,
-        /// Time between reopen attempts.
-        reopen_interval: Duration,
-    },
-    /// A recording.
-    Replay {
-        /// The file (relative paths are relative to the process's working directory unless
-        /// [`InputConfig::resolve_relative_to`] was called).
-        file: PathBuf,
-    },
-}
-
-/// What drives a movement axis.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum AxisInput {
-    /// An absolute axis with optional calibration overrides.
-    Abs {
-        /// `EV_ABS` code.
-        code: u16,
-        /// Raw value at −1 (absent: device minimum).
-        min: Option<i32>,
-        /// Raw value at 0 (absent: midpoint).
-        centre: Option<i32>,
-        /// Raw value at +1 (absent: device maximum).
-        max: Option<i32>,
-        /// Dead zone as a fraction of the half range (absent: from the device's `flat`).
-        deadzone: Option<f64>,
-    },
-    /// Two keys with a ramp.
-    Keys {
-        /// `EV_KEY` code towards −1.
-        negative: Option<u16>,
-        /// `EV_KEY` code towards +1.
-        positive: Option<u16>,
-        /// Time for 0 → ±1.
-        ramp_up: Duration,
-        /// Time for ±1 → 0.
-        spring_back: Duration,
-    },
-}
-
 rove_core::config_types! {
+    /// Validated source choice.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum SourceConfig {
+        Evdev => "An evdev device." {
+            selector: DeviceSelector => "Which device.",
+            grab: bool => "Take it exclusively.",
+            reopen_interval: Duration => "Time between reopen attempts.",
+        },
+        Replay => "A recording." {
+            file: PathBuf => "The file (relative paths are relative to the process's working \
+                directory unless [`InputConfig::resolve_relative_to`] was called).",
+        },
+    }
+
+    /// What drives a movement axis.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum AxisInput {
+        Abs => "An absolute axis with optional calibration overrides." {
+            code: u16 => "`EV_ABS` code.",
+            min: Option<i32> => "Raw value at −1 (absent: device minimum).",
+            centre: Option<i32> => "Raw value at 0 (absent: midpoint).",
+            max: Option<i32> => "Raw value at +1 (absent: device maximum).",
+            deadzone: Option<f64> => "Dead zone as a fraction of the half range (absent: from the \
+                device's `flat`).",
+        },
+        Keys => "Two keys with a ramp." {
+            negative: Option<u16> => "`EV_KEY` code towards −1.",
+            positive: Option<u16> => "`EV_KEY` code towards +1.",
+            ramp_up: Duration => "Time for 0 → ±1.",
+            spring_back: Duration => "Time for ±1 → 0.",
+        },
+    }
+
     /// A validated axis mapping.
     #[derive(Debug, Clone, Copy, PartialEq)]
     pub struct AxisConfig {
@@ -315,11 +296,8 @@ impl InputSettings {
     pub fn validate(&mut self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {
-            errors.add(
-                "source",
-                "(absent)",
-                "must be one of \"joystick\", \"keyboard\", \"replay\"",
-            );
+            let rule = "must be one of \"joystick\", \"keyboard\", \"replay\"";
+            errors.absent("source", rule);
             SourceKind::Joystick
         });
         let config = self.validate_inner(kind, &mut errors);
@@ -334,14 +312,9 @@ impl InputSettings {
     /// As [`InputSettings::validate`].
     pub fn validate_as(&mut self, kind: SourceKind) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
-        if let Some(s) = self.source {
-            if s != kind {
-                errors.add(
-                    "source",
-                    format!("{s:?}").to_lowercase(),
-                    format!("must be {:?}", format!("{kind:?}").to_lowercase()),
-                );
-            }
+        let name = |k: SourceKind| format!("{k:?}").to_lowercase();
+        if let Some(s) = self.source.filter(|s| *s != kind) {
+            errors.add("source", name(s), format!("must be {:?}", name(kind)));
         }
         let config = self.validate_inner(kind, &mut errors);
         errors.into_result(config)
@@ -349,33 +322,30 @@ impl InputSettings {
 
     fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
         let source = self.validate_source(kind, errors);
-        let rule = " ms (leave it out to turn silence detection off)";
-        let silence_ms = self.silence_timeout_ms;
-        let silence_timeout = errors
-            .opt_int(
-                "silence_timeout_ms",
-                silence_ms,
-                SILENCE_TIMEOUT_RANGE_MS,
-                rule,
-            )
-            .map(Duration::from_millis);
+        let (key, rule) = (
+            "silence_timeout_ms",
+            " ms (leave it out to turn silence detection off)",
+        );
+        let silence = self.silence_timeout_ms;
+        let silence_timeout = errors.opt_int(key, silence, SILENCE_TIMEOUT_RANGE_MS, rule);
+        let silence_timeout = silence_timeout.map(Duration::from_millis);
         let mut mapping = MappingConfig {
             silence_timeout,
             ..MappingConfig::default()
         };
         // Who uses which control, for the "used twice" check: control → key path.
         let mut used: BTreeMap<Control, String> = BTreeMap::new();
-        let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
-            if let Some(first) = used.get(&control) {
-                errors.add(
+        let mut claim =
+            |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| match used
+                .get(&control)
+            {
+                Some(first) => errors.add(
                     key,
                     format!("{value:?}"),
                     format!("is already used by {first}"),
-                );
-            } else {
-                used.insert(control, key.to_string());
-            }
-        };
+                ),
+                None => _ = used.insert(control, key.to_string()),
+            };
         let a = &mut self.axes;
         let raw_axes = [&mut a.throttle, &mut a.roll, &mut a.pitch, &mut a.yaw];
         let none_mapped = raw_axes.iter().all(|a| a.is_none());
@@ -384,42 +354,32 @@ impl InputSettings {
             let prefix = format!("axes.{}", axis_key(*axis));
             let mut axis_errors = ConfigErrors::default();
             let config = raw.validate(&mut axis_errors);
-            if let Some(config) = &config {
-                match config.input {
-                    AxisInput::Abs { code, .. } => {
-                        // An axis used as a stick cannot also be a button, in either direction.
-                        for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
-                            claim(
-                                &mut axis_errors,
-                                c,
-                                &format!("{prefix}.abs"),
-                                &abs_name(code),
-                            );
-                        }
-                    }
-                    AxisInput::Keys {
-                        negative, positive, ..
-                    } => {
-                        for (key, code) in [("negative", negative), ("positive", positive)] {
-                            if let Some(code) = code {
-                                claim(
-                                    errors,
-                                    Control::Key(code),
-                                    &format!("{prefix}.{key}"),
-                                    &crate::codes::key_name(code),
-                                );
-                            }
-                        }
+            match config.map(|c| c.input) {
+                Some(AxisInput::Abs { code, .. }) => {
+                    // An axis used as a stick cannot also be a button, in either direction.
+                    let (key, name) = (format!("{prefix}.abs"), abs_name(code));
+                    for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
+                        claim(&mut axis_errors, c, &key, &name);
                     }
                 }
+                Some(AxisInput::Keys {
+                    negative, positive, ..
+                }) => {
+                    for (key, code) in [("negative", negative), ("positive", positive)] {
+                        let Some(code) = code else { continue };
+                        let (key, name) = (format!("{prefix}.{key}"), crate::codes::key_name(code));
+                        claim(errors, Control::Key(code), &key, &name);
+                    }
+                }
+                None => {}
             }
             // Abs claims were recorded with the full key; keep errors' keys consistent.
             for e in axis_errors.0 {
-                if e.key.starts_with("axes.") {
-                    errors.push(e);
+                errors.push(if e.key.starts_with("axes.") {
+                    e
                 } else {
-                    errors.push(e.within(&prefix));
-                }
+                    e.within(&prefix)
+                });
             }
             mapping.axes[slot] = config;
         }
@@ -428,7 +388,7 @@ impl InputSettings {
             errors.add("axes", "(none)", rule);
         }
         let b = &self.buttons;
-        let mode = |m| Some(InputAction::Mode(m));
+        let (mode, some) = (|m| Some(InputAction::Mode(m)), Some);
         let buttons = [
             ("deadman", &b.deadman, None),
             ("mode_manual", &b.mode_manual, mode(Mode::Manual)),
@@ -437,21 +397,21 @@ impl InputSettings {
             (
                 "request_control",
                 &b.request_control,
-                Some(InputAction::RequestControl),
+                some(InputAction::RequestControl),
             ),
-            ("accept", &b.accept, Some(InputAction::Accept)),
-            ("refuse", &b.refuse, Some(InputAction::Refuse)),
-            ("finish", &b.finish, Some(InputAction::Finish)),
-            ("release", &b.release, Some(InputAction::Release)),
+            ("accept", &b.accept, some(InputAction::Accept)),
+            ("refuse", &b.refuse, some(InputAction::Refuse)),
+            ("finish", &b.finish, some(InputAction::Finish)),
+            ("release", &b.release, some(InputAction::Release)),
             (
                 "next_vehicle",
                 &b.next_vehicle,
-                Some(InputAction::NextVehicle),
+                some(InputAction::NextVehicle),
             ),
             (
                 "previous_vehicle",
                 &b.previous_vehicle,
-                Some(InputAction::PreviousVehicle),
+                some(InputAction::PreviousVehicle),
             ),
         ];
         for (name, value, action) in buttons {
@@ -477,75 +437,64 @@ impl InputSettings {
     }
 
     fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
-        match kind {
-            SourceKind::Replay => {
-                let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
-                let device = self
-                    .device
-                    .as_ref()
-                    .map(|d| format!("{:?}", d.display().to_string()));
-                errors.not_for("device", device, only_devices);
-                errors.not_for(
+        let path =
+            |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
+        if kind == SourceKind::Replay {
+            let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
+            errors.not_for("device", path(&self.device), only_devices);
+            errors.not_for(
+                "name",
+                self.name.as_ref().map(|n| format!("{n:?}")),
+                only_devices,
+            );
+            errors.not_for("grab", self.grab, only_devices);
+            errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
+            let file = self.file.clone().unwrap_or_else(|| {
+                let rule = "must name the recording to play for source = \"replay\"";
+                errors.absent("file", rule);
+                PathBuf::new()
+            });
+            return SourceConfig::Replay { file };
+        }
+        errors.not_for(
+            "file",
+            path(&self.file),
+            "only applies to source = \"replay\"",
+        );
+        let selector = match (&self.device, &self.name) {
+            (Some(d), Some(n)) => {
+                errors.add(
                     "name",
-                    self.name.as_ref().map(|n| format!("{n:?}")),
-                    only_devices,
+                    format!("{n:?}"),
+                    "give either device or name, not both",
                 );
-                errors.not_for("grab", self.grab, only_devices);
-                errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
-                let file = self.file.clone().unwrap_or_else(|| {
-                    errors.absent(
-                        "file",
-                        "must name the recording to play for source = \"replay\"",
-                    );
-                    PathBuf::new()
-                });
-                SourceConfig::Replay { file }
+                DeviceSelector::Path(d.clone())
             }
-            SourceKind::Joystick | SourceKind::Keyboard => {
-                let file = self
-                    .file
-                    .as_ref()
-                    .map(|f| format!("{:?}", f.display().to_string()));
-                errors.not_for("file", file, "only applies to source = \"replay\"");
-                let selector = match (&self.device, &self.name) {
-                    (Some(d), Some(n)) => {
-                        errors.add(
-                            "name",
-                            format!("{n:?}"),
-                            "give either device or name, not both",
-                        );
-                        DeviceSelector::Path(d.clone())
-                    }
-                    (Some(d), None) => {
-                        if d.as_os_str().is_empty() {
-                            errors.add("device", "\"\"", "must be a path");
-                        }
-                        DeviceSelector::Path(d.clone())
-                    }
-                    (None, Some(n)) => {
-                        if n.trim().is_empty() {
-                            errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
-                        }
-                        DeviceSelector::Name(n.clone())
-                    }
-                    (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
-                    (None, None) => DeviceSelector::AnyJoystick,
-                };
-                let reopen = *self
-                    .reopen_interval_ms
-                    .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
-                let reopen = errors.millis(
-                    "reopen_interval_ms",
-                    reopen,
-                    REOPEN_INTERVAL_RANGE_MS,
-                    " ms",
-                );
-                SourceConfig::Evdev {
-                    selector,
-                    grab: *self.grab.get_or_insert(false),
-                    reopen_interval: reopen.unwrap_or_default(),
+            (Some(d), None) => {
+                if d.as_os_str().is_empty() {
+                    errors.add("device", "\"\"", "must be a path");
                 }
+                DeviceSelector::Path(d.clone())
             }
+            (None, Some(n)) => {
+                if n.trim().is_empty() {
+                    errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
+                }
+                DeviceSelector::Name(n.clone())
+            }
+            (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
+            (None, None) => DeviceSelector::AnyJoystick,
+        };
+        let (key, range) = ("reopen_interval_ms", REOPEN_INTERVAL_RANGE_MS);
+        let reopen = *self
+            .reopen_interval_ms
+            .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
+        let reopen_interval = errors.millis(key, reopen, range, " ms").unwrap_or_default();
+        let grab = *self.grab.get_or_insert(false);
+        SourceConfig::Evdev {
+            selector,
+            grab,
+            reopen_interval,
         }
     }
 }

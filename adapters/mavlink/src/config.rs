@@ -183,22 +183,18 @@ pub enum AutopilotModeName {
     Number(Int),
 }
 
-/// Where the autopilot is.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Endpoint {
-    /// We listen on this address; replies go to the last sender.
-    UdpIn(String),
-    /// We send to this address from an ephemeral port.
-    UdpOut(String),
-    /// We connect to this TCP server (SITL: 127.0.0.1:5760).
-    TcpOut(String),
-    /// A serial device at a baud rate.
-    Serial {
-        /// Device path.
-        device: String,
-        /// Baud rate.
-        baud: u32,
-    },
+rove_core::config_types! {
+    /// Where the autopilot is.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum Endpoint {
+        UdpIn => "We listen on this address; replies go to the last sender." (String),
+        UdpOut => "We send to this address from an ephemeral port." (String),
+        TcpOut => "We connect to this TCP server (SITL: 127.0.0.1:5760)." (String),
+        Serial => "A serial device at a baud rate." {
+            device: String => "Device path.",
+            baud: u32 => "Baud rate.",
+        },
+    }
 }
 
 impl fmt::Display for Endpoint {

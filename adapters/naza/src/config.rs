@@ -150,21 +150,17 @@ const NAZA_KEYS: [&[&str]; 2] = [
     ],
 ];
 
-/// The throttle in failsafe, validated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FailsafeThrottle {
-    /// Centre.
-    Hover,
-    /// Linear ramp from centre to `floor_us` over `ramp`.
-    Land {
-        /// Final throttle pulse, µs.
-        floor_us: u16,
-        /// Ramp duration.
-        ramp: Duration,
-    },
-}
-
 rove_core::config_types! {
+    /// The throttle in failsafe, validated.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum FailsafeThrottle {
+        Hover => "Centre.",
+        Land => "Linear ramp from centre to `floor_us` over `ramp`." {
+            floor_us: u16 => "Final throttle pulse, µs.",
+            ramp: Duration => "Ramp duration.",
+        },
+    }
+
     /// A validated Naza-M output.
     #[derive(Debug, Clone, PartialEq)]
     pub struct NazaConfig {

@@ -158,22 +158,18 @@ rove_core::config_types! {
 /// The keys of a `[[output.channels]]` table that are not in a flattened piece.
 const CHANNEL_KEYS: &[&str] = &["name", "source", "value_us", "failsafe_us"];
 
-/// Where a channel is wired.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ChannelAddress {
-    /// sysfs `pwmchip{chip}/pwm{channel}`.
-    Sysfs {
-        /// Chip number.
-        chip: u32,
-        /// Channel within the chip.
-        channel: u32,
-    },
-    /// rppal software PWM on a BCM GPIO pin.
-    GpioPin(u8),
-    /// rppal hardware PWM channel.
-    HardwarePwm(u8),
-    /// Sim backend channel named by nothing but its position.
-    Unaddressed,
+rove_core::config_types! {
+    /// Where a channel is wired.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+    pub enum ChannelAddress {
+        Sysfs => "sysfs `pwmchip{chip}/pwm{channel}`." {
+            chip: u32 => "Chip number.",
+            channel: u32 => "Channel within the chip.",
+        },
+        GpioPin => "rppal software PWM on a BCM GPIO pin." (u8),
+        HardwarePwm => "rppal hardware PWM channel." (u8),
+        Unaddressed => "Sim backend channel named by nothing but its position.",
+    }
 }
 
 impl std::fmt::Display for ChannelAddress {
@@ -187,18 +183,15 @@ impl std::fmt::Display for ChannelAddress {
     }
 }
 
-/// What drives a validated channel.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ChannelSource {
-    /// A movement axis through its map (and slew limiter).
-    Axis(Axis, AxisMap),
-    /// The mode, as levels.
-    Mode(ModeLevels),
-    /// A fixed pulse, µs.
-    Constant(u16),
-}
-
 rove_core::config_types! {
+    /// What drives a validated channel.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum ChannelSource {
+        Axis => "A movement axis through its map (and slew limiter)." (Axis, AxisMap),
+        Mode => "The mode, as levels." (ModeLevels),
+        Constant => "A fixed pulse, µs." (u16),
+    }
+
     /// A validated channel.
     #[derive(Debug, Clone, PartialEq)]
     pub struct ChannelConfig {
@@ -208,23 +201,17 @@ rove_core::config_types! {
         source: ChannelSource => "What drives it.",
         failsafe_us: u16 => "Its safe-state pulse, µs.",
     }
-}
 
-/// Validated backend choice with its options.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum BackendConfig {
-    /// sysfs under `root`.
-    Sysfs {
-        /// The PWM class directory.
-        root: PathBuf,
-    },
-    /// rppal.
-    Rppal,
-    /// In-memory recording.
-    Sim,
-}
+    /// Validated backend choice with its options.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum BackendConfig {
+        Sysfs => "sysfs under `root`." {
+            root: PathBuf => "The PWM class directory.",
+        },
+        Rppal => "rppal.",
+        Sim => "In-memory recording.",
+    }
 
-rove_core::config_types! {
     /// A validated PWM vehicle: only this type crosses crate boundaries.
     #[derive(Debug, Clone, PartialEq)]
     pub struct PwmVehicleConfig {
