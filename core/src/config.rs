@@ -28,11 +28,23 @@ use std::time::Duration;
 /// Config types written one documented field or variant a line: in a struct,
 /// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum,
 /// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
-/// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. Attributes (docs,
-/// derives, serde's) before an item, a field or a variant are kept.
+/// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. `pub settings Name`
+/// is a struct with the derives of every table as written (`Debug, Clone, Default, PartialEq,
+/// Serialize, Deserialize`). Attributes (docs, derives, serde's) before an item, a field or a
+/// variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    ($(#[$attr:meta])* pub settings $name:ident $(<$($g:ident),+>)? {
+        $($body:tt)*
+    } $($rest:tt)*) => {
+        $crate::config_types! {
+            #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
+            $(#[$attr])*
+            pub struct $name $(<$($g),+>)? { $($body)* }
+            $($rest)*
+        }
+    };
     ($(#[$attr:meta])* pub struct $name:ident $(<$($g:ident),+>)? {
         $($(#[$field_attr:meta])* $field:ident: $ty:ty => $doc:literal,)*
     } $($rest:tt)*) => {

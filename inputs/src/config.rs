@@ -52,9 +52,8 @@ rove_core::config_types! {
     }
 
     /// `[input]` as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct InputSettings {
+    pub settings InputSettings {
         source: Option<SourceKind> => "What to read: `\"joystick\"`, `\"keyboard\"` or \
             `\"replay\"`.",
         device: Option<PathBuf> => "Joystick/keyboard: device path, e.g. `/dev/input/event3` or a \
@@ -74,9 +73,8 @@ rove_core::config_types! {
     }
 
     /// `[input.axes]` as written: one optional table per movement axis.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct AxesSettings {
+    pub settings AxesSettings {
         throttle: Option<AxisSettings> => "`[input.axes.throttle]`.",
         roll: Option<AxisSettings> => "`[input.axes.roll]` (UGV steering).",
         pitch: Option<AxisSettings> => "`[input.axes.pitch]`.",
@@ -94,9 +92,8 @@ rove_core::config_types! {
 
     /// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
     /// keys) or a pair of keys (`negative`/`positive` with ramp keys).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct AxisSettings {
+    pub settings AxisSettings {
         abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
         negative: Option<String> => "Key or button driving towards −full scale, e.g. `\"KEY_S\"`.",
         positive: Option<String> => "Key or button driving towards +full scale, e.g. `\"KEY_W\"`.",
@@ -121,9 +118,8 @@ rove_core::config_types! {
 
     /// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
     /// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct ButtonSettings {
+    pub settings ButtonSettings {
         deadman: Option<String> => "Hold to drive; when set, axes are neutral unless it is held.",
         mode_manual: Option<String> => "Switch to MANUAL.",
         mode_assisted: Option<String> => "Switch to ASSISTED.",
@@ -287,12 +283,8 @@ impl InputSettings {
     /// Validates, filling defaults; keys in errors are relative to `[input]`.
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem: a missing `source`; keys that do not
-    /// apply to the source (`file` for a device, `device`/`name`/`grab`/`reopen_interval_ms` for
-    /// a replay); both `device` and `name`; a replay without `file`; numbers out of range; no
-    /// axis mapped; per axis (`axes.NAME.key`): neither or both of `abs` and keys, unknown
-    /// code names, abs-only keys on a key axis and vice versa, `min`/`centre`/`max` out of
-    /// order; per button (`buttons.ACTION`): unknown control names; a control used twice.
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate README's
+    /// key list, does not apply to the source or axis kind, or uses a control used before.
     pub fn validate(&mut self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {

@@ -46,9 +46,8 @@ pub const INTERFACE_NAME_MAX: usize = 15;
 
 rove_core::config_types! {
     /// `[output]` for `adapter = "can"`, as written (the gateway consumes `adapter`).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct CanSettings {
+    pub settings CanSettings {
         interface: Option<String> => "SocketCAN interface name.",
         fd: Option<bool> => "CAN FD mode.",
         rate_hz: Option<i64> => "Send rate of every frame and command, Hz.",
@@ -57,9 +56,8 @@ rove_core::config_types! {
     }
 
     /// One raw frame (`[[output.frames]]`), as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct FrameSettings {
+    pub settings FrameSettings {
         id: Option<i64> => "CAN identifier.",
         extended: Option<bool> => "29-bit identifier.",
         length: Option<i64> => "Data length, bytes.",
@@ -68,8 +66,7 @@ rove_core::config_types! {
     }
 
     /// One value in a raw frame (`[[output.frames.outputs]]`), as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct FieldSettings {
+    pub settings FieldSettings {
         name: Option<String> => "Name for logs and status.",
         source: Option<SourceSettings> => "What drives it.",
         offset: Option<i64> => "First byte.",
@@ -83,9 +80,9 @@ rove_core::config_types! {
     }
 
     /// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Copy)]
     #[serde(deny_unknown_fields)]
-    pub struct ScaleSettings<T> {
+    pub settings ScaleSettings<T> {
         min: Option<T> => "Value at −full scale.",
         centre: Option<T> => "Value at centre.",
         max: Option<T> => "Value at +full scale.",
@@ -93,9 +90,8 @@ rove_core::config_types! {
     }
 
     /// `[output.dronecan]`, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct DroneCanSettings {
+    pub settings DroneCanSettings {
         node_id: Option<i64> => "Our node id.",
         priority: Option<i64> => "Priority of the commands.",
         rate_hz: Option<i64> => "Command rate, Hz.",
@@ -106,8 +102,7 @@ rove_core::config_types! {
     }
 
     /// One DroneCAN servo, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct ServoSettings {
+    pub settings ServoSettings {
         name: Option<String> => "Name for logs and status.",
         actuator_id: Option<Int> => "The actuator's id.",
         source: Option<SourceSettings> => "What drives it.",
@@ -118,8 +113,7 @@ rove_core::config_types! {
     }
 
     /// One DroneCAN ESC channel, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct EscSettings {
+    pub settings EscSettings {
         name: Option<String> => "Name for logs and status.",
         index: Option<Int> => "Index in the RawCommand array.",
         source: Option<SourceSettings> => "What drives it.",
@@ -374,12 +368,8 @@ impl CanSettings {
     /// effective config).
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem, each naming its key relative to
-    /// `[output]`: a missing or bad interface, rates outside [`RATE_RANGE_HZ`], identifiers
-    /// that do not fit 11/29 bits or repeat, frame lengths that are not CAN lengths, outputs
-    /// past the frame's end or overlapping another, widths other than 8/16/32, scale values
-    /// the field cannot hold, DroneCAN node ids, priorities, actuator ids and ESC indices out
-    /// of range or repeated, and a vehicle with nothing to send.
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
+    /// key table (or repeats an identifier, name or place), relative to `[output]`.
     pub fn validate(&mut self) -> rove_core::Result<CanConfig> {
         let mut errors = ConfigErrors::default();
         let mut names = Unique::default();

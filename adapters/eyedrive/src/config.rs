@@ -6,12 +6,10 @@ use rove_core::config::{UnknownKeys, keys_of};
 use rove_core::error::ConfigErrors;
 use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
 use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
-use serde::{Deserialize, Serialize};
 
 rove_core::config_types! {
     /// `[output]` for the Eyedrive, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct EyedriveSettings {
+    pub settings EyedriveSettings {
         #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
         steering: Option<EyedriveChannelSettings> => "`[output.steering]`.",
         throttle: Option<EyedriveChannelSettings> => "`[output.throttle]`.",
@@ -50,8 +48,7 @@ impl EyedriveSettings {
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
-    /// (`steering.pin`, `throttle.max_us`, `backend`…): unknown keys, a missing table, and
-    /// everything [`PwmVehicleSettings::validate`] rejects.
+    /// (`steering.pin`, `throttle.max_us`, `backend`…).
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
         let keys = [keys_of::<PwmBackendSettings>(), &["steering", "throttle"]];

@@ -21,9 +21,8 @@ rove_core::config_types! {
     /// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which
     /// the gateway's tagged enum consumes). Every key is optional; docs/mavlink.md lists the
     /// defaults.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct MavlinkSettings {
+    pub settings MavlinkSettings {
         connection: Option<String> => "`udpin:`, `udpout:`, `tcpout:HOST:PORT` (also `udp:` = \
             udpin and `tcp:` = tcpout), or `serial:DEVICE:BAUD`.",
         mavlink_version: Option<Int> => "2 or 1.",
@@ -90,8 +89,7 @@ rove_core::config_types! {
     }
 
     /// One `[[output.channels]]` table: an axis on an RC channel.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct ChannelSettings {
+    pub settings ChannelSettings {
         channel: Option<Int> => "RC channel 1..=18 (9..=18 need MAVLink 2).",
         axis: Option<Axis> => "The axis it carries.",
         #[serde(flatten)] map: AxisMapSettings => "The mapping keys \
@@ -101,9 +99,8 @@ rove_core::config_types! {
     }
 
     /// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct ManualControlSettings {
+    pub settings ManualControlSettings {
         x: Option<AxisOrNone> => "`x` (forward; absent: pitch).",
         y: Option<AxisOrNone> => "`y` (right; Rover steering; absent: roll).",
         z: Option<AxisOrNone> => "`z` (thrust; Rover throttle; absent: throttle).",
@@ -159,9 +156,8 @@ rove_core::config_types! {
     }
 
     /// `[output.modes]`: a mode name from the autopilot's table or a raw `custom_mode` number.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct ModeSettings {
+    pub settings ModeSettings {
         manual: Option<AutopilotModeName> => "For rove's MANUAL.",
         assisted: Option<AutopilotModeName> => "For rove's ASSISTED.",
         auto: Option<AutopilotModeName> => "For rove's AUTO.",
@@ -328,56 +324,19 @@ rove_core::config_types! {
     }
 }
 
-/// ArduPilot Rover's modes (`custom_mode`), from its Mode enum.
-const ARDUPILOT_ROVER_MODES: &[(&str, u32)] = &[
-    ("MANUAL", 0),
-    ("ACRO", 1),
-    ("STEERING", 3),
-    ("HOLD", 4),
-    ("LOITER", 5),
-    ("FOLLOW", 6),
-    ("SIMPLE", 7),
-    ("DOCK", 8),
-    ("CIRCLE", 9),
-    ("AUTO", 10),
-    ("RTL", 11),
-    ("SMART_RTL", 12),
-    ("GUIDED", 15),
-];
+/// ArduPilot Rover's modes as `NAME=custom_mode`, from its Mode enum.
+const ARDUPILOT_ROVER_MODES: &str = "MANUAL=0 ACRO=1 STEERING=3 HOLD=4 LOITER=5 FOLLOW=6 SIMPLE=7 \
+                                     DOCK=8 CIRCLE=9 AUTO=10 RTL=11 SMART_RTL=12 GUIDED=15";
 
 /// ArduPilot Copter's modes.
-const ARDUPILOT_COPTER_MODES: &[(&str, u32)] = &[
-    ("STABILIZE", 0),
-    ("ACRO", 1),
-    ("ALT_HOLD", 2),
-    ("AUTO", 3),
-    ("GUIDED", 4),
-    ("LOITER", 5),
-    ("RTL", 6),
-    ("CIRCLE", 7),
-    ("LAND", 9),
-    ("DRIFT", 11),
-    ("SPORT", 13),
-    ("POSHOLD", 16),
-    ("BRAKE", 17),
-    ("SMART_RTL", 21),
-];
+const ARDUPILOT_COPTER_MODES: &str = "STABILIZE=0 ACRO=1 ALT_HOLD=2 AUTO=3 GUIDED=4 LOITER=5 \
+                                      RTL=6 CIRCLE=7 LAND=9 DRIFT=11 SPORT=13 POSHOLD=16 BRAKE=17 \
+                                      SMART_RTL=21";
 
-/// PX4's modes as (name, main mode, sub mode); custom_mode = main << 16 | sub << 24.
-const PX4_MODES: &[(&str, u8, u8)] = &[
-    ("MANUAL", 1, 0),
-    ("ALTCTL", 2, 0),
-    ("POSCTL", 3, 0),
-    ("AUTO.READY", 4, 1),
-    ("AUTO.TAKEOFF", 4, 2),
-    ("AUTO.LOITER", 4, 3),
-    ("AUTO.MISSION", 4, 4),
-    ("AUTO.RTL", 4, 5),
-    ("AUTO.LAND", 4, 6),
-    ("ACRO", 5, 0),
-    ("OFFBOARD", 6, 0),
-    ("STABILIZED", 7, 0),
-];
+/// PX4's modes as `NAME=main.sub`; custom_mode = main << 16 | sub << 24.
+const PX4_MODES: &str = "MANUAL=1.0 ALTCTL=2.0 POSCTL=3.0 AUTO.READY=4.1 AUTO.TAKEOFF=4.2 \
+                         AUTO.LOITER=4.3 AUTO.MISSION=4.4 AUTO.RTL=4.5 AUTO.LAND=4.6 ACRO=5.0 \
+                         OFFBOARD=6.0 STABILIZED=7.0";
 
 /// PX4's custom_mode for a main and sub mode.
 pub const fn px4_custom_mode(main: u8, sub: u8) -> u32 {
@@ -395,14 +354,19 @@ pub fn firmware_name(autopilot: AutopilotKind, vehicle: VehicleKind) -> &'static
 
 /// The mode table of a firmware and vehicle kind: (name, custom_mode).
 pub fn mode_table(autopilot: AutopilotKind, vehicle: VehicleKind) -> Vec<(&'static str, u32)> {
-    match (autopilot, vehicle) {
-        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ARDUPILOT_ROVER_MODES.to_vec(),
-        (AutopilotKind::Ardupilot, VehicleKind::Copter) => ARDUPILOT_COPTER_MODES.to_vec(),
-        (AutopilotKind::Px4, _) => PX4_MODES
-            .iter()
-            .map(|&(n, main, sub)| (n, px4_custom_mode(main, sub)))
-            .collect(),
-    }
+    let table = match (autopilot, vehicle) {
+        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ARDUPILOT_ROVER_MODES,
+        (AutopilotKind::Ardupilot, VehicleKind::Copter) => ARDUPILOT_COPTER_MODES,
+        (AutopilotKind::Px4, _) => PX4_MODES,
+    };
+    let mode = |(name, number): (&'static str, &str)| match number.split_once('.') {
+        Some((main, sub)) => Some((name, px4_custom_mode(main.parse().ok()?, sub.parse().ok()?))),
+        None => Some((name, number.parse().ok()?)),
+    };
+    let entries = table
+        .split_whitespace()
+        .filter_map(|entry| entry.split_once('='));
+    entries.filter_map(mode).collect()
 }
 
 /// Default (manual, assisted, auto, safe) mode names.

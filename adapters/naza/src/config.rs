@@ -100,8 +100,7 @@ pub type StickSettings = rove_pwm::ServoChannelSettings;
 
 rove_core::config_types! {
     /// `[output.mode]`: the U channel's address and levels (µs).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct ModeChannelSettings {
+    pub settings ModeChannelSettings {
         #[serde(flatten)] address: PwmAddressSettings => "The address keys (rove-pwm's).",
         manual_us: Option<Int> => "Level for Manual (MANUAL).",
         atti_us: Option<Int> => "Level for ATTI (ASSISTED).",
@@ -111,8 +110,7 @@ rove_core::config_types! {
     }
 
     /// `[output]` for the Naza-M, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct NazaSettings {
+    pub settings NazaSettings {
         #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
         aileron: Option<StickSettings> => "A: roll.",
         elevator: Option<StickSettings> => "E: pitch.",
@@ -242,10 +240,7 @@ impl NazaSettings {
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
-    /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…): a missing channel table, a land
-    /// floor not below the throttle centre or under its minimum, ramp or hold times out of
-    /// range, land keys without `failsafe_policy = "land"`, and everything
-    /// [`PwmVehicleSettings::validate`] rejects.
+    /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…).
     pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
         let keys = [keys_of::<PwmBackendSettings>(), NAZA_KEYS[0], NAZA_KEYS[1]];

@@ -82,9 +82,8 @@ impl Polarity {
 rove_core::config_types! {
     /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
     /// `"eyedrive"` and `"naza"` (flattened into each).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct PwmBackendSettings {
+    pub settings PwmBackendSettings {
         backend: Option<BackendKind> => "Which device drives the channels.",
         period_us: Option<Int> => "PWM period, µs.",
         sysfs_root: Option<PathBuf> => "sysfs: the PWM class directory.",
@@ -93,9 +92,8 @@ rove_core::config_types! {
 
     /// Where a channel is wired, as written: the one definition of the address keys, shared by
     /// generic channels and the preset tables (flattened into each).
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
-    pub struct PwmAddressSettings {
+    pub settings PwmAddressSettings {
         chip: Option<Int> => "sysfs: the `pwmchipN`.",
         channel: Option<Int> => "sysfs: the channel within the chip (`pwmchipN/pwmM`).",
         pin: Option<Int> => "rppal: software PWM on this BCM GPIO pin.",
@@ -104,8 +102,7 @@ rove_core::config_types! {
     }
 
     /// `[output]` for `adapter = "pwm"`, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct PwmVehicleSettings {
+    pub settings PwmVehicleSettings {
         #[serde(flatten)] pwm: PwmBackendSettings => "The backend keys.",
         #[serde(default)] channels: Vec<ChannelSettings> => "`[[output.channels]]`.",
         #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
@@ -116,8 +113,7 @@ rove_core::config_types! {
     /// sticks): where it is wired, and optional limits. Presets turn it into a generic
     /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
     /// the generic channel's.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct ServoChannelSettings {
+    pub settings ServoChannelSettings {
         #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
         #[serde(flatten)] map: AxisMapSettings => "The mapping keys.",
         #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
@@ -141,8 +137,7 @@ impl ServoChannelSettings {
 
 rove_core::config_types! {
     /// One `[[output.channels]]` table, as written.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    pub struct ChannelSettings {
+    pub settings ChannelSettings {
         name: Option<String> => "Unique name, for logs and status.",
         source: Option<ChannelSourceKind> => "What the channel outputs.",
         value_us: Option<Int> => "`source = \"constant\"`: the pulse, µs.",
@@ -260,12 +255,8 @@ impl PwmVehicleSettings {
     /// Validates, filling defaults into `self`; keys in errors are relative to `[output]`.
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem: unknown keys, missing `backend`, a
-    /// period outside [`PERIOD_RANGE_US`], backend options given to another backend, an empty
-    /// channel list, and per channel (`channels[i].key`): missing or duplicate name, missing or
-    /// wrong address keys for the backend, pin/channel out of range, two channels on one
-    /// address, mapping errors (min > max …), keys that do not apply to the source, pulses not
-    /// shorter than the period, a failsafe outside the channel's range.
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
+    /// key table, does not apply to its backend or source, or repeats a name or an address.
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
         let keys = [keys_of::<PwmBackendSettings>(), &["channels"]];
