@@ -15,6 +15,11 @@
 //! therefore ends with `#[serde(flatten)] unknown: UnknownKeys`, which collects every key no
 //! piece took; [`UnknownKeys::check`] reports each against its key path, so the gateway points
 //! at the misspelt key's own line. Tables that flatten nothing keep `deny_unknown_fields`.
+//!
+//! # Defaults
+//! Each `validate(&mut self)` fills the default of every absent key that applies into the
+//! settings it checks, so that afterwards they serialize as the effective config (what
+//! `rove check-config --print` shows) and load again as the same validated config.
 
 use crate::error::{ConfigErrors, Result};
 use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
@@ -56,12 +61,12 @@ macro_rules! config_types {
     };
     ($(#[$attr:meta])* pub enum $name:ident {
         $($(#[$variant_attr:meta])* $variant:ident => $doc:literal $(($($ty:ty),+))?
-            $({ $($field:ident: $field_ty:ty => $field_doc:literal,)* })?,)*
+            $({ $($(#[$fa:meta])* $field:ident: $field_ty:ty => $field_doc:literal,)* })?,)*
     } $($rest:tt)*) => {
         $(#[$attr])*
         pub enum $name {
             $($(#[$variant_attr])* #[doc = $doc] $variant $(($($ty),+))?
-                $({ $(#[doc = $field_doc] $field: $field_ty,)* })?,)*
+                $({ $($(#[$fa])* #[doc = $field_doc] $field: $field_ty,)* })?,)*
         }
         $crate::config_types!($($rest)*);
     };
@@ -129,14 +134,12 @@ impl ConfigErrors {
         self.int(key, value, range, unit).map(Duration::from_millis)
     }
 
-    /// Runs `check` on a list of its own and files what it records under `prefix`; returns
-    /// its value and whether it recorded nothing.
-    pub fn within<T>(&mut self, prefix: &str, check: impl FnOnce(&mut Self) -> T) -> (T, bool) {
+    /// Runs `check` on a list of its own and files what it records under `prefix`.
+    pub fn within<T>(&mut self, prefix: &str, check: impl FnOnce(&mut Self) -> T) -> T {
         let mut inner = ConfigErrors::default();
         let value = check(&mut inner);
-        let clean = inner.0.is_empty();
         self.extend_within(prefix, inner);
-        (value, clean)
+        value
     }
 
     /// `value` if it is finite and lies in `range`; otherwise records `key = value: rule`.

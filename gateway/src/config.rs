@@ -231,44 +231,32 @@ rove_core::config_types! {
         stream_hz: Option<Int> => "Keep-alive stream rate while driving, Hz (absent: 50).",
         #[serde(default)] drive: Vec<DeviceId> => "Vehicles to drive from the start.",
     }
-}
 
-/// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
-/// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
-pub enum InputSection {
-    /// Constant stick values.
-    Constant {
-        /// Throttle axis (absent: 0).
-        #[serde(default)]
-        throttle: Int,
-        /// Roll axis (absent: 0).
-        #[serde(default)]
-        roll: Int,
-        /// Pitch axis (absent: 0).
-        #[serde(default)]
-        pitch: Int,
-        /// Yaw axis (absent: 0).
-        #[serde(default)]
-        yaw: Int,
-        /// Mode (absent: manual).
-        mode: Option<ModeName>,
-    },
-    /// An evdev joystick or gamepad.
-    Joystick(Box<rove_inputs::InputSettings>),
-    /// An evdev keyboard.
-    Keyboard(Box<rove_inputs::InputSettings>),
-    /// A recorded event stream (tests, demos, benchmarks).
-    Replay(Box<rove_inputs::InputSettings>),
-}
+    /// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
+    /// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
+    pub enum InputSection {
+        Constant => "Constant stick values." {
+            #[serde(default)] throttle: Int => "Throttle axis (absent: 0).",
+            #[serde(default)] roll: Int => "Roll axis (absent: 0).",
+            #[serde(default)] pitch: Int => "Pitch axis (absent: 0).",
+            #[serde(default)] yaw: Int => "Yaw axis (absent: 0).",
+            mode: Option<ModeName> => "Mode (absent: manual).",
+        },
+        Joystick => "An evdev joystick or gamepad." (Box<rove_inputs::InputSettings>),
+        Keyboard => "An evdev keyboard." (Box<rove_inputs::InputSettings>),
+        Replay => "A recorded event stream (tests, demos, benchmarks)."
+            (Box<rove_inputs::InputSettings>),
+    }
 
-rove_core::config_types! {
     /// A validated `[input]`.
     #[derive(Debug, Clone)]
     pub enum InputChoice {
-        Constant => "The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving starts at once." (MovementCommand, Mode),
-        Device => "A device or recording; driving waits until it reports live, centred sticks." (Box<rove_inputs::InputConfig>),
+        Constant => "The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving \
+            starts at once." (MovementCommand, Mode),
+        Device => "A device or recording; driving waits until it reports live, centred sticks."
+            (Box<rove_inputs::InputConfig>),
     }
 
     /// Mode names in config.

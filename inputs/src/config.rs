@@ -95,8 +95,8 @@ rove_core::config_types! {
     #[serde(deny_unknown_fields)]
     pub settings AxisSettings {
         abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
-        negative: Option<String> => "Key or button driving towards −full scale, e.g. `\"KEY_S\"`.",
-        positive: Option<String> => "Key or button driving towards +full scale, e.g. `\"KEY_W\"`.",
+        negative: Option<String> => "Key or button towards −full scale, e.g. `\"KEY_S\"`.",
+        positive: Option<String> => "Key or button towards +full scale, e.g. `\"KEY_W\"`.",
         #[serde(alias = "invert")] reverse: Option<bool> => "Negate the axis (absent: false; \
             `invert` is accepted as an older spelling).",
         #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Abs: dead zone around \
@@ -136,8 +136,10 @@ rove_core::config_types! {
     /// How a device is chosen.
     #[derive(Debug, Clone, PartialEq, Eq)]
     pub enum DeviceSelector {
-        Path => "A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same path." (PathBuf),
-        Name => "The first device whose name matches the pattern (case-insensitive, `*` wildcard)." (String),
+        Path => "A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same \
+            path." (PathBuf),
+        Name => "The first device whose name matches the pattern (case-insensitive, `*` \
+            wildcard)." (String),
         AnyJoystick => "The first device that looks like a joystick or gamepad (has `ABS_X` and \
             `ABS_Y`).",
         AnyKeyboard => "The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).",

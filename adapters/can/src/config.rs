@@ -389,7 +389,7 @@ impl CanSettings {
         let (mut frames, mut ids, mut our_ids) = (Vec::new(), Unique::default(), Vec::new());
         for (i, f) in self.frames.iter_mut().enumerate() {
             let owner = format!("frames[{i}]");
-            let (frame, _) = errors.within(&owner, |fe| {
+            let frame = errors.within(&owner, |fe| {
                 let frame = validate_frame(f, i, fd, rate, &mut names, fe);
                 // Checked on the id as written, so a frame with other errors still counts.
                 let id = (f.id.and_then(|id| u32::try_from(id).ok()))
@@ -403,7 +403,7 @@ impl CanSettings {
             frames.extend(frame);
         }
         let dronecan = (self.dronecan.as_mut())
-            .and_then(|d| (errors.within("dronecan", |de| d.validate(rate, &mut names, de))).0);
+            .and_then(|d| errors.within("dronecan", |de| d.validate(rate, &mut names, de)));
         if let Some(dc) = &dronecan {
             // Our own DroneCAN identifiers must not be reused by a raw frame.
             let ours = [

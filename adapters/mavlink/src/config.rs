@@ -105,7 +105,8 @@ rove_core::config_types! {
         y: Option<AxisOrNone> => "`y` (right; Rover steering; absent: roll).",
         z: Option<AxisOrNone> => "`z` (thrust; Rover throttle; absent: throttle).",
         r: Option<AxisOrNone> => "`r` (yaw; absent: yaw).",
-        z_range: Option<ZRange> => "`\"signed\"`: z is −1000..1000, 0 at centre (ArduPilot Rover); \
+        z_range: Option<ZRange> => "`\"signed\"`: z is −1000..1000, 0 at centre (ArduPilot \
+            Rover); \
             `\"positive\"`: 0..1000, 500 at centre (PX4 and ArduPilot Copter). Absent: by \
             autopilot and vehicle.",
         #[serde(default)] reverse: Vec<ManualField> => "Fields whose sign is flipped, e.g. \
@@ -504,7 +505,7 @@ impl MavlinkSettings {
         let mut out = Vec::new();
         for (i, c) in self.channels.iter().enumerate() {
             let owner = format!("channels[{i}]");
-            let ((channel, map), _) = errors.within(&owner, |ce| {
+            let (channel, map) = errors.within(&owner, |ce| {
                 let keys = [&["channel", "axis"], keys_of::<AxisMapSettings>()];
                 c.unknown.check(ce, &keys);
                 let channel = ce.req_int::<u8>("channel", c.channel, 1..=max_channel, rule);

@@ -309,18 +309,14 @@ impl NazaSettings {
 /// to the Naza's names.
 fn rename(e: ConfigError, names: &[&str]) -> ConfigError {
     let mut e = rename_channels(e, names);
-    for (generic, naza) in [
-        ("mode.assisted_us", "mode.atti_us"),
-        ("mode.auto_us", "mode.gps_us"),
-    ] {
-        if e.key == generic {
-            e.key = naza.into();
-        }
+    let naza = |s: &str| {
+        s.replace("assisted_us", "atti_us")
+            .replace("auto_us", "gps_us")
+    };
+    if ["mode.assisted_us", "mode.auto_us"].contains(&e.key.as_str()) {
+        e.key = naza(&e.key);
     }
-    e.rule = e
-        .rule
-        .replace("assisted_us", "atti_us")
-        .replace("auto_us", "gps_us");
+    e.rule = naza(&e.rule);
     e
 }
 

@@ -111,8 +111,8 @@ rove_core::config_types! {
 
     /// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
     /// sticks): where it is wired, and optional limits. Presets turn it into a generic
-    /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
-    /// the generic channel's.
+    /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules
+    /// are the generic channel's.
     pub settings ServoChannelSettings {
         #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
         #[serde(flatten)] map: AxisMapSettings => "The mapping keys.",
@@ -270,7 +270,7 @@ impl PwmVehicleSettings {
             (Vec::new(), Unique::default(), Unique::default());
         for (i, raw) in self.channels.iter_mut().enumerate() {
             let owner = format!("channels[{i}]");
-            let (channel, _) = errors.within(&owner, |errors| {
+            let channel = errors.within(&owner, |errors| {
                 let channel = raw.validate(backend_kind, default_chip, period_us, errors);
                 if let Some(name) = raw.name.clone() {
                     let shown = ("name", format!("{name:?}"));
@@ -524,7 +524,7 @@ pub fn preset_tables(
                     "must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"
                 ),
             ),
-            Some(unknown) => _ = errors.within(name, |e| unknown.check(e, known)),
+            Some(unknown) => errors.within(name, |e| unknown.check(e, known)),
         }
     }
 }
