@@ -175,16 +175,11 @@ impl ConfigErrors {
     /// if it had any (validation goes on, so that every problem is reported at once).
     pub fn section<T>(&mut self, prefix: &str, result: Result<T>) -> Option<T> {
         match result {
-            Ok(value) => Some(value),
-            Err(crate::Error::Config(e)) => {
-                self.extend_within(prefix, e);
-                None
-            }
-            Err(other) => {
-                self.add(prefix, "?", other.to_string());
-                None
-            }
+            Ok(value) => return Some(value),
+            Err(crate::Error::Config(e)) => self.extend_within(prefix, e),
+            Err(other) => self.add(prefix, "?", other.to_string()),
         }
+        None
     }
 }
 
@@ -202,13 +197,11 @@ impl<K: Eq + Hash> Unique<K> {
     /// Records that `owner` (a key path such as `channels[2]`) uses `value`; if another owner
     /// used it first, returns that owner and records nothing.
     pub fn claim(&mut self, value: K, owner: impl Into<String>) -> Option<String> {
-        match self.0.get(&value) {
-            Some(first) => Some(first.clone()),
-            None => {
-                self.0.insert(value, owner.into());
-                None
-            }
+        let first = self.0.get(&value).cloned();
+        if first.is_none() {
+            self.0.insert(value, owner.into());
         }
+        first
     }
 
     /// [`Unique::claim`], recording `key = shown: must be unique: FIRST {what}` on a repeat.
@@ -267,7 +260,7 @@ impl<'de> Deserialize<'de> for UnknownKeys {
             ) -> std::result::Result<UnknownKeys, A::Error> {
                 let mut keys = Vec::new();
                 while let Some(key) = map.next_key::<String>()? {
-                    keys.push((key, map.next_value::<Shown>()?.to_string()));
+                    keys.push((key, map.next_value::<Shown>()?.text()));
                 }
                 Ok(UnknownKeys(keys))
             }
@@ -289,15 +282,15 @@ enum Shown {
     Map(#[allow(dead_code)] HashMap<String, IgnoredAny>),
 }
 
-impl fmt::Display for Shown {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+impl Shown {
+    fn text(self) -> String {
         match self {
-            Shown::Bool(v) => write!(f, "{v}"),
-            Shown::Int(v) => write!(f, "{v}"),
-            Shown::Float(v) => write!(f, "{v}"),
-            Shown::Str(v) => write!(f, "{v:?}"),
-            Shown::Seq(_) => f.write_str("[…]"),
-            Shown::Map(_) => f.write_str("{…}"),
+            Shown::Bool(v) => v.to_string(),
+            Shown::Int(v) => v.to_string(),
+            Shown::Float(v) => v.to_string(),
+            Shown::Str(v) => format!("{v:?}"),
+            Shown::Seq(_) => "[…]".into(),
+            Shown::Map(_) => "{…}".into(),
         }
     }
 }

@@ -406,26 +406,20 @@ fn any_from_text(path: &Path, text: &str) -> anyhow::Result<(AnyConfig, String)>
     let located = |e| located(path, text, e);
     let (config, effective) = if table.contains_key("operator") {
         let mut raw: RawOperator = parse(path, text)?;
-        (
-            AnyConfig::Operator(raw.validate().map_err(located)?),
-            toml::to_string(&raw),
-        )
+        let config = AnyConfig::Operator(raw.validate().map_err(located)?);
+        (config, toml::to_string(&raw))
     } else if table.contains_key("output") || table.contains_key("vehicle") {
         let mut raw = parse_vehicle(path, text)?;
-        (
-            AnyConfig::Vehicle(raw.validate().map_err(located)?),
-            toml::to_string(&raw),
-        )
+        let config = AnyConfig::Vehicle(raw.validate().map_err(located)?);
+        (config, toml::to_string(&raw))
     } else {
         return Err(anyhow!(
             "{}: neither a vehicle config ([output]) nor an operator config ([operator])",
             path.display()
         ));
     };
-    Ok((
-        config,
-        effective.context("cannot write the effective config as TOML")?,
-    ))
+    let effective = effective.context("cannot write the effective config as TOML")?;
+    Ok((config, effective))
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -548,24 +542,22 @@ fn validate_common(
     if let Some(level) = &log.level
         && !is_log_filter(level)
     {
-        errors.add(
-            "log.level",
-            format!("{level:?}"),
-            "must be a level (off, error, warn, info, debug, trace) or comma-separated \
-             `target=level` directives",
-        );
+        let rule = "must be a level (off, error, warn, info, debug, trace) or comma-separated \
+                    `target=level` directives";
+        errors.add("log.level", format!("{level:?}"), rule);
     }
     let interfaces = (network.interfaces).get_or_insert_with(|| vec![Ipv4Addr::LOCALHOST]);
     if interfaces.is_empty() {
         let rule = "must name at least one interface address (absent: loopback)";
         errors.add("network.interfaces", "[]", rule);
     }
+    let id = device.id;
     Common {
-        id: device.id,
-        name: (device
+        id,
+        name: device
             .name
-            .get_or_insert_with(|| format!("rove-{}", device.id)))
-        .clone(),
+            .get_or_insert_with(|| format!("rove-{id}"))
+            .clone(),
         domain_id: domain_id.unwrap_or(0),
         interfaces: interfaces.clone(),
         heartbeat: heartbeat.unwrap_or(Duration::from_millis(500)),
@@ -639,12 +631,12 @@ impl RawOperator {
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        for (i, v) in op
+        let own = op
             .drive
             .iter()
             .enumerate()
-            .filter(|(_, v)| **v == self.device.id)
-        {
+            .filter(|(_, v)| **v == self.device.id);
+        for (i, v) in own {
             errors.add(
                 format!("operator.drive[{i}]"),
                 v,
@@ -655,7 +647,8 @@ impl RawOperator {
         let mut device = |settings: &mut rove_inputs::InputSettings, kind| {
             let input = settings
                 .validate_as(kind)
-                .map(|c| InputChoice::Device(Box::new(c)));
+                .map(Box::new)
+                .map(InputChoice::Device);
             errors.section("input", input).unwrap_or(constant.clone())
         };
         let input = match self.input.get_or_insert_with(InputSection::centred) {

@@ -316,12 +316,9 @@ impl InputSettings {
 
     fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
         let source = self.validate_source(kind, errors);
-        let (key, rule) = (
-            "silence_timeout_ms",
-            " ms (leave it out to turn silence detection off)",
-        );
-        let silence = self.silence_timeout_ms;
-        let silence_timeout = errors.opt_int(key, silence, SILENCE_TIMEOUT_RANGE_MS, rule);
+        let rule = " ms (leave it out to turn silence detection off)";
+        let silence = (self.silence_timeout_ms, SILENCE_TIMEOUT_RANGE_MS);
+        let silence_timeout = errors.opt_int("silence_timeout_ms", silence.0, silence.1, rule);
         let silence_timeout = silence_timeout.map(Duration::from_millis);
         let mut mapping = MappingConfig {
             silence_timeout,
@@ -329,17 +326,17 @@ impl InputSettings {
         };
         // Who uses which control, for the "used twice" check: control → key path.
         let mut used: BTreeMap<Control, String> = BTreeMap::new();
-        let mut claim =
-            |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| match used
-                .get(&control)
-            {
-                Some(first) => errors.add(
-                    key,
-                    format!("{value:?}"),
-                    format!("is already used by {first}"),
-                ),
-                None => _ = used.insert(control, key.to_string()),
+        let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
+            let Some(first) = used.get(&control) else {
+                used.insert(control, key.to_string());
+                return;
             };
+            errors.add(
+                key,
+                format!("{value:?}"),
+                format!("is already used by {first}"),
+            );
+        };
         let a = &mut self.axes;
         let raw_axes = [&mut a.throttle, &mut a.roll, &mut a.pitch, &mut a.yaw];
         let none_mapped = raw_axes.iter().all(|a| a.is_none());
@@ -382,31 +379,21 @@ impl InputSettings {
             errors.add("axes", "(none)", rule);
         }
         let b = &self.buttons;
-        let (mode, some) = (|m| Some(InputAction::Mode(m)), Some);
+        let (control, previous) = (&b.request_control, &b.previous_vehicle);
+        use InputAction as A;
+        let mode = |m| Some(A::Mode(m));
         let buttons = [
             ("deadman", &b.deadman, None),
             ("mode_manual", &b.mode_manual, mode(Mode::Manual)),
             ("mode_assisted", &b.mode_assisted, mode(Mode::Assisted)),
             ("mode_auto", &b.mode_auto, mode(Mode::Auto)),
-            (
-                "request_control",
-                &b.request_control,
-                some(InputAction::RequestControl),
-            ),
-            ("accept", &b.accept, some(InputAction::Accept)),
-            ("refuse", &b.refuse, some(InputAction::Refuse)),
-            ("finish", &b.finish, some(InputAction::Finish)),
-            ("release", &b.release, some(InputAction::Release)),
-            (
-                "next_vehicle",
-                &b.next_vehicle,
-                some(InputAction::NextVehicle),
-            ),
-            (
-                "previous_vehicle",
-                &b.previous_vehicle,
-                some(InputAction::PreviousVehicle),
-            ),
+            ("request_control", control, Some(A::RequestControl)),
+            ("accept", &b.accept, Some(A::Accept)),
+            ("refuse", &b.refuse, Some(A::Refuse)),
+            ("finish", &b.finish, Some(A::Finish)),
+            ("release", &b.release, Some(A::Release)),
+            ("next_vehicle", &b.next_vehicle, Some(A::NextVehicle)),
+            ("previous_vehicle", previous, Some(A::PreviousVehicle)),
         ];
         for (name, value, action) in buttons {
             let Some(value) = value else { continue };
@@ -433,14 +420,11 @@ impl InputSettings {
     fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
         let path =
             |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
+        let name = self.name.as_ref().map(|n| format!("{n:?}"));
         if kind == SourceKind::Replay {
             let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
             errors.not_for("device", path(&self.device), only_devices);
-            errors.not_for(
-                "name",
-                self.name.as_ref().map(|n| format!("{n:?}")),
-                only_devices,
-            );
+            errors.not_for("name", name, only_devices);
             errors.not_for("grab", self.grab, only_devices);
             errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
             let file = self.file.clone().unwrap_or_else(|| {
@@ -450,18 +434,12 @@ impl InputSettings {
             });
             return SourceConfig::Replay { file };
         }
-        errors.not_for(
-            "file",
-            path(&self.file),
-            "only applies to source = \"replay\"",
-        );
+        let only_replay = "only applies to source = \"replay\"";
+        errors.not_for("file", path(&self.file), only_replay);
         let selector = match (&self.device, &self.name) {
             (Some(d), Some(n)) => {
-                errors.add(
-                    "name",
-                    format!("{n:?}"),
-                    "give either device or name, not both",
-                );
+                let rule = "give either device or name, not both";
+                errors.add("name", format!("{n:?}"), rule);
                 DeviceSelector::Path(d.clone())
             }
             (Some(d), None) => {
@@ -480,10 +458,12 @@ impl InputSettings {
             (None, None) => DeviceSelector::AnyJoystick,
         };
         let (key, range) = ("reopen_interval_ms", REOPEN_INTERVAL_RANGE_MS);
-        let reopen = *self
+        let reopen = self
             .reopen_interval_ms
             .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
-        let reopen_interval = errors.millis(key, reopen, range, " ms").unwrap_or_default();
+        let reopen_interval = errors
+            .millis(key, *reopen, range, " ms")
+            .unwrap_or_default();
         let grab = *self.grab.get_or_insert(false);
         SourceConfig::Evdev {
             selector,
@@ -535,23 +515,16 @@ impl AxisSettings {
         errors.not_for("spring_back_ms", self.spring_back_ms, not_for_abs);
         let code = parse_abs(name);
         if code.is_none() {
-            errors.add(
-                "abs",
-                format!("{name:?}"),
-                "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
-            );
+            let rule = "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"";
+            errors.add("abs", format!("{name:?}"), rule);
         }
-        let deadzone = self
-            .deadband_pct
-            .map(|d| errors.float("deadband_pct", d, DEADBAND_RANGE_PCT, "must be 0..=50") / 100.0);
-        let raw = |errors: &mut ConfigErrors, key: &str, v: Option<Int>| {
+        let deadband = |d| errors.float("deadband_pct", d, DEADBAND_RANGE_PCT, "must be 0..=50");
+        let deadzone = self.deadband_pct.map(deadband).map(|d| d / 100.0);
+        let mut raw = |key: &str, v: Option<Int>| {
             errors.opt_int::<i32>(key, v, Int::from(i32::MIN)..=Int::from(i32::MAX), "")
         };
-        let (min, centre, max) = (
-            raw(errors, "min", self.min),
-            raw(errors, "centre", self.centre),
-            raw(errors, "max", self.max),
-        );
+        let (min, centre) = (raw("min", self.min), raw("centre", self.centre));
+        let max = raw("max", self.max);
         if let (Some(min), Some(max)) = (self.min, self.max) {
             if min >= max {
                 errors.add("max", max, format!("must be greater than min ({min})"));
@@ -559,11 +532,8 @@ impl AxisSettings {
         }
         if let Some(centre) = self.centre {
             if let Some(min) = self.min.filter(|m| centre <= *m) {
-                errors.add(
-                    "centre",
-                    centre,
-                    format!("must be greater than min ({min})"),
-                );
+                let rule = format!("must be greater than min ({min})");
+                errors.add("centre", centre, rule);
             }
             if let Some(max) = self.max.filter(|m| centre >= *m) {
                 errors.add("centre", centre, format!("must be less than max ({max})"));
@@ -585,30 +555,20 @@ impl AxisSettings {
         errors.not_for("centre", self.centre, not_for_keys);
         errors.not_for("max", self.max, not_for_keys);
         let mut key = |field: &str, value: &Option<String>| -> Option<Option<u16>> {
-            match value {
-                None => Some(None),
-                Some(name) => match parse_key(name) {
-                    Some(code) => Some(Some(code)),
-                    None => {
-                        errors.add(
-                            field,
-                            format!("{name:?}"),
-                            "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
-                        );
-                        None
-                    }
-                },
+            let Some(name) = value else { return Some(None) };
+            let code = parse_key(name);
+            if code.is_none() {
+                let rule = "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"";
+                errors.add(field, format!("{name:?}"), rule);
             }
+            code.map(Some)
         };
         let negative = key("negative", &self.negative);
         let positive = key("positive", &self.positive);
         if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
             if n == p {
-                errors.add(
-                    "positive",
-                    format!("{:?}", self.positive.as_deref().unwrap_or_default()),
-                    "must differ from negative",
-                );
+                let shown = format!("{:?}", self.positive.as_deref().unwrap_or_default());
+                errors.add("positive", shown, "must differ from negative");
             }
         }
         let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
@@ -618,11 +578,8 @@ impl AxisSettings {
                 .unwrap_or_default()
         };
         let ramp_up = ms("ramp_up_ms", &mut self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
-        let spring_back = ms(
-            "spring_back_ms",
-            &mut self.spring_back_ms,
-            DEFAULT_SPRING_BACK_MS,
-        );
+        let back = (&mut self.spring_back_ms, DEFAULT_SPRING_BACK_MS);
+        let spring_back = ms("spring_back_ms", back.0, back.1);
         Some(AxisInput::Keys {
             negative: negative?,
             positive: positive?,

@@ -190,11 +190,8 @@ impl SourceSettings {
             SourceSettings::Mix { mix } => mix,
         };
         if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
-            errors.add(
-                "source",
-                self,
-                format!("a mix needs 1..={MIX_TERMS_MAX} terms"),
-            );
+            let rule = format!("a mix needs 1..={MIX_TERMS_MAX} terms");
+            errors.add("source", self, rule);
         }
         for (i, (axis, weight)) in mix.iter().enumerate() {
             let name = axis_name(*axis);
@@ -376,12 +373,11 @@ impl CanSettings {
         let fd = *self.fd.get_or_insert(false);
         let interface = (errors.required("interface", &self.interface)).unwrap_or_default();
         let bad = |c: char| !c.is_ascii_graphic() || c == '/' || c == ':';
-        let len = 1..=INTERFACE_NAME_MAX;
-        if self.interface.is_some() && (!len.contains(&interface.len()) || interface.contains(bad))
-        {
+        let fits = (1..=INTERFACE_NAME_MAX).contains(&interface.len());
+        if self.interface.is_some() && (!fits || interface.contains(bad)) {
+            let max = INTERFACE_NAME_MAX;
             let rule = format!(
-                "must be a network interface name: 1..={INTERFACE_NAME_MAX} printable \
-                 characters, no '/' or ':'"
+                "must be a network interface name: 1..={max} printable characters, no '/' or ':'"
             );
             errors.add("interface", format!("{interface:?}"), rule);
         }
@@ -489,14 +485,11 @@ fn validate_frame(
         let output = validate_field(o, &default_name, limit, &outputs, &mut oe);
         if let Some(output) = &output {
             let (owner, key) = (format!("{default_name}.name"), format!("outputs[{j}].name"));
-            let shown = (key.as_str(), format!("{:?}", output.name));
-            names.check(
-                errors,
+            let (name, shown) = (
                 output.name.clone(),
-                owner,
-                shown,
-                "has the same name",
+                (key.as_str(), format!("{:?}", output.name)),
             );
+            names.check(errors, name, owner, shown, "has the same name");
         }
         all_ok &= output.is_some();
         errors.extend_within(&format!("outputs[{j}]"), oe);
@@ -578,11 +571,8 @@ fn validate_field(
         placed = false;
     }
     let range = layout.range();
-    let defaults = if layout.signed {
-        (range.0 + 1, range.1)
-    } else {
-        range
-    };
+    // Signed fields default to a symmetric range.
+    let defaults = (range.0 + Int::from(layout.signed), range.1);
     let (scale, failsafe) = int_scale(&mut o.scale, defaults, None, range, errors)?;
     placed.then_some(RawOutputConfig {
         name,
@@ -613,12 +603,11 @@ impl DroneCanSettings {
             errors.add("servos", "[]", rule);
         }
         if self.servos.len() > MAX_SERVOS {
-            let shown = format!("{} entries", self.servos.len());
-            errors.add(
-                "servos",
-                shown,
+            let (shown, rule) = (
+                self.servos.len(),
                 format!("at most {MAX_SERVOS} (one ArrayCommand)"),
             );
+            errors.add("servos", format!("{shown} entries"), rule);
         }
         let mut ok = true;
         let mut claim = |errors: &mut ConfigErrors, name: &str, key: String| {

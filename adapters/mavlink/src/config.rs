@@ -211,15 +211,15 @@ impl Endpoint {
     /// # Errors
     /// The rule the text breaks.
     pub fn parse(text: &str) -> Result<Endpoint, String> {
+        let schemes = "udpin, udpout, tcpout";
         let Some((scheme, rest)) = text.split_once(':') else {
-            return Err(
-                "must be SCHEME:ADDRESS with SCHEME udpin, udpout, tcpout or serial".into(),
-            );
+            return Err(format!(
+                "must be SCHEME:ADDRESS with SCHEME {schemes} or serial"
+            ));
         };
         let host_port = |rest: &str| -> Result<String, String> {
-            let (host, port) = rest
-                .rsplit_once(':')
-                .ok_or_else(|| format!("{scheme}: needs HOST:PORT"))?;
+            let needs = || format!("{scheme}: needs HOST:PORT");
+            let (host, port) = rest.rsplit_once(':').ok_or_else(needs)?;
             if host.is_empty() {
                 return Err(format!("{scheme}: needs a host before :PORT"));
             }
@@ -233,24 +233,21 @@ impl Endpoint {
             "udpout" => Ok(Endpoint::UdpOut(host_port(rest)?)),
             "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
             "serial" => {
-                let (device, baud) = rest
-                    .rsplit_once(':')
-                    .ok_or("serial: needs DEVICE:BAUD, e.g. serial:/dev/ttyACM0:115200")?;
+                let needs = "serial: needs DEVICE:BAUD, e.g. serial:/dev/ttyACM0:115200";
+                let (device, baud) = rest.rsplit_once(':').ok_or(needs)?;
                 if device.is_empty() {
                     return Err("serial: needs a device path".into());
                 }
+                let device = device.to_string();
                 match baud.parse::<u32>() {
-                    Ok(b) if b > 0 => Ok(Endpoint::Serial {
-                        device: device.to_string(),
-                        baud: b,
-                    }),
+                    Ok(baud) if baud > 0 => Ok(Endpoint::Serial { device, baud }),
                     _ => Err(format!(
                         "serial: baud must be a positive number, not {baud:?}"
                     )),
                 }
             }
             other => Err(format!(
-                "unknown scheme {other:?}: use udpin, udpout, tcpout (tcp) or serial"
+                "unknown scheme {other:?}: use {schemes} (tcp) or serial"
             )),
         }
     }
@@ -385,12 +382,10 @@ fn default_modes(autopilot: AutopilotKind, vehicle: VehicleKind) -> [&'static st
 fn default_channels(vehicle: VehicleKind) -> Vec<(u8, Axis)> {
     match vehicle {
         VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
-        VehicleKind::Copter => vec![
-            (1, Axis::Roll),
-            (2, Axis::Pitch),
-            (3, Axis::Throttle),
-            (4, Axis::Yaw),
-        ],
+        VehicleKind::Copter => {
+            let axes = [Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw];
+            (1..=4).zip(axes).collect()
+        }
     }
 }
 
@@ -551,13 +546,8 @@ impl MavlinkSettings {
             (AutopilotKind::Ardupilot, VehicleKind::Rover) => ZRange::Signed,
             _ => ZRange::Positive,
         });
-        let all = [
-            ManualField::X,
-            ManualField::Y,
-            ManualField::Z,
-            ManualField::R,
-        ];
-        let reverse = all.map(|f| s.reverse.contains(&f));
+        use ManualField as F;
+        let reverse = [F::X, F::Y, F::Z, F::R].map(|f| s.reverse.contains(&f));
         if method == Method::ManualControl {
             self.manual_control = Some(s);
         }

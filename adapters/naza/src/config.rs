@@ -130,23 +130,8 @@ rove_core::config_types! {
 }
 
 /// The keys of `[output]` for the Naza-M besides the backend keys.
-const NAZA_KEYS: [&[&str]; 2] = [
-    &[
-        "aileron",
-        "elevator",
-        "throttle",
-        "rudder",
-        "mode",
-        "failsafe_mode",
-    ],
-    &[
-        "failsafe_policy",
-        "land_throttle_us",
-        "land_ramp_ms",
-        "csc",
-        "csc_hold_ms",
-    ],
-];
+const NAZA_KEYS: &str = "aileron elevator throttle rudder mode failsafe_mode failsafe_policy \
+                         land_throttle_us land_ramp_ms csc csc_hold_ms";
 
 rove_core::config_types! {
     /// The throttle in failsafe, validated.
@@ -243,7 +228,8 @@ impl NazaSettings {
     /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…).
     pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [keys_of::<PwmBackendSettings>(), NAZA_KEYS[0], NAZA_KEYS[1]];
+        let naza_keys: Vec<&str> = NAZA_KEYS.split_whitespace().collect();
+        let keys = [keys_of::<PwmBackendSettings>(), &naza_keys];
         self.unknown.check(&mut errors, &keys);
         let names = CHANNELS.map(|c| c.0);
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];

@@ -422,23 +422,16 @@ impl ChannelSettings {
             errors.absent("source", rule);
             return None;
         };
-        let rule = format!(
-            "does not apply to source = \"{}\"",
-            format!("{kind:?}").to_lowercase()
-        );
+        let kind_name = format!("{kind:?}").to_lowercase();
+        let rule = format!("does not apply to source = \"{kind_name}\"");
         let not_for = |errors: &mut ConfigErrors, given: Vec<(&str, String)>| {
-            given
-                .into_iter()
-                .for_each(|(key, v)| errors.add(key, v, rule.as_str()))
+            (given.into_iter()).for_each(|(key, v)| errors.add(key, v, rule.as_str()))
         };
         if kind != ChannelSourceKind::Constant {
             errors.not_for("value_us", self.value_us, &rule);
         }
-        let levels = self
-            .levels
-            .given()
-            .into_iter()
-            .map(|(k, v)| (k, v.to_string()));
+        let levels = self.levels.given().into_iter();
+        let levels = levels.map(|(k, v)| (k, v.to_string()));
         // (source, lowest and highest pulse it can output, default failsafe)
         let (source, lo, hi, default_failsafe) = match kind {
             ChannelSourceKind::Mode => {
@@ -518,12 +511,10 @@ pub fn preset_tables(
 ) {
     for (name, table) in names.iter().zip(tables) {
         match table {
-            None => errors.absent(
-                name,
-                format!(
-                    "must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"
-                ),
-            ),
+            None => {
+                let rule = "with its output (pin, pwm_channel or chip/channel)";
+                errors.absent(name, format!("must give [output.{name}] {rule}"));
+            }
             Some(unknown) => errors.within(name, |e| unknown.check(e, known)),
         }
     }
@@ -531,10 +522,8 @@ pub fn preset_tables(
 
 /// The keys of a preset's servo channel table.
 pub fn servo_keys() -> [&'static [&'static str]; 2] {
-    [
-        keys_of::<PwmAddressSettings>(),
-        keys_of::<AxisMapSettings>(),
-    ]
+    let address = keys_of::<PwmAddressSettings>();
+    [address, keys_of::<AxisMapSettings>()]
 }
 
 /// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
