@@ -44,32 +44,23 @@ rove_core::config_types! {
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
     #[serde(rename_all = "lowercase")]
     pub enum SourceKind {
-        Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first device with \
-            sticks).",
-        Keyboard => "An evdev keyboard (absent `device`/`name`: the first device with letter \
-            keys).",
+        Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first).",
+        Keyboard => "An evdev keyboard (absent `device`/`name`: the first).",
         Replay => "A recorded event stream played from `file`.",
     }
 
     /// `[input]` as written.
     #[serde(deny_unknown_fields)]
     pub settings InputSettings {
-        source: Option<SourceKind> => "What to read: `\"joystick\"`, `\"keyboard\"` or \
-            `\"replay\"`.",
-        device: Option<PathBuf> => "Joystick/keyboard: device path, e.g. `/dev/input/event3` or a \
-            `/dev/input/by-id/…-event-joystick` link (stable across replugs).",
-        name: Option<String> => "Joystick/keyboard: device name pattern, case-insensitive, `*` \
-            matches any text.",
-        grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB) so other \
-            programs do not see its events (absent: false).",
-        reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts after \
-            an unplug, ms (absent: 500).",
+        source: Option<SourceKind> => "What to read.",
+        device: Option<PathBuf> => "Joystick/keyboard: device path (by-id links are stable).",
+        name: Option<String> => "Joystick/keyboard: name pattern, case-insensitive, `*` wildcard.",
+        grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB).",
+        reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts, ms.",
         file: Option<PathBuf> => "Replay: the recording to play.",
-        silence_timeout_ms: Option<Int> => "No event at all from the device for this long → lost \
-            (absent: off; see the crate docs).",
+        silence_timeout_ms: Option<Int> => "No event at all for this long → lost, ms.",
         #[serde(default)] axes: AxesSettings => "`[input.axes.*]`: what drives each movement axis.",
-        #[serde(default)] buttons: ButtonSettings => "`[input.buttons]`: which button or key \
-            triggers each action.",
+        #[serde(default)] buttons: ButtonSettings => "`[input.buttons]`: each action's control.",
     }
 
     /// `[input.axes]` as written: one optional table per movement axis.
@@ -97,23 +88,17 @@ rove_core::config_types! {
         abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
         negative: Option<String> => "Key or button towards −full scale, e.g. `\"KEY_S\"`.",
         positive: Option<String> => "Key or button towards +full scale, e.g. `\"KEY_W\"`.",
-        #[serde(alias = "invert")] reverse: Option<bool> => "Negate the axis (absent: false; \
-            `invert` is accepted as an older spelling).",
-        #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Abs: dead zone around \
-            centre, percent of the half range, 0..=50 (absent: the device's `flat`; `deadzone_pct` \
-            is accepted as an older spelling).",
+        #[serde(alias = "invert")] reverse: Option<bool> => "Negate the axis.",
+        #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Abs: dead zone, \
+            % of the half range.",
         expo: Option<f64> => "Expo 0..=1 (absent: 0, linear).",
-        scale_pct: Option<f64> => "Output at full deflection, percent of full scale, >0..=100 \
-            (absent: 100).",
+        scale_pct: Option<f64> => "Output at full deflection, percent of full scale.",
         min: Option<Int> => "Abs: raw value at −full scale (absent: the device's minimum).",
         centre: Option<Int> => "Abs: raw value at centre (absent: midpoint of min and max).",
         max: Option<Int> => "Abs: raw value at +full scale (absent: the device's maximum).",
-        ramp_up_ms: Option<Int> => "Keys: time from centre to full scale while a key is held, ms \
-            (absent: 250).",
-        spring_back_ms: Option<Int> => "Keys: time from full scale back to centre when released, \
-            ms (absent: 150).",
-        rest: Option<Rest> => "Where the axis must be before driving resumes (absent: \
-            `\"centre\"`).",
+        ramp_up_ms: Option<Int> => "Keys: time from centre to full scale while held, ms.",
+        spring_back_ms: Option<Int> => "Keys: time from full scale back to centre, ms.",
+        rest: Option<Rest> => "Where the axis must be before driving resumes.",
     }
 
     /// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
@@ -136,12 +121,9 @@ rove_core::config_types! {
     /// How a device is chosen.
     #[derive(Debug, Clone, PartialEq, Eq)]
     pub enum DeviceSelector {
-        Path => "A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same \
-            path." (PathBuf),
-        Name => "The first device whose name matches the pattern (case-insensitive, `*` \
-            wildcard)." (String),
-        AnyJoystick => "The first device that looks like a joystick or gamepad (has `ABS_X` and \
-            `ABS_Y`).",
+        Path => "A path (`/dev/input/eventN` or a by-id link), reopened by that path." (PathBuf),
+        Name => "The first device whose name matches the pattern (`*` wildcard)." (String),
+        AnyJoystick => "The first device with `ABS_X` and `ABS_Y` (a joystick or gamepad).",
         AnyKeyboard => "The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).",
     }
 }

@@ -73,10 +73,8 @@ rove_core::config_types! {
         width: Option<i64> => "Bits: 8, 16 or 32.",
         endian: Option<Endian> => "Byte order.",
         signed: Option<bool> => "Two's complement.",
-        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe` in \
-            device units.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
@@ -95,10 +93,8 @@ rove_core::config_types! {
         node_id: Option<i64> => "Our node id.",
         priority: Option<i64> => "Priority of the commands.",
         rate_hz: Option<i64> => "Command rate, Hz.",
-        #[serde(default)] servos: Vec<ServoSettings> => "Servos, sent as one \
-            `uavcan.equipment.actuator.ArrayCommand`.",
-        #[serde(default)] escs: Vec<EscSettings> => "ESCs, sent as one \
-            `uavcan.equipment.esc.RawCommand`.",
+        #[serde(default)] servos: Vec<ServoSettings> => "Servos, sent as one ArrayCommand.",
+        #[serde(default)] escs: Vec<EscSettings> => "ESCs, sent as one RawCommand.",
     }
 
     /// One DroneCAN servo, as written.
@@ -106,10 +102,8 @@ rove_core::config_types! {
         name: Option<String> => "Name for logs and status.",
         actuator_id: Option<Int> => "The actuator's id.",
         source: Option<SourceSettings> => "What drives it.",
-        #[serde(flatten)] scale: ScaleSettings<f64> => "`min`, `centre`, `max`, `failsafe`: \
-            commands −1..=1.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] scale: ScaleSettings<f64> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// One DroneCAN ESC channel, as written.
@@ -117,10 +111,8 @@ rove_core::config_types! {
         name: Option<String> => "Name for logs and status.",
         index: Option<Int> => "Index in the RawCommand array.",
         source: Option<SourceSettings> => "What drives it.",
-        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`: raw \
-            commands.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 }
 

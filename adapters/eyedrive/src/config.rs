@@ -13,8 +13,7 @@ rove_core::config_types! {
         #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
         steering: Option<EyedriveChannelSettings> => "`[output.steering]`.",
         throttle: Option<EyedriveChannelSettings> => "`[output.throttle]`.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 }
 

@@ -38,13 +38,10 @@ rove_core::config_types! {
         command_timeout_ms: Option<Int> => "Wait for a mode command's COMMAND_ACK, ms.",
         command_retries: Option<Int> => "Resends of an unacknowledged mode command.",
         failsafe: Option<FailsafeAction> => "What the control message carries in failsafe.",
-        on_mode_refused: Option<OnModeRefused> => "What rove does when the autopilot refuses (or \
-            never confirms) the mode it wished for the operator.",
-        #[serde(default)] channels: Vec<ChannelSettings> => "`[[output.channels]]`: rc_override \
-            channel map (absent: the autopilot's default RCMAP).",
+        on_mode_refused: Option<OnModeRefused> => "What to do when a driven mode is refused.",
+        #[serde(default)] channels: Vec<ChannelSettings> => "rc_override channel map (RCMAP).",
         manual_control: Option<ManualControlSettings> => "`[output.manual_control]`.",
-        modes: Option<ModeSettings> => "`[output.modes]`: the autopilot mode for each rove mode \
-            and for failsafe.",
+        modes: Option<ModeSettings> => "The autopilot mode for each rove mode and failsafe.",
     }
 
     /// Which autopilot firmware.
@@ -83,8 +80,7 @@ rove_core::config_types! {
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
     #[serde(rename_all = "lowercase")]
     pub enum OnModeRefused {
-        Hold => "Stop driving: the failsafe content and the safe mode, until the operator's mode \
-            changes.",
+        Hold => "Stop driving (failsafe content, safe mode) until the operator's mode changes.",
         Continue => "Keep driving in whatever mode the autopilot is in.",
     }
 
@@ -92,10 +88,8 @@ rove_core::config_types! {
     pub settings ChannelSettings {
         channel: Option<Int> => "RC channel 1..=18 (9..=18 need MAVLink 2).",
         axis: Option<Axis> => "The axis it carries.",
-        #[serde(flatten)] map: AxisMapSettings => "The mapping keys \
-            ([`rove_core::mapping::AxisMapSettings`]; no `slew_us_per_s`).",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] map: AxisMapSettings => "The mapping keys (no `slew_us_per_s`).",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
@@ -105,12 +99,8 @@ rove_core::config_types! {
         y: Option<AxisOrNone> => "`y` (right; Rover steering; absent: roll).",
         z: Option<AxisOrNone> => "`z` (thrust; Rover throttle; absent: throttle).",
         r: Option<AxisOrNone> => "`r` (yaw; absent: yaw).",
-        z_range: Option<ZRange> => "`\"signed\"`: z is −1000..1000, 0 at centre (ArduPilot \
-            Rover); \
-            `\"positive\"`: 0..1000, 500 at centre (PX4 and ArduPilot Copter). Absent: by \
-            autopilot and vehicle.",
-        #[serde(default)] reverse: Vec<ManualField> => "Fields whose sign is flipped, e.g. \
-            `[\"y\"]`.",
+        z_range: Option<ZRange> => "Range of z (absent: signed on ArduPilot Rover, else positive).",
+        #[serde(default)] reverse: Vec<ManualField> => "Fields whose sign is flipped.",
     }
 
     /// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
@@ -162,10 +152,8 @@ rove_core::config_types! {
         manual: Option<AutopilotModeName> => "For rove's MANUAL.",
         assisted: Option<AutopilotModeName> => "For rove's ASSISTED.",
         auto: Option<AutopilotModeName> => "For rove's AUTO.",
-        safe: Option<AutopilotModeName> => "Entered when rove stops driving (owner lost, gateway \
-            stopping, `rove failsafe`).",
-        set_mode: Option<bool> => "`false`: never send mode commands; the radio or another GCS \
-            owns the mode (absent: true).",
+        safe: Option<AutopilotModeName> => "Entered when rove stops driving (failsafe).",
+        set_mode: Option<bool> => "`false`: never send mode commands (the radio owns the mode).",
     }
 }
 
@@ -575,13 +563,9 @@ impl MavlinkSettings {
             match written.get_or_insert_with(|| AutopilotModeName::Name(default.into())) {
                 AutopilotModeName::Number(n) => {
                     let unit = " (a custom_mode number)";
-                    match errors.int(&key, *n, 0..=Int::from(u32::MAX), unit) {
-                        Some(custom_mode) => AutopilotMode {
-                            name: n.to_string(),
-                            custom_mode,
-                        },
-                        None => fallback,
-                    }
+                    let custom_mode = errors.int(&key, *n, 0..=Int::from(u32::MAX), unit);
+                    let name = n.to_string();
+                    custom_mode.map_or(fallback, |custom_mode| AutopilotMode { name, custom_mode })
                 }
                 AutopilotModeName::Name(name) => {
                     let upper = name.to_ascii_uppercase();

@@ -105,8 +105,7 @@ rove_core::config_types! {
         manual_us: Option<Int> => "Level for Manual (MANUAL).",
         atti_us: Option<Int> => "Level for ATTI (ASSISTED).",
         gps_us: Option<Int> => "Level for GPS (AUTO).",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// `[output]` for the Naza-M, as written.
@@ -124,8 +123,7 @@ rove_core::config_types! {
         land_ramp_ms: Option<Int> => "`land`: ramp time from centre to the floor, ms.",
         csc: Option<CscPattern> => "CSC corners.",
         csc_hold_ms: Option<Int> => "How long the CSC is held, ms.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 }
 

@@ -105,8 +105,7 @@ rove_core::config_types! {
     pub settings PwmVehicleSettings {
         #[serde(flatten)] pwm: PwmBackendSettings => "The backend keys.",
         #[serde(default)] channels: Vec<ChannelSettings> => "`[[output.channels]]`.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
@@ -116,8 +115,7 @@ rove_core::config_types! {
     pub settings ServoChannelSettings {
         #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
         #[serde(flatten)] map: AxisMapSettings => "The mapping keys.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            [`preset_tables`].",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above (see [`preset_tables`]).",
     }
 }
 
@@ -145,8 +143,7 @@ rove_core::config_types! {
         #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
         #[serde(flatten)] map: AxisMapSettings => "Axis sources: the mapping keys.",
         #[serde(flatten)] levels: ModeLevelsSettings => "`source = \"mode\"`: the levels.",
-        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took: reported by \
-            `validate`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 }
 
@@ -212,8 +209,7 @@ rove_core::config_types! {
     pub struct PwmVehicleConfig {
         backend: BackendConfig => "The backend and its options.",
         period: Duration => "The PWM period.",
-        channels: Vec<ChannelConfig> => "The channels, in config order (backends and the vehicle \
-            index them the same way).",
+        channels: Vec<ChannelConfig> => "The channels, in config order (as backends index them).",
     }
 }
 
