@@ -15,6 +15,11 @@
 //! therefore ends with `#[serde(flatten)] unknown: UnknownKeys`, which collects every key no
 //! piece took; [`UnknownKeys::check`] reports each against its key path, so the gateway points
 //! at the misspelt key's own line. Tables that flatten nothing keep `deny_unknown_fields`.
+//!
+//! # Defaults
+//! Each `validate(&mut self)` fills the default of every absent key that applies into the
+//! settings it checks, so that afterwards they serialize as the effective config (what
+//! `rove check-config --print` shows) and load again as the same validated config.
 
 use crate::error::{ConfigErrors, Result};
 use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
@@ -23,6 +28,49 @@ use std::collections::HashMap;
 use std::fmt;
 use std::hash::Hash;
 use std::ops::RangeInclusive;
+use std::time::Duration;
+
+/// Config types written one documented field or variant a line: in a struct,
+/// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum,
+/// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
+/// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. `pub settings Name`
+/// is a struct with the derives of every table as written (`Debug, Clone, Default, PartialEq,
+/// Serialize, Deserialize`). Attributes (docs, derives, serde's) before an item, a field or a
+/// variant are kept.
+#[macro_export]
+macro_rules! config_types {
+    () => {};
+    ($(#[$attr:meta])* pub settings $name:ident $(<$($g:ident),+>)? {
+        $($body:tt)*
+    } $($rest:tt)*) => {
+        $crate::config_types! {
+            #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
+            $(#[$attr])*
+            pub struct $name $(<$($g),+>)? { $($body)* }
+            $($rest)*
+        }
+    };
+    ($(#[$attr:meta])* pub struct $name:ident $(<$($g:ident),+>)? {
+        $($(#[$field_attr:meta])* $field:ident: $ty:ty => $doc:literal,)*
+    } $($rest:tt)*) => {
+        $(#[$attr])*
+        pub struct $name $(<$($g),+>)? {
+            $($(#[$field_attr])* #[doc = $doc] pub $field: $ty,)*
+        }
+        $crate::config_types!($($rest)*);
+    };
+    ($(#[$attr:meta])* pub enum $name:ident {
+        $($(#[$variant_attr:meta])* $variant:ident => $doc:literal $(($($ty:ty),+))?
+            $({ $($(#[$fa:meta])* $field:ident: $field_ty:ty => $field_doc:literal,)* })?,)*
+    } $($rest:tt)*) => {
+        $(#[$attr])*
+        pub enum $name {
+            $($(#[$variant_attr])* #[doc = $doc] $variant $(($($ty),+))?
+                $({ $($(#[$fa])* #[doc = $field_doc] $field: $field_ty,)* })?,)*
+        }
+        $crate::config_types!($($rest)*);
+    };
+}
 
 /// How every integer key is read: wide, then range-checked by [`ConfigErrors::int`].
 pub type Int = i64;
@@ -63,6 +111,37 @@ impl ConfigErrors {
         value.and_then(|v| self.int(key, v, range, unit))
     }
 
+    /// [`ConfigErrors::int`] for a required key: records `key = (absent): is required` if absent.
+    pub fn req_int<T: TryFrom<Int>>(
+        &mut self,
+        key: &str,
+        value: Option<Int>,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<T> {
+        self.required(key, &value)
+            .and_then(|v| self.int(key, v, range, unit))
+    }
+
+    /// [`ConfigErrors::int`] of a key in milliseconds, as a [`Duration`].
+    pub fn millis(
+        &mut self,
+        key: &str,
+        value: Int,
+        range: RangeInclusive<Int>,
+        unit: &str,
+    ) -> Option<Duration> {
+        self.int(key, value, range, unit).map(Duration::from_millis)
+    }
+
+    /// Runs `check` on a list of its own and files what it records under `prefix`.
+    pub fn within<T>(&mut self, prefix: &str, check: impl FnOnce(&mut Self) -> T) -> T {
+        let mut inner = ConfigErrors::default();
+        let value = check(&mut inner);
+        self.extend_within(prefix, inner);
+        value
+    }
+
     /// `value` if it is finite and lies in `range`; otherwise records `key = value: rule`.
     pub fn float(&mut self, key: &str, value: f64, range: RangeInclusive<f64>, rule: &str) -> f64 {
         if !(value.is_finite() && range.contains(&value)) {
@@ -96,16 +175,11 @@ impl ConfigErrors {
     /// if it had any (validation goes on, so that every problem is reported at once).
     pub fn section<T>(&mut self, prefix: &str, result: Result<T>) -> Option<T> {
         match result {
-            Ok(value) => Some(value),
-            Err(crate::Error::Config(e)) => {
-                self.extend_within(prefix, e);
-                None
-            }
-            Err(other) => {
-                self.add(prefix, "?", other.to_string());
-                None
-            }
+            Ok(value) => return Some(value),
+            Err(crate::Error::Config(e)) => self.extend_within(prefix, e),
+            Err(other) => self.add(prefix, "?", other.to_string()),
         }
+        None
     }
 }
 
@@ -123,13 +197,11 @@ impl<K: Eq + Hash> Unique<K> {
     /// Records that `owner` (a key path such as `channels[2]`) uses `value`; if another owner
     /// used it first, returns that owner and records nothing.
     pub fn claim(&mut self, value: K, owner: impl Into<String>) -> Option<String> {
-        match self.0.get(&value) {
-            Some(first) => Some(first.clone()),
-            None => {
-                self.0.insert(value, owner.into());
-                None
-            }
+        let first = self.0.get(&value).cloned();
+        if first.is_none() {
+            self.0.insert(value, owner.into());
         }
+        first
     }
 
     /// [`Unique::claim`], recording `key = shown: must be unique: FIRST {what}` on a repeat.
@@ -188,7 +260,7 @@ impl<'de> Deserialize<'de> for UnknownKeys {
             ) -> std::result::Result<UnknownKeys, A::Error> {
                 let mut keys = Vec::new();
                 while let Some(key) = map.next_key::<String>()? {
-                    keys.push((key, map.next_value::<Shown>()?.0));
+                    keys.push((key, map.next_value::<Shown>()?.text()));
                 }
                 Ok(UnknownKeys(keys))
             }
@@ -198,47 +270,28 @@ impl<'de> Deserialize<'de> for UnknownKeys {
 }
 
 /// A value of any type, kept only as text for an error message.
-struct Shown(String);
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Shown {
+    Bool(bool),
+    Int(i64),
+    Float(f64),
+    Str(String),
+    // The items are read only to be skipped.
+    Seq(#[allow(dead_code)] Vec<IgnoredAny>),
+    Map(#[allow(dead_code)] HashMap<String, IgnoredAny>),
+}
 
-impl<'de> Deserialize<'de> for Shown {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
-        struct V;
-        impl<'de> Visitor<'de> for V {
-            type Value = Shown;
-            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str("any value")
-            }
-            fn visit_bool<E>(self, v: bool) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_i64<E>(self, v: i64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_u64<E>(self, v: u64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_f64<E>(self, v: f64) -> std::result::Result<Shown, E> {
-                Ok(Shown(v.to_string()))
-            }
-            fn visit_str<E>(self, v: &str) -> std::result::Result<Shown, E> {
-                Ok(Shown(format!("{v:?}")))
-            }
-            fn visit_seq<A: de::SeqAccess<'de>>(
-                self,
-                mut seq: A,
-            ) -> std::result::Result<Shown, A::Error> {
-                while seq.next_element::<IgnoredAny>()?.is_some() {}
-                Ok(Shown("[…]".into()))
-            }
-            fn visit_map<A: MapAccess<'de>>(
-                self,
-                mut map: A,
-            ) -> std::result::Result<Shown, A::Error> {
-                while map.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-                Ok(Shown("{…}".into()))
-            }
+impl Shown {
+    fn text(self) -> String {
+        match self {
+            Shown::Bool(v) => v.to_string(),
+            Shown::Int(v) => v.to_string(),
+            Shown::Float(v) => v.to_string(),
+            Shown::Str(v) => format!("{v:?}"),
+            Shown::Seq(_) => "[…]".into(),
+            Shown::Map(_) => "{…}".into(),
         }
-        deserializer.deserialize_any(V)
     }
 }
 

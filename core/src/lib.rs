@@ -25,7 +25,8 @@
 //! - [`trust`]: device ids pinned to participants, and the strengths a vehicle believes.
 //! - [`error`]: configuration errors (naming their keys) and classified link errors.
 //! - [`config`]: the shared config vocabulary: integer policy, range/required/unique checks,
-//!   unknown keys of tables built from shared pieces.
+//!   unknown keys of tables built from shared pieces, and [`config_types!`], the one-line-a-key
+//!   way every crate writes its config structs and keyword enums.
 
 #![deny(missing_docs)]
 

@@ -21,37 +21,36 @@ use std::path::Path;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// `[device]`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DeviceSection {
-    /// This device's id on the network; unique per device.
-    pub id: DeviceId,
-    /// Human-readable name (absent: `rove-<id>`).
-    pub name: Option<String>,
-}
+rove_core::config_types! {
+    /// `[device]`.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DeviceSection {
+        id: DeviceId => "This device's id on the network; unique per device.",
+        name: Option<String> => "Human-readable name (absent: `rove-<id>`).",
+    }
 
-/// `[network]`.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NetworkSection {
-    /// DDS domain id (absent: 0).
-    pub domain_id: Option<Int>,
-    /// IPv4 addresses of the interfaces DDS may use (absent: loopback only).
-    pub interfaces: Option<Vec<Ipv4Addr>>,
-    /// Presence heartbeat period, ms (absent: 500). Crashed devices drop from device lists
-    /// after three missed heartbeats, because rustdds's own participant lease is ~50 s.
-    pub heartbeat_ms: Option<Int>,
-}
+    /// `[network]`.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct NetworkSection {
+        domain_id: Option<Int> => "DDS domain id (absent: 0).",
+        interfaces: Option<Vec<Ipv4Addr>> => "IPv4 addresses of the interfaces DDS may use \
+            (absent: loopback only).",
+        heartbeat_ms: Option<Int> => "Presence heartbeat period, ms (absent: 500). Crashed devices \
+            drop from device lists after three missed heartbeats, because rustdds's own \
+            participant lease is ~50 s.",
+    }
 
-/// `[log]`.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LogSection {
-    /// A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing filter directives such as
-    /// `"info,rove_gateway=debug"` (absent: `info`). rustdds stays at `warn` unless a directive
-    /// names it (its `info` is very chatty). `RUST_LOG`, when set, overrides all of this.
-    pub level: Option<String>,
+    /// `[log]`.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct LogSection {
+        level: Option<String> => "A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing \
+            filter directives such as `\"info,rove_gateway=debug\"` (absent: `info`). rustdds \
+            stays at `warn` unless a directive names it (its `info` is very chatty). `RUST_LOG`, \
+            when set, overrides all of this.",
+    }
 }
 
 /// `[vehicle]`.
@@ -137,7 +136,7 @@ pub enum OutputConfig {
 }
 
 impl OutputSection {
-    fn validate(&self, errors: &mut ConfigErrors) -> OutputConfig {
+    fn validate(&mut self, errors: &mut ConfigErrors) -> OutputConfig {
         let config = match self {
             OutputSection::Sim(_) => Ok(OutputConfig::Sim),
             OutputSection::Pwm(s) => s.validate().map(OutputConfig::Pwm),
@@ -267,72 +266,53 @@ pub struct RawVehicle {
     pub output: OutputSection,
 }
 
-/// `[operator]`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OperatorSection {
-    /// Where the operator is: mobile, stationary or remote.
-    pub level: Level,
-    /// The device: desktop, laptop, tablet or phone.
-    pub device_class: DeviceClass,
-    /// Fine offset 0..=9 within the rank (absent: 0).
-    pub offset: Option<Int>,
-    /// Keep-alive stream rate while driving, Hz (absent: 50).
-    pub stream_hz: Option<Int>,
-    /// Vehicles to drive from the start.
-    #[serde(default)]
-    pub drive: Vec<DeviceId>,
-}
+rove_core::config_types! {
+    /// `[operator]`.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct OperatorSection {
+        level: Level => "Where the operator is: mobile, stationary or remote.",
+        device_class: DeviceClass => "The device: desktop, laptop, tablet or phone.",
+        offset: Option<Int> => "Fine offset 0..=9 within the rank (absent: 0).",
+        stream_hz: Option<Int> => "Keep-alive stream rate while driving, Hz (absent: 50).",
+        #[serde(default)] drive: Vec<DeviceId> => "Vehicles to drive from the start.",
+    }
 
-/// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
-/// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
-pub enum InputSection {
-    /// Constant stick values.
-    Constant {
-        /// Throttle axis (absent: 0).
-        #[serde(default)]
-        throttle: Int,
-        /// Roll axis (absent: 0).
-        #[serde(default)]
-        roll: Int,
-        /// Pitch axis (absent: 0).
-        #[serde(default)]
-        pitch: Int,
-        /// Yaw axis (absent: 0).
-        #[serde(default)]
-        yaw: Int,
-        /// Mode (absent: manual).
-        mode: Option<ModeName>,
-    },
-    /// An evdev joystick or gamepad.
-    Joystick(Box<rove_inputs::InputSettings>),
-    /// An evdev keyboard.
-    Keyboard(Box<rove_inputs::InputSettings>),
-    /// A recorded event stream (tests, demos, benchmarks).
-    Replay(Box<rove_inputs::InputSettings>),
-}
+    /// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
+    /// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
+    pub enum InputSection {
+        Constant => "Constant stick values." {
+            #[serde(default)] throttle: Int => "Throttle axis (absent: 0).",
+            #[serde(default)] roll: Int => "Roll axis (absent: 0).",
+            #[serde(default)] pitch: Int => "Pitch axis (absent: 0).",
+            #[serde(default)] yaw: Int => "Yaw axis (absent: 0).",
+            mode: Option<ModeName> => "Mode (absent: manual).",
+        },
+        Joystick => "An evdev joystick or gamepad." (Box<rove_inputs::InputSettings>),
+        Keyboard => "An evdev keyboard." (Box<rove_inputs::InputSettings>),
+        Replay => "A recorded event stream (tests, demos, benchmarks)."
+            (Box<rove_inputs::InputSettings>),
+    }
 
-/// A validated `[input]`.
-#[derive(Debug, Clone)]
-pub enum InputChoice {
-    /// The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving starts at once.
-    Constant(MovementCommand, Mode),
-    /// A device or recording; driving waits until it reports live, centred sticks.
-    Device(Box<rove_inputs::InputConfig>),
-}
+    /// A validated `[input]`.
+    #[derive(Debug, Clone)]
+    pub enum InputChoice {
+        Constant => "The same sticks and mode for ever (no `[input]`: centred, MANUAL); driving \
+            starts at once." (MovementCommand, Mode),
+        Device => "A device or recording; driving waits until it reports live, centred sticks."
+            (Box<rove_inputs::InputConfig>),
+    }
 
-/// Mode names in config.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ModeName {
-    /// MANUAL.
-    Manual,
-    /// ASSISTED.
-    Assisted,
-    /// AUTO.
-    Auto,
+    /// Mode names in config.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ModeName {
+        Manual => "MANUAL.",
+        Assisted => "ASSISTED.",
+        Auto => "AUTO.",
+    }
 }
 
 impl From<ModeName> for Mode {
@@ -345,60 +325,43 @@ impl From<ModeName> for Mode {
     }
 }
 
-/// An operator's file as written.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawOperator {
-    /// `[device]`.
-    pub device: DeviceSection,
-    /// `[network]`.
-    #[serde(default)]
-    pub network: NetworkSection,
-    /// `[log]`.
-    #[serde(default)]
-    pub log: LogSection,
-    /// `[operator]`.
-    pub operator: OperatorSection,
-    /// `[hierarchy]`: a custom strength table (absent: docs/design.md §3).
-    #[serde(default)]
-    pub hierarchy: HierarchyTable,
-    /// `[handover]`.
-    #[serde(default)]
-    pub handover: HandoverSettings,
-    /// `[input]` (absent: centred sticks).
-    pub input: Option<InputSection>,
-    /// `[console]`.
-    #[serde(default)]
-    pub console: ConsoleSection,
-    /// `[security]`.
-    pub security: Option<SecuritySection>,
-}
+rove_core::config_types! {
+    /// An operator's file as written.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct RawOperator {
+        device: DeviceSection => "`[device]`.",
+        #[serde(default)] network: NetworkSection => "`[network]`.",
+        #[serde(default)] log: LogSection => "`[log]`.",
+        operator: OperatorSection => "`[operator]`.",
+        #[serde(default)] hierarchy: HierarchyTable => "`[hierarchy]`: a custom strength table \
+            (absent: docs/design.md §3).",
+        #[serde(default)] handover: HandoverSettings => "`[handover]`.",
+        input: Option<InputSection> => "`[input]` (absent: centred sticks).",
+        #[serde(default)] console: ConsoleSection => "`[console]`.",
+        security: Option<SecuritySection> => "`[security]`.",
+    }
 
-/// `[console]`: the local API for other front ends (docs/api.md).
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConsoleSection {
-    /// Unix socket path of the local API, created with mode 0660 (absent: no API).
-    pub api_socket: Option<std::path::PathBuf>,
-}
+    /// `[console]`: the local API for other front ends (docs/api.md).
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct ConsoleSection {
+        api_socket: Option<std::path::PathBuf> => "Unix socket path of the local API, created with \
+            mode 0660 (absent: no API).",
+    }
 
-/// Validated identity and network settings, shared by both roles.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Common {
-    /// Device id.
-    pub id: DeviceId,
-    /// Device name.
-    pub name: String,
-    /// DDS domain.
-    pub domain_id: u16,
-    /// Interfaces DDS is confined to.
-    pub interfaces: Vec<Ipv4Addr>,
-    /// Presence heartbeat period.
-    pub heartbeat: Duration,
-    /// The log filter from `[log] level`, if any.
-    pub log_filter: Option<String>,
-    /// `[security] dir`: join authenticated, with the DDS Security files there.
-    pub security: Option<std::path::PathBuf>,
+    /// Validated identity and network settings, shared by both roles.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub struct Common {
+        id: DeviceId => "Device id.",
+        name: String => "Device name.",
+        domain_id: u16 => "DDS domain.",
+        interfaces: Vec<Ipv4Addr> => "Interfaces DDS is confined to.",
+        heartbeat: Duration => "Presence heartbeat period.",
+        log_filter: Option<String> => "The log filter from `[log] level`, if any.",
+        security: Option<std::path::PathBuf> => "`[security] dir`: join authenticated, with the \
+            DDS Security files there.",
+    }
 }
 
 impl Common {
@@ -437,27 +400,20 @@ pub struct VehicleConfig {
     pub output: OutputConfig,
 }
 
-/// A validated operator configuration.
-#[derive(Debug, Clone)]
-pub struct OperatorConfig {
-    /// Identity and network.
-    pub common: Common,
-    /// Rank in the hierarchy.
-    pub level: Level,
-    /// Device class.
-    pub device_class: DeviceClass,
-    /// Ownership strength of the regular writer.
-    pub strength: Strength,
-    /// Keep-alive period.
-    pub stream_period: Duration,
-    /// Vehicles driven from the start.
-    pub drive: Vec<DeviceId>,
-    /// Active-handover settings.
-    pub handover: HandoverConfig,
-    /// Where stick values and mode come from.
-    pub input: InputChoice,
-    /// The local API's socket, if any.
-    pub api_socket: Option<std::path::PathBuf>,
+rove_core::config_types! {
+    /// A validated operator configuration.
+    #[derive(Debug, Clone)]
+    pub struct OperatorConfig {
+        common: Common => "Identity and network.",
+        level: Level => "Rank in the hierarchy.",
+        device_class: DeviceClass => "Device class.",
+        strength: Strength => "Ownership strength of the regular writer.",
+        stream_period: Duration => "Keep-alive period.",
+        drive: Vec<DeviceId> => "Vehicles driven from the start.",
+        handover: HandoverConfig => "Active-handover settings.",
+        input: InputChoice => "Where stick values and mode come from.",
+        api_socket: Option<std::path::PathBuf> => "The local API's socket, if any.",
+    }
 }
 
 /// Reads and validates a vehicle config.
@@ -467,7 +423,7 @@ pub struct OperatorConfig {
 /// message names the file, line and key.
 pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
     let text = read(path)?;
-    let raw = parse_vehicle(path, &text)?;
+    let mut raw = parse_vehicle(path, &text)?;
     let mut config = raw.validate().map_err(|e| located(path, &text, e))?;
     config.common.resolve_paths(path);
     Ok(config)
@@ -479,7 +435,7 @@ pub fn load_vehicle(path: &Path) -> anyhow::Result<VehicleConfig> {
 /// As [`load_vehicle`].
 pub fn load_operator(path: &Path) -> anyhow::Result<OperatorConfig> {
     let text = read(path)?;
-    let raw: RawOperator = parse(path, &text)?;
+    let mut raw: RawOperator = parse(path, &text)?;
     let mut config = raw.validate().map_err(|e| located(path, &text, e))?;
     config.resolve_paths(path);
     Ok(config)
@@ -501,38 +457,46 @@ impl OperatorConfig {
     }
 }
 
-/// A config file, either role, for `rove check-config`.
-#[derive(Debug)]
-pub enum AnyConfig {
-    /// A vehicle's file.
-    Vehicle(VehicleConfig),
-    /// An operator's file.
-    Operator(OperatorConfig),
+rove_core::config_types! {
+    /// A config file, either role, for `rove check-config`.
+    #[derive(Debug)]
+    pub enum AnyConfig {
+        Vehicle => "A vehicle's file." (VehicleConfig),
+        Operator => "An operator's file." (OperatorConfig),
+    }
 }
 
 /// Loads a file of either role, telling them apart by their `[vehicle]`/`[output]` or
-/// `[operator]` table.
+/// `[operator]` table; also returns the effective config: the file's settings with every
+/// default filled in, as TOML that loads again as the same config.
 ///
 /// # Errors
 /// As [`load_vehicle`]; also when the file has neither role's table.
-pub fn load_any(path: &Path) -> anyhow::Result<AnyConfig> {
-    let text = read(path)?;
-    let table: toml::Table = toml::from_str(&text)
+pub fn load_any(path: &Path) -> anyhow::Result<(AnyConfig, String)> {
+    any_from_text(path, &read(path)?)
+}
+
+/// [`load_any`] of `text`, read from `path`.
+fn any_from_text(path: &Path, text: &str) -> anyhow::Result<(AnyConfig, String)> {
+    let table: toml::Table = toml::from_str(text)
         .map_err(|e| anyhow!("{}: {}", path.display(), e.to_string().trim_end()))?;
-    if table.contains_key("operator") {
-        let raw: RawOperator = parse(path, &text)?;
-        let config = raw.validate().map_err(|e| located(path, &text, e))?;
-        Ok(AnyConfig::Operator(config))
+    let located = |e| located(path, text, e);
+    let (config, effective) = if table.contains_key("operator") {
+        let mut raw: RawOperator = parse(path, text)?;
+        let config = AnyConfig::Operator(raw.validate().map_err(located)?);
+        (config, toml::to_string(&raw))
     } else if table.contains_key("output") || table.contains_key("vehicle") {
-        let raw = parse_vehicle(path, &text)?;
-        let config = raw.validate().map_err(|e| located(path, &text, e))?;
-        Ok(AnyConfig::Vehicle(config))
+        let mut raw = parse_vehicle(path, text)?;
+        let config = AnyConfig::Vehicle(raw.validate().map_err(located)?);
+        (config, toml::to_string(&raw))
     } else {
-        Err(anyhow!(
+        return Err(anyhow!(
             "{}: neither a vehicle config ([output]) nor an operator config ([operator])",
             path.display()
-        ))
-    }
+        ));
+    };
+    let effective = effective.context("cannot write the effective config as TOML")?;
+    Ok((config, effective))
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -638,50 +602,42 @@ const DEFAULT_HEARTBEAT_MS: Int = 500;
 const DEFAULT_STREAM_HZ: Int = 50;
 
 fn validate_common(
-    device: &DeviceSection,
-    network: &NetworkSection,
+    device: &mut DeviceSection,
+    network: &mut NetworkSection,
     log: &LogSection,
     errors: &mut ConfigErrors,
 ) -> Common {
-    let heartbeat_ms = network.heartbeat_ms.unwrap_or(DEFAULT_HEARTBEAT_MS);
-    let heartbeat_ms = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
+    let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
+    let heartbeat = errors.millis("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
-    let domain_id = network.domain_id.unwrap_or(0);
+    let domain_id = *network.domain_id.get_or_insert(0);
     // RTPS maps domain ids to ports (7400 + 250 × domain); above 232 the ports overflow.
     let rule = " (RTPS port mapping)";
     let domain_id = errors.int("network.domain_id", domain_id, 0..=232, rule);
     if let Some(level) = &log.level
         && !is_log_filter(level)
     {
-        errors.add(
-            "log.level",
-            format!("{level:?}"),
-            "must be a level (off, error, warn, info, debug, trace) or comma-separated \
-             `target=level` directives",
-        );
+        let rule = "must be a level (off, error, warn, info, debug, trace) or comma-separated \
+                    `target=level` directives";
+        errors.add("log.level", format!("{level:?}"), rule);
     }
-    let interfaces = network
-        .interfaces
-        .clone()
-        .unwrap_or_else(|| vec![Ipv4Addr::LOCALHOST]);
+    let interfaces = (network.interfaces).get_or_insert_with(|| vec![Ipv4Addr::LOCALHOST]);
     if interfaces.is_empty() {
-        errors.add(
-            "network.interfaces",
-            "[]",
-            "must name at least one interface address (absent: loopback)",
-        );
+        let rule = "must name at least one interface address (absent: loopback)";
+        errors.add("network.interfaces", "[]", rule);
     }
+    let id = device.id;
     Common {
-        id: device.id,
+        id,
         name: device
             .name
-            .clone()
-            .unwrap_or_else(|| format!("rove-{}", device.id)),
+            .get_or_insert_with(|| format!("rove-{id}"))
+            .clone(),
         domain_id: domain_id.unwrap_or(0),
-        interfaces,
-        heartbeat: Duration::from_millis(heartbeat_ms.unwrap_or(500)),
+        interfaces: interfaces.clone(),
+        heartbeat: heartbeat.unwrap_or(Duration::from_millis(500)),
         log_filter: log.level.as_ref().map(|level| {
             if level.contains("rustdds") {
                 level.clone()
@@ -711,13 +667,14 @@ impl RawVehicle {
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every invalid key.
-    pub fn validate(&self) -> rove_core::Result<VehicleConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<VehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let mut common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let mut common =
+            validate_common(&mut self.device, &mut self.network, &self.log, &mut errors);
         common.security = self.security.as_ref().map(|s| s.dir.clone());
         let output = self.output.validate(&mut errors);
         let key = "vehicle.command_timeout_ms";
-        let millis = self.vehicle.command_timeout_ms.unwrap_or(100);
+        let millis = *self.vehicle.command_timeout_ms.get_or_insert(100);
         let timeout = errors
             .int(key, millis, 0..=Int::MAX, "")
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
@@ -759,83 +716,83 @@ impl RawVehicle {
 }
 
 impl RawOperator {
-    /// Validates, filling defaults.
+    /// Validates, filling defaults into `self`.
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every invalid key.
-    pub fn validate(&self) -> rove_core::Result<OperatorConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<OperatorConfig> {
         let mut errors = ConfigErrors::default();
-        let mut common = validate_common(&self.device, &self.network, &self.log, &mut errors);
+        let mut common =
+            validate_common(&mut self.device, &mut self.network, &self.log, &mut errors);
         common.security = self.security.as_ref().map(|s| s.dir.clone());
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
-        let offset = self.operator.offset.unwrap_or(0);
-        let (level, class) = (self.operator.level, self.operator.device_class);
+        let op = &mut self.operator;
+        let (level, class, offset) = (op.level, op.device_class, *op.offset.get_or_insert(0));
         let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
         let strength = (errors.int("operator.offset", offset, offset_range, ""))
             .and_then(|o| hierarchy.strength(level, class, o).ok())
             .unwrap_or(Strength(1));
-        let stream_hz = self.operator.stream_hz.unwrap_or(DEFAULT_STREAM_HZ);
+        let stream_hz = *op.stream_hz.get_or_insert(DEFAULT_STREAM_HZ);
         let rule = "; at least 10 keeps a vehicle with the default 100 ms command timeout from \
                     timing out between samples";
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        for (i, v) in self.operator.drive.iter().enumerate() {
-            if *v == self.device.id {
-                errors.add(
-                    format!("operator.drive[{i}]"),
-                    v,
-                    "is this operator's own device id",
-                );
-            }
+        let own = op
+            .drive
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| **v == self.device.id);
+        for (i, v) in own {
+            errors.add(
+                format!("operator.drive[{i}]"),
+                v,
+                "is this operator's own device id",
+            );
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
-        let device = |settings: &rove_inputs::InputSettings,
-                      kind: rove_inputs::SourceKind,
-                      errors: &mut ConfigErrors| {
+        let mut device = |settings: &mut rove_inputs::InputSettings, kind| {
             let input = settings
                 .validate_as(kind)
-                .map(|c| InputChoice::Device(Box::new(c)));
+                .map(Box::new)
+                .map(InputChoice::Device);
             errors.section("input", input).unwrap_or(constant.clone())
         };
-        let input = match &self.input {
-            None => constant.clone(),
-            Some(InputSection::Constant {
+        let input = match self.input.get_or_insert_with(InputSection::centred) {
+            InputSection::Constant {
                 throttle,
                 roll,
                 pitch,
                 yaw,
                 mode,
-            }) => {
-                let mut axis = |key: &str, v: Int| {
-                    let key = format!("input.{key}");
-                    errors
-                        .int(&key, v, i16::MIN.into()..=i16::MAX.into(), "")
-                        .unwrap_or(0)
-                };
+            } => {
+                let sticks = [
+                    ("throttle", throttle),
+                    ("roll", roll),
+                    ("pitch", pitch),
+                    ("yaw", yaw),
+                ];
+                let [throttle, roll, pitch, yaw] = sticks.map(|(key, v)| {
+                    let range = i16::MIN.into()..=i16::MAX.into();
+                    (errors.int(&format!("input.{key}"), *v, range, "")).unwrap_or(0)
+                });
                 let movement = MovementCommand {
-                    throttle: axis("throttle", *throttle),
-                    roll: axis("roll", *roll),
-                    pitch: axis("pitch", *pitch),
-                    yaw: axis("yaw", *yaw),
+                    throttle,
+                    roll,
+                    pitch,
+                    yaw,
                 };
-                InputChoice::Constant(movement, mode.map_or(Mode::Manual, Mode::from))
+                InputChoice::Constant(movement, (*mode.get_or_insert(ModeName::Manual)).into())
             }
-            Some(InputSection::Joystick(s)) => {
-                device(s, rove_inputs::SourceKind::Joystick, &mut errors)
-            }
-            Some(InputSection::Keyboard(s)) => {
-                device(s, rove_inputs::SourceKind::Keyboard, &mut errors)
-            }
-            Some(InputSection::Replay(s)) => {
-                device(s, rove_inputs::SourceKind::Replay, &mut errors)
-            }
+            InputSection::Joystick(s) => device(s, rove_inputs::SourceKind::Joystick),
+            InputSection::Keyboard(s) => device(s, rove_inputs::SourceKind::Keyboard),
+            InputSection::Replay(s) => device(s, rove_inputs::SourceKind::Replay),
         };
         errors.into_result(OperatorConfig {
             common,
-            level: self.operator.level,
-            device_class: self.operator.device_class,
+            level,
+            device_class: class,
             strength,
             stream_period: Duration::from_secs_f64(1.0 / f64::from(stream_hz.unwrap_or(1))),
             drive: self.operator.drive.clone(),
@@ -843,6 +800,21 @@ impl RawOperator {
             input,
             api_socket: self.console.api_socket.clone(),
         })
+    }
+}
+
+impl InputSection {
+    /// No `[input]`: centred sticks in MANUAL.
+    fn centred() -> Self {
+        let (throttle, roll, pitch, yaw) = (0, 0, 0, 0);
+        let mode = Some(ModeName::Manual);
+        InputSection::Constant {
+            throttle,
+            roll,
+            pitch,
+            yaw,
+            mode,
+        }
     }
 }
 
@@ -874,7 +846,18 @@ mod tests {
         for entry in std::fs::read_dir(&dir).expect("configs/ exists") {
             let path = entry.expect("entry").path();
             if path.extension().is_some_and(|e| e == "toml") {
-                load_any(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                let (config, effective) = load_any(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                // The effective config loads again as the same config, and is a fixed point.
+                let again = any_from_text(Path::new("effective.toml"), &effective);
+                let (again, effective_again) =
+                    again.unwrap_or_else(|e| panic!("{e:#}\n{effective}"));
+                assert_eq!(
+                    format!("{again:?}"),
+                    format!("{config:?}"),
+                    "{}",
+                    path.display()
+                );
+                assert_eq!(effective_again, effective, "{}", path.display());
                 seen += 1;
             }
         }

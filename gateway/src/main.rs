@@ -422,17 +422,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         },
         Command::CheckConfig { file, print } => {
-            let loaded = config::load_any(&file)?;
+            let (loaded, effective) = config::load_any(&file)?;
             let role = match &loaded {
                 config::AnyConfig::Vehicle(_) => "vehicle",
                 config::AnyConfig::Operator(_) => "operator",
             };
             if print {
-                let text = match &loaded {
-                    config::AnyConfig::Vehicle(c) => format!("{c:#?}"),
-                    config::AnyConfig::Operator(c) => format!("{c:#?}"),
-                };
-                println!("{text}");
+                println!("{effective}");
             }
             println!("{}: valid {role} config", file.display());
             Ok(())

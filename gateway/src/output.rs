@@ -36,7 +36,7 @@ pub fn open(config: &OutputConfig, now: MonoTime) -> Result<Box<dyn OutputAdapte
             Box::new(rove_pwm::PwmVehicle::new(c.clone(), backend, now)?)
         }
         OutputConfig::Naza(c) => {
-            let backend = rove_pwm::open_backend(c.pwm())?;
+            let backend = rove_pwm::open_backend(&c.pwm)?;
             Box::new(rove_naza::NazaVehicle::new(c.clone(), backend, now)?)
         }
         OutputConfig::Mavlink(c) => {

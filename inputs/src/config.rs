@@ -7,7 +7,7 @@
 
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
-use rove_core::config::Int;
+use rove_core::config::{ABSENT, Int};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
@@ -39,149 +39,93 @@ pub const DEFAULT_SPRING_BACK_MS: Int = 150;
 /// Longest accepted ramp-up or spring-back, ms; beyond ten seconds a key axis is unusable.
 pub const MAX_RAMP_MS: Int = 10_000;
 
-/// Which kind of input `[input] source` selects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SourceKind {
-    /// An evdev joystick or gamepad (absent `device`/`name`: the first device with sticks).
-    Joystick,
-    /// An evdev keyboard (absent `device`/`name`: the first device with letter keys).
-    Keyboard,
-    /// A recorded event stream played from `file`.
-    Replay,
-}
+rove_core::config_types! {
+    /// Which kind of input `[input] source` selects.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum SourceKind {
+        Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first).",
+        Keyboard => "An evdev keyboard (absent `device`/`name`: the first).",
+        Replay => "A recorded event stream played from `file`.",
+    }
 
-/// `[input]` as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InputSettings {
-    /// What to read: `"joystick"`, `"keyboard"` or `"replay"`.
-    pub source: Option<SourceKind>,
-    /// Joystick/keyboard: device path, e.g. `/dev/input/event3` or a
-    /// `/dev/input/by-id/…-event-joystick` link (stable across replugs).
-    pub device: Option<PathBuf>,
-    /// Joystick/keyboard: device name pattern, case-insensitive, `*` matches any text.
-    pub name: Option<String>,
-    /// Joystick/keyboard: take the device exclusively (EVIOCGRAB) so other programs do not see
-    /// its events (absent: false).
-    pub grab: Option<bool>,
-    /// Joystick/keyboard: time between reopen attempts after an unplug, ms (absent: 500).
-    pub reopen_interval_ms: Option<Int>,
-    /// Replay: the recording to play.
-    pub file: Option<PathBuf>,
-    /// No event at all from the device for this long → lost (absent: off; see the crate docs).
-    pub silence_timeout_ms: Option<Int>,
-    /// `[input.axes.*]`: what drives each movement axis.
-    #[serde(default)]
-    pub axes: AxesSettings,
-    /// `[input.buttons]`: which button or key triggers each action.
-    #[serde(default)]
-    pub buttons: ButtonSettings,
-}
+    /// `[input]` as written.
+    #[serde(deny_unknown_fields)]
+    pub settings InputSettings {
+        source: Option<SourceKind> => "What to read.",
+        device: Option<PathBuf> => "Joystick/keyboard: device path (by-id links are stable).",
+        name: Option<String> => "Joystick/keyboard: name pattern, case-insensitive, `*` wildcard.",
+        grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB).",
+        reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts, ms.",
+        file: Option<PathBuf> => "Replay: the recording to play.",
+        silence_timeout_ms: Option<Int> => "No event at all for this long → lost, ms.",
+        #[serde(default)] axes: AxesSettings => "`[input.axes.*]`: what drives each movement axis.",
+        #[serde(default)] buttons: ButtonSettings => "`[input.buttons]`: each action's control.",
+    }
 
-/// `[input.axes]` as written: one optional table per movement axis.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxesSettings {
-    /// `[input.axes.throttle]`.
-    pub throttle: Option<AxisSettings>,
-    /// `[input.axes.roll]` (UGV steering).
-    pub roll: Option<AxisSettings>,
-    /// `[input.axes.pitch]`.
-    pub pitch: Option<AxisSettings>,
-    /// `[input.axes.yaw]`.
-    pub yaw: Option<AxisSettings>,
-}
+    /// `[input.axes]` as written: one optional table per movement axis.
+    #[serde(deny_unknown_fields)]
+    pub settings AxesSettings {
+        throttle: Option<AxisSettings> => "`[input.axes.throttle]`.",
+        roll: Option<AxisSettings> => "`[input.axes.roll]` (UGV steering).",
+        pitch: Option<AxisSettings> => "`[input.axes.pitch]`.",
+        yaw: Option<AxisSettings> => "`[input.axes.yaw]`.",
+    }
 
-/// Where an axis must rest before driving starts or resumes (the no-jump rule).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Rest {
-    /// Within 5 % of centre (self-centring sticks, key axes).
-    #[default]
-    Centre,
-    /// Within 5 % of −full scale (a throttle lever at idle).
-    Low,
-    /// Within 5 % of +full scale.
-    High,
-}
+    /// Where an axis must rest before driving starts or resumes (the no-jump rule).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum Rest {
+        #[default] Centre => "Within 5 % of centre (self-centring sticks, key axes).",
+        Low => "Within 5 % of −full scale (a throttle lever at idle).",
+        High => "Within 5 % of +full scale.",
+    }
 
-/// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
-/// keys) or a pair of keys (`negative`/`positive` with ramp keys).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxisSettings {
-    /// The absolute axis, e.g. `"ABS_Y"`, `"ABS_HAT0X"`.
-    pub abs: Option<String>,
-    /// Key or button driving towards −full scale, e.g. `"KEY_S"`.
-    pub negative: Option<String>,
-    /// Key or button driving towards +full scale, e.g. `"KEY_W"`.
-    pub positive: Option<String>,
-    /// Negate the axis (absent: false; `invert` is accepted as an older spelling).
-    #[serde(alias = "invert")]
-    pub reverse: Option<bool>,
-    /// Abs: dead zone around centre, percent of the half range, 0..=50 (absent: the device's
-    /// `flat`; `deadzone_pct` is accepted as an older spelling).
-    #[serde(alias = "deadzone_pct")]
-    pub deadband_pct: Option<f64>,
-    /// Expo 0..=1 (absent: 0, linear).
-    pub expo: Option<f64>,
-    /// Output at full deflection, percent of full scale, >0..=100 (absent: 100).
-    pub scale_pct: Option<f64>,
-    /// Abs: raw value at −full scale (absent: the device's minimum).
-    pub min: Option<Int>,
-    /// Abs: raw value at centre (absent: midpoint of min and max).
-    pub centre: Option<Int>,
-    /// Abs: raw value at +full scale (absent: the device's maximum).
-    pub max: Option<Int>,
-    /// Keys: time from centre to full scale while a key is held, ms (absent: 250).
-    pub ramp_up_ms: Option<Int>,
-    /// Keys: time from full scale back to centre when released, ms (absent: 150).
-    pub spring_back_ms: Option<Int>,
-    /// Where the axis must be before driving resumes (absent: `"centre"`).
-    pub rest: Option<Rest>,
-}
+    /// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
+    /// keys) or a pair of keys (`negative`/`positive` with ramp keys).
+    #[serde(deny_unknown_fields)]
+    pub settings AxisSettings {
+        abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
+        negative: Option<String> => "Key or button towards −full scale, e.g. `\"KEY_S\"`.",
+        positive: Option<String> => "Key or button towards +full scale, e.g. `\"KEY_W\"`.",
+        #[serde(alias = "invert")] reverse: Option<bool> => "Negate the axis.",
+        #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Abs: dead zone, \
+            % of the half range.",
+        expo: Option<f64> => "Expo 0..=1 (absent: 0, linear).",
+        scale_pct: Option<f64> => "Output at full deflection, percent of full scale.",
+        min: Option<Int> => "Abs: raw value at −full scale (absent: the device's minimum).",
+        centre: Option<Int> => "Abs: raw value at centre (absent: midpoint of min and max).",
+        max: Option<Int> => "Abs: raw value at +full scale (absent: the device's maximum).",
+        ramp_up_ms: Option<Int> => "Keys: time from centre to full scale while held, ms.",
+        spring_back_ms: Option<Int> => "Keys: time from full scale back to centre, ms.",
+        rest: Option<Rest> => "Where the axis must be before driving resumes.",
+    }
 
-/// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
-/// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ButtonSettings {
-    /// Hold to drive; when set, axes are neutral unless it is held.
-    pub deadman: Option<String>,
-    /// Switch to MANUAL.
-    pub mode_manual: Option<String>,
-    /// Switch to ASSISTED.
-    pub mode_assisted: Option<String>,
-    /// Switch to AUTO.
-    pub mode_auto: Option<String>,
-    /// Ask the selected vehicle's owner for control.
-    pub request_control: Option<String>,
-    /// Accept an incoming request.
-    pub accept: Option<String>,
-    /// Refuse an incoming request.
-    pub refuse: Option<String>,
-    /// Give a grant back.
-    pub finish: Option<String>,
-    /// Stop driving the selected vehicle.
-    pub release: Option<String>,
-    /// Select the next vehicle.
-    pub next_vehicle: Option<String>,
-    /// Select the previous vehicle.
-    pub previous_vehicle: Option<String>,
-}
+    /// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
+    /// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
+    #[serde(deny_unknown_fields)]
+    pub settings ButtonSettings {
+        deadman: Option<String> => "Hold to drive; when set, axes are neutral unless it is held.",
+        mode_manual: Option<String> => "Switch to MANUAL.",
+        mode_assisted: Option<String> => "Switch to ASSISTED.",
+        mode_auto: Option<String> => "Switch to AUTO.",
+        request_control: Option<String> => "Ask the selected vehicle's owner for control.",
+        accept: Option<String> => "Accept an incoming request.",
+        refuse: Option<String> => "Refuse an incoming request.",
+        finish: Option<String> => "Give a grant back.",
+        release: Option<String> => "Stop driving the selected vehicle.",
+        next_vehicle: Option<String> => "Select the next vehicle.",
+        previous_vehicle: Option<String> => "Select the previous vehicle.",
+    }
 
-/// How a device is chosen.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum DeviceSelector {
-    /// A path: `/dev/input/eventN` or a by-id / by-path link, reopened by the same path.
-    Path(PathBuf),
-    /// The first device whose name matches the pattern (case-insensitive, `*` wildcard).
-    Name(String),
-    /// The first device that looks like a joystick or gamepad (has `ABS_X` and `ABS_Y`).
-    AnyJoystick,
-    /// The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).
-    AnyKeyboard,
+    /// How a device is chosen.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum DeviceSelector {
+        Path => "A path (`/dev/input/eventN` or a by-id link), reopened by that path." (PathBuf),
+        Name => "The first device whose name matches the pattern (`*` wildcard)." (String),
+        AnyJoystick => "The first device with `ABS_X` and `ABS_Y` (a joystick or gamepad).",
+        AnyKeyboard => "The first device that looks like a keyboard (has `KEY_A` … `KEY_Z`).",
+    }
 }
 
 impl std::fmt::Display for DeviceSelector {
@@ -195,81 +139,58 @@ impl std::fmt::Display for DeviceSelector {
     }
 }
 
-/// Validated source choice.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum SourceConfig {
-    /// An evdev device.
-    Evdev {
-        /// Which device.
-        selector: DeviceSelector,
-        /// Take it exclusively.
-        grab: bool,
-        /// Time between reopen attempts.
-        reopen_interval: Duration,
-    },
-    /// A recording.
-    Replay {
-        /// The file (relative paths are relative to the process's working directory unless
-        /// [`InputConfig::resolve_relative_to`] was called).
-        file: PathBuf,
-    },
-}
+rove_core::config_types! {
+    /// Validated source choice.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum SourceConfig {
+        Evdev => "An evdev device." {
+            selector: DeviceSelector => "Which device.",
+            grab: bool => "Take it exclusively.",
+            reopen_interval: Duration => "Time between reopen attempts.",
+        },
+        Replay => "A recording." {
+            file: PathBuf => "The file (relative paths are relative to the process's working \
+                directory unless [`InputConfig::resolve_relative_to`] was called).",
+        },
+    }
 
-/// What drives a movement axis.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum AxisInput {
-    /// An absolute axis with optional calibration overrides.
-    Abs {
-        /// `EV_ABS` code.
-        code: u16,
-        /// Raw value at −1 (absent: device minimum).
-        min: Option<i32>,
-        /// Raw value at 0 (absent: midpoint).
-        centre: Option<i32>,
-        /// Raw value at +1 (absent: device maximum).
-        max: Option<i32>,
-        /// Dead zone as a fraction of the half range (absent: from the device's `flat`).
-        deadzone: Option<f64>,
-    },
-    /// Two keys with a ramp.
-    Keys {
-        /// `EV_KEY` code towards −1.
-        negative: Option<u16>,
-        /// `EV_KEY` code towards +1.
-        positive: Option<u16>,
-        /// Time for 0 → ±1.
-        ramp_up: Duration,
-        /// Time for ±1 → 0.
-        spring_back: Duration,
-    },
-}
+    /// What drives a movement axis.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum AxisInput {
+        Abs => "An absolute axis with optional calibration overrides." {
+            code: u16 => "`EV_ABS` code.",
+            min: Option<i32> => "Raw value at −1 (absent: device minimum).",
+            centre: Option<i32> => "Raw value at 0 (absent: midpoint).",
+            max: Option<i32> => "Raw value at +1 (absent: device maximum).",
+            deadzone: Option<f64> => "Dead zone as a fraction of the half range (absent: from the \
+                device's `flat`).",
+        },
+        Keys => "Two keys with a ramp." {
+            negative: Option<u16> => "`EV_KEY` code towards −1.",
+            positive: Option<u16> => "`EV_KEY` code towards +1.",
+            ramp_up: Duration => "Time for 0 → ±1.",
+            spring_back: Duration => "Time for ±1 → 0.",
+        },
+    }
 
-/// A validated axis mapping.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AxisConfig {
-    /// The input.
-    pub input: AxisInput,
-    /// Negate.
-    pub reverse: bool,
-    /// Expo 0..=1.
-    pub expo: f64,
-    /// Full-deflection output, fraction 0..=1.
-    pub scale: f64,
-    /// Resting position required by the no-jump rule.
-    pub rest: Rest,
-}
+    /// A validated axis mapping.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct AxisConfig {
+        input: AxisInput => "The input.",
+        reverse: bool => "Negate.",
+        expo: f64 => "Expo 0..=1.",
+        scale: f64 => "Full-deflection output, fraction 0..=1.",
+        rest: Rest => "Resting position required by the no-jump rule.",
+    }
 
-/// The validated mapping: axes, deadman, action buttons and silence timeout.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct MappingConfig {
-    /// Throttle, roll, pitch, yaw, in [`Axis`] order.
-    pub axes: [Option<AxisConfig>; 4],
-    /// The hold-to-drive control.
-    pub deadman: Option<Control>,
-    /// Action controls.
-    pub actions: Vec<(Control, InputAction)>,
-    /// No events for this long → lost.
-    pub silence_timeout: Option<Duration>,
+    /// The validated mapping: axes, deadman, action buttons and silence timeout.
+    #[derive(Debug, Clone, PartialEq, Default)]
+    pub struct MappingConfig {
+        axes: [Option<AxisConfig>; 4] => "Throttle, roll, pitch, yaw, in [`Axis`] order.",
+        deadman: Option<Control> => "The hold-to-drive control.",
+        actions: Vec<(Control, InputAction)> => "Action controls.",
+        silence_timeout: Option<Duration> => "No events for this long → lost.",
+    }
 }
 
 /// The four axes in the order of [`MappingConfig::axes`].
@@ -288,36 +209,15 @@ pub fn axis_key(axis: Axis) -> &'static str {
 /// A validated `[input]`: only this type crosses crate boundaries.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InputConfig {
-    kind: SourceKind,
-    source: SourceConfig,
-    mapping: MappingConfig,
+    /// The kind of source.
+    pub kind: SourceKind,
+    /// Device or recording.
+    pub source: SourceConfig,
+    /// The mapping.
+    pub mapping: MappingConfig,
 }
 
 impl InputConfig {
-    /// A config from parts (tests, `rove inputs show`).
-    pub fn new(kind: SourceKind, source: SourceConfig, mapping: MappingConfig) -> Self {
-        InputConfig {
-            kind,
-            source,
-            mapping,
-        }
-    }
-
-    /// The kind of source.
-    pub fn kind(&self) -> SourceKind {
-        self.kind
-    }
-
-    /// Device or recording.
-    pub fn source(&self) -> &SourceConfig {
-        &self.source
-    }
-
-    /// The mapping.
-    pub fn mapping(&self) -> &MappingConfig {
-        &self.mapping
-    }
-
     /// The same mapping read from another device (for `rove inputs show DEVICE`): the source
     /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
     /// when the source already was a device.
@@ -367,20 +267,13 @@ impl InputSettings {
     /// Validates, filling defaults; keys in errors are relative to `[input]`.
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem: a missing `source`; keys that do not
-    /// apply to the source (`file` for a device, `device`/`name`/`grab`/`reopen_interval_ms` for
-    /// a replay); both `device` and `name`; a replay without `file`; numbers out of range; no
-    /// axis mapped; per axis (`axes.NAME.key`): neither or both of `abs` and keys, unknown
-    /// code names, abs-only keys on a key axis and vice versa, `min`/`centre`/`max` out of
-    /// order; per button (`buttons.ACTION`): unknown control names; a control used twice.
-    pub fn validate(&self) -> rove_core::Result<InputConfig> {
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate README's
+    /// key list, does not apply to the source or axis kind, or uses a control used before.
+    pub fn validate(&mut self) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
         let kind = self.source.unwrap_or_else(|| {
-            errors.add(
-                "source",
-                "(absent)",
-                "must be one of \"joystick\", \"keyboard\", \"replay\"",
-            );
+            let rule = "must be one of \"joystick\", \"keyboard\", \"replay\"";
+            errors.absent("source", rule);
             SourceKind::Joystick
         });
         let config = self.validate_inner(kind, &mut errors);
@@ -393,33 +286,22 @@ impl InputSettings {
     ///
     /// # Errors
     /// As [`InputSettings::validate`].
-    pub fn validate_as(&self, kind: SourceKind) -> rove_core::Result<InputConfig> {
+    pub fn validate_as(&mut self, kind: SourceKind) -> rove_core::Result<InputConfig> {
         let mut errors = ConfigErrors::default();
-        if let Some(s) = self.source {
-            if s != kind {
-                errors.add(
-                    "source",
-                    format!("{s:?}").to_lowercase(),
-                    format!("must be {:?}", format!("{kind:?}").to_lowercase()),
-                );
-            }
+        let name = |k: SourceKind| format!("{k:?}").to_lowercase();
+        if let Some(s) = self.source.filter(|s| *s != kind) {
+            errors.add("source", name(s), format!("must be {:?}", name(kind)));
         }
         let config = self.validate_inner(kind, &mut errors);
         errors.into_result(config)
     }
 
-    fn validate_inner(&self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
+    fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
         let source = self.validate_source(kind, errors);
         let rule = " ms (leave it out to turn silence detection off)";
-        let silence_ms = self.silence_timeout_ms;
-        let silence_timeout = errors
-            .opt_int(
-                "silence_timeout_ms",
-                silence_ms,
-                SILENCE_TIMEOUT_RANGE_MS,
-                rule,
-            )
-            .map(Duration::from_millis);
+        let silence = (self.silence_timeout_ms, SILENCE_TIMEOUT_RANGE_MS);
+        let silence_timeout = errors.opt_int("silence_timeout_ms", silence.0, silence.1, rule);
+        let silence_timeout = silence_timeout.map(Duration::from_millis);
         let mut mapping = MappingConfig {
             silence_timeout,
             ..MappingConfig::default()
@@ -427,121 +309,81 @@ impl InputSettings {
         // Who uses which control, for the "used twice" check: control → key path.
         let mut used: BTreeMap<Control, String> = BTreeMap::new();
         let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
-            if let Some(first) = used.get(&control) {
-                errors.add(
-                    key,
-                    format!("{value:?}"),
-                    format!("is already used by {first}"),
-                );
-            } else {
+            let Some(first) = used.get(&control) else {
                 used.insert(control, key.to_string());
-            }
+                return;
+            };
+            errors.add(
+                key,
+                format!("{value:?}"),
+                format!("is already used by {first}"),
+            );
         };
-        let raw_axes = [
-            &self.axes.throttle,
-            &self.axes.roll,
-            &self.axes.pitch,
-            &self.axes.yaw,
-        ];
+        let a = &mut self.axes;
+        let raw_axes = [&mut a.throttle, &mut a.roll, &mut a.pitch, &mut a.yaw];
+        let none_mapped = raw_axes.iter().all(|a| a.is_none());
         for (slot, (axis, raw)) in AXES.iter().zip(raw_axes).enumerate() {
             let Some(raw) = raw else { continue };
             let prefix = format!("axes.{}", axis_key(*axis));
             let mut axis_errors = ConfigErrors::default();
             let config = raw.validate(&mut axis_errors);
-            if let Some(config) = &config {
-                match config.input {
-                    AxisInput::Abs { code, .. } => {
-                        // An axis used as a stick cannot also be a button, in either direction.
-                        for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
-                            claim(
-                                &mut axis_errors,
-                                c,
-                                &format!("{prefix}.abs"),
-                                &abs_name(code),
-                            );
-                        }
-                    }
-                    AxisInput::Keys {
-                        negative, positive, ..
-                    } => {
-                        for (key, code) in [("negative", negative), ("positive", positive)] {
-                            if let Some(code) = code {
-                                claim(
-                                    errors,
-                                    Control::Key(code),
-                                    &format!("{prefix}.{key}"),
-                                    &crate::codes::key_name(code),
-                                );
-                            }
-                        }
+            match config.map(|c| c.input) {
+                Some(AxisInput::Abs { code, .. }) => {
+                    // An axis used as a stick cannot also be a button, in either direction.
+                    let (key, name) = (format!("{prefix}.abs"), abs_name(code));
+                    for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
+                        claim(&mut axis_errors, c, &key, &name);
                     }
                 }
+                Some(AxisInput::Keys {
+                    negative, positive, ..
+                }) => {
+                    for (key, code) in [("negative", negative), ("positive", positive)] {
+                        let Some(code) = code else { continue };
+                        let (key, name) = (format!("{prefix}.{key}"), crate::codes::key_name(code));
+                        claim(errors, Control::Key(code), &key, &name);
+                    }
+                }
+                None => {}
             }
             // Abs claims were recorded with the full key; keep errors' keys consistent.
             for e in axis_errors.0 {
-                if e.key.starts_with("axes.") {
-                    errors.push(e);
+                errors.push(if e.key.starts_with("axes.") {
+                    e
                 } else {
-                    errors.push(e.within(&prefix));
-                }
+                    e.within(&prefix)
+                });
             }
             mapping.axes[slot] = config;
         }
-        if raw_axes.iter().all(|a| a.is_none()) {
-            errors.add(
-                "axes",
-                "(none)",
-                "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
-            );
+        if none_mapped {
+            let rule = "must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])";
+            errors.add("axes", "(none)", rule);
         }
         let b = &self.buttons;
-        let buttons: [(&str, &Option<String>, Option<InputAction>); 11] = [
+        let (control, previous) = (&b.request_control, &b.previous_vehicle);
+        use InputAction as A;
+        let mode = |m| Some(A::Mode(m));
+        let buttons = [
             ("deadman", &b.deadman, None),
-            (
-                "mode_manual",
-                &b.mode_manual,
-                Some(InputAction::Mode(Mode::Manual)),
-            ),
-            (
-                "mode_assisted",
-                &b.mode_assisted,
-                Some(InputAction::Mode(Mode::Assisted)),
-            ),
-            (
-                "mode_auto",
-                &b.mode_auto,
-                Some(InputAction::Mode(Mode::Auto)),
-            ),
-            (
-                "request_control",
-                &b.request_control,
-                Some(InputAction::RequestControl),
-            ),
-            ("accept", &b.accept, Some(InputAction::Accept)),
-            ("refuse", &b.refuse, Some(InputAction::Refuse)),
-            ("finish", &b.finish, Some(InputAction::Finish)),
-            ("release", &b.release, Some(InputAction::Release)),
-            (
-                "next_vehicle",
-                &b.next_vehicle,
-                Some(InputAction::NextVehicle),
-            ),
-            (
-                "previous_vehicle",
-                &b.previous_vehicle,
-                Some(InputAction::PreviousVehicle),
-            ),
+            ("mode_manual", &b.mode_manual, mode(Mode::Manual)),
+            ("mode_assisted", &b.mode_assisted, mode(Mode::Assisted)),
+            ("mode_auto", &b.mode_auto, mode(Mode::Auto)),
+            ("request_control", control, Some(A::RequestControl)),
+            ("accept", &b.accept, Some(A::Accept)),
+            ("refuse", &b.refuse, Some(A::Refuse)),
+            ("finish", &b.finish, Some(A::Finish)),
+            ("release", &b.release, Some(A::Release)),
+            ("next_vehicle", &b.next_vehicle, Some(A::NextVehicle)),
+            ("previous_vehicle", previous, Some(A::PreviousVehicle)),
         ];
         for (name, value, action) in buttons {
             let Some(value) = value else { continue };
             let key = format!("buttons.{name}");
             let Some(control) = Control::parse(value) else {
-                errors.add(
-                    key,
-                    format!("{value:?}"),
-                    "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
-                     direction (\"ABS_HAT0Y-\", \"ABS_Z+\")",
-                );
+                let rule = "must name a key or button (\"BTN_SOUTH\", \"KEY_SPACE\") or an axis \
+                            direction (\"ABS_HAT0Y-\", \"ABS_Z+\")";
+                errors.add(key, format!("{value:?}"), rule);
                 continue;
             };
             claim(errors, control, &key, value);
@@ -557,126 +399,95 @@ impl InputSettings {
         }
     }
 
-    fn validate_source(&self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
-        match kind {
-            SourceKind::Replay => {
-                let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
-                let device = self
-                    .device
-                    .as_ref()
-                    .map(|d| format!("{:?}", d.display().to_string()));
-                errors.not_for("device", device, only_devices);
-                errors.not_for(
-                    "name",
-                    self.name.as_ref().map(|n| format!("{n:?}")),
-                    only_devices,
-                );
-                errors.not_for("grab", self.grab, only_devices);
-                errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
-                let file = self.file.clone().unwrap_or_else(|| {
-                    errors.absent(
-                        "file",
-                        "must name the recording to play for source = \"replay\"",
-                    );
-                    PathBuf::new()
-                });
-                SourceConfig::Replay { file }
+    fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
+        let path =
+            |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
+        let name = self.name.as_ref().map(|n| format!("{n:?}"));
+        if kind == SourceKind::Replay {
+            let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
+            errors.not_for("device", path(&self.device), only_devices);
+            errors.not_for("name", name, only_devices);
+            errors.not_for("grab", self.grab, only_devices);
+            errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_devices);
+            let file = self.file.clone().unwrap_or_else(|| {
+                let rule = "must name the recording to play for source = \"replay\"";
+                errors.absent("file", rule);
+                PathBuf::new()
+            });
+            return SourceConfig::Replay { file };
+        }
+        let only_replay = "only applies to source = \"replay\"";
+        errors.not_for("file", path(&self.file), only_replay);
+        let selector = match (&self.device, &self.name) {
+            (Some(d), Some(n)) => {
+                let rule = "give either device or name, not both";
+                errors.add("name", format!("{n:?}"), rule);
+                DeviceSelector::Path(d.clone())
             }
-            SourceKind::Joystick | SourceKind::Keyboard => {
-                let file = self
-                    .file
-                    .as_ref()
-                    .map(|f| format!("{:?}", f.display().to_string()));
-                errors.not_for("file", file, "only applies to source = \"replay\"");
-                let selector = match (&self.device, &self.name) {
-                    (Some(d), Some(n)) => {
-                        errors.add(
-                            "name",
-                            format!("{n:?}"),
-                            "give either device or name, not both",
-                        );
-                        DeviceSelector::Path(d.clone())
-                    }
-                    (Some(d), None) => {
-                        if d.as_os_str().is_empty() {
-                            errors.add("device", "\"\"", "must be a path");
-                        }
-                        DeviceSelector::Path(d.clone())
-                    }
-                    (None, Some(n)) => {
-                        if n.trim().is_empty() {
-                            errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
-                        }
-                        DeviceSelector::Name(n.clone())
-                    }
-                    (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
-                    (None, None) => DeviceSelector::AnyJoystick,
-                };
-                let reopen_ms = self
-                    .reopen_interval_ms
-                    .unwrap_or(DEFAULT_REOPEN_INTERVAL_MS);
-                let reopen = errors.int(
-                    "reopen_interval_ms",
-                    reopen_ms,
-                    REOPEN_INTERVAL_RANGE_MS,
-                    " ms",
-                );
-                SourceConfig::Evdev {
-                    selector,
-                    grab: self.grab.unwrap_or(false),
-                    reopen_interval: Duration::from_millis(reopen.unwrap_or_default()),
+            (Some(d), None) => {
+                if d.as_os_str().is_empty() {
+                    errors.add("device", "\"\"", "must be a path");
                 }
+                DeviceSelector::Path(d.clone())
             }
+            (None, Some(n)) => {
+                if n.trim().is_empty() {
+                    errors.add("name", format!("{n:?}"), "must be a non-empty pattern");
+                }
+                DeviceSelector::Name(n.clone())
+            }
+            (None, None) if kind == SourceKind::Keyboard => DeviceSelector::AnyKeyboard,
+            (None, None) => DeviceSelector::AnyJoystick,
+        };
+        let (key, range) = ("reopen_interval_ms", REOPEN_INTERVAL_RANGE_MS);
+        let reopen = self
+            .reopen_interval_ms
+            .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
+        let reopen_interval = errors
+            .millis(key, *reopen, range, " ms")
+            .unwrap_or_default();
+        let grab = *self.grab.get_or_insert(false);
+        SourceConfig::Evdev {
+            selector,
+            grab,
+            reopen_interval,
         }
     }
 }
 
 impl AxisSettings {
     /// Validates one axis; keys in errors are relative to the axis table.
-    fn validate(&self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
+    fn validate(&mut self, errors: &mut ConfigErrors) -> Option<AxisConfig> {
         let before = errors.0.len();
-        let expo = errors.float(
-            "expo",
-            self.expo.unwrap_or(0.0),
-            EXPO_RANGE,
-            "must be 0..=1",
-        );
-        let scale_pct = self.scale_pct.unwrap_or(100.0);
+        let expo = *self.expo.get_or_insert(0.0);
+        let expo = errors.float("expo", expo, EXPO_RANGE, "must be 0..=1");
+        let scale_pct = *self.scale_pct.get_or_insert(100.0);
         if !(scale_pct > 0.0 && scale_pct <= 100.0) {
-            errors.add(
-                "scale_pct",
-                scale_pct,
-                "must be greater than 0 and at most 100",
-            );
+            let rule = "must be greater than 0 and at most 100";
+            errors.add("scale_pct", scale_pct, rule);
         }
         let has_keys = self.negative.is_some() || self.positive.is_some();
-        let input = match (&self.abs, has_keys) {
-            (Some(_), true) => {
-                errors.add(
-                    "abs",
-                    format!("{:?}", self.abs.as_deref().unwrap_or_default()),
-                    "give either abs or negative/positive keys, not both",
-                );
+        let input = match (self.abs.clone(), has_keys) {
+            (Some(name), true) => {
+                let rule = "give either abs or negative/positive keys, not both";
+                errors.add("abs", format!("{name:?}"), rule);
                 None
             }
             (None, false) => {
-                errors.add(
-                    "abs",
-                    "(absent)",
-                    "must name an absolute axis (\"ABS_X\"), or give negative/positive keys",
-                );
+                let rule = "must name an absolute axis (\"ABS_X\"), or give negative/positive keys";
+                errors.add("abs", ABSENT, rule);
                 None
             }
-            (Some(name), false) => self.validate_abs(name, errors),
+            (Some(name), false) => self.validate_abs(&name, errors),
             (None, true) => self.validate_keys(errors),
         };
         let input = input?;
         (errors.0.len() == before).then_some(AxisConfig {
             input,
-            reverse: self.reverse.unwrap_or(false),
+            reverse: *self.reverse.get_or_insert(false),
             expo,
             scale: scale_pct / 100.0,
-            rest: self.rest.unwrap_or_default(),
+            rest: *self.rest.get_or_insert_default(),
         })
     }
 
@@ -686,23 +497,16 @@ impl AxisSettings {
         errors.not_for("spring_back_ms", self.spring_back_ms, not_for_abs);
         let code = parse_abs(name);
         if code.is_none() {
-            errors.add(
-                "abs",
-                format!("{name:?}"),
-                "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"",
-            );
+            let rule = "must name an absolute axis, e.g. \"ABS_X\", \"ABS_RY\", \"ABS_HAT0X\"";
+            errors.add("abs", format!("{name:?}"), rule);
         }
-        let deadzone = self
-            .deadband_pct
-            .map(|d| errors.float("deadband_pct", d, DEADBAND_RANGE_PCT, "must be 0..=50") / 100.0);
-        let raw = |errors: &mut ConfigErrors, key: &str, v: Option<Int>| {
+        let deadband = |d| errors.float("deadband_pct", d, DEADBAND_RANGE_PCT, "must be 0..=50");
+        let deadzone = self.deadband_pct.map(deadband).map(|d| d / 100.0);
+        let mut raw = |key: &str, v: Option<Int>| {
             errors.opt_int::<i32>(key, v, Int::from(i32::MIN)..=Int::from(i32::MAX), "")
         };
-        let (min, centre, max) = (
-            raw(errors, "min", self.min),
-            raw(errors, "centre", self.centre),
-            raw(errors, "max", self.max),
-        );
+        let (min, centre) = (raw("min", self.min), raw("centre", self.centre));
+        let max = raw("max", self.max);
         if let (Some(min), Some(max)) = (self.min, self.max) {
             if min >= max {
                 errors.add("max", max, format!("must be greater than min ({min})"));
@@ -710,11 +514,8 @@ impl AxisSettings {
         }
         if let Some(centre) = self.centre {
             if let Some(min) = self.min.filter(|m| centre <= *m) {
-                errors.add(
-                    "centre",
-                    centre,
-                    format!("must be greater than min ({min})"),
-                );
+                let rule = format!("must be greater than min ({min})");
+                errors.add("centre", centre, rule);
             }
             if let Some(max) = self.max.filter(|m| centre >= *m) {
                 errors.add("centre", centre, format!("must be less than max ({max})"));
@@ -729,49 +530,38 @@ impl AxisSettings {
         })
     }
 
-    fn validate_keys(&self, errors: &mut ConfigErrors) -> Option<AxisInput> {
+    fn validate_keys(&mut self, errors: &mut ConfigErrors) -> Option<AxisInput> {
         let not_for_keys = "only applies to abs axes";
         errors.not_for("deadband_pct", self.deadband_pct, not_for_keys);
         errors.not_for("min", self.min, not_for_keys);
         errors.not_for("centre", self.centre, not_for_keys);
         errors.not_for("max", self.max, not_for_keys);
         let mut key = |field: &str, value: &Option<String>| -> Option<Option<u16>> {
-            match value {
-                None => Some(None),
-                Some(name) => match parse_key(name) {
-                    Some(code) => Some(Some(code)),
-                    None => {
-                        errors.add(
-                            field,
-                            format!("{name:?}"),
-                            "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"",
-                        );
-                        None
-                    }
-                },
+            let Some(name) = value else { return Some(None) };
+            let code = parse_key(name);
+            if code.is_none() {
+                let rule = "must name a key or button, e.g. \"KEY_W\", \"BTN_TL\"";
+                errors.add(field, format!("{name:?}"), rule);
             }
+            code.map(Some)
         };
         let negative = key("negative", &self.negative);
         let positive = key("positive", &self.positive);
         if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
             if n == p {
-                errors.add(
-                    "positive",
-                    format!("{:?}", self.positive.as_deref().unwrap_or_default()),
-                    "must differ from negative",
-                );
+                let shown = format!("{:?}", self.positive.as_deref().unwrap_or_default());
+                errors.add("positive", shown, "must differ from negative");
             }
         }
-        let mut ms = |field: &str, value: Option<Int>, default: Int| {
-            let v = errors.int(field, value.unwrap_or(default), 0..=MAX_RAMP_MS, " ms");
-            Duration::from_millis(v.unwrap_or_default())
+        let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
+            let v = *value.get_or_insert(default);
+            errors
+                .millis(field, v, 0..=MAX_RAMP_MS, " ms")
+                .unwrap_or_default()
         };
-        let ramp_up = ms("ramp_up_ms", self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
-        let spring_back = ms(
-            "spring_back_ms",
-            self.spring_back_ms,
-            DEFAULT_SPRING_BACK_MS,
-        );
+        let ramp_up = ms("ramp_up_ms", &mut self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
+        let back = (&mut self.spring_back_ms, DEFAULT_SPRING_BACK_MS);
+        let spring_back = ms("spring_back_ms", back.0, back.1);
         Some(AxisInput::Keys {
             negative: negative?,
             positive: positive?,
@@ -810,16 +600,16 @@ mod tests {
         )
         .validate()
         .expect("valid");
-        assert_eq!(c.kind(), SourceKind::Joystick);
+        assert_eq!(c.kind, SourceKind::Joystick);
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Evdev {
                 selector: DeviceSelector::AnyJoystick,
                 grab: false,
                 reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS as u64),
             }
         );
-        let roll = c.mapping().axes[1].expect("roll mapped");
+        let roll = c.mapping.axes[1].expect("roll mapped");
         assert_eq!(
             roll.input,
             AxisInput::Abs {
@@ -832,8 +622,8 @@ mod tests {
         );
         assert_eq!((roll.reverse, roll.expo, roll.scale), (false, 0.0, 1.0));
         assert_eq!(roll.rest, Rest::Centre);
-        assert_eq!(c.mapping().silence_timeout, None);
-        assert_eq!(c.mapping().deadman, None);
+        assert_eq!(c.mapping.silence_timeout, None);
+        assert_eq!(c.mapping.deadman, None);
     }
 
     #[test]
@@ -852,14 +642,14 @@ mod tests {
         .validate()
         .expect("valid");
         assert!(matches!(
-            c.source(),
+            &c.source,
             SourceConfig::Evdev {
                 selector: DeviceSelector::AnyKeyboard,
                 ..
             }
         ));
         assert_eq!(
-            c.mapping().axes[0].map(|a| a.input),
+            c.mapping.axes[0].map(|a| a.input),
             Some(AxisInput::Keys {
                 negative: Some(31),
                 positive: Some(17),
@@ -867,9 +657,9 @@ mod tests {
                 spring_back: Duration::from_millis(DEFAULT_SPRING_BACK_MS as u64),
             })
         );
-        assert_eq!(c.mapping().deadman, Some(Control::Key(57)));
+        assert_eq!(c.mapping.deadman, Some(Control::Key(57)));
         assert_eq!(
-            c.mapping().actions,
+            c.mapping.actions,
             vec![(Control::Key(1), InputAction::Release)]
         );
     }
@@ -953,7 +743,7 @@ mod tests {
         let c = parse("source = \"joystick\"\n[axes.roll]\nabs = \"ABS_X\"\ninvert = true\ndeadzone_pct = 5.0")
             .validate()
             .expect("aliases");
-        let roll = c.mapping().axes[1].expect("roll mapped");
+        let roll = c.mapping.axes[1].expect("roll mapped");
         assert!(roll.reverse);
         assert!(matches!(roll.input, AxisInput::Abs { deadzone: Some(d), .. } if d == 0.05));
         let got = errors_of(
@@ -1029,15 +819,15 @@ mod tests {
 
     #[test]
     fn validate_as_accepts_a_consumed_tag_and_rejects_a_contradiction() {
-        let s = parse("file = \"r.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n");
+        let mut s = parse("file = \"r.txt\"\n[axes.roll]\nabs = \"ABS_X\"\n");
         let c = s.validate_as(SourceKind::Replay).expect("valid replay");
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Replay {
                 file: "r.txt".into()
             }
         );
-        let contradicting = InputSettings {
+        let mut contradicting = InputSettings {
             source: Some(SourceKind::Joystick),
             ..s
         };
@@ -1052,13 +842,13 @@ mod tests {
                 .expect("valid");
         c.resolve_relative_to(Path::new("/etc/rove"));
         assert_eq!(
-            c.source(),
+            &c.source,
             &SourceConfig::Replay {
                 file: "/etc/rove/rec.txt".into()
             }
         );
         let c = c.with_device(DeviceSelector::Path("/dev/input/event7".into()));
-        assert_eq!(c.kind(), SourceKind::Joystick);
-        assert!(matches!(c.source(), SourceConfig::Evdev { .. }));
+        assert_eq!(c.kind, SourceKind::Joystick);
+        assert!(matches!(&c.source, SourceConfig::Evdev { .. }));
     }
 }

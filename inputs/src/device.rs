@@ -634,7 +634,7 @@ mod tests {
 
     #[test]
     fn needs_lists_every_mapped_code_once() {
-        let settings: InputSettings = toml::from_str(
+        let mut settings: InputSettings = toml::from_str(
             r#"
             source = "joystick"
             [axes.roll]
@@ -651,7 +651,7 @@ mod tests {
         .expect("parses");
         let config = settings.validate().expect("valid");
         assert_eq!(
-            needed_codes(config.mapping()),
+            needed_codes(&config.mapping),
             Needs {
                 abs: vec![0x00, 0x10],
                 keys: vec![0x130, 0x136, 0x137],
@@ -670,7 +670,7 @@ mod tests {
 
     #[test]
     fn a_missing_device_is_reported_lost_not_fatal() {
-        let settings: InputSettings = toml::from_str(
+        let mut settings: InputSettings = toml::from_str(
             "source = \"joystick\"\ndevice = \"/nonexistent/event99\"\n[axes.roll]\nabs = \"ABS_X\"\n",
         )
         .expect("parses");
@@ -679,12 +679,12 @@ mod tests {
             selector,
             grab,
             reopen_interval,
-        } = config.source().clone()
+        } = config.source.clone()
         else {
             panic!("evdev source expected");
         };
         let mut source =
-            EvdevSource::spawn(selector, grab, reopen_interval, config.mapping().clone())
+            EvdevSource::spawn(selector, grab, reopen_interval, config.mapping.clone())
                 .expect("thread starts");
         let woken = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&woken);

@@ -113,8 +113,8 @@ impl InputSource for MappedSource {
 /// A fatal [`LinkError`] when a recording cannot be read or parsed (naming the file and line),
 /// or a device reader thread cannot be started.
 pub fn open_mapped(config: &InputConfig) -> Result<MappedSource, LinkError> {
-    match config.source() {
-        SourceConfig::Replay { file } => ReplaySource::open(file, config.mapping().clone())
+    match &config.source {
+        SourceConfig::Replay { file } => ReplaySource::open(file, config.mapping.clone())
             .map(MappedSource::Replay)
             .map_err(|e| LinkError::fatal(e.to_string())),
         SourceConfig::Evdev {
@@ -125,7 +125,7 @@ pub fn open_mapped(config: &InputConfig) -> Result<MappedSource, LinkError> {
             selector.clone(),
             *grab,
             *reopen_interval,
-            config.mapping().clone(),
+            config.mapping.clone(),
         )
         .map(MappedSource::Evdev),
     }

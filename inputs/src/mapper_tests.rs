@@ -17,11 +17,11 @@ const KEY_W: u16 = 17;
 const KEY_S: u16 = 31;
 
 fn mapping(toml_text: &str) -> MappingConfig {
-    let settings: InputSettings = toml::from_str(toml_text).expect("test TOML parses");
+    let mut settings: InputSettings = toml::from_str(toml_text).expect("test TOML parses");
     settings
         .validate()
         .expect("test mapping is valid")
-        .mapping()
+        .mapping
         .clone()
 }
 

@@ -20,7 +20,7 @@ enum InputSection {
 impl InputSection {
     /// What the gateway's validation would do: the constant source is its own; the others are
     /// validated by rove-inputs (error keys then get `input.` in front).
-    fn validate(&self) -> Option<rove_core::Result<rove_inputs::InputConfig>> {
+    fn validate(&mut self) -> Option<rove_core::Result<rove_inputs::InputConfig>> {
         match self {
             InputSection::Constant { throttle: _ } => None,
             InputSection::Joystick(s) => Some(s.validate_as(SourceKind::Joystick)),
@@ -42,7 +42,7 @@ fn parse(text: &str) -> Result<Operator, toml::de::Error> {
 
 #[test]
 fn a_tagged_enum_variant_validates_with_validate_as() {
-    let op = parse("[input]\nsource = \"keyboard\"\n[input.axes.yaw]\nnegative = \"KEY_A\"\n")
+    let mut op = parse("[input]\nsource = \"keyboard\"\n[input.axes.yaw]\nnegative = \"KEY_A\"\n")
         .expect("parses");
     let InputSection::Keyboard(settings) = &op.input else {
         panic!("keyboard variant expected, got {:?}", op.input);
@@ -53,8 +53,8 @@ fn a_tagged_enum_variant_validates_with_validate_as() {
         .validate()
         .expect("a device variant")
         .expect("valid");
-    assert_eq!(config.kind(), SourceKind::Keyboard);
-    let replay = parse("[input]\nsource = \"replay\"\n[input.axes.roll]\nabs = \"ABS_X\"\n")
+    assert_eq!(config.kind, SourceKind::Keyboard);
+    let mut replay = parse("[input]\nsource = \"replay\"\n[input.axes.roll]\nabs = \"ABS_X\"\n")
         .expect("parses");
     let err = replay
         .input
@@ -62,7 +62,7 @@ fn a_tagged_enum_variant_validates_with_validate_as() {
         .expect("a device variant")
         .expect_err("no file");
     assert!(err.to_string().starts_with("file = (absent)"), "{err}");
-    let constant = parse("[input]\nsource = \"constant\"\nthrottle = 5\n").expect("parses");
+    let mut constant = parse("[input]\nsource = \"constant\"\nthrottle = 5\n").expect("parses");
     assert!(matches!(
         constant.input,
         InputSection::Constant { throttle: 5 }
@@ -84,12 +84,12 @@ fn the_struct_alone_reads_the_source_key_itself() {
     struct Plain {
         input: InputSettings,
     }
-    let plain: Plain = toml::from_str(
+    let mut plain: Plain = toml::from_str(
         "[input]\nsource = \"replay\"\nfile = \"r.txt\"\n[input.axes.roll]\nabs = \"ABS_X\"\n",
     )
     .expect("parses");
     assert_eq!(
-        plain.input.validate().expect("valid").kind(),
+        plain.input.validate().expect("valid").kind,
         SourceKind::Replay
     );
 }

@@ -16,7 +16,7 @@ fn load(name: &str) -> rove_inputs::InputConfig {
         .join("../configs")
         .join(name);
     let text = std::fs::read_to_string(&path).expect("example readable");
-    let file: File = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let mut file: File = toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
     file.input
         .validate()
         .unwrap_or_else(|e| panic!("{name}: {e}"))
@@ -33,24 +33,24 @@ fn every_example_in_the_directory_is_valid() {
         let config = load(name);
         // Every example maps all four axes, a deadman and all ten actions.
         for (slot, axis) in AXES.iter().enumerate() {
-            assert!(config.mapping().axes[slot].is_some(), "{name}: {axis:?}");
+            assert!(config.mapping.axes[slot].is_some(), "{name}: {axis:?}");
         }
-        assert!(config.mapping().deadman.is_some(), "{name}: deadman");
-        assert_eq!(config.mapping().actions.len(), 10, "{name}: actions");
+        assert!(config.mapping.deadman.is_some(), "{name}: deadman");
+        assert_eq!(config.mapping.actions.len(), 10, "{name}: actions");
     }
 }
 
 #[test]
 fn examples_choose_their_source_kind() {
-    assert_eq!(load("operator-gamepad.toml").kind(), SourceKind::Joystick);
+    assert_eq!(load("operator-gamepad.toml").kind, SourceKind::Joystick);
     assert_eq!(
-        load("operator-flight-stick.toml").kind(),
+        load("operator-flight-stick.toml").kind,
         SourceKind::Joystick
     );
     let keyboard = load("operator-keyboard.toml");
-    assert_eq!(keyboard.kind(), SourceKind::Keyboard);
+    assert_eq!(keyboard.kind, SourceKind::Keyboard);
     assert!(matches!(
-        keyboard.source(),
+        &keyboard.source,
         SourceConfig::Evdev { grab: false, .. }
     ));
 }

@@ -48,7 +48,7 @@ fn mapping(deadman: bool, silence: bool) -> MappingConfig {
         .expect("parses")
         .validate()
         .expect("valid")
-        .mapping()
+        .mapping
         .clone()
 }
 

@@ -29,7 +29,7 @@ fn mapping(name: &str) -> MappingConfig {
     example(name)
         .validate()
         .expect("example valid")
-        .mapping()
+        .mapping
         .clone()
 }
 
@@ -237,7 +237,7 @@ fn flight_stick_lever_must_rest_at_idle_first() {
 
 #[test]
 fn a_binary_capture_plays_with_calibration_from_config() {
-    let settings: InputSettings = toml::from_str(
+    let mut settings: InputSettings = toml::from_str(
         r#"
         source = "replay"
         file = "unused"
@@ -252,7 +252,7 @@ fn a_binary_capture_plays_with_calibration_from_config() {
     )
     .expect("parses");
     let config = settings.validate().expect("valid");
-    let mut source = ReplaySource::open(&recording("pad_capture.bin"), config.mapping().clone())
+    let mut source = ReplaySource::open(&recording("pad_capture.bin"), config.mapping.clone())
         .expect("binary loads");
     assert_eq!(
         play(&mut source, 10_000),
@@ -272,7 +272,7 @@ fn open_plays_a_replay_config_as_a_boxed_source() {
         recording("gamepad_unplug.txt").display().to_string(),
         "[axes.throttle]\nabs = \"ABS_Y\"\ninvert = true\n[buttons]\ndeadman = \"BTN_TL\"\n"
     );
-    let settings: InputSettings = toml::from_str(&text).expect("parses");
+    let mut settings: InputSettings = toml::from_str(&text).expect("parses");
     let config = settings.validate().expect("valid");
     let mut source = rove_inputs::open(&config).expect("opens");
     assert!(source.describe().contains("gamepad_unplug.txt"));
@@ -317,7 +317,7 @@ fn the_silence_timeout_applies_to_replays() {
         Path::new("<memory>"),
     )
     .expect("parses");
-    let mut source = ReplaySource::new(recording, config.mapping().clone(), "pad");
+    let mut source = ReplaySource::new(recording, config.mapping.clone(), "pad");
     let got = play(&mut source, 1_000);
     assert_eq!(got.len(), 5, "{got:?}");
     assert_eq!(got[0], (0, mv(0, 0, 0, 0)));

@@ -73,7 +73,7 @@ fn virtual_gamepad_drives_and_unplug_is_lost() {
         DeviceSelector::Path(node),
         false,
         Duration::from_millis(50),
-        config.mapping().clone(),
+        config.mapping.clone(),
     )
     .expect("reader starts");
     let start = Instant::now();

@@ -1,6 +1,7 @@
 //! The `[output]` section of a CAN vehicle (`adapter = "can"`): the raw serde structs, which
 //! only parse and reject unknown keys, and [`CanSettings::validate`], which checks every key,
-//! collects every problem and returns the validated [`CanConfig`].
+//! collects every problem and returns the validated [`CanConfig`]. The keys are described in
+//! the crate docs.
 //!
 //! Keys of errors are relative to the `[output]` table, e.g. `frames[1].outputs[0].offset`;
 //! the gateway puts `output.` in front. Integers are read wide ([`rove_core::config::Int`]) so
@@ -43,139 +44,79 @@ pub const DEFAULT_PRIORITY: i64 = 16;
 /// Longest Linux interface name (`IFNAMSIZ` 16 less the terminating NUL).
 pub const INTERFACE_NAME_MAX: usize = 15;
 
-/// `[output]` for `adapter = "can"`, as written.
-///
-/// The gateway reads `[output]` as an internally tagged enum on `adapter`; the tag is
-/// consumed there, so this struct sees only the other keys and can deny unknown ones.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CanSettings {
-    /// SocketCAN interface name: `can0`, `vcan0`, `slcan0` (required).
-    pub interface: Option<String>,
-    /// Open the interface in CAN FD mode, allowing raw frames longer than 8 bytes (absent:
-    /// false).
-    pub fd: Option<bool>,
-    /// Send rate of every frame and DroneCAN command, Hz (absent: [`DEFAULT_RATE_HZ`]).
-    pub rate_hz: Option<i64>,
-    /// Raw frames (`[[output.frames]]`).
-    #[serde(default)]
-    pub frames: Vec<FrameSettings>,
-    /// DroneCAN actuators (`[output.dronecan]`).
-    pub dronecan: Option<DroneCanSettings>,
+rove_core::config_types! {
+    /// `[output]` for `adapter = "can"`, as written (the gateway consumes `adapter`).
+    #[serde(deny_unknown_fields)]
+    pub settings CanSettings {
+        interface: Option<String> => "SocketCAN interface name.",
+        fd: Option<bool> => "CAN FD mode.",
+        rate_hz: Option<i64> => "Send rate of every frame and command, Hz.",
+        #[serde(default)] frames: Vec<FrameSettings> => "`[[output.frames]]`.",
+        dronecan: Option<DroneCanSettings> => "`[output.dronecan]`.",
+    }
+
+    /// One raw frame (`[[output.frames]]`), as written.
+    #[serde(deny_unknown_fields)]
+    pub settings FrameSettings {
+        id: Option<i64> => "CAN identifier.",
+        extended: Option<bool> => "29-bit identifier.",
+        length: Option<i64> => "Data length, bytes.",
+        rate_hz: Option<i64> => "This frame's send rate, Hz.",
+        #[serde(default)] outputs: Vec<FieldSettings> => "`[[output.frames.outputs]]`.",
+    }
+
+    /// One value in a raw frame (`[[output.frames.outputs]]`), as written.
+    pub settings FieldSettings {
+        name: Option<String> => "Name for logs and status.",
+        source: Option<SourceSettings> => "What drives it.",
+        offset: Option<i64> => "First byte.",
+        width: Option<i64> => "Bits: 8, 16 or 32.",
+        endian: Option<Endian> => "Byte order.",
+        signed: Option<bool> => "Two's complement.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
+
+    /// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
+    #[derive(Copy)]
+    #[serde(deny_unknown_fields)]
+    pub settings ScaleSettings<T> {
+        min: Option<T> => "Value at −full scale.",
+        centre: Option<T> => "Value at centre.",
+        max: Option<T> => "Value at +full scale.",
+        failsafe: Option<T> => "Value in the safe state.",
+    }
+
+    /// `[output.dronecan]`, as written.
+    #[serde(deny_unknown_fields)]
+    pub settings DroneCanSettings {
+        node_id: Option<i64> => "Our node id.",
+        priority: Option<i64> => "Priority of the commands.",
+        rate_hz: Option<i64> => "Command rate, Hz.",
+        #[serde(default)] servos: Vec<ServoSettings> => "Servos, sent as one ArrayCommand.",
+        #[serde(default)] escs: Vec<EscSettings> => "ESCs, sent as one RawCommand.",
+    }
+
+    /// One DroneCAN servo, as written.
+    pub settings ServoSettings {
+        name: Option<String> => "Name for logs and status.",
+        actuator_id: Option<Int> => "The actuator's id.",
+        source: Option<SourceSettings> => "What drives it.",
+        #[serde(flatten)] scale: ScaleSettings<f64> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
+
+    /// One DroneCAN ESC channel, as written.
+    pub settings EscSettings {
+        name: Option<String> => "Name for logs and status.",
+        index: Option<Int> => "Index in the RawCommand array.",
+        source: Option<SourceSettings> => "What drives it.",
+        #[serde(flatten)] scale: ScaleSettings<Int> => "`min`, `centre`, `max`, `failsafe`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 }
 
-/// One raw frame (`[[output.frames]]`), as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FrameSettings {
-    /// CAN identifier (required; write it in hex: `id = 0x201`).
-    pub id: Option<i64>,
-    /// 29-bit identifier (absent: false, an 11-bit identifier).
-    pub extended: Option<bool>,
-    /// Data length in bytes (absent: just long enough for the outputs).
-    pub length: Option<i64>,
-    /// This frame's send rate, Hz (absent: the section's `rate_hz`).
-    pub rate_hz: Option<i64>,
-    /// The values in the frame (`[[output.frames.outputs]]`).
-    #[serde(default)]
-    pub outputs: Vec<FieldSettings>,
-}
-
-/// One value in a raw frame (`[[output.frames.outputs]]`), as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct FieldSettings {
-    /// Name for logs and status (absent: `frames[i].outputs[j]`).
-    pub name: Option<String>,
-    /// What drives it (required): an axis, or a mix of axes.
-    pub source: Option<SourceSettings>,
-    /// First byte (required).
-    pub offset: Option<i64>,
-    /// Bits: 8, 16 or 32 (absent: 16).
-    pub width: Option<i64>,
-    /// `"little"` or `"big"` (absent: little).
-    pub endian: Option<Endian>,
-    /// Two's complement (absent: true).
-    pub signed: Option<bool>,
-    /// `min`, `centre`, `max`, `failsafe` in device units (absent: the field's lowest value,
-    /// symmetric for signed; halfway; the field's highest value; centre).
-    #[serde(flatten)]
-    pub scale: ScaleSettings<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
-
-/// `min`/`centre`/`max`/`failsafe` of a CAN output, as written: the one definition for raw
-/// fields (device units), DroneCAN servos (−1..=1) and ESCs (raw command), flattened into each.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScaleSettings<T> {
-    /// Value at −full scale.
-    pub min: Option<T>,
-    /// Value at centre (absent: halfway between min and max).
-    pub centre: Option<T>,
-    /// Value at +full scale.
-    pub max: Option<T>,
-    /// Value in the safe state (absent: centre, unless the output says otherwise).
-    pub failsafe: Option<T>,
-}
-
-/// `[output.dronecan]`, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DroneCanSettings {
-    /// Our node id, 1..=127 (required; must differ from every other node on the bus).
-    pub node_id: Option<i64>,
-    /// Priority of the commands, 0 (highest)..=31 (absent: [`DEFAULT_PRIORITY`]).
-    pub priority: Option<i64>,
-    /// Command rate, Hz (absent: the section's `rate_hz`).
-    pub rate_hz: Option<i64>,
-    /// Servos, sent as one `uavcan.equipment.actuator.ArrayCommand` (`[[output.dronecan.servos]]`).
-    #[serde(default)]
-    pub servos: Vec<ServoSettings>,
-    /// ESCs, sent as one `uavcan.equipment.esc.RawCommand` (`[[output.dronecan.escs]]`).
-    #[serde(default)]
-    pub escs: Vec<EscSettings>,
-}
-
-/// One DroneCAN servo, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ServoSettings {
-    /// Name for logs and status (absent: `dronecan.servos[i]`).
-    pub name: Option<String>,
-    /// The actuator's id, 0..=255 (required).
-    pub actuator_id: Option<Int>,
-    /// What drives it (required).
-    pub source: Option<SourceSettings>,
-    /// `min`, `centre`, `max`, `failsafe`: commands −1..=1 (absent: −1, halfway, 1, centre).
-    #[serde(flatten)]
-    pub scale: ScaleSettings<f64>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
-
-/// One DroneCAN ESC channel, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct EscSettings {
-    /// Name for logs and status (absent: `dronecan.escs[i]`).
-    pub name: Option<String>,
-    /// Index in the RawCommand array, 0..=19 (required). Unlisted indices below the highest
-    /// are sent as 0 (stop).
-    pub index: Option<Int>,
-    /// What drives it (required).
-    pub source: Option<SourceSettings>,
-    /// `min`, `centre`, `max`, `failsafe`: raw commands −8192..=8191 (absent: 0, halfway,
-    /// 8191, 0 = motor stopped).
-    #[serde(flatten)]
-    pub scale: ScaleSettings<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
-
-/// `source = …` as written: an axis name (`"throttle"`, `"roll"`, `"pitch"`, `"yaw"`), or
-/// `{ mix = [["throttle", 1.0], ["roll", -1.0]] }`, a weighted sum of axes.
+/// `source = …` as written: an axis name, or `{ mix = [["throttle", 1.0], ["roll", -1.0]] }`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum SourceSettings {
@@ -191,43 +132,24 @@ pub enum SourceSettings {
 impl<'de> Deserialize<'de> for SourceSettings {
     fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         struct SourceVisitor;
-
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Mix {
+            mix: Vec<(Axis, f64)>,
+        }
         impl<'de> Visitor<'de> for SourceVisitor {
             type Value = SourceSettings;
-
             fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str(
-                    "an axis (\"throttle\", \"roll\", \"pitch\", \"yaw\") or \
-                     { mix = [[\"throttle\", 1.0], [\"roll\", 1.0]] }",
-                )
+                f.write_str("an axis or { mix = [[\"throttle\", 1.0], [\"roll\", 1.0]] }")
             }
-
             fn visit_str<E: de::Error>(self, v: &str) -> Result<SourceSettings, E> {
-                match v {
-                    "throttle" => Ok(SourceSettings::Axis(Axis::Throttle)),
-                    "roll" => Ok(SourceSettings::Axis(Axis::Roll)),
-                    "pitch" => Ok(SourceSettings::Axis(Axis::Pitch)),
-                    "yaw" => Ok(SourceSettings::Axis(Axis::Yaw)),
-                    _ => Err(E::invalid_value(de::Unexpected::Str(v), &self)),
-                }
+                Axis::deserialize(de::value::StrDeserializer::new(v)).map(SourceSettings::Axis)
             }
-
-            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<SourceSettings, A::Error> {
-                let mut mix = None;
-                while let Some(key) = map.next_key::<String>()? {
-                    if key != "mix" {
-                        return Err(de::Error::unknown_field(&key, &["mix"]));
-                    }
-                    if mix.is_some() {
-                        return Err(de::Error::duplicate_field("mix"));
-                    }
-                    mix = Some(map.next_value::<Vec<(Axis, f64)>>()?);
-                }
-                mix.map(|mix| SourceSettings::Mix { mix })
-                    .ok_or_else(|| de::Error::missing_field("mix"))
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<SourceSettings, A::Error> {
+                let Mix { mix } = Mix::deserialize(de::value::MapAccessDeserializer::new(map))?;
+                Ok(SourceSettings::Mix { mix })
             }
         }
-
         deserializer.deserialize_any(SourceVisitor)
     }
 }
@@ -237,8 +159,7 @@ impl fmt::Display for SourceSettings {
         match self {
             SourceSettings::Axis(a) => f.write_str(axis_name(*a)),
             SourceSettings::Mix { mix } => {
-                let terms: Vec<String> = mix
-                    .iter()
+                let terms: Vec<String> = (mix.iter())
                     .map(|(a, w)| format!("[\"{}\", {w}]", axis_name(*a)))
                     .collect();
                 write!(f, "{{ mix = [{}] }}", terms.join(", "))
@@ -256,282 +177,113 @@ pub const MIX_WEIGHT_MAX: f64 = 4.0;
 
 impl SourceSettings {
     fn validate(&self, errors: &mut ConfigErrors) -> Source {
-        match self {
-            SourceSettings::Axis(a) => Source::Axis(*a),
-            SourceSettings::Mix { mix } => {
-                if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
-                    errors.add(
-                        "source",
-                        self,
-                        format!("a mix needs 1..={MIX_TERMS_MAX} terms"),
-                    );
-                }
-                for (i, (axis, weight)) in mix.iter().enumerate() {
-                    if !weight.is_finite() || weight.abs() > MIX_WEIGHT_MAX || *weight == 0.0 {
-                        errors.add(
-                            "source",
-                            self,
-                            format!(
-                                "weight of {} must be non-zero and within ±{MIX_WEIGHT_MAX}",
-                                axis_name(*axis)
-                            ),
-                        );
-                    }
-                    if mix[..i].iter().any(|(other, _)| other == axis) {
-                        errors.add(
-                            "source",
-                            self,
-                            format!("{} appears twice in the mix", axis_name(*axis)),
-                        );
-                    }
-                }
-                Source::Mix(mix.clone())
+        let mix = match self {
+            SourceSettings::Axis(a) => return Source::Axis(*a),
+            SourceSettings::Mix { mix } => mix,
+        };
+        if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
+            let rule = format!("a mix needs 1..={MIX_TERMS_MAX} terms");
+            errors.add("source", self, rule);
+        }
+        for (i, (axis, weight)) in mix.iter().enumerate() {
+            let name = axis_name(*axis);
+            if !weight.is_finite() || weight.abs() > MIX_WEIGHT_MAX || *weight == 0.0 {
+                let rule =
+                    format!("weight of {name} must be non-zero and within ±{MIX_WEIGHT_MAX}");
+                errors.add("source", self, rule);
+            }
+            if mix[..i].iter().any(|(other, _)| other == axis) {
+                errors.add("source", self, format!("{name} appears twice in the mix"));
             }
         }
+        Source::Mix(mix.clone())
     }
 }
 
-/// A validated CAN vehicle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CanConfig {
-    interface: String,
-    fd: bool,
-    frames: Vec<RawFrameConfig>,
-    dronecan: Option<DroneCanConfig>,
-}
+rove_core::config_types! {
+    /// A validated CAN vehicle.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct CanConfig {
+        interface: String => "The SocketCAN interface name.",
+        fd: bool => "Whether the interface is opened in CAN FD mode.",
+        frames: Vec<RawFrameConfig> => "The raw frames, in config order.",
+        dronecan: Option<DroneCanConfig> => "The DroneCAN settings, if any.",
+    }
 
-/// A validated raw frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawFrameConfig {
-    id: CanId,
-    length: usize,
-    period: Duration,
-    outputs: Vec<RawOutputConfig>,
-}
+    /// A validated raw frame.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct RawFrameConfig {
+        id: CanId => "The identifier.",
+        length: usize => "Data length, bytes.",
+        period: Duration => "Send period.",
+        outputs: Vec<RawOutputConfig> => "The values in the frame.",
+    }
 
-/// A validated value in a raw frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RawOutputConfig {
-    name: String,
-    source: Source,
-    layout: FieldLayout,
-    scale: Scale,
-    failsafe: i64,
-}
+    /// A validated value in a raw frame.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct RawOutputConfig {
+        name: String => "Name.",
+        source: Source => "What drives it.",
+        layout: FieldLayout => "Where it sits in the frame.",
+        scale: Scale => "Axis → device units.",
+        failsafe: i64 => "Safe-state value, device units.",
+    }
 
-/// Validated DroneCAN settings.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DroneCanConfig {
-    node_id: u8,
-    priority: u8,
-    period: Duration,
-    servos: Vec<ServoConfig>,
-    escs: Vec<EscConfig>,
-}
+    /// Validated DroneCAN settings.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct DroneCanConfig {
+        node_id: u8 => "Our node id.",
+        priority: u8 => "Priority of the commands.",
+        period: Duration => "Command period.",
+        servos: Vec<ServoConfig> => "Servos, in ArrayCommand order.",
+        escs: Vec<EscConfig> => "ESC channels.",
+    }
 
-/// A validated DroneCAN servo.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ServoConfig {
-    name: String,
-    actuator_id: u8,
-    source: Source,
-    scale: UnitScale,
-    failsafe: f32,
-}
+    /// A validated DroneCAN servo.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct ServoConfig {
+        name: String => "Name.",
+        actuator_id: u8 => "The actuator id.",
+        source: Source => "What drives it.",
+        scale: UnitScale => "Axis → normalised command.",
+        failsafe: f32 => "Safe-state command.",
+    }
 
-/// A validated DroneCAN ESC channel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct EscConfig {
-    name: String,
-    index: u8,
-    source: Source,
-    scale: Scale,
-    failsafe: i64,
+    /// A validated DroneCAN ESC channel.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct EscConfig {
+        name: String => "Name.",
+        index: u8 => "Index in the RawCommand array.",
+        source: Source => "What drives it.",
+        scale: Scale => "Axis → raw command.",
+        failsafe: i64 => "Safe-state command.",
+    }
 }
 
 impl CanConfig {
-    /// The SocketCAN interface name.
-    pub fn interface(&self) -> &str {
-        &self.interface
-    }
-
-    /// Whether the interface is opened in CAN FD mode.
-    pub fn fd(&self) -> bool {
-        self.fd
-    }
-
-    /// The raw frames, in config order.
-    pub fn frames(&self) -> &[RawFrameConfig] {
-        &self.frames
-    }
-
-    /// The DroneCAN settings, if any.
-    pub fn dronecan(&self) -> Option<&DroneCanConfig> {
-        self.dronecan.as_ref()
-    }
-
     /// The shortest period of anything sent: how often the vehicle needs a keep-alive.
     pub fn keepalive_period(&self) -> Duration {
         let frames = self.frames.iter().map(|f| f.period);
-        let dronecan = self
-            .dronecan
-            .iter()
-            .flat_map(|d| [d.period, NODE_STATUS_PERIOD]);
+        let dronecan = (self.dronecan.iter()).flat_map(|d| [d.period, NODE_STATUS_PERIOD]);
         frames.chain(dronecan).min().unwrap_or(NODE_STATUS_PERIOD)
     }
 
     /// Every output's name, in config order (raw, then servos, then ESCs).
     pub fn output_names(&self) -> Vec<&str> {
-        let raw = self
-            .frames
-            .iter()
-            .flat_map(|f| f.outputs.iter().map(|o| o.name.as_str()));
+        let raw = (self.frames.iter()).flat_map(|f| f.outputs.iter().map(|o| o.name.as_str()));
         let dc = self.dronecan.iter().flat_map(|d| {
-            d.servos
-                .iter()
-                .map(|s| s.name.as_str())
-                .chain(d.escs.iter().map(|e| e.name.as_str()))
+            let servos = d.servos.iter().map(|s| s.name.as_str());
+            servos.chain(d.escs.iter().map(|e| e.name.as_str()))
         });
         raw.chain(dc).collect()
     }
 }
 
-impl RawFrameConfig {
-    /// The identifier.
-    pub fn id(&self) -> CanId {
-        self.id
-    }
-
-    /// Data length, bytes.
-    pub fn length(&self) -> usize {
-        self.length
-    }
-
-    /// Send period.
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
-    /// The values in the frame.
-    pub fn outputs(&self) -> &[RawOutputConfig] {
-        &self.outputs
-    }
-}
-
-impl RawOutputConfig {
-    /// Name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// What drives it.
-    pub fn source(&self) -> &Source {
-        &self.source
-    }
-
-    /// Where it sits in the frame.
-    pub fn layout(&self) -> FieldLayout {
-        self.layout
-    }
-
-    /// Axis → device units.
-    pub fn scale(&self) -> Scale {
-        self.scale
-    }
-
-    /// Safe-state value, device units.
-    pub fn failsafe(&self) -> i64 {
-        self.failsafe
-    }
-}
-
 impl DroneCanConfig {
-    /// Our node id.
-    pub fn node_id(&self) -> u8 {
-        self.node_id
-    }
-
-    /// Priority of the commands.
-    pub fn priority(&self) -> u8 {
-        self.priority
-    }
-
-    /// Command period.
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
-    /// Servos, in ArrayCommand order.
-    pub fn servos(&self) -> &[ServoConfig] {
-        &self.servos
-    }
-
-    /// ESC channels.
-    pub fn escs(&self) -> &[EscConfig] {
-        &self.escs
-    }
-
     /// Length of the RawCommand array: highest index + 1 (0 without ESCs).
     pub fn esc_array_len(&self) -> usize {
-        self.escs
-            .iter()
-            .map(|e| usize::from(e.index) + 1)
-            .max()
-            .unwrap_or(0)
-    }
-}
-
-impl ServoConfig {
-    /// Name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// The actuator id.
-    pub fn actuator_id(&self) -> u8 {
-        self.actuator_id
-    }
-
-    /// What drives it.
-    pub fn source(&self) -> &Source {
-        &self.source
-    }
-
-    /// Axis → normalised command.
-    pub fn scale(&self) -> UnitScale {
-        self.scale
-    }
-
-    /// Safe-state command.
-    pub fn failsafe(&self) -> f32 {
-        self.failsafe
-    }
-}
-
-impl EscConfig {
-    /// Name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// Index in the RawCommand array.
-    pub fn index(&self) -> u8 {
-        self.index
-    }
-
-    /// What drives it.
-    pub fn source(&self) -> &Source {
-        &self.source
-    }
-
-    /// Axis → raw command.
-    pub fn scale(&self) -> Scale {
-        self.scale
-    }
-
-    /// Safe-state command.
-    pub fn failsafe(&self) -> i64 {
-        self.failsafe
+        let len = self.escs.iter().map(|e| usize::from(e.index) + 1);
+        len.max().unwrap_or(0)
     }
 }
 
@@ -539,8 +291,10 @@ fn period_of(rate_hz: i64) -> Duration {
     Duration::from_nanos(1_000_000_000 / rate_hz.clamp(1, 1_000_000_000) as u64)
 }
 
-fn check_rate(key: &str, rate: Option<Int>, errors: &mut ConfigErrors) -> Option<Int> {
-    errors.opt_int(key, rate, RATE_RANGE_HZ, " Hz")
+/// A `rate_hz` key, filled with `default` when absent; `default` also stands in for a bad one.
+fn check_rate(rate: &mut Option<Int>, default: Int, errors: &mut ConfigErrors) -> Int {
+    let rate = *rate.get_or_insert(default);
+    (errors.int("rate_hz", rate, RATE_RANGE_HZ, " Hz")).unwrap_or(default)
 }
 
 impl<T: Copy + PartialOrd + fmt::Display> ScaleSettings<T> {
@@ -548,16 +302,18 @@ impl<T: Copy + PartialOrd + fmt::Display> ScaleSettings<T> {
     /// defaults: `(lo, hi)` for min and max, `mid` for the centre, then `failsafe_default` or
     /// the centre. `None` if any is invalid (each invalid key recorded with `rule`).
     fn check(
-        &self,
+        &mut self,
         (lo, hi): (T, T),
         mid: fn(T, T) -> T,
         failsafe_default: Option<T>,
         (range, rule): (RangeInclusive<T>, &str),
         errors: &mut ConfigErrors,
     ) -> Option<[T; 4]> {
-        let (min, max) = (self.min.unwrap_or(lo), self.max.unwrap_or(hi));
-        let centre = self.centre.unwrap_or_else(|| mid(min, max));
-        let failsafe = self.failsafe.or(failsafe_default).unwrap_or(centre);
+        let (min, max) = (*self.min.get_or_insert(lo), *self.max.get_or_insert(hi));
+        let centre = *self.centre.get_or_insert_with(|| mid(min, max));
+        let failsafe = *self
+            .failsafe
+            .get_or_insert(failsafe_default.unwrap_or(centre));
         let values = [min, centre, max, failsafe];
         let mut ok = true;
         for (key, v) in ["min", "centre", "max", "failsafe"].into_iter().zip(values) {
@@ -578,7 +334,7 @@ impl<T: Copy + PartialOrd + fmt::Display> ScaleSettings<T> {
 
 /// [`ScaleSettings::check`] for integer device units: `lo..=hi` as the range and its rule.
 fn int_scale(
-    s: &ScaleSettings<Int>,
+    s: &mut ScaleSettings<Int>,
     defaults: (Int, Int),
     failsafe_default: Option<Int>,
     (lo, hi): (Int, Int),
@@ -597,63 +353,45 @@ fn output_name(name: &Option<String>, default_name: &str) -> String {
 }
 
 impl CanSettings {
-    /// Validates every key, filling defaults.
+    /// Validates every key, filling defaults into `self` (which then serializes as the
+    /// effective config).
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem, each naming its key relative to
-    /// `[output]`: a missing or bad interface, rates outside [`RATE_RANGE_HZ`], identifiers
-    /// that do not fit 11/29 bits or repeat, frame lengths that are not CAN lengths, outputs
-    /// past the frame's end or overlapping another, widths other than 8/16/32, scale values
-    /// the field cannot hold, DroneCAN node ids, priorities, actuator ids and ESC indices out
-    /// of range or repeated, and a vehicle with nothing to send.
-    pub fn validate(&self) -> rove_core::Result<CanConfig> {
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
+    /// key table (or repeats an identifier, name or place), relative to `[output]`.
+    pub fn validate(&mut self) -> rove_core::Result<CanConfig> {
         let mut errors = ConfigErrors::default();
         let mut names = Unique::default();
-        let fd = self.fd.unwrap_or(false);
-        let interface = errors
-            .required("interface", &self.interface)
-            .unwrap_or_default();
-        if self.interface.is_some()
-            && (interface.is_empty()
-                || interface.len() > INTERFACE_NAME_MAX
-                || !interface
-                    .chars()
-                    .all(|c| c.is_ascii_graphic() && c != '/' && c != ':'))
-        {
-            errors.add(
-                "interface",
-                format!("{interface:?}"),
-                format!(
-                    "must be a network interface name: 1..={INTERFACE_NAME_MAX} printable \
-                     characters, no '/' or ':'"
-                ),
+        let fd = *self.fd.get_or_insert(false);
+        let interface = (errors.required("interface", &self.interface)).unwrap_or_default();
+        let bad = |c: char| !c.is_ascii_graphic() || c == '/' || c == ':';
+        let fits = (1..=INTERFACE_NAME_MAX).contains(&interface.len());
+        if self.interface.is_some() && (!fits || interface.contains(bad)) {
+            let max = INTERFACE_NAME_MAX;
+            let rule = format!(
+                "must be a network interface name: 1..={max} printable characters, no '/' or ':'"
             );
+            errors.add("interface", format!("{interface:?}"), rule);
         }
-        let rate = check_rate("rate_hz", self.rate_hz, &mut errors).unwrap_or(DEFAULT_RATE_HZ);
-        let mut frames: Vec<RawFrameConfig> = Vec::new();
-        let mut ids = Unique::default();
-        let mut our_ids = Vec::new();
-        for (i, f) in self.frames.iter().enumerate() {
-            let mut fe = ConfigErrors::default();
-            let frame = validate_frame(f, i, fd, rate, &mut names, &mut fe);
-            // Checked on the id as written, so a frame with other errors still counts.
-            let id = f.id.and_then(|id| {
-                CanId::new(u32::try_from(id).ok()?, f.extended.unwrap_or(false)).ok()
+        let rate = check_rate(&mut self.rate_hz, DEFAULT_RATE_HZ, &mut errors);
+        let (mut frames, mut ids, mut our_ids) = (Vec::new(), Unique::default(), Vec::new());
+        for (i, f) in self.frames.iter_mut().enumerate() {
+            let owner = format!("frames[{i}]");
+            let frame = errors.within(&owner, |fe| {
+                let frame = validate_frame(f, i, fd, rate, &mut names, fe);
+                // Checked on the id as written, so a frame with other errors still counts.
+                let id = (f.id.and_then(|id| u32::try_from(id).ok()))
+                    .and_then(|id| CanId::new(id, f.extended.unwrap_or(false)).ok());
+                if let Some(id) = id {
+                    ids.check(fe, id, &owner, ("id", id), "has the same identifier");
+                    our_ids.push((id, i));
+                }
+                frame
             });
-            if let Some(id) = id {
-                let owner = format!("frames[{i}]");
-                ids.check(&mut fe, id, &owner, ("id", id), "has the same identifier");
-                our_ids.push((id, i));
-            }
-            errors.extend_within(&format!("frames[{i}]"), fe);
             frames.extend(frame);
         }
-        let dronecan = self.dronecan.as_ref().and_then(|d| {
-            let mut de = ConfigErrors::default();
-            let config = d.validate(rate, &mut names, &mut de);
-            errors.extend_within("dronecan", de);
-            config
-        });
+        let dronecan = (self.dronecan.as_mut())
+            .and_then(|d| errors.within("dronecan", |de| d.validate(rate, &mut names, de)));
         if let Some(dc) = &dronecan {
             // Our own DroneCAN identifiers must not be reused by a raw frame.
             let ours = [
@@ -664,20 +402,15 @@ impl CanSettings {
             for (t, priority) in ours {
                 let id = CanId::Extended(dronecan::message_id(priority, t.id, dc.node_id));
                 for (_, i) in our_ids.iter().filter(|(other, _)| *other == id).take(1) {
-                    errors.add(
-                        format!("frames[{i}].id"),
-                        id,
-                        format!("must differ from our DroneCAN {} identifier", t.name),
-                    );
+                    let rule = format!("must differ from our DroneCAN {} identifier", t.name);
+                    errors.add(format!("frames[{i}].id"), id, rule);
                 }
             }
         }
         if self.frames.is_empty() && self.dronecan.is_none() {
-            errors.add(
-                "frames",
-                "[]",
-                "a CAN vehicle needs at least one [[output.frames]] or an [output.dronecan] table",
-            );
+            let rule =
+                "a CAN vehicle needs at least one [[output.frames]] or an [output.dronecan] table";
+            errors.add("frames", "[]", rule);
         }
         errors.into_result(CanConfig {
             interface,
@@ -689,54 +422,48 @@ impl CanSettings {
 }
 
 fn validate_frame(
-    f: &FrameSettings,
+    f: &mut FrameSettings,
     i: usize,
     fd: bool,
     section_rate: i64,
     names: &mut Unique<String>,
     errors: &mut ConfigErrors,
 ) -> Option<RawFrameConfig> {
-    let extended = f.extended.unwrap_or(false);
+    let extended = *f.extended.get_or_insert(false);
     let id = errors.required("id", &f.id).and_then(|id| {
-        let limit = if extended {
-            EXTENDED_ID_MAX
-        } else {
-            STANDARD_ID_MAX
-        };
-        let fits = u32::try_from(id)
-            .ok()
-            .and_then(|id| CanId::new(id, extended).ok());
+        let fits = (u32::try_from(id).ok()).and_then(|id| CanId::new(id, extended).ok());
         if fits.is_none() {
-            let hint = if !extended && (0..=i64::from(EXTENDED_ID_MAX)).contains(&id) {
-                " (set extended = true for a 29-bit identifier)"
+            let limit = if extended {
+                EXTENDED_ID_MAX
             } else {
-                ""
+                STANDARD_ID_MAX
             };
+            let hint = (!extended && (0..=i64::from(EXTENDED_ID_MAX)).contains(&id))
+                .then_some(" (set extended = true for a 29-bit identifier)");
             let shown = if id < 0 {
                 id.to_string()
             } else {
                 format!("0x{id:X}")
             };
-            errors.add("id", shown, format!("must be 0..=0x{limit:X}{hint}"));
+            let rule = format!("must be 0..=0x{limit:X}{}", hint.unwrap_or_default());
+            errors.add("id", shown, rule);
         }
         fits
     });
     let capacity = if fd { FD_MAX_LEN } else { CLASSIC_MAX_LEN };
     let length = f.length.and_then(|len| {
-        let ok = usize::try_from(len)
-            .ok()
+        let ok = (usize::try_from(len).ok())
             .filter(|l| *l <= CLASSIC_MAX_LEN || (fd && FD_LENGTHS.contains(l)));
         if ok.is_none() {
-            let rule = if fd {
-                "must be 0..=8, 12, 16, 20, 24, 32, 48 or 64 bytes"
-            } else {
-                "must be 0..=8 bytes (longer frames need fd = true)"
+            let rule = match fd {
+                true => "must be 0..=8, 12, 16, 20, 24, 32, 48 or 64 bytes",
+                false => "must be 0..=8 bytes (longer frames need fd = true)",
             };
             errors.add("length", len, rule);
         }
         ok
     });
-    let rate = check_rate("rate_hz", f.rate_hz, errors).unwrap_or(section_rate);
+    let rate = check_rate(&mut f.rate_hz, section_rate, errors);
     if f.outputs.is_empty() {
         let rule = "a frame needs at least one [[output.frames.outputs]]";
         errors.add("outputs", "[]", rule);
@@ -744,20 +471,17 @@ fn validate_frame(
     let limit = length.unwrap_or(capacity);
     let mut outputs: Vec<RawOutputConfig> = Vec::new();
     let mut all_ok = id.is_some();
-    for (j, o) in f.outputs.iter().enumerate() {
+    for (j, o) in f.outputs.iter_mut().enumerate() {
         let mut oe = ConfigErrors::default();
         let default_name = format!("frames[{i}].outputs[{j}]");
         let output = validate_field(o, &default_name, limit, &outputs, &mut oe);
         if let Some(output) = &output {
             let (owner, key) = (format!("{default_name}.name"), format!("outputs[{j}].name"));
-            let shown = (key.as_str(), format!("{:?}", output.name));
-            names.check(
-                errors,
+            let (name, shown) = (
                 output.name.clone(),
-                owner,
-                shown,
-                "has the same name",
+                (key.as_str(), format!("{:?}", output.name)),
             );
+            names.check(errors, name, owner, shown, "has the same name");
         }
         all_ok &= output.is_some();
         errors.extend_within(&format!("outputs[{j}]"), oe);
@@ -768,34 +492,31 @@ fn validate_frame(
         return None;
     }
     let needed = outputs.iter().map(|o| o.layout.end()).max().unwrap_or(0);
-    let length = length.unwrap_or_else(|| {
-        if needed <= CLASSIC_MAX_LEN {
-            needed
-        } else {
-            FD_LENGTHS
-                .iter()
-                .copied()
-                .find(|l| *l >= needed)
-                .unwrap_or(FD_MAX_LEN)
-        }
+    let length = length.unwrap_or_else(|| match needed <= CLASSIC_MAX_LEN {
+        true => needed,
+        false => FD_LENGTHS
+            .into_iter()
+            .find(|l| *l >= needed)
+            .unwrap_or(FD_MAX_LEN),
     });
+    f.length = Some(length as Int);
+    let period = period_of(rate);
     Some(RawFrameConfig {
         id,
         length,
-        period: period_of(rate),
+        period,
         outputs,
     })
 }
 
 fn validate_field(
-    o: &FieldSettings,
+    o: &mut FieldSettings,
     default_name: &str,
     frame_len: usize,
     earlier: &[RawOutputConfig],
     errors: &mut ConfigErrors,
 ) -> Option<RawOutputConfig> {
-    o.unknown
-        .check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
+    (o.unknown).check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
     let name = output_name(&o.name, default_name);
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
         errors.add("name", "\"\"", "must not be empty");
@@ -803,24 +524,16 @@ fn validate_field(
     let source = errors
         .required("source", &o.source)
         .map(|s| s.validate(errors));
-    let width = match o.width {
-        None => Some(Width::Bits16),
-        Some(w) => {
-            let width = Width::from_bits(w);
-            if width.is_none() {
-                errors.add("width", w, "must be 8, 16 or 32 (bits)");
-            }
-            width
-        }
-    };
+    let bits = *o.width.get_or_insert(16);
+    let width = Width::from_bits(bits);
+    if width.is_none() {
+        errors.add("width", bits, "must be 8, 16 or 32 (bits)");
+    }
     let offset = errors.required("offset", &o.offset).and_then(|off| {
         let ok = usize::try_from(off).ok().filter(|o| *o < frame_len);
         if ok.is_none() {
-            errors.add(
-                "offset",
-                off,
-                format!("must be 0..{frame_len} (the frame's bytes)"),
-            );
+            let rule = format!("must be 0..{frame_len} (the frame's bytes)");
+            errors.add("offset", off, rule);
         }
         ok
     });
@@ -828,47 +541,32 @@ fn validate_field(
     let layout = FieldLayout {
         offset,
         width,
-        endian: o.endian.unwrap_or_default(),
-        signed: o.signed.unwrap_or(true),
+        endian: *o.endian.get_or_insert_default(),
+        signed: *o.signed.get_or_insert(true),
     };
+    let (end, bytes) = (layout.end(), width.bytes());
     let mut placed = true;
-    if layout.end() > frame_len {
-        errors.add(
-            "offset",
-            offset,
-            format!(
-                "offset + width ({offset} + {} bytes) reaches past the frame's {frame_len} bytes",
-                width.bytes()
-            ),
+    if end > frame_len {
+        let rule = format!(
+            "offset + width ({offset} + {bytes} bytes) reaches past the frame's {frame_len} bytes"
         );
+        errors.add("offset", offset, rule);
         placed = false;
     }
     if let Some(other) = earlier.iter().find(|e| e.layout.overlaps(&layout)) {
-        errors.add(
-            "offset",
-            offset,
-            format!(
-                "bytes {}..{} overlap output {:?} (bytes {}..{})",
-                layout.offset,
-                layout.end(),
-                other.name,
-                other.layout.offset,
-                other.layout.end()
-            ),
+        let (o_start, o_end) = (other.layout.offset, other.layout.end());
+        let rule = format!(
+            "bytes {offset}..{end} overlap output {:?} (bytes {o_start}..{o_end})",
+            other.name
         );
+        errors.add("offset", offset, rule);
         placed = false;
     }
     let range = layout.range();
-    let defaults = if layout.signed {
-        (range.0 + 1, range.1)
-    } else {
-        range
-    };
-    let (scale, failsafe) = int_scale(&o.scale, defaults, None, range, errors)?;
-    if !placed {
-        return None;
-    }
-    Some(RawOutputConfig {
+    // Signed fields default to a symmetric range.
+    let defaults = (range.0 + Int::from(layout.signed), range.1);
+    let (scale, failsafe) = int_scale(&mut o.scale, defaults, None, range, errors)?;
+    placed.then_some(RawOutputConfig {
         name,
         source: source?,
         layout,
@@ -882,82 +580,63 @@ const FIELD_KEYS: &[&str] = &["name", "source", "offset", "width", "endian", "si
 
 impl DroneCanSettings {
     fn validate(
-        &self,
+        &mut self,
         section_rate: Int,
         names: &mut Unique<String>,
         errors: &mut ConfigErrors,
     ) -> Option<DroneCanConfig> {
-        let node_id = errors.required("node_id", &self.node_id);
-        let node_id =
-            node_id.and_then(|n| errors.int("node_id", n, NODE_ID_RANGE, " (0 is anonymous)"));
-        let priority = self.priority.unwrap_or(DEFAULT_PRIORITY);
+        let node_id = errors.req_int("node_id", self.node_id, NODE_ID_RANGE, " (0 is anonymous)");
+        let priority = *self.priority.get_or_insert(DEFAULT_PRIORITY);
         let priority = errors.int("priority", priority, PRIORITY_RANGE, " (0 highest)");
-        let rate = check_rate("rate_hz", self.rate_hz, errors).unwrap_or(section_rate);
+        let rate = check_rate(&mut self.rate_hz, section_rate, errors);
         if self.servos.is_empty() && self.escs.is_empty() {
-            errors.add(
-                "servos",
-                "[]",
-                "[output.dronecan] needs at least one of [[output.dronecan.servos]] or \
-                 [[output.dronecan.escs]]",
-            );
+            let rule = "[output.dronecan] needs at least one of [[output.dronecan.servos]] or \
+                        [[output.dronecan.escs]]";
+            errors.add("servos", "[]", rule);
         }
         if self.servos.len() > MAX_SERVOS {
-            errors.add(
-                "servos",
-                format!("{} entries", self.servos.len()),
+            let (shown, rule) = (
+                self.servos.len(),
                 format!("at most {MAX_SERVOS} (one ArrayCommand)"),
             );
+            errors.add("servos", format!("{shown} entries"), rule);
         }
         let mut ok = true;
         let mut claim = |errors: &mut ConfigErrors, name: &str, key: String| {
-            let shown = (key.as_str(), format!("{name:?}"));
-            names.check(
-                errors,
-                name.to_string(),
-                format!("dronecan.{key}"),
-                shown,
-                "has the same name",
-            );
+            let (owner, shown) = (format!("dronecan.{key}"), format!("{name:?}"));
+            let shown = (key.as_str(), shown);
+            names.check(errors, name.to_string(), owner, shown, "has the same name");
         };
-        let mut servos = Vec::new();
-        let mut actuator_ids = Unique::default();
-        for (i, s) in self.servos.iter().enumerate() {
+        let (mut servos, mut actuator_ids) = (Vec::new(), Unique::default());
+        for (i, s) in self.servos.iter_mut().enumerate() {
             let (mut se, owner) = (ConfigErrors::default(), format!("servos[{i}]"));
             let servo = s.validate(&format!("dronecan.{owner}"), &mut se);
             if let Some(servo) = &servo {
                 claim(errors, &servo.name, format!("{owner}.name"));
-                let key = ("actuator_id", servo.actuator_id);
-                actuator_ids.check(&mut se, servo.actuator_id, &owner, key, "has the same");
+                let (id, key) = (servo.actuator_id, ("actuator_id", servo.actuator_id));
+                actuator_ids.check(&mut se, id, &owner, key, "has the same");
             }
             ok &= servo.is_some() && se.0.is_empty();
             errors.extend_within(&owner, se);
             servos.extend(servo);
         }
-        let mut escs = Vec::new();
-        let mut indices = Unique::default();
-        for (i, e) in self.escs.iter().enumerate() {
+        let (mut escs, mut indices) = (Vec::new(), Unique::default());
+        for (i, e) in self.escs.iter_mut().enumerate() {
             let (mut ee, owner) = (ConfigErrors::default(), format!("escs[{i}]"));
             let esc = e.validate(&format!("dronecan.{owner}"), &mut ee);
             if let Some(esc) = &esc {
                 claim(errors, &esc.name, format!("{owner}.name"));
-                indices.check(
-                    &mut ee,
-                    esc.index,
-                    &owner,
-                    ("index", esc.index),
-                    "has the same",
-                );
+                let key = ("index", esc.index);
+                indices.check(&mut ee, esc.index, &owner, key, "has the same");
             }
             ok &= esc.is_some() && ee.0.is_empty();
             errors.extend_within(&owner, ee);
             escs.extend(esc);
         }
-        if !ok {
-            return None;
-        }
-        Some(DroneCanConfig {
-            node_id: node_id?,
-            priority: priority?,
+        let (node_id, priority) = (node_id?, priority?);
+        ok.then_some(DroneCanConfig {
+            node_id,
+            priority,
             period: period_of(rate),
             servos,
             escs,
@@ -970,47 +649,39 @@ const SERVO_KEYS: &[&str] = &["name", "actuator_id", "source"];
 const ESC_KEYS: &[&str] = &["name", "index", "source"];
 
 impl ServoSettings {
-    fn validate(&self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
-        self.unknown
-            .check(errors, &[SERVO_KEYS, keys_of::<ScaleSettings<f64>>()]);
+    fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
+        (self.unknown).check(errors, &[SERVO_KEYS, keys_of::<ScaleSettings<f64>>()]);
         let name = output_name(&self.name, default_name);
-        let actuator_id = errors.required("actuator_id", &self.actuator_id);
-        let actuator_id = actuator_id.and_then(|a| errors.int("actuator_id", a, 0..=255, ""));
+        let actuator_id = errors.req_int("actuator_id", self.actuator_id, 0..=255, "");
         let source = errors
             .required("source", &self.source)
             .map(|s| s.validate(errors));
         let range = (-1.0..=1.0, "must be -1..=1 (a unitless actuator command)");
+        let mid = |a, b| (a + b) / 2.0;
         let [min, centre, max, failsafe] =
-            self.scale
-                .check((-1.0, 1.0), |a, b| (a + b) / 2.0, None, range, errors)?;
+            self.scale.check((-1.0, 1.0), mid, None, range, errors)?;
+        let (min, centre, max) = (min as f32, centre as f32, max as f32);
         Some(ServoConfig {
             name,
             actuator_id: actuator_id?,
             source: source?,
-            scale: UnitScale {
-                min: min as f32,
-                centre: centre as f32,
-                max: max as f32,
-            },
+            scale: UnitScale { min, centre, max },
             failsafe: failsafe as f32,
         })
     }
 }
 
 impl EscSettings {
-    fn validate(&self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
-        self.unknown
-            .check(errors, &[ESC_KEYS, keys_of::<ScaleSettings<Int>>()]);
+    fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
+        (self.unknown).check(errors, &[ESC_KEYS, keys_of::<ScaleSettings<Int>>()]);
         let name = output_name(&self.name, default_name);
-        let index = errors.required("index", &self.index).and_then(|i| {
-            let rule = format!(" (RawCommand has {MAX_ESCS} channels)");
-            errors.int("index", i, 0..=(MAX_ESCS as Int - 1), &rule)
-        });
+        let unit = format!(" (RawCommand has {MAX_ESCS} channels)");
+        let index = errors.req_int("index", self.index, 0..=(MAX_ESCS as Int - 1), &unit);
         let source = errors
             .required("source", &self.source)
             .map(|s| s.validate(errors));
         let range = (*RAW_COMMAND_RANGE.start(), *RAW_COMMAND_RANGE.end());
-        let (scale, failsafe) = int_scale(&self.scale, (0, range.1), Some(0), range, errors)?;
+        let (scale, failsafe) = int_scale(&mut self.scale, (0, range.1), Some(0), range, errors)?;
         Some(EscConfig {
             name,
             index: index?,
@@ -1067,27 +738,27 @@ mod tests {
     #[test]
     fn defaults_fill_in_quietly() {
         let c = parse(SKID).validate().expect("valid");
-        assert_eq!(c.interface(), "can0");
-        assert!(!c.fd());
+        assert_eq!(c.interface, "can0");
+        assert!(!c.fd);
         assert_eq!(c.keepalive_period(), Duration::from_millis(20));
-        let f = &c.frames()[0];
-        assert_eq!(f.id(), CanId::Standard(0x201));
-        assert_eq!(f.length(), 4);
-        let left = &f.outputs()[0];
-        assert_eq!(left.layout().width, Width::Bits16);
-        assert_eq!(left.layout().endian, Endian::Little);
-        assert!(left.layout().signed);
+        let f = &c.frames[0];
+        assert_eq!(f.id, CanId::Standard(0x201));
+        assert_eq!(f.length, 4);
+        let left = &f.outputs[0];
+        assert_eq!(left.layout.width, Width::Bits16);
+        assert_eq!(left.layout.endian, Endian::Little);
+        assert!(left.layout.signed);
         assert_eq!(
-            left.scale(),
+            left.scale,
             Scale {
                 min: -1000,
                 centre: 0,
                 max: 1000
             }
         );
-        assert_eq!(left.failsafe(), 0);
+        assert_eq!(left.failsafe, 0);
         assert_eq!(
-            left.source(),
+            &left.source,
             &Source::Mix(vec![(Axis::Throttle, 1.0), (Axis::Roll, 1.0)])
         );
         assert_eq!(c.output_names(), ["left", "right"]);
@@ -1101,16 +772,16 @@ mod tests {
         )
         .validate()
         .expect("valid");
-        let o = &c.frames()[0].outputs()[0];
+        let o = &c.frames[0].outputs[0];
         assert_eq!(
-            o.scale(),
+            o.scale,
             Scale {
                 min: 0,
                 centre: 127,
                 max: 255
             }
         );
-        assert_eq!(o.name(), "frames[0].outputs[0]");
+        assert_eq!(o.name, "frames[0].outputs[0]");
     }
 
     #[test]
@@ -1194,13 +865,10 @@ mod tests {
         let text = "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\n\
                     [[frames.outputs]]\nsource = \"roll\"\noffset = 60\nwidth = 32";
         let c = parse(text).validate().expect("valid");
-        assert_eq!(c.frames()[0].length(), 64);
+        assert_eq!(c.frames[0].length, 64);
         let text = "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\n\
                     [[frames.outputs]]\nsource = \"roll\"\noffset = 8\nwidth = 16";
-        assert_eq!(
-            parse(text).validate().expect("valid").frames()[0].length(),
-            12
-        );
+        assert_eq!(parse(text).validate().expect("valid").frames[0].length, 12);
         let err = errors_of(
             "interface = \"can0\"\nfd = true\n[[frames]]\nid = 0x10\n[[frames.outputs]]\n\
              source = \"roll\"\noffset = 62\nwidth = 32",
@@ -1361,23 +1029,23 @@ mod tests {
         )
         .validate()
         .expect("valid");
-        let dc = c.dronecan().expect("dronecan");
-        assert_eq!((dc.node_id(), dc.priority()), (10, 16));
-        assert_eq!(dc.period(), Duration::from_millis(10));
+        let dc = c.dronecan.as_ref().expect("dronecan");
+        assert_eq!((dc.node_id, dc.priority), (10, 16));
+        assert_eq!(dc.period, Duration::from_millis(10));
         assert_eq!(c.keepalive_period(), Duration::from_millis(10));
         assert_eq!(dc.esc_array_len(), 4);
-        let esc = &dc.escs()[0];
+        let esc = &dc.escs[0];
         assert_eq!(
-            esc.scale(),
+            esc.scale,
             Scale {
                 min: 0,
                 centre: 4095,
                 max: 8191
             }
         );
-        assert_eq!(esc.failsafe(), 0);
-        let servo = &dc.servos()[0];
-        assert_eq!(servo.failsafe(), 0.0);
-        assert_eq!(servo.name(), "dronecan.servos[0]");
+        assert_eq!(esc.failsafe, 0);
+        let servo = &dc.servos[0];
+        assert_eq!(servo.failsafe, 0.0);
+        assert_eq!(servo.name, "dronecan.servos[0]");
     }
 }

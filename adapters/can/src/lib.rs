@@ -109,16 +109,13 @@ use rove_core::error::LinkError;
 pub fn open_bus(config: &CanConfig) -> Result<Box<dyn CanBus + Send>, LinkError> {
     #[cfg(feature = "socketcan")]
     {
-        Ok(Box::new(SocketCanBus::open(
-            config.interface(),
-            config.fd(),
-        )?))
+        Ok(Box::new(SocketCanBus::open(&config.interface, config.fd)?))
     }
     #[cfg(not(feature = "socketcan"))]
     {
         Err(LinkError::fatal(format!(
             "{}: this rove was built without the `socketcan` feature of rove-can",
-            config.interface()
+            config.interface
         )))
     }
 }

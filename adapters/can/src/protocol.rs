@@ -18,31 +18,29 @@ pub fn raw_frame(
 ) -> Result<CanFrameData, FrameError> {
     let mut buf = [0u8; crate::bus::FD_MAX_LEN];
     let data = buf
-        .get_mut(..frame.length())
-        .ok_or(FrameError::DataTooLong {
-            len: frame.length(),
-        })?;
-    for output in frame.outputs() {
+        .get_mut(..frame.length)
+        .ok_or(FrameError::DataTooLong { len: frame.length })?;
+    for output in &frame.outputs {
         let value = match movement {
-            Some(m) => output.scale().map(output.source().value(m)),
-            None => output.failsafe(),
+            Some(m) => output.scale.map(output.source.value(m)),
+            None => output.failsafe,
         };
-        output.layout().encode(data, value)?;
+        output.layout.encode(data, value)?;
     }
-    CanFrameData::new(frame.id(), data)
+    CanFrameData::new(frame.id, data)
 }
 
 /// The ArrayCommand entries `(actuator_id, command)` for `movement` (`None`: failsafe), in
 /// config order.
 pub fn servo_commands(dc: &DroneCanConfig, movement: Option<&MovementCommand>) -> Vec<(u8, f32)> {
-    dc.servos()
+    dc.servos
         .iter()
         .map(|s| {
             let value = match movement {
-                Some(m) => s.scale().map(s.source().value(m)),
-                None => s.failsafe(),
+                Some(m) => s.scale.map(s.source.value(m)),
+                None => s.failsafe,
             };
-            (s.actuator_id(), value)
+            (s.actuator_id, value)
         })
         .collect()
 }
@@ -51,12 +49,12 @@ pub fn servo_commands(dc: &DroneCanConfig, movement: Option<&MovementCommand>) -
 /// configured one; indices no ESC uses are 0 (stop).
 pub fn esc_commands(dc: &DroneCanConfig, movement: Option<&MovementCommand>) -> Vec<i16> {
     let mut cmd = vec![0i16; dc.esc_array_len()];
-    for e in dc.escs() {
+    for e in &dc.escs {
         let value = match movement {
-            Some(m) => e.scale().map(e.source().value(m)),
-            None => e.failsafe(),
+            Some(m) => e.scale.map(e.source.value(m)),
+            None => e.failsafe,
         };
-        if let Some(slot) = cmd.get_mut(usize::from(e.index())) {
+        if let Some(slot) = cmd.get_mut(usize::from(e.index)) {
             // Validated to −8192..=8191; the clamp keeps the conversion total.
             *slot = value.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16;
         }
@@ -108,7 +106,7 @@ mod tests {
             max = -1000000
             "#,
         );
-        let f = &c.frames()[0];
+        let f = &c.frames[0];
         let m = MovementCommand {
             throttle: 16384,
             roll: -i16::MAX,
@@ -147,7 +145,7 @@ mod tests {
             source = "throttle"
             "#,
         );
-        let dc = c.dronecan().expect("dronecan");
+        let dc = c.dronecan.as_ref().expect("dronecan");
         let m = MovementCommand {
             throttle: i16::MAX,
             roll: -i16::MAX,

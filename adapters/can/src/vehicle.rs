@@ -126,7 +126,7 @@ impl CanVehicle {
         now: MonoTime,
     ) -> Result<CanVehicle, LinkError> {
         let mut vehicle = CanVehicle {
-            raw: vec![Slot::default(); config.frames().len()],
+            raw: vec![Slot::default(); config.frames.len()],
             config,
             bus,
             drive: Drive::Failsafe,
@@ -232,25 +232,25 @@ impl CanVehicle {
         let early = self.early();
         let movement = self.drive.movement().copied();
         let movement = movement.as_ref();
-        let interface = self.config.interface().to_string();
+        let interface = self.config.interface.to_string();
         let frame_error = |e: crate::FrameError| LinkError::fatal(format!("{interface}: {e}"));
-        for (frame_config, slot) in self.config.frames().iter().zip(self.raw.iter_mut()) {
+        for (frame_config, slot) in self.config.frames.iter().zip(self.raw.iter_mut()) {
             let frame = protocol::raw_frame(frame_config, movement).map_err(frame_error)?;
             if slot.wants(now, early, frame.data(), force) {
                 self.bus.send(now, &frame)?;
-                slot.sent(now, frame_config.period(), frame.data().to_vec());
+                slot.sent(now, frame_config.period, frame.data().to_vec());
             }
         }
-        let Some(dc) = self.config.dronecan() else {
+        let Some(dc) = self.config.dronecan.as_ref() else {
             return Ok(());
         };
-        let (node, priority, period) = (dc.node_id(), dc.priority(), dc.period());
+        let (node, priority, period) = (dc.node_id, dc.priority, dc.period);
         let mut transfers: Vec<(DataType, u8, Vec<u8>, &mut Slot, Duration)> = Vec::new();
-        if !dc.servos().is_empty() {
+        if !dc.servos.is_empty() {
             let payload = dronecan::array_command(&protocol::servo_commands(dc, movement));
             transfers.push((ARRAY_COMMAND, priority, payload, &mut self.servos, period));
         }
-        if !dc.escs().is_empty() {
+        if !dc.escs.is_empty() {
             let payload = dronecan::raw_command(&protocol::esc_commands(dc, movement));
             transfers.push((RAW_COMMAND, priority, payload, &mut self.escs, period));
         }
@@ -301,8 +301,9 @@ impl OutputAdapter for CanVehicle {
         let names = self.config.output_names().join(", ");
         let dronecan = self
             .config
-            .dronecan()
-            .map(|d| format!(", DroneCAN node {}", d.node_id()))
+            .dronecan
+            .as_ref()
+            .map(|d| format!(", DroneCAN node {}", d.node_id))
             .unwrap_or_default();
         format!("can vehicle [{names}] on {}{dronecan}", self.bus.describe())
     }

@@ -27,7 +27,7 @@ fn load(name: &str) -> CanConfig {
         .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
     let file: File =
         toml::from_str(&text).unwrap_or_else(|e| panic!("{} does not parse: {e}", path.display()));
-    let OutputSection::Can(settings) = file.output;
+    let OutputSection::Can(mut settings) = file.output;
     settings
         .validate()
         .unwrap_or_else(|e| panic!("{} is invalid:\n{e}", path.display()))
@@ -36,17 +36,17 @@ fn load(name: &str) -> CanConfig {
 #[test]
 fn skid_steer_example_is_valid() {
     let c = load("vehicle-can-skid-steer.toml");
-    assert_eq!(c.interface(), "can0");
+    assert_eq!(c.interface, "can0");
     assert_eq!(c.output_names(), ["left", "right"]);
-    assert_eq!(c.frames()[0].length(), 8);
-    assert!(c.dronecan().is_none());
+    assert_eq!(c.frames[0].length, 8);
+    assert!(c.dronecan.as_ref().is_none());
 }
 
 #[test]
 fn dronecan_example_is_valid() {
     let c = load("vehicle-dronecan-servos.toml");
-    let dc = c.dronecan().expect("dronecan");
-    assert_eq!(dc.node_id(), 100);
+    let dc = c.dronecan.as_ref().expect("dronecan");
+    assert_eq!(dc.node_id, 100);
     assert_eq!(c.output_names(), ["aileron", "elevator", "rudder", "motor"]);
 }
 

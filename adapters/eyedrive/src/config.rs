@@ -4,23 +4,17 @@
 
 use rove_core::config::{UnknownKeys, keys_of};
 use rove_core::error::ConfigErrors;
-use rove_pwm::config::{preset_tables, rename_channels};
+use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
 use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
-use serde::{Deserialize, Serialize};
 
-/// `[output]` for the Eyedrive, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct EyedriveSettings {
-    /// `backend` (required), `period_us`, `sysfs_root`, `chip`: rove-pwm's backend keys.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// `[output.steering]` (required).
-    pub steering: Option<EyedriveChannelSettings>,
-    /// `[output.throttle]` (required).
-    pub throttle: Option<EyedriveChannelSettings>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+rove_core::config_types! {
+    /// `[output]` for the Eyedrive, as written.
+    pub settings EyedriveSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
+        steering: Option<EyedriveChannelSettings> => "`[output.steering]`.",
+        throttle: Option<EyedriveChannelSettings> => "`[output.throttle]`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 }
 
 /// `[output.steering]` / `[output.throttle]`: the address, and optional limits (defaults
@@ -38,54 +32,33 @@ impl EyedriveSettings {
     /// that their address errors are reported too).
     pub fn to_generic(&self) -> PwmVehicleSettings {
         let tables = [&self.steering, &self.throttle];
+        let channels = (CHANNELS.iter().zip(tables))
+            .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source));
         PwmVehicleSettings {
             pwm: self.pwm.clone(),
-            channels: CHANNELS
-                .iter()
-                .zip(tables)
-                .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
-                .collect(),
+            channels: channels.collect(),
             unknown: UnknownKeys::default(),
         }
     }
 
     /// Validates into the generic PWM vehicle config: steering from roll, throttle from
-    /// throttle, both failing safe to neutral.
+    /// throttle, both failing safe to neutral. The backend keys' defaults are filled into
+    /// `self`.
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
-    /// (`steering.pin`, `throttle.max_us`, `backend`…): unknown keys, a missing table, and
-    /// everything [`PwmVehicleSettings::validate`] rejects.
-    pub fn validate(&self) -> rove_core::Result<PwmVehicleConfig> {
+    /// (`steering.pin`, `throttle.max_us`, `backend`…).
+    pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [
-            keys_of::<PwmBackendSettings>(),
-            &["steering", "throttle"][..],
-        ];
+        let keys = [keys_of::<PwmBackendSettings>(), &["steering", "throttle"]];
         self.unknown.check(&mut errors, &keys);
-        let tables = [&self.steering, &self.throttle];
+        let tables = [&self.steering, &self.throttle].map(|t| t.as_ref().map(|t| &t.unknown));
         let names = CHANNELS.map(|c| c.0);
-        preset_tables(&mut errors, &names, &tables);
-        finish(errors, self.to_generic().validate(), &names)
-    }
-}
-
-/// The preset's own `errors` followed by the generic validation's, renamed to the preset's
-/// table names.
-fn finish<T>(
-    mut errors: ConfigErrors,
-    generic: rove_core::Result<T>,
-    names: &[&str],
-) -> rove_core::Result<T> {
-    match generic {
-        Ok(config) => errors.into_result(config),
-        Err(rove_core::Error::Config(generic)) => {
-            errors
-                .0
-                .extend(generic.0.into_iter().map(|e| rename_channels(e, names)));
-            Err(rove_core::Error::Config(errors))
-        }
-        Err(other) => Err(other),
+        preset_tables(&mut errors, &names, &tables, &servo_keys());
+        let mut generic = self.to_generic();
+        let config = generic.validate();
+        self.pwm = generic.pwm;
+        finish_preset(errors, config, |e| rename_channels(e, &names))
     }
 }
 

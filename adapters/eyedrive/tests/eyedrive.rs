@@ -25,7 +25,7 @@ struct File {
 
 fn load(text: &str) -> PwmVehicleConfig {
     let file: File = toml::from_str(text).expect("parses");
-    let Output::Eyedrive(settings) = file.output;
+    let Output::Eyedrive(mut settings) = file.output;
     settings.validate().expect("valid")
 }
 
@@ -68,7 +68,7 @@ fn example_sections_parse_and_name_their_outputs() {
             rove_pwm::ChannelAddress::GpioPin(13)
         ]
     );
-    assert_eq!(cfg.backend(), &rove_pwm::BackendConfig::Rppal);
+    assert_eq!(cfg.backend, rove_pwm::BackendConfig::Rppal);
     let cfg = load(TUNED);
     assert_eq!(
         cfg.addresses(),
@@ -84,7 +84,7 @@ fn example_sections_parse_and_name_their_outputs() {
         ]
     );
     let file: File = toml::from_str(&PI.replace("pin = 13", "pin = 13\nfoo = 1")).expect("parses");
-    let Output::Eyedrive(settings) = file.output;
+    let Output::Eyedrive(mut settings) = file.output;
     let err = settings
         .validate()
         .expect_err("unknown key inside a tagged section is rejected");

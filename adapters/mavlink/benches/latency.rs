@@ -24,7 +24,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let autopilot = UdpSocket::bind("127.0.0.1:0")?;
     autopilot.set_read_timeout(Some(Duration::from_secs(2)))?;
     let port = autopilot.local_addr()?.port();
-    let settings: MavlinkSettings = toml::from_str(&format!(
+    let mut settings: MavlinkSettings = toml::from_str(&format!(
         "connection = \"udpout:127.0.0.1:{port}\"\nrate_hz = 1\n[modes]\nset_mode = false"
     ))?;
     let start = Instant::now();

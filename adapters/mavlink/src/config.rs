@@ -17,155 +17,102 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::time::Duration;
 
-/// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which the
-/// gateway's tagged enum consumes).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MavlinkSettings {
-    /// `udpin:HOST:PORT`, `udpout:HOST:PORT`, `tcpout:HOST:PORT` (also `udp:` = udpin and
-    /// `tcp:` = tcpout), or `serial:DEVICE:BAUD` (absent: `tcpout:127.0.0.1:5760`, SITL).
-    pub connection: Option<String>,
-    /// 2 (absent) or 1.
-    pub mavlink_version: Option<Int>,
-    /// Our system id (absent: 255, ArduPilot's default `MAV_GCS_SYSID` / `SYSID_MYGCS`).
-    pub system_id: Option<Int>,
-    /// Our component id (absent: 190, MAV_COMP_ID_MISSIONPLANNER).
-    pub component_id: Option<Int>,
-    /// The autopilot's system id (absent: the first autopilot heard).
-    pub target_system: Option<Int>,
-    /// The autopilot's component id (absent: that of the first autopilot heard, else 1).
-    pub target_component: Option<Int>,
-    /// `"ardupilot"` (absent) or `"px4"`.
-    pub autopilot: Option<AutopilotKind>,
-    /// `"rover"` (absent) or `"copter"`: picks the default modes and stick conventions.
-    pub vehicle: Option<VehicleKind>,
-    /// `"rc_override"` (absent for ArduPilot) or `"manual_control"` (absent for PX4).
-    pub method: Option<Method>,
-    /// Resend rate of the control message while driving and in failsafe, Hz (absent: 25).
-    pub rate_hz: Option<f64>,
-    /// No HEARTBEAT from the autopilot for this long → link reported down, ms (absent: 3000).
-    pub link_timeout_ms: Option<Int>,
-    /// Wait for a mode command's COMMAND_ACK before resending, ms (absent: 300).
-    pub command_timeout_ms: Option<Int>,
-    /// Resends of an unacknowledged mode command (absent: 3).
-    pub command_retries: Option<Int>,
-    /// What the control message carries in failsafe: `"release"` (absent for rc_override: hand
-    /// every mapped channel back to the radio) or `"neutral"` (centre values, resent at rate;
-    /// the only choice for manual_control, which has no release value).
-    pub failsafe: Option<FailsafeAction>,
-    /// What rove does when the autopilot refuses (or never confirms) the mode it wished for the
-    /// operator: `"hold"` (absent: stop driving, release or neutral plus the safe mode, until the
-    /// operator picks another mode) or `"continue"` (keep sending the sticks; the refusal is
-    /// reported either way).
-    pub on_mode_refused: Option<OnModeRefused>,
-    /// `[[output.channels]]`: rc_override channel map (absent: the autopilot's default RCMAP).
-    #[serde(default)]
-    pub channels: Vec<ChannelSettings>,
-    /// `[output.manual_control]`.
-    pub manual_control: Option<ManualControlSettings>,
-    /// `[output.modes]`: the autopilot mode for each rove mode and for failsafe.
-    pub modes: Option<ModeSettings>,
-}
+rove_core::config_types! {
+    /// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which
+    /// the gateway's tagged enum consumes). Every key is optional; docs/mavlink.md lists the
+    /// defaults.
+    #[serde(deny_unknown_fields)]
+    pub settings MavlinkSettings {
+        connection: Option<String> => "`udpin:`, `udpout:`, `tcpout:HOST:PORT` (also `udp:` = \
+            udpin and `tcp:` = tcpout), or `serial:DEVICE:BAUD`.",
+        mavlink_version: Option<Int> => "2 or 1.",
+        system_id: Option<Int> => "Our system id (ArduPilot's `MAV_GCS_SYSID` / `SYSID_MYGCS`).",
+        component_id: Option<Int> => "Our component id.",
+        target_system: Option<Int> => "The autopilot's system id (absent: the first heard).",
+        target_component: Option<Int> => "The autopilot's component id (absent: discovered).",
+        autopilot: Option<AutopilotKind> => "The firmware.",
+        vehicle: Option<VehicleKind> => "Picks the default modes and stick conventions.",
+        method: Option<Method> => "How sticks reach the autopilot.",
+        rate_hz: Option<f64> => "Resend rate of the control message, Hz.",
+        link_timeout_ms: Option<Int> => "No HEARTBEAT for this long → link reported down, ms.",
+        command_timeout_ms: Option<Int> => "Wait for a mode command's COMMAND_ACK, ms.",
+        command_retries: Option<Int> => "Resends of an unacknowledged mode command.",
+        failsafe: Option<FailsafeAction> => "What the control message carries in failsafe.",
+        on_mode_refused: Option<OnModeRefused> => "What to do when a driven mode is refused.",
+        #[serde(default)] channels: Vec<ChannelSettings> => "rc_override channel map (RCMAP).",
+        manual_control: Option<ManualControlSettings> => "`[output.manual_control]`.",
+        modes: Option<ModeSettings> => "The autopilot mode for each rove mode and failsafe.",
+    }
 
-/// Which autopilot firmware.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AutopilotKind {
-    /// ArduPilot (Rover, Copter).
-    Ardupilot,
-    /// PX4.
-    Px4,
-}
+    /// Which autopilot firmware.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum AutopilotKind {
+        Ardupilot => "ArduPilot (Rover, Copter).",
+        Px4 => "PX4.",
+    }
 
-/// Which kind of vehicle the autopilot flies or drives.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum VehicleKind {
-    /// A ground vehicle.
-    Rover,
-    /// A multirotor.
-    Copter,
-}
+    /// Which kind of vehicle the autopilot flies or drives.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum VehicleKind {
+        Rover => "A ground vehicle.",
+        Copter => "A multirotor.",
+    }
 
-/// How sticks reach the autopilot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Method {
-    /// RC_CHANNELS_OVERRIDE (ArduPilot).
-    RcOverride,
-    /// MANUAL_CONTROL (PX4, ArduPilot).
-    ManualControl,
-}
+    /// How sticks reach the autopilot.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    pub enum Method {
+        RcOverride => "RC_CHANNELS_OVERRIDE (ArduPilot).",
+        ManualControl => "MANUAL_CONTROL (PX4, ArduPilot).",
+    }
 
-/// What the control message carries in failsafe.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FailsafeAction {
-    /// Release the overridden channels (rc_override only).
-    Release,
-    /// Centred sticks, resent at rate.
-    Neutral,
-}
+    /// What the control message carries in failsafe.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum FailsafeAction {
+        Release => "Release the overridden channels (rc_override only).",
+        Neutral => "Centred sticks, resent at rate.",
+    }
 
-/// What to do when the autopilot refuses a driven mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OnModeRefused {
-    /// Stop driving: the failsafe content and the safe mode, until the operator's mode changes.
-    Hold,
-    /// Keep driving in whatever mode the autopilot is in.
-    Continue,
-}
+    /// What to do when the autopilot refuses a driven mode.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum OnModeRefused {
+        Hold => "Stop driving (failsafe content, safe mode) until the operator's mode changes.",
+        Continue => "Keep driving in whatever mode the autopilot is in.",
+    }
 
-/// One `[[output.channels]]` table: an axis on an RC channel.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ChannelSettings {
-    /// RC channel 1..=18 (9..=18 need MAVLink 2).
-    pub channel: Option<Int>,
-    /// The axis it carries.
-    pub axis: Option<Axis>,
-    /// The mapping keys ([`rove_core::mapping::AxisMapSettings`]; no `slew_us_per_s`).
-    #[serde(flatten)]
-    pub map: AxisMapSettings,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+    /// One `[[output.channels]]` table: an axis on an RC channel.
+    pub settings ChannelSettings {
+        channel: Option<Int> => "RC channel 1..=18 (9..=18 need MAVLink 2).",
+        axis: Option<Axis> => "The axis it carries.",
+        #[serde(flatten)] map: AxisMapSettings => "The mapping keys (no `slew_us_per_s`).",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 
-/// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ManualControlSettings {
-    /// `x` (forward; absent: pitch).
-    pub x: Option<AxisOrNone>,
-    /// `y` (right; Rover steering; absent: roll).
-    pub y: Option<AxisOrNone>,
-    /// `z` (thrust; Rover throttle; absent: throttle).
-    pub z: Option<AxisOrNone>,
-    /// `r` (yaw; absent: yaw).
-    pub r: Option<AxisOrNone>,
-    /// `"signed"`: z is −1000..1000, 0 at centre (ArduPilot Rover); `"positive"`: 0..1000, 500
-    /// at centre (PX4 and ArduPilot Copter). Absent: by autopilot and vehicle.
-    pub z_range: Option<ZRange>,
-    /// Fields whose sign is flipped, e.g. `["y"]`.
-    #[serde(default)]
-    pub reverse: Vec<ManualField>,
-}
+    /// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
+    #[serde(deny_unknown_fields)]
+    pub settings ManualControlSettings {
+        x: Option<AxisOrNone> => "`x` (forward; absent: pitch).",
+        y: Option<AxisOrNone> => "`y` (right; Rover steering; absent: roll).",
+        z: Option<AxisOrNone> => "`z` (thrust; Rover throttle; absent: throttle).",
+        r: Option<AxisOrNone> => "`r` (yaw; absent: yaw).",
+        z_range: Option<ZRange> => "Range of z (absent: signed on ArduPilot Rover, else positive).",
+        #[serde(default)] reverse: Vec<ManualField> => "Fields whose sign is flipped.",
+    }
 
-/// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AxisOrNone {
-    /// `MovementCommand::throttle`.
-    Throttle,
-    /// `MovementCommand::roll`.
-    Roll,
-    /// `MovementCommand::pitch`.
-    Pitch,
-    /// `MovementCommand::yaw`.
-    Yaw,
-    /// Not sent (INT16_MAX: invalid axis per the MAVLink spec).
-    None,
+    /// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum AxisOrNone {
+        Throttle => "`MovementCommand::throttle`.",
+        Roll => "`MovementCommand::roll`.",
+        Pitch => "`MovementCommand::pitch`.",
+        Yaw => "`MovementCommand::yaw`.",
+        None => "Not sent (INT16_MAX: invalid axis per the MAVLink spec).",
+    }
 }
 
 impl AxisOrNone {
@@ -180,44 +127,34 @@ impl AxisOrNone {
     }
 }
 
-/// A MANUAL_CONTROL stick field.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ManualField {
-    /// x.
-    X,
-    /// y.
-    Y,
-    /// z.
-    Z,
-    /// r.
-    R,
-}
+rove_core::config_types! {
+    /// A MANUAL_CONTROL stick field.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ManualField {
+        X => "x.",
+        Y => "y.",
+        Z => "z.",
+        R => "r.",
+    }
 
-/// The range of MANUAL_CONTROL's z.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ZRange {
-    /// −1000..1000, 0 at stick centre.
-    Signed,
-    /// 0..1000, 500 at stick centre.
-    Positive,
-}
+    /// The range of MANUAL_CONTROL's z.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ZRange {
+        Signed => "−1000..1000, 0 at stick centre.",
+        Positive => "0..1000, 500 at stick centre.",
+    }
 
-/// `[output.modes]`: a mode name from the autopilot's table or a raw `custom_mode` number.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModeSettings {
-    /// For rove's MANUAL.
-    pub manual: Option<AutopilotModeName>,
-    /// For rove's ASSISTED.
-    pub assisted: Option<AutopilotModeName>,
-    /// For rove's AUTO.
-    pub auto: Option<AutopilotModeName>,
-    /// Entered when rove stops driving (owner lost, gateway stopping, `rove failsafe`).
-    pub safe: Option<AutopilotModeName>,
-    /// `false`: never send mode commands; the radio or another GCS owns the mode (absent: true).
-    pub set_mode: Option<bool>,
+    /// `[output.modes]`: a mode name from the autopilot's table or a raw `custom_mode` number.
+    #[serde(deny_unknown_fields)]
+    pub settings ModeSettings {
+        manual: Option<AutopilotModeName> => "For rove's MANUAL.",
+        assisted: Option<AutopilotModeName> => "For rove's ASSISTED.",
+        auto: Option<AutopilotModeName> => "For rove's AUTO.",
+        safe: Option<AutopilotModeName> => "Entered when rove stops driving (failsafe).",
+        set_mode: Option<bool> => "`false`: never send mode commands (the radio owns the mode).",
+    }
 }
 
 /// An autopilot mode as written: a name (`"HOLD"`, `"AUTO.LOITER"`) or a raw custom_mode
@@ -231,22 +168,18 @@ pub enum AutopilotModeName {
     Number(Int),
 }
 
-/// Where the autopilot is.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Endpoint {
-    /// We listen on this address; replies go to the last sender.
-    UdpIn(String),
-    /// We send to this address from an ephemeral port.
-    UdpOut(String),
-    /// We connect to this TCP server (SITL: 127.0.0.1:5760).
-    TcpOut(String),
-    /// A serial device at a baud rate.
-    Serial {
-        /// Device path.
-        device: String,
-        /// Baud rate.
-        baud: u32,
-    },
+rove_core::config_types! {
+    /// Where the autopilot is.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum Endpoint {
+        UdpIn => "We listen on this address; replies go to the last sender." (String),
+        UdpOut => "We send to this address from an ephemeral port." (String),
+        TcpOut => "We connect to this TCP server (SITL: 127.0.0.1:5760)." (String),
+        Serial => "A serial device at a baud rate." {
+            device: String => "Device path.",
+            baud: u32 => "Baud rate.",
+        },
+    }
 }
 
 impl fmt::Display for Endpoint {
@@ -266,15 +199,15 @@ impl Endpoint {
     /// # Errors
     /// The rule the text breaks.
     pub fn parse(text: &str) -> Result<Endpoint, String> {
+        let schemes = "udpin, udpout, tcpout";
         let Some((scheme, rest)) = text.split_once(':') else {
-            return Err(
-                "must be SCHEME:ADDRESS with SCHEME udpin, udpout, tcpout or serial".into(),
-            );
+            return Err(format!(
+                "must be SCHEME:ADDRESS with SCHEME {schemes} or serial"
+            ));
         };
         let host_port = |rest: &str| -> Result<String, String> {
-            let (host, port) = rest
-                .rsplit_once(':')
-                .ok_or_else(|| format!("{scheme}: needs HOST:PORT"))?;
+            let needs = || format!("{scheme}: needs HOST:PORT");
+            let (host, port) = rest.rsplit_once(':').ok_or_else(needs)?;
             if host.is_empty() {
                 return Err(format!("{scheme}: needs a host before :PORT"));
             }
@@ -288,69 +221,57 @@ impl Endpoint {
             "udpout" => Ok(Endpoint::UdpOut(host_port(rest)?)),
             "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
             "serial" => {
-                let (device, baud) = rest
-                    .rsplit_once(':')
-                    .ok_or("serial: needs DEVICE:BAUD, e.g. serial:/dev/ttyACM0:115200")?;
+                let needs = "serial: needs DEVICE:BAUD, e.g. serial:/dev/ttyACM0:115200";
+                let (device, baud) = rest.rsplit_once(':').ok_or(needs)?;
                 if device.is_empty() {
                     return Err("serial: needs a device path".into());
                 }
+                let device = device.to_string();
                 match baud.parse::<u32>() {
-                    Ok(b) if b > 0 => Ok(Endpoint::Serial {
-                        device: device.to_string(),
-                        baud: b,
-                    }),
+                    Ok(baud) if baud > 0 => Ok(Endpoint::Serial { device, baud }),
                     _ => Err(format!(
                         "serial: baud must be a positive number, not {baud:?}"
                     )),
                 }
             }
             other => Err(format!(
-                "unknown scheme {other:?}: use udpin, udpout, tcpout (tcp) or serial"
+                "unknown scheme {other:?}: use {schemes} (tcp) or serial"
             )),
         }
     }
 }
 
-/// A validated RC channel.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ChannelConfig {
-    /// 1..=18.
-    pub channel: u8,
-    /// Source axis.
-    pub axis: Axis,
-    /// Axis → µs.
-    pub map: AxisMap,
-}
+rove_core::config_types! {
+    /// A validated RC channel.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct ChannelConfig {
+        channel: u8 => "1..=18.",
+        axis: Axis => "Source axis.",
+        map: AxisMap => "Axis → µs.",
+    }
 
-/// Validated MANUAL_CONTROL settings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ManualControlConfig {
-    /// Source of x, y, z, r (None: invalid/unused).
-    pub fields: [Option<Axis>; 4],
-    /// Sign flips for x, y, z, r.
-    pub reverse: [bool; 4],
-    /// The z convention.
-    pub z_range: ZRange,
-}
+    /// Validated MANUAL_CONTROL settings.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub struct ManualControlConfig {
+        fields: [Option<Axis>; 4] => "Source of x, y, z, r (None: invalid/unused).",
+        reverse: [bool; 4] => "Sign flips for x, y, z, r.",
+        z_range: ZRange => "The z convention.",
+    }
 
-/// A resolved autopilot mode.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct AutopilotMode {
-    /// For logs (`HOLD`, or the number as written).
-    pub name: String,
-    /// The HEARTBEAT's custom_mode when the autopilot is in it.
-    pub custom_mode: u32,
-}
+    /// A resolved autopilot mode.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub struct AutopilotMode {
+        name: String => "For logs (`HOLD`, or the number as written).",
+        custom_mode: u32 => "The HEARTBEAT's custom_mode when the autopilot is in it.",
+    }
 
-/// Validated modes.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ModesConfig {
-    /// MANUAL, ASSISTED, AUTO in [`Mode::ALL`] order.
-    pub driven: [AutopilotMode; 3],
-    /// The failsafe mode.
-    pub safe: AutopilotMode,
-    /// Whether mode commands are sent at all.
-    pub set_mode: bool,
+    /// Validated modes.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub struct ModesConfig {
+        driven: [AutopilotMode; 3] => "MANUAL, ASSISTED, AUTO in [`Mode::ALL`] order.",
+        safe: AutopilotMode => "The failsafe mode.",
+        set_mode: bool => "Whether mode commands are sent at all.",
+    }
 }
 
 impl ModesConfig {
@@ -364,97 +285,44 @@ impl ModesConfig {
     }
 }
 
-/// The validated `[output]` of a MAVLink vehicle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MavlinkConfig {
-    /// Where the autopilot is.
-    pub endpoint: Endpoint,
-    /// 1 or 2.
-    pub mavlink_version: u8,
-    /// Our ids.
-    pub system_id: u8,
-    /// Our component id.
-    pub component_id: u8,
-    /// Fixed target system (None: discover).
-    pub target_system: Option<u8>,
-    /// Fixed target component (None: discover).
-    pub target_component: Option<u8>,
-    /// Firmware.
-    pub autopilot: AutopilotKind,
-    /// Vehicle kind.
-    pub vehicle: VehicleKind,
-    /// Control method.
-    pub method: Method,
-    /// Resend period of the control message.
-    pub period: Duration,
-    /// Link-down threshold.
-    pub link_timeout: Duration,
-    /// Mode command ACK timeout.
-    pub command_timeout: Duration,
-    /// Mode command resends.
-    pub command_retries: u32,
-    /// Failsafe content.
-    pub failsafe: FailsafeAction,
-    /// Reaction to a refused driven mode.
-    pub on_mode_refused: OnModeRefused,
-    /// rc_override channels (empty for manual_control).
-    pub channels: Vec<ChannelConfig>,
-    /// manual_control fields.
-    pub manual_control: ManualControlConfig,
-    /// Modes.
-    pub modes: ModesConfig,
+rove_core::config_types! {
+    /// The validated `[output]` of a MAVLink vehicle.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct MavlinkConfig {
+        endpoint: Endpoint => "Where the autopilot is.",
+        mavlink_version: u8 => "1 or 2.",
+        system_id: u8 => "Our ids.",
+        component_id: u8 => "Our component id.",
+        target_system: Option<u8> => "Fixed target system (None: discover).",
+        target_component: Option<u8> => "Fixed target component (None: discover).",
+        autopilot: AutopilotKind => "Firmware.",
+        vehicle: VehicleKind => "Vehicle kind.",
+        method: Method => "Control method.",
+        period: Duration => "Resend period of the control message.",
+        link_timeout: Duration => "Link-down threshold.",
+        command_timeout: Duration => "Mode command ACK timeout.",
+        command_retries: u32 => "Mode command resends.",
+        failsafe: FailsafeAction => "Failsafe content.",
+        on_mode_refused: OnModeRefused => "Reaction to a refused driven mode.",
+        channels: Vec<ChannelConfig> => "rc_override channels (empty for manual_control).",
+        manual_control: ManualControlConfig => "manual_control fields.",
+        modes: ModesConfig => "Modes.",
+    }
 }
 
-/// ArduPilot Rover's modes (`custom_mode`), from its Mode enum.
-const ARDUPILOT_ROVER_MODES: &[(&str, u32)] = &[
-    ("MANUAL", 0),
-    ("ACRO", 1),
-    ("STEERING", 3),
-    ("HOLD", 4),
-    ("LOITER", 5),
-    ("FOLLOW", 6),
-    ("SIMPLE", 7),
-    ("DOCK", 8),
-    ("CIRCLE", 9),
-    ("AUTO", 10),
-    ("RTL", 11),
-    ("SMART_RTL", 12),
-    ("GUIDED", 15),
-];
+/// ArduPilot Rover's modes as `NAME=custom_mode`, from its Mode enum.
+const ARDUPILOT_ROVER_MODES: &str = "MANUAL=0 ACRO=1 STEERING=3 HOLD=4 LOITER=5 FOLLOW=6 SIMPLE=7 \
+                                     DOCK=8 CIRCLE=9 AUTO=10 RTL=11 SMART_RTL=12 GUIDED=15";
 
 /// ArduPilot Copter's modes.
-const ARDUPILOT_COPTER_MODES: &[(&str, u32)] = &[
-    ("STABILIZE", 0),
-    ("ACRO", 1),
-    ("ALT_HOLD", 2),
-    ("AUTO", 3),
-    ("GUIDED", 4),
-    ("LOITER", 5),
-    ("RTL", 6),
-    ("CIRCLE", 7),
-    ("LAND", 9),
-    ("DRIFT", 11),
-    ("SPORT", 13),
-    ("POSHOLD", 16),
-    ("BRAKE", 17),
-    ("SMART_RTL", 21),
-];
+const ARDUPILOT_COPTER_MODES: &str = "STABILIZE=0 ACRO=1 ALT_HOLD=2 AUTO=3 GUIDED=4 LOITER=5 \
+                                      RTL=6 CIRCLE=7 LAND=9 DRIFT=11 SPORT=13 POSHOLD=16 BRAKE=17 \
+                                      SMART_RTL=21";
 
-/// PX4's modes as (name, main mode, sub mode); custom_mode = main << 16 | sub << 24.
-const PX4_MODES: &[(&str, u8, u8)] = &[
-    ("MANUAL", 1, 0),
-    ("ALTCTL", 2, 0),
-    ("POSCTL", 3, 0),
-    ("AUTO.READY", 4, 1),
-    ("AUTO.TAKEOFF", 4, 2),
-    ("AUTO.LOITER", 4, 3),
-    ("AUTO.MISSION", 4, 4),
-    ("AUTO.RTL", 4, 5),
-    ("AUTO.LAND", 4, 6),
-    ("ACRO", 5, 0),
-    ("OFFBOARD", 6, 0),
-    ("STABILIZED", 7, 0),
-];
+/// PX4's modes as `NAME=main.sub`; custom_mode = main << 16 | sub << 24.
+const PX4_MODES: &str = "MANUAL=1.0 ALTCTL=2.0 POSCTL=3.0 AUTO.READY=4.1 AUTO.TAKEOFF=4.2 \
+                         AUTO.LOITER=4.3 AUTO.MISSION=4.4 AUTO.RTL=4.5 AUTO.LAND=4.6 ACRO=5.0 \
+                         OFFBOARD=6.0 STABILIZED=7.0";
 
 /// PX4's custom_mode for a main and sub mode.
 pub const fn px4_custom_mode(main: u8, sub: u8) -> u32 {
@@ -472,14 +340,19 @@ pub fn firmware_name(autopilot: AutopilotKind, vehicle: VehicleKind) -> &'static
 
 /// The mode table of a firmware and vehicle kind: (name, custom_mode).
 pub fn mode_table(autopilot: AutopilotKind, vehicle: VehicleKind) -> Vec<(&'static str, u32)> {
-    match (autopilot, vehicle) {
-        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ARDUPILOT_ROVER_MODES.to_vec(),
-        (AutopilotKind::Ardupilot, VehicleKind::Copter) => ARDUPILOT_COPTER_MODES.to_vec(),
-        (AutopilotKind::Px4, _) => PX4_MODES
-            .iter()
-            .map(|&(n, main, sub)| (n, px4_custom_mode(main, sub)))
-            .collect(),
-    }
+    let table = match (autopilot, vehicle) {
+        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ARDUPILOT_ROVER_MODES,
+        (AutopilotKind::Ardupilot, VehicleKind::Copter) => ARDUPILOT_COPTER_MODES,
+        (AutopilotKind::Px4, _) => PX4_MODES,
+    };
+    let mode = |(name, number): (&'static str, &str)| match number.split_once('.') {
+        Some((main, sub)) => Some((name, px4_custom_mode(main.parse().ok()?, sub.parse().ok()?))),
+        None => Some((name, number.parse().ok()?)),
+    };
+    let entries = table
+        .split_whitespace()
+        .filter_map(|entry| entry.split_once('='));
+    entries.filter_map(mode).collect()
 }
 
 /// Default (manual, assisted, auto, safe) mode names.
@@ -497,77 +370,66 @@ fn default_modes(autopilot: AutopilotKind, vehicle: VehicleKind) -> [&'static st
 fn default_channels(vehicle: VehicleKind) -> Vec<(u8, Axis)> {
     match vehicle {
         VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
-        VehicleKind::Copter => vec![
-            (1, Axis::Roll),
-            (2, Axis::Pitch),
-            (3, Axis::Throttle),
-            (4, Axis::Yaw),
-        ],
+        VehicleKind::Copter => {
+            let axes = [Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw];
+            (1..=4).zip(axes).collect()
+        }
     }
 }
 
 impl MavlinkSettings {
-    /// Validates, collecting every error with its key (relative to `[output]`).
+    /// Validates, filling defaults into `self`, collecting every error with its key (relative
+    /// to `[output]`).
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing each invalid key.
-    pub fn validate(&self) -> rove_core::Result<MavlinkConfig> {
+    pub fn validate(&mut self) -> rove_core::Result<MavlinkConfig> {
         let mut errors = ConfigErrors::default();
         let connection = self
             .connection
-            .clone()
-            .unwrap_or_else(|| "tcpout:127.0.0.1:5760".into());
-        let endpoint = Endpoint::parse(&connection).unwrap_or_else(|rule| {
+            .get_or_insert_with(|| "tcpout:127.0.0.1:5760".into());
+        let endpoint = Endpoint::parse(connection).unwrap_or_else(|rule| {
             errors.add("connection", format!("\"{connection}\""), rule);
             Endpoint::TcpOut("127.0.0.1:5760".into())
         });
-        let mavlink_version = self.mavlink_version.unwrap_or(2);
-        let mavlink_version = errors.int("mavlink_version", mavlink_version, 1..=2, "");
-        let id = |errors: &mut ConfigErrors, key: &str, v: Option<Int>| {
-            errors.opt_int::<u8>(key, v, 0..=255, "")
-        };
-        let system_id = id(&mut errors, "system_id", self.system_id);
-        let component_id = id(&mut errors, "component_id", self.component_id);
-        let target_system = id(&mut errors, "target_system", self.target_system);
-        let target_component = id(&mut errors, "target_component", self.target_component);
-        let autopilot = self.autopilot.unwrap_or(AutopilotKind::Ardupilot);
-        let vehicle = self.vehicle.unwrap_or(VehicleKind::Rover);
-        let method = self.method.unwrap_or(match autopilot {
+        let version = *self.mavlink_version.get_or_insert(2);
+        let version = errors
+            .int("mavlink_version", version, 1..=2, "")
+            .unwrap_or(2);
+        let mut id = |key: &str, v: Option<Int>| errors.opt_int::<u8>(key, v, 0..=255, "");
+        let system_id = id("system_id", Some(*self.system_id.get_or_insert(255)));
+        let component_id = id("component_id", Some(*self.component_id.get_or_insert(190)));
+        let target_system = id("target_system", self.target_system);
+        let target_component = id("target_component", self.target_component);
+        let autopilot = *self.autopilot.get_or_insert(AutopilotKind::Ardupilot);
+        let vehicle = *self.vehicle.get_or_insert(VehicleKind::Rover);
+        let method = *self.method.get_or_insert(match autopilot {
             AutopilotKind::Ardupilot => Method::RcOverride,
             AutopilotKind::Px4 => Method::ManualControl,
         });
         if autopilot == AutopilotKind::Px4 && method == Method::RcOverride {
-            errors.add(
-                "method",
-                "\"rc_override\"",
-                "PX4 ignores RC_CHANNELS_OVERRIDE: use \"manual_control\"",
-            );
+            let rule = "PX4 ignores RC_CHANNELS_OVERRIDE: use \"manual_control\"";
+            errors.add("method", "\"rc_override\"", rule);
         }
-        let rate_hz = self.rate_hz.unwrap_or(25.0);
+        let rate_hz = *self.rate_hz.get_or_insert(25.0);
         let rule = "must be 1..=200 (autopilots time an override out after ~1–3 s)";
         errors.float("rate_hz", rate_hz, 1.0..=200.0, rule);
-        let link_timeout_ms = self.link_timeout_ms.unwrap_or(3000);
+        let link_timeout = *self.link_timeout_ms.get_or_insert(3000);
         let rule = " (the autopilot sends HEARTBEAT at 1 Hz)";
-        let link_timeout =
-            errors.int::<u64>("link_timeout_ms", link_timeout_ms, 500..=60_000, rule);
-        let command_timeout_ms = self.command_timeout_ms.unwrap_or(300);
-        let command_timeout =
-            errors.int::<u64>("command_timeout_ms", command_timeout_ms, 20..=10_000, "");
-        let retries = self.command_retries.unwrap_or(3);
+        let link_timeout = errors.millis("link_timeout_ms", link_timeout, 500..=60_000, rule);
+        let command_timeout = *self.command_timeout_ms.get_or_insert(300);
+        let command_timeout = errors.millis("command_timeout_ms", command_timeout, 20..=10_000, "");
+        let retries = *self.command_retries.get_or_insert(3);
         let command_retries = errors.int("command_retries", retries, 0..=20, "");
-        let failsafe = self.failsafe.unwrap_or(match method {
+        let failsafe = *self.failsafe.get_or_insert(match method {
             Method::RcOverride => FailsafeAction::Release,
             Method::ManualControl => FailsafeAction::Neutral,
         });
         if method == Method::ManualControl && failsafe == FailsafeAction::Release {
-            errors.add(
-                "failsafe",
-                "\"release\"",
-                "MANUAL_CONTROL has no release value: use \"neutral\" (the safe mode then holds \
-                 the vehicle)",
-            );
+            let rule = "MANUAL_CONTROL has no release value: use \"neutral\" (the safe mode then \
+                        holds the vehicle)";
+            errors.add("failsafe", "\"release\"", rule);
         }
-        let version = mavlink_version.unwrap_or(2);
         let channels = self.validate_channels(method, vehicle, version, &mut errors);
         let manual_control = self.validate_manual_control(method, autopilot, vehicle, &mut errors);
         let modes = self.validate_modes(autopilot, vehicle, &mut errors);
@@ -583,11 +445,11 @@ impl MavlinkSettings {
             method,
             // A NaN rate was reported above; the placeholder keeps `from_secs_f64` from panicking.
             period: Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 200.0).max(1.0)),
-            link_timeout: Duration::from_millis(link_timeout.unwrap_or_default()),
-            command_timeout: Duration::from_millis(command_timeout.unwrap_or_default()),
+            link_timeout: link_timeout.unwrap_or_default(),
+            command_timeout: command_timeout.unwrap_or_default(),
             command_retries: command_retries.unwrap_or_default(),
             failsafe,
-            on_mode_refused: self.on_mode_refused.unwrap_or(OnModeRefused::Hold),
+            on_mode_refused: *self.on_mode_refused.get_or_insert(OnModeRefused::Hold),
             channels,
             manual_control,
             modes,
@@ -595,7 +457,7 @@ impl MavlinkSettings {
     }
 
     fn validate_channels(
-        &self,
+        &mut self,
         method: Method,
         vehicle: VehicleKind,
         version: u8,
@@ -603,51 +465,45 @@ impl MavlinkSettings {
     ) -> Vec<ChannelConfig> {
         if method == Method::ManualControl {
             if !self.channels.is_empty() {
-                errors.add(
-                    "channels",
-                    format!("{} tables", self.channels.len()),
-                    "only used with method = \"rc_override\"; map MANUAL_CONTROL in \
-                     [output.manual_control]",
-                );
+                let rule = "only used with method = \"rc_override\"; map MANUAL_CONTROL in \
+                            [output.manual_control]";
+                errors.add("channels", format!("{} tables", self.channels.len()), rule);
             }
             return Vec::new();
         }
         if self.channels.is_empty() {
-            return default_channels(vehicle)
-                .into_iter()
-                .map(|(channel, axis)| ChannelConfig {
-                    channel,
-                    axis,
-                    map: AxisMap::default(),
+            self.channels = (default_channels(vehicle).into_iter())
+                .map(|(channel, axis)| ChannelSettings {
+                    channel: Some(channel.into()),
+                    axis: Some(axis),
+                    ..ChannelSettings::default()
                 })
                 .collect();
         }
-        let mut out: Vec<ChannelConfig> = Vec::new();
         let mut used = Unique::default();
         let (max_channel, rule) = match version {
             1 => (8, " with mavlink_version = 1 (9..=18 need MAVLink 2)"),
             _ => (18, ""),
         };
+        let mut out = Vec::new();
         for (i, c) in self.channels.iter().enumerate() {
             let owner = format!("channels[{i}]");
-            let mut ce = ConfigErrors::default();
-            c.unknown.check(
-                &mut ce,
-                &[&["channel", "axis"], keys_of::<AxisMapSettings>()],
-            );
-            let rc = ce.required("channel", &c.channel);
-            let channel = rc.and_then(|ch| ce.int::<u8>("channel", ch, 1..=max_channel, rule));
-            if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
-                let rule = format!("is already used by {first}");
-                ce.add("channel", channel.unwrap_or_default(), rule);
-            }
-            if c.axis.is_none() {
-                ce.absent("axis", "is required: throttle, roll, pitch or yaw");
-            }
-            let rule = "does not apply to MAVLink channels: the autopilot shapes its own inputs";
-            ce.not_for("slew_us_per_s", c.map.slew_us_per_s, rule);
-            let map = ce.section("", c.map.validate());
-            errors.extend_within(&owner, ce);
+            let (channel, map) = errors.within(&owner, |ce| {
+                let keys = [&["channel", "axis"], keys_of::<AxisMapSettings>()];
+                c.unknown.check(ce, &keys);
+                let channel = ce.req_int::<u8>("channel", c.channel, 1..=max_channel, rule);
+                if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
+                    let rule = format!("is already used by {first}");
+                    ce.add("channel", channel.unwrap_or_default(), rule);
+                }
+                if c.axis.is_none() {
+                    ce.absent("axis", "is required: throttle, roll, pitch or yaw");
+                }
+                let rule =
+                    "does not apply to MAVLink channels: the autopilot shapes its own inputs";
+                ce.not_for("slew_us_per_s", c.map.slew_us_per_s, rule);
+                (channel, ce.section("", c.map.validate()))
+            });
             if let (Some(channel), Some(axis), Some(map)) = (channel, c.axis, map) {
                 out.push(ChannelConfig { channel, axis, map });
             }
@@ -656,107 +512,86 @@ impl MavlinkSettings {
     }
 
     fn validate_manual_control(
-        &self,
+        &mut self,
         method: Method,
         autopilot: AutopilotKind,
         vehicle: VehicleKind,
         errors: &mut ConfigErrors,
     ) -> ManualControlConfig {
-        let s = self.manual_control.clone().unwrap_or_default();
         if method == Method::RcOverride && self.manual_control.is_some() {
-            errors.add(
-                "manual_control",
-                "(table)",
-                "only used with method = \"manual_control\"",
-            );
+            let rule = "only used with method = \"manual_control\"";
+            errors.add("manual_control", "(table)", rule);
         }
-        let pick = |v: Option<AxisOrNone>, d: Axis| v.map_or(Some(d), AxisOrNone::axis);
-        let mut reverse = [false; 4];
-        for f in &s.reverse {
-            let i = match f {
-                ManualField::X => 0,
-                ManualField::Y => 1,
-                ManualField::Z => 2,
-                ManualField::R => 3,
-            };
-            reverse[i] = true;
+        let mut s = self.manual_control.clone().unwrap_or_default();
+        let pick = |v: &mut Option<AxisOrNone>, d: AxisOrNone| v.get_or_insert(d).axis();
+        let fields = [
+            pick(&mut s.x, AxisOrNone::Pitch),
+            pick(&mut s.y, AxisOrNone::Roll),
+            pick(&mut s.z, AxisOrNone::Throttle),
+            pick(&mut s.r, AxisOrNone::Yaw),
+        ];
+        let z_range = *s.z_range.get_or_insert(match (autopilot, vehicle) {
+            (AutopilotKind::Ardupilot, VehicleKind::Rover) => ZRange::Signed,
+            _ => ZRange::Positive,
+        });
+        use ManualField as F;
+        let reverse = [F::X, F::Y, F::Z, F::R].map(|f| s.reverse.contains(&f));
+        if method == Method::ManualControl {
+            self.manual_control = Some(s);
         }
         ManualControlConfig {
-            fields: [
-                pick(s.x, Axis::Pitch),
-                pick(s.y, Axis::Roll),
-                pick(s.z, Axis::Throttle),
-                pick(s.r, Axis::Yaw),
-            ],
+            fields,
             reverse,
-            z_range: s.z_range.unwrap_or(match (autopilot, vehicle) {
-                (AutopilotKind::Ardupilot, VehicleKind::Rover) => ZRange::Signed,
-                _ => ZRange::Positive,
-            }),
+            z_range,
         }
     }
 
     fn validate_modes(
-        &self,
+        &mut self,
         autopilot: AutopilotKind,
         vehicle: VehicleKind,
         errors: &mut ConfigErrors,
     ) -> ModesConfig {
-        let s = self.modes.clone().unwrap_or_default();
+        let s = self.modes.get_or_insert_default();
         let table = mode_table(autopilot, vehicle);
         let defaults = default_modes(autopilot, vehicle);
-        let mut resolve = |key: &str, written: &Option<AutopilotModeName>, default: &str| {
-            let fallback = AutopilotMode {
-                name: default.to_string(),
-                custom_mode: table
-                    .iter()
-                    .find(|(n, _)| *n == default)
-                    .map_or(0, |&(_, m)| m),
-            };
-            match written {
-                None => fallback,
-                Some(AutopilotModeName::Number(n)) => {
-                    let key = format!("modes.{key}");
-                    match errors.int(&key, *n, 0..=Int::from(u32::MAX), " (a custom_mode number)") {
-                        Some(custom_mode) => AutopilotMode {
-                            name: n.to_string(),
-                            custom_mode,
-                        },
-                        None => fallback,
-                    }
+        let mut resolve = |key: &str, written: &mut Option<AutopilotModeName>, default: &str| {
+            let custom_mode = table.iter().find(|(n, _)| *n == default).map_or(0, |m| m.1);
+            let name = default.to_string();
+            let fallback = AutopilotMode { name, custom_mode };
+            let key = format!("modes.{key}");
+            match written.get_or_insert_with(|| AutopilotModeName::Name(default.into())) {
+                AutopilotModeName::Number(n) => {
+                    let unit = " (a custom_mode number)";
+                    let custom_mode = errors.int(&key, *n, 0..=Int::from(u32::MAX), unit);
+                    let name = n.to_string();
+                    custom_mode.map_or(fallback, |custom_mode| AutopilotMode { name, custom_mode })
                 }
-                Some(AutopilotModeName::Name(name)) => {
+                AutopilotModeName::Name(name) => {
                     let upper = name.to_ascii_uppercase();
-                    match table.iter().find(|(n, _)| *n == upper) {
-                        Some(&(n, m)) => AutopilotMode {
-                            name: n.to_string(),
-                            custom_mode: m,
-                        },
-                        None => {
-                            let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
-                            errors.add(
-                                format!("modes.{key}"),
-                                format!("\"{name}\""),
-                                format!(
-                                    "is not a mode of {}: use one of {} or a custom_mode number",
-                                    firmware_name(autopilot, vehicle),
-                                    names.join(", ")
-                                ),
-                            );
-                            fallback
-                        }
+                    if let Some(&(n, custom_mode)) = table.iter().find(|(n, _)| *n == upper) {
+                        let name = n.to_string();
+                        return AutopilotMode { name, custom_mode };
                     }
+                    let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
+                    let rule = format!(
+                        "is not a mode of {}: use one of {} or a custom_mode number",
+                        firmware_name(autopilot, vehicle),
+                        names.join(", ")
+                    );
+                    errors.add(key, format!("\"{name}\""), rule);
+                    fallback
                 }
             }
         };
-        let manual = resolve("manual", &s.manual, defaults[0]);
-        let assisted = resolve("assisted", &s.assisted, defaults[1]);
-        let auto = resolve("auto", &s.auto, defaults[2]);
-        let safe = resolve("safe", &s.safe, defaults[3]);
+        let manual = resolve("manual", &mut s.manual, defaults[0]);
+        let assisted = resolve("assisted", &mut s.assisted, defaults[1]);
+        let auto = resolve("auto", &mut s.auto, defaults[2]);
+        let safe = resolve("safe", &mut s.safe, defaults[3]);
         ModesConfig {
             driven: [manual, assisted, auto],
             safe,
-            set_mode: s.set_mode.unwrap_or(true),
+            set_mode: *s.set_mode.get_or_insert(true),
         }
     }
 }

@@ -705,7 +705,7 @@ mod tests {
     #[test]
     fn serial_budget_lowers_the_rate_only_on_slow_links() {
         // RC_CHANNELS_OVERRIDE, MAVLink 2: 38-byte payload + 12 = 50 bytes.
-        let settings: crate::MavlinkSettings = toml::from_str("").expect("parses");
+        let mut settings: crate::MavlinkSettings = toml::from_str("").expect("parses");
         let config = settings.validate().expect("valid");
         assert_eq!(control_frame_bytes(&config), 50);
         // 57 600 baud: 5 760 B/s, half of it 2 880 B/s → 50 B every 17.4 ms (57 Hz): 25 Hz fits.

@@ -25,7 +25,7 @@ const WAIT: Duration = Duration::from_secs(10);
 type Peer = FakeAutopilot;
 
 fn vehicle(toml: &str, clock: &Clock) -> MavlinkVehicle {
-    let settings: MavlinkSettings = toml::from_str(toml).unwrap();
+    let mut settings: MavlinkSettings = toml::from_str(toml).unwrap();
     MavlinkVehicle::new(settings.validate().unwrap(), clock.now()).unwrap()
 }
 

@@ -6,7 +6,7 @@ use rove_core::config::{Int, UnknownKeys, keys_of};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{ModeLevels, ModeLevelsSettings};
 use rove_core::msg::{Mode, MovementCommand};
-use rove_pwm::config::{preset_tables, rename_channels};
+use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
 use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
     PwmVehicleConfig, PwmVehicleSettings,
@@ -46,39 +46,33 @@ pub const LAND_RAMP_RANGE_MS: std::ops::RangeInclusive<Int> = 100..=60_000;
 /// above the 10 % (1100 µs) at which the Naza's default "Immediately" stop type cuts motors.
 pub const DEFAULT_LAND_FRACTION: f64 = 0.4;
 
-/// Mode the U channel is put in by the failsafe.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FailsafeMode {
-    /// ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.
-    Atti,
-    /// GPS: also holds position; needs a GPS lock.
-    Gps,
-}
+rove_core::config_types! {
+    /// Mode the U channel is put in by the failsafe.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum FailsafeMode {
+        Atti => "ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.",
+        Gps => "GPS: also holds position; needs a GPS lock.",
+    }
 
-/// What the failsafe does with the throttle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FailsafePolicy {
-    /// Throttle centred: hold altitude.
-    Hover,
-    /// Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.
-    Land,
-}
+    /// What the failsafe does with the throttle.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum FailsafePolicy {
+        Hover => "Throttle centred: hold altitude.",
+        Land => "Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.",
+    }
 
-/// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
-/// pitch/roll; both always at the bottom).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CscPattern {
-    /// Left stick bottom-left, right stick bottom-right.
-    Outer,
-    /// Left stick bottom-right, right stick bottom-left.
-    Inner,
-    /// Both sticks bottom-left.
-    Left,
-    /// Both sticks bottom-right.
-    Right,
+    /// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
+    /// pitch/roll; both always at the bottom).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum CscPattern {
+        Outer => "Left stick bottom-left, right stick bottom-right.",
+        Inner => "Left stick bottom-right, right stick bottom-left.",
+        Left => "Both sticks bottom-left.",
+        Right => "Both sticks bottom-right.",
+    }
 }
 
 impl CscPattern {
@@ -104,93 +98,59 @@ impl CscPattern {
 /// limit defaults to [`DEFAULT_THROTTLE_SLEW_US_PER_S`].
 pub type StickSettings = rove_pwm::ServoChannelSettings;
 
-/// `[output.mode]`: the U channel's address and levels.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ModeChannelSettings {
-    /// The address keys (rove-pwm's).
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// Level for Manual (MANUAL), µs.
-    pub manual_us: Option<Int>,
-    /// Level for ATTI (ASSISTED), µs.
-    pub atti_us: Option<Int>,
-    /// Level for GPS (AUTO), µs.
-    pub gps_us: Option<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+rove_core::config_types! {
+    /// `[output.mode]`: the U channel's address and levels (µs).
+    pub settings ModeChannelSettings {
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys (rove-pwm's).",
+        manual_us: Option<Int> => "Level for Manual (MANUAL).",
+        atti_us: Option<Int> => "Level for ATTI (ASSISTED).",
+        gps_us: Option<Int> => "Level for GPS (AUTO).",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 
-/// `[output]` for the Naza-M, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct NazaSettings {
-    /// `backend` (required), `period_us`, `sysfs_root`, `chip`: rove-pwm's backend keys.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// A: roll.
-    pub aileron: Option<StickSettings>,
-    /// E: pitch.
-    pub elevator: Option<StickSettings>,
-    /// T: throttle.
-    pub throttle: Option<StickSettings>,
-    /// R: yaw.
-    pub rudder: Option<StickSettings>,
-    /// U: mode switch.
-    pub mode: Option<ModeChannelSettings>,
-    /// U level in failsafe (absent: atti).
-    pub failsafe_mode: Option<FailsafeMode>,
-    /// Throttle in failsafe (absent: hover).
-    pub failsafe_policy: Option<FailsafePolicy>,
-    /// `land`: throttle floor, µs (absent: see [`DEFAULT_LAND_FRACTION`]).
-    pub land_throttle_us: Option<Int>,
-    /// `land`: ramp time from centre to the floor, ms (absent: [`DEFAULT_LAND_RAMP_MS`]).
-    pub land_ramp_ms: Option<Int>,
-    /// CSC corners (absent: outer).
-    pub csc: Option<CscPattern>,
-    /// How long the CSC is held, ms (absent: [`DEFAULT_CSC_HOLD_MS`]).
-    pub csc_hold_ms: Option<Int>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+    /// `[output]` for the Naza-M, as written.
+    pub settings NazaSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "rove-pwm's backend keys.",
+        aileron: Option<StickSettings> => "A: roll.",
+        elevator: Option<StickSettings> => "E: pitch.",
+        throttle: Option<StickSettings> => "T: throttle.",
+        rudder: Option<StickSettings> => "R: yaw.",
+        mode: Option<ModeChannelSettings> => "U: mode switch.",
+        failsafe_mode: Option<FailsafeMode> => "U level in failsafe.",
+        failsafe_policy: Option<FailsafePolicy> => "Throttle in failsafe.",
+        land_throttle_us: Option<Int> => "`land`: throttle floor, µs (absent: see \
+            [`DEFAULT_LAND_FRACTION`]).",
+        land_ramp_ms: Option<Int> => "`land`: ramp time from centre to the floor, ms.",
+        csc: Option<CscPattern> => "CSC corners.",
+        csc_hold_ms: Option<Int> => "How long the CSC is held, ms.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 }
 
 /// The keys of `[output]` for the Naza-M besides the backend keys.
-const NAZA_KEYS: &[&str] = &[
-    "aileron",
-    "elevator",
-    "throttle",
-    "rudder",
-    "mode",
-    "failsafe_mode",
-    "failsafe_policy",
-    "land_throttle_us",
-    "land_ramp_ms",
-    "csc",
-    "csc_hold_ms",
-];
+const NAZA_KEYS: &str = "aileron elevator throttle rudder mode failsafe_mode failsafe_policy \
+                         land_throttle_us land_ramp_ms csc csc_hold_ms";
 
-/// The throttle in failsafe, validated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FailsafeThrottle {
-    /// Centre.
-    Hover,
-    /// Linear ramp from centre to `floor_us` over `ramp`.
-    Land {
-        /// Final throttle pulse, µs.
-        floor_us: u16,
-        /// Ramp duration.
-        ramp: Duration,
-    },
-}
+rove_core::config_types! {
+    /// The throttle in failsafe, validated.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum FailsafeThrottle {
+        Hover => "Centre.",
+        Land => "Linear ramp from centre to `floor_us` over `ramp`." {
+            floor_us: u16 => "Final throttle pulse, µs.",
+            ramp: Duration => "Ramp duration.",
+        },
+    }
 
-/// A validated Naza-M output.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NazaConfig {
-    pwm: PwmVehicleConfig,
-    failsafe_mode: Mode,
-    failsafe_throttle: FailsafeThrottle,
-    csc: CscPattern,
-    csc_hold: Duration,
+    /// A validated Naza-M output.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct NazaConfig {
+        pwm: PwmVehicleConfig => "The generic PWM vehicle (channels in the order A, E, T, R, U).",
+        failsafe_mode: Mode => "The mode the failsafe selects (ASSISTED = ATTI, AUTO = GPS).",
+        failsafe_throttle: FailsafeThrottle => "The throttle policy in failsafe.",
+        csc: CscPattern => "The CSC corners.",
+        csc_hold: Duration => "How long the CSC is held.",
+    }
 }
 
 impl NazaConfig {
@@ -204,31 +164,6 @@ impl NazaConfig {
     pub const RUDDER: usize = 3;
     /// Mode (U) channel index.
     pub const MODE: usize = 4;
-
-    /// The generic PWM vehicle (channels in the order A, E, T, R, U).
-    pub fn pwm(&self) -> &PwmVehicleConfig {
-        &self.pwm
-    }
-
-    /// The mode the failsafe selects (ASSISTED = ATTI, AUTO = GPS).
-    pub fn failsafe_mode(&self) -> Mode {
-        self.failsafe_mode
-    }
-
-    /// The throttle policy in failsafe.
-    pub fn failsafe_throttle(&self) -> FailsafeThrottle {
-        self.failsafe_throttle
-    }
-
-    /// The CSC corners.
-    pub fn csc(&self) -> CscPattern {
-        self.csc
-    }
-
-    /// How long the CSC is held.
-    pub fn csc_hold(&self) -> Duration {
-        self.csc_hold
-    }
 }
 
 /// (preset table name, source), in the generic channel order.
@@ -240,18 +175,8 @@ const CHANNELS: [(&str, ChannelSourceKind); 5] = [
     ("mode", ChannelSourceKind::Mode),
 ];
 
-/// A stick channel as a generic channel; the throttle gets a slew limit unless one is set, so
-/// it never jumps when control changes hands.
-fn stick_channel(stick: &StickSettings, name: &str, source: ChannelSourceKind) -> ChannelSettings {
-    let mut channel = stick.to_channel(name, source);
-    if source == ChannelSourceKind::Throttle && channel.map.slew_us_per_s.is_none() {
-        channel.map.slew_us_per_s = Some(DEFAULT_THROTTLE_SLEW_US_PER_S);
-    }
-    channel
-}
-
 impl NazaSettings {
-    fn failsafe_mode(&self) -> Mode {
+    fn safe_mode(&self) -> Mode {
         match self.failsafe_mode.unwrap_or(FailsafeMode::Atti) {
             FailsafeMode::Atti => Mode::Assisted,
             FailsafeMode::Gps => Mode::Auto,
@@ -259,17 +184,18 @@ impl NazaSettings {
     }
 
     /// The equivalent generic `adapter = "pwm"` settings (A, E, T, R, U; missing tables count
-    /// as empty so their address errors are reported too).
+    /// as empty so their address errors are reported too). The throttle gets a slew limit
+    /// unless one is set, so that it never jumps when control changes hands.
     pub fn to_generic(&self) -> PwmVehicleSettings {
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
-        let mut channels: Vec<ChannelSettings> = CHANNELS[..4]
-            .iter()
-            .zip(sticks)
-            .map(|((name, source), t)| stick_channel(&t.clone().unwrap_or_default(), name, *source))
+        let mut channels: Vec<ChannelSettings> = (CHANNELS[..4].iter().zip(sticks))
+            .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
             .collect();
+        let slew = &mut channels[NazaConfig::THROTTLE].map.slew_us_per_s;
+        slew.get_or_insert(DEFAULT_THROTTLE_SLEW_US_PER_S);
         let m = self.mode.clone().unwrap_or_default();
         let level = |v: Option<Int>, d: Mode| v.unwrap_or(DEFAULT_LEVELS.level(d).into());
-        let failsafe = match self.failsafe_mode() {
+        let failsafe = match self.safe_mode() {
             Mode::Manual => m.manual_us,
             Mode::Assisted => m.atti_us,
             Mode::Auto => m.gps_us,
@@ -283,7 +209,7 @@ impl NazaSettings {
                 assisted_us: Some(level(m.atti_us, Mode::Assisted)),
                 auto_us: Some(level(m.gps_us, Mode::Auto)),
             },
-            failsafe_us: Some(level(failsafe, self.failsafe_mode())),
+            failsafe_us: Some(level(failsafe, self.safe_mode())),
             ..ChannelSettings::default()
         });
         PwmVehicleSettings {
@@ -293,95 +219,73 @@ impl NazaSettings {
         }
     }
 
-    /// Validates into a [`NazaConfig`].
+    /// Validates into a [`NazaConfig`], filling the section's defaults into `self`.
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
-    /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…): a missing channel table, a land
-    /// floor not below the throttle centre or under its minimum, ramp or hold times out of
-    /// range, land keys without `failsafe_policy = "land"`, and everything
-    /// [`PwmVehicleSettings::validate`] rejects.
-    pub fn validate(&self) -> rove_core::Result<NazaConfig> {
+    /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…).
+    pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
-        self.unknown
-            .check(&mut errors, &[keys_of::<PwmBackendSettings>(), NAZA_KEYS]);
+        let naza_keys: Vec<&str> = NAZA_KEYS.split_whitespace().collect();
+        let keys = [keys_of::<PwmBackendSettings>(), &naza_keys];
+        self.unknown.check(&mut errors, &keys);
         let names = CHANNELS.map(|c| c.0);
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
-        preset_tables(&mut errors, &names[..4], &sticks);
-        match &self.mode {
-            None => errors.absent(
-                "mode",
-                "must give [output.mode] with its output (pin, pwm_channel or chip/channel)",
-            ),
-            Some(m) => {
-                let mut unknown = ConfigErrors::default();
-                let keys = [
-                    keys_of::<PwmAddressSettings>(),
-                    &["manual_us", "atti_us", "gps_us"],
-                ];
-                m.unknown.check(&mut unknown, &keys);
-                errors.extend_within("mode", unknown);
-            }
-        }
-        let hold_ms = self.csc_hold_ms.unwrap_or(DEFAULT_CSC_HOLD_MS);
-        let hold = errors.int::<u64>("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
-        let policy = self.failsafe_policy.unwrap_or(FailsafePolicy::Hover);
+        let sticks = sticks.map(|t| t.as_ref().map(|t| &t.unknown));
+        preset_tables(&mut errors, &names[..4], &sticks, &servo_keys());
+        let mode_keys = [
+            keys_of::<PwmAddressSettings>(),
+            &["manual_us", "atti_us", "gps_us"],
+        ];
+        let mode = [self.mode.as_ref().map(|m| &m.unknown)];
+        preset_tables(&mut errors, &names[4..], &mode, &mode_keys);
+        let hold_ms = *self.csc_hold_ms.get_or_insert(DEFAULT_CSC_HOLD_MS);
+        let hold = errors.millis("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
+        let policy = *self.failsafe_policy.get_or_insert(FailsafePolicy::Hover);
+        self.failsafe_mode.get_or_insert(FailsafeMode::Atti);
+        self.csc.get_or_insert(CscPattern::Outer);
         if policy == FailsafePolicy::Hover {
             let rule = "only applies with failsafe_policy = \"land\"";
             errors.not_for("land_throttle_us", self.land_throttle_us, rule);
             errors.not_for("land_ramp_ms", self.land_ramp_ms, rule);
         }
         let ramp_ms = self.land_ramp_ms.unwrap_or(DEFAULT_LAND_RAMP_MS);
-        let ramp = errors.int::<u64>("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
-        let pwm = match self.to_generic().validate() {
-            Ok(pwm) => Some(pwm),
-            Err(rove_core::Error::Config(generic)) => {
-                errors
-                    .0
-                    .extend(generic.0.into_iter().map(|e| rename(e, &names)));
-                None
-            }
-            Err(other) => return Err(other),
-        };
+        let ramp = errors.millis("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
+        let mut generic = self.to_generic();
+        let pwm = generic.validate();
+        self.pwm = generic.pwm;
         let failsafe_throttle = match (policy, &pwm) {
-            (FailsafePolicy::Hover, _) | (_, None) => FailsafeThrottle::Hover,
-            (FailsafePolicy::Land, Some(pwm)) => {
-                let (min, centre) = match pwm.channels()[NazaConfig::THROTTLE].source() {
+            (FailsafePolicy::Hover, _) | (_, Err(_)) => FailsafeThrottle::Hover,
+            (FailsafePolicy::Land, Ok(pwm)) => {
+                let (min, centre) = match pwm.channels[NazaConfig::THROTTLE].source {
                     ChannelSource::Axis(_, map) => (map.min_us(), map.centre_us()),
                     // The throttle channel is built as an axis above.
                     _ => (1000, 1500),
                 };
                 let default_floor =
                     f64::from(centre) - DEFAULT_LAND_FRACTION * f64::from(centre - min);
-                let floor_us = self
-                    .land_throttle_us
-                    .unwrap_or(default_floor.round() as Int);
+                let floor_us = *(self.land_throttle_us).get_or_insert(default_floor.round() as Int);
+                self.land_ramp_ms = Some(ramp_ms);
                 if !(Int::from(min)..Int::from(centre)).contains(&floor_us) {
-                    errors.add(
-                        "land_throttle_us",
-                        floor_us,
-                        format!(
-                            "must be at least throttle.min_us ({min}) and below the throttle \
-                             centre ({centre}), or the aircraft would not descend"
-                        ),
+                    let rule = format!(
+                        "must be at least throttle.min_us ({min}) and below the throttle \
+                         centre ({centre}), or the aircraft would not descend"
                     );
+                    errors.add("land_throttle_us", floor_us, rule);
                 }
-                FailsafeThrottle::Land {
-                    floor_us: u16::try_from(floor_us).unwrap_or(min),
-                    ramp: Duration::from_millis(ramp.unwrap_or_default()),
-                }
+                let floor_us = u16::try_from(floor_us).unwrap_or(min);
+                let ramp = ramp.unwrap_or_default();
+                FailsafeThrottle::Land { floor_us, ramp }
             }
         };
-        match pwm {
-            Some(pwm) => errors.into_result(NazaConfig {
-                pwm,
-                failsafe_mode: self.failsafe_mode(),
-                failsafe_throttle,
-                csc: self.csc.unwrap_or(CscPattern::Outer),
-                csc_hold: Duration::from_millis(hold.unwrap_or_default()),
-            }),
-            None => Err(rove_core::Error::Config(errors)),
-        }
+        let config = pwm.map(|pwm| NazaConfig {
+            pwm,
+            failsafe_mode: self.safe_mode(),
+            failsafe_throttle,
+            csc: self.csc.unwrap_or(CscPattern::Outer),
+            csc_hold: hold.unwrap_or_default(),
+        });
+        finish_preset(errors, config, |e| rename(e, &names))
     }
 }
 
@@ -389,18 +293,14 @@ impl NazaSettings {
 /// to the Naza's names.
 fn rename(e: ConfigError, names: &[&str]) -> ConfigError {
     let mut e = rename_channels(e, names);
-    for (generic, naza) in [
-        ("mode.assisted_us", "mode.atti_us"),
-        ("mode.auto_us", "mode.gps_us"),
-    ] {
-        if e.key == generic {
-            e.key = naza.into();
-        }
+    let naza = |s: &str| {
+        s.replace("assisted_us", "atti_us")
+            .replace("auto_us", "gps_us")
+    };
+    if ["mode.assisted_us", "mode.auto_us"].contains(&e.key.as_str()) {
+        e.key = naza(&e.key);
     }
-    e.rule = e
-        .rule
-        .replace("assisted_us", "atti_us")
-        .replace("auto_us", "gps_us");
+    e.rule = naza(&e.rule);
     e
 }
 
@@ -422,13 +322,13 @@ mod tests {
     #[test]
     fn defaults() {
         let cfg = parse(MINIMAL).validate().expect("valid");
-        assert_eq!(cfg.failsafe_mode(), Mode::Assisted);
-        assert_eq!(cfg.failsafe_throttle(), FailsafeThrottle::Hover);
-        assert_eq!(cfg.csc(), CscPattern::Outer);
-        assert_eq!(cfg.csc_hold(), Duration::from_millis(1500));
-        let names: Vec<&str> = cfg.pwm().channels().iter().map(|c| c.name()).collect();
+        assert_eq!(cfg.failsafe_mode, Mode::Assisted);
+        assert_eq!(cfg.failsafe_throttle, FailsafeThrottle::Hover);
+        assert_eq!(cfg.csc, CscPattern::Outer);
+        assert_eq!(cfg.csc_hold, Duration::from_millis(1500));
+        let names: Vec<&str> = cfg.pwm.channels.iter().map(|c| c.name.as_str()).collect();
         assert_eq!(names, ["aileron", "elevator", "throttle", "rudder", "mode"]);
-        assert_eq!(cfg.pwm().channels()[NazaConfig::MODE].failsafe_us(), 1500);
+        assert_eq!(cfg.pwm.channels[NazaConfig::MODE].failsafe_us, 1500);
         let cfg = parse(&MINIMAL.replace(
             "backend = \"sim\"",
             "backend = \"sim\"\nfailsafe_policy = \"land\"\nfailsafe_mode = \"gps\"",
@@ -436,13 +336,13 @@ mod tests {
         .validate()
         .expect("valid");
         assert_eq!(
-            cfg.failsafe_throttle(),
+            cfg.failsafe_throttle,
             FailsafeThrottle::Land {
                 floor_us: 1300,
                 ramp: Duration::from_millis(3000)
             }
         );
-        assert_eq!(cfg.pwm().channels()[NazaConfig::MODE].failsafe_us(), 1900);
+        assert_eq!(cfg.pwm.channels[NazaConfig::MODE].failsafe_us, 1900);
     }
 
     #[test]

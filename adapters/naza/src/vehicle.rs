@@ -83,10 +83,10 @@ impl<B: PwmBackend> NazaVehicle<B> {
     /// # Errors
     /// As [`PwmVehicle::new`].
     pub fn new(config: NazaConfig, backend: B, now: MonoTime) -> Result<Self, LinkError> {
-        let pwm = PwmVehicle::new(config.pwm().clone(), backend, now)?;
+        let pwm = PwmVehicle::new(config.pwm.clone(), backend, now)?;
         Ok(NazaVehicle {
             pwm,
-            mode: config.failsafe_mode(),
+            mode: config.failsafe_mode,
             config,
             state: NazaState::Failsafe { since: now },
         })
@@ -105,7 +105,7 @@ impl<B: PwmBackend> NazaVehicle<B> {
     /// When the state machine next needs a [`NazaVehicle::tick`] without outside input: the
     /// CSC's end, or the next land-ramp step while the ramp is running.
     pub fn next_deadline(&self, now: MonoTime) -> Option<MonoTime> {
-        match (self.state, self.config.failsafe_throttle()) {
+        match (self.state, self.config.failsafe_throttle) {
             (NazaState::Csc { until, .. }, _) => Some(until),
             (NazaState::Failsafe { since }, FailsafeThrottle::Land { ramp, .. })
                 if now < since + ramp =>
@@ -141,13 +141,13 @@ impl<B: PwmBackend> NazaVehicle<B> {
             NazaState::Failsafe { .. } => Resume::Failsafe,
         };
         let pulses = self.pwm.target_pulses(&Setpoint {
-            movement: self.config.csc().movement(),
+            movement: self.config.csc.movement(),
             mode: self.mode,
         });
         self.pwm.write_unlimited(now, &pulses)?;
         self.state = NazaState::Csc {
             command,
-            until: now + self.config.csc_hold(),
+            until: now + self.config.csc_hold,
             resume,
         };
         Ok(())
@@ -178,7 +178,7 @@ impl<B: PwmBackend> NazaVehicle<B> {
                     self.write_failsafe(now)
                 }
             },
-            NazaState::Failsafe { .. } => match self.config.failsafe_throttle() {
+            NazaState::Failsafe { .. } => match self.config.failsafe_throttle {
                 FailsafeThrottle::Land { .. } => self.write_failsafe(now),
                 FailsafeThrottle::Hover => Ok(()),
             },
@@ -201,7 +201,7 @@ impl<B: PwmBackend> NazaVehicle<B> {
             _ => now,
         };
         let mut pulses = self.pwm.failsafe_pulses();
-        if let FailsafeThrottle::Land { floor_us, ramp } = self.config.failsafe_throttle() {
+        if let FailsafeThrottle::Land { floor_us, ramp } = self.config.failsafe_throttle {
             pulses[NazaConfig::THROTTLE] = self.land_throttle(now, since, floor_us, ramp);
         }
         self.pwm.write_unlimited(now, &pulses)
@@ -219,7 +219,7 @@ impl<B: PwmBackend> OutputAdapter for NazaVehicle<B> {
             NazaState::Csc { until, .. } if now < until => {
                 // The CSC is being held: the setpoint waits. Keep the U level current.
                 let pulses = self.pwm.target_pulses(&Setpoint {
-                    movement: self.config.csc().movement(),
+                    movement: self.config.csc.movement(),
                     mode: self.mode,
                 });
                 self.pwm.write_unlimited(now, &pulses)

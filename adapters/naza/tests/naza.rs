@@ -40,7 +40,7 @@ fn sim(text: &str) -> (NazaVehicle<SimBackend>, SimLog) {
     s.pwm.sysfs_root = None;
     s.pwm.chip = None;
     let cfg = s.validate().expect("valid");
-    let backend = SimBackend::for_config(cfg.pwm());
+    let backend = SimBackend::for_config(&cfg.pwm);
     let log = backend.log();
     (NazaVehicle::new(cfg, backend, ms(0)).expect("starts"), log)
 }
@@ -70,14 +70,14 @@ fn sp(roll: i16, pitch: i16, throttle: i16, yaw: i16, mode: Mode) -> Setpoint {
 #[test]
 fn examples_parse() {
     let cfg = settings(PI).validate().expect("valid");
-    assert_eq!(cfg.pwm().channels().len(), 5);
+    assert_eq!(cfg.pwm.channels.len(), 5);
     assert_eq!(
-        cfg.pwm().addresses()[NazaConfig::THROTTLE],
+        cfg.pwm.addresses()[NazaConfig::THROTTLE],
         rove_pwm::ChannelAddress::HardwarePwm(0)
     );
     let cfg = settings(LAND).validate().expect("valid");
     assert_eq!(
-        cfg.pwm().addresses()[NazaConfig::MODE],
+        cfg.pwm.addresses()[NazaConfig::MODE],
         rove_pwm::ChannelAddress::Sysfs {
             chip: 1,
             channel: 0

@@ -62,7 +62,7 @@ impl<B: PwmBackend + ?Sized> PwmBackend for Box<B> {
 /// A fatal [`LinkError`] for `backend = "rppal"` in a build without the `rppal` feature, or
 /// when rppal cannot open the GPIO peripheral.
 pub fn open_backend(config: &PwmVehicleConfig) -> Result<Box<dyn PwmBackend + Send>, LinkError> {
-    match config.backend() {
+    match &config.backend {
         BackendConfig::Sysfs { root } => Ok(Box::new(crate::sysfs::SysfsBackend::new(
             root.clone(),
             config,
@@ -187,7 +187,7 @@ impl SimBackend {
 
     /// A sim with `config`'s channels and period and [`SIM_DEFAULT_CAPACITY`].
     pub fn for_config(config: &PwmVehicleConfig) -> Self {
-        let period_us = u64::try_from(config.period().as_micros()).unwrap_or(u64::MAX);
+        let period_us = u64::try_from(config.period.as_micros()).unwrap_or(u64::MAX);
         SimBackend::new(config.addresses(), period_us, SIM_DEFAULT_CAPACITY)
     }
 
@@ -301,7 +301,7 @@ mod tests {
     #[cfg(not(feature = "rppal"))]
     #[test]
     fn rppal_without_the_feature_is_a_fatal_error_saying_so() {
-        let cfg: crate::PwmVehicleSettings = toml::from_str(
+        let mut cfg: crate::PwmVehicleSettings = toml::from_str(
             "backend = \"rppal\"\n[[channels]]\nname = \"a\"\nsource = \"roll\"\npin = 18",
         )
         .expect("parses");

@@ -1,15 +1,17 @@
 //! The `[output]` section of a config-defined PWM vehicle: the raw serde structs (which only
 //! parse and reject unknown keys) and `validate()`, which checks every key, collects every
-//! problem and returns the validated [`PwmVehicleConfig`].
+//! problem and returns the validated [`PwmVehicleConfig`]. The keys are described in the crate
+//! docs.
 //!
 //! Keys of errors are relative to the `[output]` table, e.g. `channels[2].max_us`; the gateway
 //! puts `output.` in front.
 
-use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{ABSENT, Int, Unique, UnknownKeys, keys_of};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{
     Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US, pulse,
 };
+use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -36,44 +38,35 @@ pub const HARDWARE_PWM_CHANNEL_RANGE: std::ops::RangeInclusive<i64> = 0..=1;
 /// servo standard's ends and centre. Device presets (Naza-M) bring their own.
 pub const DEFAULT_MODE_LEVELS: ModeLevels = ModeLevels::new(1000, 1500, 2000);
 
-/// Which PWM device drives the channels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BackendKind {
-    /// Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).
-    Sysfs,
-    /// Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.
-    Rppal,
-    /// Records pulses in memory.
-    Sim,
-}
+rove_core::config_types! {
+    /// Which PWM device drives the channels.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum BackendKind {
+        Sysfs => "Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).",
+        Rppal => "Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.",
+        Sim => "Records pulses in memory.",
+    }
 
-/// What a channel outputs, as written in `source = …`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ChannelSourceKind {
-    /// The throttle axis.
-    Throttle,
-    /// The roll axis (UGV steering).
-    Roll,
-    /// The pitch axis.
-    Pitch,
-    /// The yaw axis.
-    Yaw,
-    /// The mode, as one of three levels.
-    Mode,
-    /// A fixed pulse (`value_us`).
-    Constant,
-}
+    /// What a channel outputs, as written in `source = …`.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum ChannelSourceKind {
+        Throttle => "The throttle axis.",
+        Roll => "The roll axis (UGV steering).",
+        Pitch => "The pitch axis.",
+        Yaw => "The yaw axis.",
+        Mode => "The mode, as one of three levels.",
+        Constant => "A fixed pulse (`value_us`).",
+    }
 
-/// Output polarity, as the kernel's sysfs `polarity` file spells it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Polarity {
-    /// Active high (the pulse is high).
-    Normal,
-    /// Active low, for an inverting level shifter.
-    Inversed,
+    /// Output polarity, as the kernel's sysfs `polarity` file spells it.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum Polarity {
+        Normal => "Active high (the pulse is high).",
+        Inversed => "Active low, for an inverting level shifter.",
+    }
 }
 
 impl Polarity {
@@ -86,67 +79,44 @@ impl Polarity {
     }
 }
 
-/// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
-/// `"eyedrive"` and `"naza"` (flattened into each).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PwmBackendSettings {
-    /// Which device drives the channels (required).
-    pub backend: Option<BackendKind>,
-    /// PWM period, µs (absent: [`DEFAULT_PERIOD_US`]).
-    pub period_us: Option<Int>,
-    /// sysfs only: the PWM class directory (absent: [`DEFAULT_SYSFS_ROOT`]).
-    pub sysfs_root: Option<PathBuf>,
-    /// sysfs only: the `pwmchipN` used by channels that name no `chip` (absent: 0).
-    pub chip: Option<Int>,
-}
+rove_core::config_types! {
+    /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
+    /// `"eyedrive"` and `"naza"` (flattened into each).
+    #[serde(deny_unknown_fields)]
+    pub settings PwmBackendSettings {
+        backend: Option<BackendKind> => "Which device drives the channels.",
+        period_us: Option<Int> => "PWM period, µs.",
+        sysfs_root: Option<PathBuf> => "sysfs: the PWM class directory.",
+        chip: Option<Int> => "sysfs: the `pwmchipN` of channels that name no `chip`.",
+    }
 
-/// Where a channel is wired, as written: the one definition of the address keys, shared by
-/// generic channels and the preset tables (flattened into each).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PwmAddressSettings {
-    /// sysfs: the `pwmchipN` (absent: the section's `chip`).
-    pub chip: Option<Int>,
-    /// sysfs: the channel number within the chip (`pwmchipN/pwmM`).
-    pub channel: Option<Int>,
-    /// rppal: software PWM on this BCM GPIO pin (0..=27).
-    pub pin: Option<Int>,
-    /// rppal: hardware PWM channel (0..=1).
-    pub pwm_channel: Option<Int>,
-    /// sysfs and rppal hardware PWM: output polarity (absent: left as the device has it).
-    pub polarity: Option<Polarity>,
-}
+    /// Where a channel is wired, as written: the one definition of the address keys, shared by
+    /// generic channels and the preset tables (flattened into each).
+    #[serde(deny_unknown_fields)]
+    pub settings PwmAddressSettings {
+        chip: Option<Int> => "sysfs: the `pwmchipN`.",
+        channel: Option<Int> => "sysfs: the channel within the chip (`pwmchipN/pwmM`).",
+        pin: Option<Int> => "rppal: software PWM on this BCM GPIO pin.",
+        pwm_channel: Option<Int> => "rppal: hardware PWM channel.",
+        polarity: Option<Polarity> => "sysfs and rppal hardware PWM: output polarity.",
+    }
 
-/// `[output]` for `adapter = "pwm"`, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct PwmVehicleSettings {
-    /// `backend`, `period_us`, `sysfs_root`, `chip`.
-    #[serde(flatten)]
-    pub pwm: PwmBackendSettings,
-    /// The outputs, one table per channel (`[[output.channels]]`).
-    #[serde(default)]
-    pub channels: Vec<ChannelSettings>,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
-}
+    /// `[output]` for `adapter = "pwm"`, as written.
+    pub settings PwmVehicleSettings {
+        #[serde(flatten)] pwm: PwmBackendSettings => "The backend keys.",
+        #[serde(default)] channels: Vec<ChannelSettings> => "`[[output.channels]]`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 
-/// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
-/// sticks): where it is wired, and optional limits. Presets turn it into a generic
-/// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules are
-/// the generic channel's.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ServoChannelSettings {
-    /// The address keys.
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// The mapping keys (`min_us` … `slew_us_per_s`).
-    #[serde(flatten)]
-    pub map: AxisMapSettings,
-    /// Keys nothing above took: reported by [`ServoChannelSettings::check_unknown`].
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+    /// A servo channel of a preset vehicle (the Eyedrive's steering and throttle, the Naza-M's
+    /// sticks): where it is wired, and optional limits. Presets turn it into a generic
+    /// [`ChannelSettings`] with [`ServoChannelSettings::to_channel`], so the keys and their rules
+    /// are the generic channel's.
+    pub settings ServoChannelSettings {
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
+        #[serde(flatten)] map: AxisMapSettings => "The mapping keys.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above (see [`preset_tables`]).",
+    }
 }
 
 impl ServoChannelSettings {
@@ -161,62 +131,37 @@ impl ServoChannelSettings {
             ..ChannelSettings::default()
         }
     }
-
-    /// Records the table's unknown keys (relative to the table).
-    pub fn check_unknown(&self, errors: &mut ConfigErrors) {
-        let keys = [
-            keys_of::<PwmAddressSettings>(),
-            keys_of::<AxisMapSettings>(),
-        ];
-        self.unknown.check(errors, &keys);
-    }
 }
 
-/// One `[[output.channels]]` table, as written.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ChannelSettings {
-    /// Unique name, for logs and status (`steering`, `throttle`, `U`…).
-    pub name: Option<String>,
-    /// What the channel outputs.
-    pub source: Option<ChannelSourceKind>,
-    /// `source = "constant"`: the pulse, µs.
-    pub value_us: Option<Int>,
-    /// Pulse in the safe state (absent: the centre for axes, the ASSISTED level for mode,
-    /// `value_us` for constants).
-    pub failsafe_us: Option<Int>,
-    /// The address keys.
-    #[serde(flatten)]
-    pub address: PwmAddressSettings,
-    /// Axis sources: the mapping keys ([`rove_core::mapping::AxisMapSettings`]).
-    #[serde(flatten)]
-    pub map: AxisMapSettings,
-    /// `source = "mode"`: the levels (`manual_us`, `assisted_us`, `auto_us`).
-    #[serde(flatten)]
-    pub levels: ModeLevelsSettings,
-    /// Keys nothing above took: reported by `validate`.
-    #[serde(flatten)]
-    pub unknown: UnknownKeys,
+rove_core::config_types! {
+    /// One `[[output.channels]]` table, as written.
+    pub settings ChannelSettings {
+        name: Option<String> => "Unique name, for logs and status.",
+        source: Option<ChannelSourceKind> => "What the channel outputs.",
+        value_us: Option<Int> => "`source = \"constant\"`: the pulse, µs.",
+        failsafe_us: Option<Int> => "Pulse in the safe state, µs.",
+        #[serde(flatten)] address: PwmAddressSettings => "The address keys.",
+        #[serde(flatten)] map: AxisMapSettings => "Axis sources: the mapping keys.",
+        #[serde(flatten)] levels: ModeLevelsSettings => "`source = \"mode\"`: the levels.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
+    }
 }
 
 /// The keys of a `[[output.channels]]` table that are not in a flattened piece.
 const CHANNEL_KEYS: &[&str] = &["name", "source", "value_us", "failsafe_us"];
 
-/// Where a channel is wired.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ChannelAddress {
-    /// sysfs `pwmchip{chip}/pwm{channel}`.
-    Sysfs {
-        /// Chip number.
-        chip: u32,
-        /// Channel within the chip.
-        channel: u32,
-    },
-    /// rppal software PWM on a BCM GPIO pin.
-    GpioPin(u8),
-    /// rppal hardware PWM channel.
-    HardwarePwm(u8),
-    /// Sim backend channel named by nothing but its position.
-    Unaddressed,
+rove_core::config_types! {
+    /// Where a channel is wired.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+    pub enum ChannelAddress {
+        Sysfs => "sysfs `pwmchip{chip}/pwm{channel}`." {
+            chip: u32 => "Chip number.",
+            channel: u32 => "Channel within the chip.",
+        },
+        GpioPin => "rppal software PWM on a BCM GPIO pin." (u8),
+        HardwarePwm => "rppal hardware PWM channel." (u8),
+        Unaddressed => "Sim backend channel named by nothing but its position.",
+    }
 }
 
 impl std::fmt::Display for ChannelAddress {
@@ -230,97 +175,45 @@ impl std::fmt::Display for ChannelAddress {
     }
 }
 
-/// What drives a validated channel.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ChannelSource {
-    /// A movement axis through its map (and slew limiter).
-    Axis(Axis, AxisMap),
-    /// The mode, as levels.
-    Mode(ModeLevels),
-    /// A fixed pulse, µs.
-    Constant(u16),
-}
-
-/// A validated channel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ChannelConfig {
-    name: String,
-    address: ChannelAddress,
-    polarity: Option<Polarity>,
-    source: ChannelSource,
-    failsafe_us: u16,
-}
-
-impl ChannelConfig {
-    /// The channel's name.
-    pub fn name(&self) -> &str {
-        &self.name
+rove_core::config_types! {
+    /// What drives a validated channel.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub enum ChannelSource {
+        Axis => "A movement axis through its map (and slew limiter)." (Axis, AxisMap),
+        Mode => "The mode, as levels." (ModeLevels),
+        Constant => "A fixed pulse, µs." (u16),
     }
 
-    /// Where it is wired.
-    pub fn address(&self) -> ChannelAddress {
-        self.address
+    /// A validated channel.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct ChannelConfig {
+        name: String => "The channel's name.",
+        address: ChannelAddress => "Where it is wired.",
+        polarity: Option<Polarity> => "Polarity to set, if configured.",
+        source: ChannelSource => "What drives it.",
+        failsafe_us: u16 => "Its safe-state pulse, µs.",
     }
 
-    /// Polarity to set, if configured.
-    pub fn polarity(&self) -> Option<Polarity> {
-        self.polarity
+    /// Validated backend choice with its options.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub enum BackendConfig {
+        Sysfs => "sysfs under `root`." {
+            root: PathBuf => "The PWM class directory.",
+        },
+        Rppal => "rppal.",
+        Sim => "In-memory recording.",
     }
 
-    /// What drives it.
-    pub fn source(&self) -> ChannelSource {
-        self.source
+    /// A validated PWM vehicle: only this type crosses crate boundaries.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct PwmVehicleConfig {
+        backend: BackendConfig => "The backend and its options.",
+        period: Duration => "The PWM period.",
+        channels: Vec<ChannelConfig> => "The channels, in config order (as backends index them).",
     }
-
-    /// Its safe-state pulse, µs.
-    pub fn failsafe_us(&self) -> u16 {
-        self.failsafe_us
-    }
-}
-
-/// Validated backend choice with its options.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum BackendConfig {
-    /// sysfs under `root`.
-    Sysfs {
-        /// The PWM class directory.
-        root: PathBuf,
-    },
-    /// rppal.
-    Rppal,
-    /// In-memory recording.
-    Sim,
-}
-
-/// A validated PWM vehicle: only this type crosses crate boundaries.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PwmVehicleConfig {
-    backend: BackendConfig,
-    period: Duration,
-    channels: Vec<ChannelConfig>,
 }
 
 impl PwmVehicleConfig {
-    /// The backend and its options.
-    pub fn backend(&self) -> &BackendConfig {
-        &self.backend
-    }
-
-    /// The PWM period.
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
-    /// The channels, in config order (backends and the vehicle index them the same way).
-    pub fn channels(&self) -> &[ChannelConfig] {
-        &self.channels
-    }
-
-    /// Index of the channel called `name`.
-    pub fn channel_index(&self, name: &str) -> Option<usize> {
-        self.channels.iter().position(|c| c.name == name)
-    }
-
     /// Every channel's address, in order: what a backend is opened with.
     pub fn addresses(&self) -> Vec<ChannelAddress> {
         self.channels.iter().map(|c| c.address).collect()
@@ -330,24 +223,22 @@ impl PwmVehicleConfig {
 const ONLY_SYSFS: &str = "only applies to backend = \"sysfs\"";
 
 impl PwmBackendSettings {
-    /// The backend (a placeholder after recording a missing one), period and default chip.
-    fn validate(&self, errors: &mut ConfigErrors) -> (BackendKind, Int, u32) {
+    /// The backend (a placeholder after recording a missing one), period and default chip,
+    /// filling defaults.
+    fn validate(&mut self, errors: &mut ConfigErrors) -> (BackendKind, Int, u32) {
         let backend = self.backend.unwrap_or_else(|| {
             errors.absent("backend", "must be one of \"sysfs\", \"rppal\", \"sim\"");
             BackendKind::Sim
         });
-        let period_us = self.period_us.unwrap_or(DEFAULT_PERIOD_US.into());
-        errors.int::<u32>(
-            "period_us",
-            period_us,
-            PERIOD_RANGE_US,
-            " µs (400 Hz to 10 Hz)",
-        );
-        if backend != BackendKind::Sysfs {
-            let root = self
-                .sysfs_root
-                .as_ref()
-                .map(|r| format!("{:?}", r.display().to_string()));
+        let period_us = *self.period_us.get_or_insert(DEFAULT_PERIOD_US.into());
+        let rule = " µs (400 Hz to 10 Hz)";
+        errors.int::<u32>("period_us", period_us, PERIOD_RANGE_US, rule);
+        if backend == BackendKind::Sysfs {
+            self.sysfs_root
+                .get_or_insert_with(|| DEFAULT_SYSFS_ROOT.into());
+            self.chip.get_or_insert(0);
+        } else {
+            let root = (self.sysfs_root.as_ref()).map(|r| format!("{:?}", r.display().to_string()));
             errors.not_for("sysfs_root", root, ONLY_SYSFS);
             errors.not_for("chip", self.chip, ONLY_SYSFS);
         }
@@ -357,57 +248,37 @@ impl PwmBackendSettings {
 }
 
 impl PwmVehicleSettings {
-    /// Validates, filling defaults; keys in errors are relative to `[output]`.
+    /// Validates, filling defaults into `self`; keys in errors are relative to `[output]`.
     ///
     /// # Errors
-    /// [`rove_core::Error::Config`] listing every problem: unknown keys, missing `backend`, a
-    /// period outside [`PERIOD_RANGE_US`], backend options given to another backend, an empty
-    /// channel list, and per channel (`channels[i].key`): missing or duplicate name, missing or
-    /// wrong address keys for the backend, pin/channel out of range, two channels on one
-    /// address, mapping errors (min > max …), keys that do not apply to the source, pulses not
-    /// shorter than the period, a failsafe outside the channel's range.
-    pub fn validate(&self) -> rove_core::Result<PwmVehicleConfig> {
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
+    /// key table, does not apply to its backend or source, or repeats a name or an address.
+    pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        self.unknown.check(
-            &mut errors,
-            &[keys_of::<PwmBackendSettings>(), &["channels"]],
-        );
+        let keys = [keys_of::<PwmBackendSettings>(), &["channels"]];
+        self.unknown.check(&mut errors, &keys);
         let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
             let rule = "must list at least one channel ([[output.channels]])";
             errors.add("channels", "[]", rule);
         }
-        let mut channels = Vec::with_capacity(self.channels.len());
-        let mut names = Unique::default();
-        let mut addresses = Unique::default();
-        for (i, raw) in self.channels.iter().enumerate() {
+        let (mut channels, mut names, mut addresses) =
+            (Vec::new(), Unique::default(), Unique::default());
+        for (i, raw) in self.channels.iter_mut().enumerate() {
             let owner = format!("channels[{i}]");
-            let mut ch_errors = ConfigErrors::default();
-            let channel = raw.validate(backend_kind, default_chip, period_us, &mut ch_errors);
-            if let Some(name) = raw.name.as_deref() {
-                let shown = format!("{name:?}");
-                names.check(
-                    &mut ch_errors,
-                    name,
-                    &owner,
-                    ("name", shown),
-                    "has the same name",
-                );
-            }
-            if let Some(ch) = channel
-                .as_ref()
-                .filter(|c| c.address != ChannelAddress::Unaddressed)
-            {
-                let key = (raw.address.address_key(), ch.address);
-                addresses.check(
-                    &mut ch_errors,
-                    ch.address,
-                    &owner,
-                    key,
-                    "drives the same output",
-                );
-            }
-            errors.extend_within(&owner, ch_errors);
+            let channel = errors.within(&owner, |errors| {
+                let channel = raw.validate(backend_kind, default_chip, period_us, errors);
+                if let Some(name) = raw.name.clone() {
+                    let shown = ("name", format!("{name:?}"));
+                    names.check(errors, name, &owner, shown, "has the same name");
+                }
+                let addressed = channel.as_ref().map(|c| c.address);
+                if let Some(a) = addressed.filter(|a| *a != ChannelAddress::Unaddressed) {
+                    let key = (raw.address.address_key(), a);
+                    addresses.check(errors, a, &owner, key, "drives the same output");
+                }
+                channel
+            });
             channels.extend(channel);
         }
         let backend = match backend_kind {
@@ -428,12 +299,10 @@ impl PwmVehicleSettings {
 impl PwmAddressSettings {
     /// The key a duplicate-address error is filed under: the one that names the device.
     fn address_key(&self) -> &'static str {
-        if self.pin.is_some() {
-            "pin"
-        } else if self.pwm_channel.is_some() {
-            "pwm_channel"
-        } else {
-            "channel"
+        match (self.pin, self.pwm_channel) {
+            (Some(_), _) => "pin",
+            (None, Some(_)) => "pwm_channel",
+            (None, None) => "channel",
         }
     }
 
@@ -444,21 +313,16 @@ impl PwmAddressSettings {
         default_chip: u32,
         errors: &mut ConfigErrors,
     ) -> Option<ChannelAddress> {
-        let pin = self
-            .pin
-            .map(|v| errors.int("pin", v, GPIO_PIN_RANGE, " (BCM GPIO number)"));
+        let gpio = " (BCM GPIO number)";
+        let pin = (self.pin).map(|v| errors.int("pin", v, GPIO_PIN_RANGE, gpio));
         let hw_rule = " (Raspberry Pi hardware PWM channel)";
         let hw = (self.pwm_channel)
             .map(|v| errors.int("pwm_channel", v, HARDWARE_PWM_CHANNEL_RANGE, hw_rule));
         let sysfs_given = self.chip.is_some() || self.channel.is_some();
-        let forms =
-            usize::from(pin.is_some()) + usize::from(hw.is_some()) + usize::from(sysfs_given);
-        if forms > 1 {
-            errors.add(
-                "pin",
-                self.pin.map_or("(absent)".into(), |p| p.to_string()),
-                "give one address: `pin`, `pwm_channel`, or `chip`/`channel`",
-            );
+        if usize::from(pin.is_some()) + usize::from(hw.is_some()) + usize::from(sysfs_given) > 1 {
+            let shown = self.pin.map_or(ABSENT.into(), |p| p.to_string());
+            let rule = "give one address: `pin`, `pwm_channel`, or `chip`/`channel`";
+            errors.add("pin", shown, rule);
             return None;
         }
         let u32_range = 0..=Int::from(u32::MAX);
@@ -477,53 +341,42 @@ impl PwmAddressSettings {
             Some(ChannelAddress::Sysfs { chip, channel })
         };
         match backend {
-            BackendKind::Sysfs => {
-                if pin.is_some() || hw.is_some() {
-                    let key = if pin.is_some() { "pin" } else { "pwm_channel" };
-                    errors.add(
-                        key,
-                        self.pin.or(self.pwm_channel).unwrap_or_default(),
-                        "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`",
-                    );
-                    return None;
-                }
-                sysfs(errors)
+            BackendKind::Sysfs if pin.is_some() || hw.is_some() => {
+                let key = if pin.is_some() { "pin" } else { "pwm_channel" };
+                let value = self.pin.or(self.pwm_channel).unwrap_or_default();
+                let rule =
+                    "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`";
+                errors.add(key, value, rule);
+                None
             }
-            BackendKind::Rppal => {
-                if sysfs_given {
-                    let key = if self.channel.is_some() {
-                        "channel"
-                    } else {
-                        "chip"
-                    };
-                    errors.add(
-                        key,
-                        self.channel.or(self.chip).unwrap_or_default(),
-                        "only applies to backend = \"sysfs\"; rppal channels take `pin` or `pwm_channel`",
-                    );
-                    return None;
-                }
-                match (pin, hw) {
-                    (Some(pin), None) => {
-                        errors.not_for(
-                            "polarity",
-                            self.polarity.map(Polarity::as_sysfs),
-                            "software PWM on a GPIO pin has no polarity setting; \
-                             use a hardware `pwm_channel` or invert externally",
-                        );
-                        pin.map(ChannelAddress::GpioPin)
-                    }
-                    (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
-                    _ => {
-                        errors.absent(
-                            "pin",
-                            "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
-                             for backend = \"rppal\"",
-                        );
-                        None
-                    }
-                }
+            BackendKind::Sysfs => sysfs(errors),
+            BackendKind::Rppal if sysfs_given => {
+                let key = if self.channel.is_some() {
+                    "channel"
+                } else {
+                    "chip"
+                };
+                let value = self.channel.or(self.chip).unwrap_or_default();
+                let rule = "only applies to backend = \"sysfs\"; rppal channels take `pin` or \
+                            `pwm_channel`";
+                errors.add(key, value, rule);
+                None
             }
+            BackendKind::Rppal => match (pin, hw) {
+                (Some(pin), None) => {
+                    let rule = "software PWM on a GPIO pin has no polarity setting; use a \
+                                hardware `pwm_channel` or invert externally";
+                    errors.not_for("polarity", self.polarity.map(Polarity::as_sysfs), rule);
+                    pin.map(ChannelAddress::GpioPin)
+                }
+                (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
+                _ => {
+                    let rule = "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
+                                for backend = \"rppal\"";
+                    errors.absent("pin", rule);
+                    None
+                }
+            },
             // Sim takes any one address form (so that a Pi config runs on a laptop by changing
             // only `backend`), or none.
             BackendKind::Sim => match (pin, hw) {
@@ -538,7 +391,7 @@ impl PwmAddressSettings {
 
 impl ChannelSettings {
     fn validate(
-        &self,
+        &mut self,
         backend: BackendKind,
         default_chip: u32,
         period_us: Int,
@@ -554,48 +407,44 @@ impl ChannelSettings {
         let name = match self.name.as_deref() {
             Some(n) if !n.trim().is_empty() => Some(n.to_string()),
             other => {
-                let shown = format!("{:?}", other.unwrap_or("(absent)"));
+                let shown = format!("{:?}", other.unwrap_or(ABSENT));
                 errors.add("name", shown, "must be a non-empty name");
                 None
             }
         };
         let address = self.address.validate(backend, default_chip, errors);
-        let Some(source_kind) = self.source else {
-            errors.absent(
-                "source",
-                "must be one of throttle, roll, pitch, yaw, mode, constant",
-            );
+        let Some(kind) = self.source else {
+            let rule = "must be one of throttle, roll, pitch, yaw, mode, constant";
+            errors.absent("source", rule);
             return None;
         };
-        let source_name = format!("source = \"{}\"", format!("{source_kind:?}").to_lowercase());
-        let rule = format!("does not apply to {source_name}");
-        let not_map = |errors: &mut ConfigErrors| {
-            for (key, v) in self.map.given() {
-                errors.add(key, v, rule.as_str());
-            }
+        let kind_name = format!("{kind:?}").to_lowercase();
+        let rule = format!("does not apply to source = \"{kind_name}\"");
+        let not_for = |errors: &mut ConfigErrors, given: Vec<(&str, String)>| {
+            (given.into_iter()).for_each(|(key, v)| errors.add(key, v, rule.as_str()))
         };
-        let not_levels = |errors: &mut ConfigErrors| {
-            for (key, v) in self.levels.given() {
-                errors.add(key, v, rule.as_str());
-            }
-        };
-        if source_kind != ChannelSourceKind::Constant {
+        if kind != ChannelSourceKind::Constant {
             errors.not_for("value_us", self.value_us, &rule);
         }
+        let levels = self.levels.given().into_iter();
+        let levels = levels.map(|(k, v)| (k, v.to_string()));
         // (source, lowest and highest pulse it can output, default failsafe)
-        let (source, lo, hi, default_failsafe) = match source_kind {
+        let (source, lo, hi, default_failsafe) = match kind {
             ChannelSourceKind::Mode => {
-                not_map(errors);
+                not_for(errors, self.map.given());
                 let levels = errors.section("", self.levels.validate(DEFAULT_MODE_LEVELS))?;
-                let all = rove_core::msg::Mode::ALL.map(|m| levels.level(m));
-                let (lo, hi) = (all.iter().min(), all.iter().max());
-                let assisted = levels.level(rove_core::msg::Mode::Assisted);
-                let (lo, hi) = (lo.copied().unwrap_or(0), hi.copied().unwrap_or(0));
-                (ChannelSource::Mode(levels), lo, hi, assisted)
+                let all = Mode::ALL.map(|m| levels.level(m));
+                let (lo, hi) = (all.iter().min().copied(), all.iter().max().copied());
+                let assisted = levels.level(Mode::Assisted);
+                (
+                    ChannelSource::Mode(levels),
+                    lo.unwrap_or(0),
+                    hi.unwrap_or(0),
+                    assisted,
+                )
             }
             ChannelSourceKind::Constant => {
-                not_map(errors);
-                not_levels(errors);
+                not_for(errors, self.map.given().into_iter().chain(levels).collect());
                 let Some(v) = self.value_us else {
                     errors.absent("value_us", "must give the pulse for source = \"constant\"");
                     return None;
@@ -604,7 +453,7 @@ impl ChannelSettings {
                 (ChannelSource::Constant(v), v, v, v)
             }
             axis => {
-                not_levels(errors);
+                not_for(errors, levels.collect());
                 let axis = match axis {
                     ChannelSourceKind::Throttle => Axis::Throttle,
                     ChannelSourceKind::Roll => Axis::Roll,
@@ -612,34 +461,28 @@ impl ChannelSettings {
                     _ => Axis::Yaw,
                 };
                 let map = errors.section("", self.map.validate())?;
-                (
-                    ChannelSource::Axis(axis, map),
-                    map.min_us(),
-                    map.max_us(),
-                    map.centre_us(),
-                )
+                let source = ChannelSource::Axis(axis, map);
+                (source, map.min_us(), map.max_us(), map.centre_us())
             }
         };
-        let failsafe_us = self.failsafe_us.unwrap_or(default_failsafe.into());
+        let given_failsafe = self.failsafe_us.is_some();
+        let failsafe_us = *self.failsafe_us.get_or_insert(default_failsafe.into());
         let (flo, fhi) = match source {
             // A mode channel may fail safe to any level the device understands.
             ChannelSource::Mode(_) => (*PULSE_RANGE_US.start(), *PULSE_RANGE_US.end()),
             _ => (lo.into(), hi.into()),
         };
-        let rule = format!("must be within the channel's range {flo}..={fhi} µs");
         if !(flo..=fhi).contains(&failsafe_us) {
+            let rule = format!("must be within the channel's range {flo}..={fhi} µs");
             errors.add("failsafe_us", failsafe_us, rule);
         }
         let highest = Int::from(hi).max(failsafe_us);
         if highest >= period_us {
-            let key = if self.failsafe_us.is_some() && failsafe_us >= period_us {
-                "failsafe_us"
-            } else {
-                match source {
-                    ChannelSource::Axis(..) => "max_us",
-                    ChannelSource::Mode(_) => "auto_us",
-                    ChannelSource::Constant(_) => "value_us",
-                }
+            let key = match source {
+                _ if given_failsafe && failsafe_us >= period_us => "failsafe_us",
+                ChannelSource::Axis(..) => "max_us",
+                ChannelSource::Mode(_) => "auto_us",
+                ChannelSource::Constant(_) => "value_us",
             };
             let rule = format!("must be shorter than the PWM period ({period_us} µs)");
             errors.add(key, highest, rule);
@@ -655,27 +498,28 @@ impl ChannelSettings {
 }
 
 /// Checks a preset's channel tables (`[output.NAME]` for each of `names`): each must be given,
-/// and may hold only the servo keys.
+/// and may hold only the keys of `known`.
 pub fn preset_tables(
     errors: &mut ConfigErrors,
     names: &[&str],
-    tables: &[&Option<ServoChannelSettings>],
+    tables: &[Option<&UnknownKeys>],
+    known: &[&[&str]],
 ) {
     for (name, table) in names.iter().zip(tables) {
         match table {
-            None => errors.absent(
-                name,
-                format!(
-                    "must give [output.{name}] with its output (pin, pwm_channel or chip/channel)"
-                ),
-            ),
-            Some(t) => {
-                let mut unknown = ConfigErrors::default();
-                t.check_unknown(&mut unknown);
-                errors.extend_within(name, unknown);
+            None => {
+                let rule = "with its output (pin, pwm_channel or chip/channel)";
+                errors.absent(name, format!("must give [output.{name}] {rule}"));
             }
+            Some(unknown) => errors.within(name, |e| unknown.check(e, known)),
         }
     }
+}
+
+/// The keys of a preset's servo channel table.
+pub fn servo_keys() -> [&'static [&'static str]; 2] {
+    let address = keys_of::<PwmAddressSettings>();
+    [address, keys_of::<AxisMapSettings>()]
 }
 
 /// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
@@ -689,6 +533,25 @@ pub fn rename_channels(mut e: ConfigError, names: &[&str]) -> ConfigError {
         e.rule = e.rule.replace(&generic, name);
     }
     e
+}
+
+/// A preset's own `errors` followed by the generic validation's, each renamed by `rename`.
+///
+/// # Errors
+/// [`rove_core::Error::Config`] with both lists, if either has any problem.
+pub fn finish_preset<T>(
+    mut errors: ConfigErrors,
+    generic: rove_core::Result<T>,
+    rename: impl Fn(ConfigError) -> ConfigError,
+) -> rove_core::Result<T> {
+    match generic {
+        Ok(config) => errors.into_result(config),
+        Err(rove_core::Error::Config(generic)) => {
+            errors.0.extend(generic.0.into_iter().map(rename));
+            Err(rove_core::Error::Config(errors))
+        }
+        Err(other) => Err(other),
+    }
 }
 
 #[cfg(test)]
@@ -725,10 +588,10 @@ mod tests {
     #[test]
     fn absent_keys_take_their_defaults() {
         let cfg = parse(SYSFS_TWO).validate().expect("valid");
-        assert_eq!(cfg.period(), Duration::from_millis(20));
+        assert_eq!(cfg.period, Duration::from_millis(20));
         assert_eq!(
-            cfg.backend(),
-            &BackendConfig::Sysfs {
+            cfg.backend,
+            BackendConfig::Sysfs {
                 root: PathBuf::from("/tmp/pwm")
             }
         );
@@ -745,11 +608,14 @@ mod tests {
                 }
             ]
         );
-        let steering = &cfg.channels()[0];
-        assert_eq!(steering.failsafe_us(), 1500);
-        assert_eq!(steering.polarity(), None);
-        assert_eq!(cfg.channel_index("throttle"), Some(1));
-        match cfg.channels()[1].source() {
+        let steering = &cfg.channels[0];
+        assert_eq!(steering.failsafe_us, 1500);
+        assert_eq!(steering.polarity, None);
+        assert_eq!(
+            cfg.channels.iter().position(|c| c.name == "throttle"),
+            Some(1)
+        );
+        match cfg.channels[1].source {
             ChannelSource::Axis(Axis::Throttle, map) => {
                 assert_eq!(map.map(i16::MAX), 1000, "reversed");
             }
@@ -763,8 +629,8 @@ mod tests {
             .validate()
             .expect("valid");
         assert_eq!(
-            cfg.backend(),
-            &BackendConfig::Sysfs {
+            cfg.backend,
+            BackendConfig::Sysfs {
                 root: PathBuf::from("/sys/class/pwm")
             }
         );
@@ -789,7 +655,7 @@ mod tests {
         )
         .validate()
         .expect("aliases");
-        match cfg.channels()[0].source() {
+        match cfg.channels[0].source {
             ChannelSource::Axis(_, map) => assert_eq!(map.map(i16::MAX), 1000, "reversed"),
             other => panic!("unexpected source {other:?}"),
         }
@@ -944,18 +810,18 @@ mod tests {
         )
         .validate()
         .expect("valid");
-        let u = &cfg.channels()[0];
-        assert_eq!(u.address(), ChannelAddress::Unaddressed);
-        assert_eq!(u.failsafe_us(), 1500, "assisted level");
-        match u.source() {
+        let u = &cfg.channels[0];
+        assert_eq!(u.address, ChannelAddress::Unaddressed);
+        assert_eq!(u.failsafe_us, 1500, "assisted level");
+        match u.source {
             ChannelSource::Mode(levels) => {
                 assert_eq!(levels.level(rove_core::msg::Mode::Manual), 1100);
                 assert_eq!(levels.level(rove_core::msg::Mode::Auto), 2000);
             }
             other => panic!("unexpected {other:?}"),
         }
-        assert_eq!(cfg.channels()[1].failsafe_us(), 1234);
-        assert_eq!(cfg.channels()[1].source(), ChannelSource::Constant(1234));
+        assert_eq!(cfg.channels[1].failsafe_us, 1234);
+        assert_eq!(cfg.channels[1].source, ChannelSource::Constant(1234));
         let err = errors(
             "backend = \"sim\"\n[[channels]]\nname = \"U\"\nsource = \"mode\"\nmanual_us = 1500",
         );

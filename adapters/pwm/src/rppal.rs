@@ -46,24 +46,24 @@ impl RppalBackend {
     /// A fatal [`LinkError`] if a channel is not addressed by `pin` or `pwm_channel`.
     pub fn new(config: &PwmVehicleConfig) -> Result<Self, LinkError> {
         let mut channels = Vec::new();
-        for c in config.channels() {
-            match c.address() {
+        for c in config.channels {
+            match c.address {
                 ChannelAddress::GpioPin(_) | ChannelAddress::HardwarePwm(_) => {}
                 other => {
                     return Err(LinkError::fatal(format!(
                         "rppal PWM: channel {:?} is wired to {other}; give `pin` or `pwm_channel`",
-                        c.name()
+                        c.name.as_str()
                     )));
                 }
             }
             channels.push(RppalChannel {
-                address: c.address(),
-                polarity: c.polarity(),
+                address: c.address,
+                polarity: c.polarity,
                 output: Output::Closed,
             });
         }
         Ok(RppalBackend {
-            period: config.period(),
+            period: config.period,
             channels,
         })
     }

@@ -86,13 +86,13 @@ impl SysfsBackend {
     pub fn new(root: PathBuf, config: &PwmVehicleConfig) -> Self {
         SysfsBackend {
             root,
-            period_ns: u64::try_from(config.period().as_nanos()).unwrap_or(u64::MAX),
+            period_ns: u64::try_from(config.period.as_nanos()).unwrap_or(u64::MAX),
             channels: config
-                .channels()
+                .channels
                 .iter()
                 .map(|c| SysfsChannel {
-                    address: c.address(),
-                    polarity: c.polarity(),
+                    address: c.address,
+                    polarity: c.polarity,
                     state: ChannelState::Unprepared,
                 })
                 .collect(),

@@ -32,18 +32,18 @@ impl<B: PwmBackend> PwmVehicle<B> {
     /// backend is dropped; build a new one to retry), or a fatal error if the backend does not
     /// have one channel per configured channel.
     pub fn new(config: PwmVehicleConfig, backend: B, now: MonoTime) -> Result<Self, LinkError> {
-        if backend.channel_count() != config.channels().len() {
+        if backend.channel_count() != config.channels.len() {
             return Err(LinkError::fatal(format!(
                 "{}: has {} channels, the config {}",
                 backend.describe(),
                 backend.channel_count(),
-                config.channels().len()
+                config.channels.len()
             )));
         }
         let limiters = config
-            .channels()
+            .channels
             .iter()
-            .map(|c| match c.source() {
+            .map(|c| match c.source {
                 ChannelSource::Axis(_, map) => map.slew_limiter(),
                 _ => SlewLimiter::new(None),
             })
@@ -72,9 +72,9 @@ impl<B: PwmBackend> PwmVehicle<B> {
     /// Every channel's pulse for `setpoint`, mapped but not slew limited.
     pub fn target_pulses(&self, setpoint: &Setpoint) -> Vec<u16> {
         self.config
-            .channels()
+            .channels
             .iter()
-            .map(|c| match c.source() {
+            .map(|c| match c.source {
                 ChannelSource::Axis(axis, map) => map.map(axis.of(&setpoint.movement)),
                 ChannelSource::Mode(levels) => levels.level(setpoint.mode),
                 ChannelSource::Constant(us) => us,
@@ -84,11 +84,7 @@ impl<B: PwmBackend> PwmVehicle<B> {
 
     /// Every channel's failsafe pulse.
     pub fn failsafe_pulses(&self) -> Vec<u16> {
-        self.config
-            .channels()
-            .iter()
-            .map(|c| c.failsafe_us())
-            .collect()
+        self.config.channels.iter().map(|c| c.failsafe_us).collect()
     }
 
     /// Writes `targets` through each channel's slew limiter (what `apply` does).
@@ -121,12 +117,12 @@ impl<B: PwmBackend> PwmVehicle<B> {
 
     fn write_all(&mut self, now: MonoTime, pulses: &[u16]) -> Result<(), LinkError> {
         self.last_now = self.last_now.max(now);
-        if pulses.len() != self.config.channels().len() {
+        if pulses.len() != self.config.channels.len() {
             let e = LinkError::fatal(format!(
                 "{}: {} pulses for {} channels",
                 self.backend.describe(),
                 pulses.len(),
-                self.config.channels().len()
+                self.config.channels.len()
             ));
             self.health = Health::Down(e.detail.clone());
             return Err(e);
@@ -152,7 +148,12 @@ impl<B: PwmBackend> PwmVehicle<B> {
 
 impl<B: PwmBackend> OutputAdapter for PwmVehicle<B> {
     fn describe(&self) -> String {
-        let names: Vec<&str> = self.config.channels().iter().map(|c| c.name()).collect();
+        let names: Vec<&str> = self
+            .config
+            .channels
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect();
         format!(
             "pwm vehicle [{}] on {}",
             names.join(", "),
