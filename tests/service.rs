@@ -301,7 +301,11 @@ impl Manager {
             Err(e)
                 if matches!(
                     e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        // A signal arrived while waiting (the tests send SIGUSR1 and SIGTERM
+                        // to children): the caller waits again for what is left.
+                        | std::io::ErrorKind::Interrupted
                 ) =>
             {
                 None
