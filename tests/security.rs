@@ -40,11 +40,9 @@ fn log_of(rig: &Rig, name: &str) -> String {
     std::fs::read_to_string(&proc.log).unwrap_or_default()
 }
 
-#[test]
-fn a_secured_fleet_drives_and_an_unauthenticated_peer_matches_nothing() {
-    let mut rig = Rig::new("secure-fleet");
-    let fleet = fleet(&rig, &[V, 11]);
-    let output = format!("{}[output]\nadapter = \"sim\"\n", security(&fleet, V));
+/// The secured vehicle, and the secured laptop (11) driving it; returns the vehicle's record.
+fn secured_laptop_drives(rig: &mut Rig, fleet: &Path) -> PathBuf {
+    let output = format!("{}[output]\nadapter = \"sim\"\n", security(fleet, V));
     let record = rig.vehicle_with_output(V, &output);
     rig.operator(
         11,
@@ -52,11 +50,19 @@ fn a_secured_fleet_drives_and_an_unauthenticated_peer_matches_nothing() {
         "laptop",
         &[V],
         1000,
-        &security(&fleet, 11),
+        &security(fleet, 11),
         &[],
     );
     let first = wait_for_output(&record, Some(11), 0).expect("the secured laptop drives");
     eprintln!("secured: the laptop drives from {} µs", first.wall_us);
+    record
+}
+
+#[test]
+fn a_secured_fleet_drives_and_an_unauthenticated_peer_matches_nothing() {
+    let mut rig = Rig::new("secure-fleet");
+    let fleet = fleet(&rig, &[V, 11]);
+    let record = secured_laptop_drives(&mut rig, &fleet);
     // An unauthenticated participant (rove status without keys) sees no device.
     let status = rig.status();
     assert_eq!(status["devices"], serde_json::json!([]), "{status}");
@@ -92,18 +98,7 @@ fn a_secured_fleet_drives_and_an_unauthenticated_peer_matches_nothing() {
 fn a_certificate_for_one_device_cannot_speak_for_another() {
     let mut rig = Rig::new("secure-wrong-cert");
     let fleet = fleet(&rig, &[V, 11, 12]);
-    let output = format!("{}[output]\nadapter = \"sim\"\n", security(&fleet, V));
-    let record = rig.vehicle_with_output(V, &output);
-    rig.operator(
-        11,
-        "stationary",
-        "laptop",
-        &[V],
-        1000,
-        &security(&fleet, 11),
-        &[],
-    );
-    wait_for_output(&record, Some(11), 0).expect("the laptop drives");
+    let record = secured_laptop_drives(&mut rig, &fleet);
     // A stronger operator configured as 12 but holding 11's certificate: authenticated, yet
     // everything it sends as 12 is refused.
     let hook = ["--test-any-certificate"];
