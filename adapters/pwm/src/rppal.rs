@@ -46,7 +46,7 @@ impl RppalBackend {
     /// A fatal [`LinkError`] if a channel is not addressed by `pin` or `pwm_channel`.
     pub fn new(config: &PwmVehicleConfig) -> Result<Self, LinkError> {
         let mut channels = Vec::new();
-        for c in config.channels {
+        for c in &config.channels {
             match c.address {
                 ChannelAddress::GpioPin(_) | ChannelAddress::HardwarePwm(_) => {}
                 other => {
