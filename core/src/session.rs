@@ -991,9 +991,21 @@ impl OperatorSession {
                 },
             },
             Command::Accept { vehicle } | Command::Refuse { vehicle } => {
-                let accept = matches!(command, Command::Accept { .. });
-                match self.handover.decide(now, vehicle, accept) {
-                    Ok(actions) => self.carry_out(stamp, actions, out),
+                // Only what we still own can be given: a prompt answered after we released
+                // the vehicle (or lost it) is refused, or the requester would hold a grant the
+                // vehicle never honours.
+                let ours = owner_of(self, vehicle) == Some(self.me);
+                let wanted = matches!(command, Command::Accept { .. });
+                match self.handover.decide(now, vehicle, wanted && ours) {
+                    Ok(actions) => {
+                        self.carry_out(stamp, actions, out);
+                        if wanted && !ours {
+                            out.refuse(format!(
+                                "vehicle {vehicle} is no longer ours to give: the request was \
+                                 refused"
+                            ));
+                        }
+                    }
                     Err(e) => out.refuse(format!("no answer taken for {vehicle}: {e}")),
                 }
             }

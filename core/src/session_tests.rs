@@ -821,3 +821,26 @@ fn messages_claiming_an_id_pinned_to_another_participant_are_reported_and_ignore
         }))]
     ));
 }
+
+#[test]
+fn a_prompt_answered_after_the_vehicle_is_no_longer_ours_refuses() {
+    let mut s = constant();
+    step(&mut s, 1, vehicle(V, ME));
+    // A person must decide (the priority is unconfirmed)…
+    let out = step(&mut s, 2, request_from(OTHER, 340, 2));
+    assert!(matches!(out[..], [Effect::Report(Report::Prompt { .. })]));
+    // …but meanwhile the vehicle went to someone else: accepting would hand out a grant the
+    // vehicle never honours.
+    step(&mut s, 3, vehicle(V, 13));
+    let out = step(
+        &mut s,
+        4,
+        SessionEvent::Command(Command::Accept { vehicle: V }),
+    );
+    assert_eq!(
+        sent(&out).iter().map(|m| m.ack).collect::<Vec<_>>(),
+        vec![Ack::Refuse]
+    );
+    assert!(refused(&out).is_some_and(|why| why.contains("no longer ours")));
+    assert!(!s.handover().has_yielded(V));
+}
