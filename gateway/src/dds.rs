@@ -311,8 +311,6 @@ pub fn certifier(
     };
     #[cfg(feature = "security")]
     {
-        use std::collections::HashMap;
-        use std::sync::{Arc, Mutex};
         let fleet = crate::keys::check_device_dir(dir, common.id, any_id)?;
         tracing::info!(
             dir = %dir.display(),
@@ -320,18 +318,8 @@ pub fn certifier(
             "DDS Security on: only this fleet's authenticated participants match, each speaking \
              only for the device id in its certificate"
         );
-        // The expected GUID start per id, computed once (bounded: a flood of invented ids
-        // starts the cache afresh).
-        let cache: Mutex<HashMap<i64, Option<[u8; 6]>>> = Mutex::new(HashMap::new());
-        Ok(Some(Arc::new(move |id, participant| {
-            let mut cache = cache
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            if cache.len() > 4096 {
-                cache.clear();
-            }
-            let expected = *cache.entry(id).or_insert_with(|| fleet.guid_start(id).ok());
-            expected.is_some_and(|start| crate::keys::guid_start_of(participant) == start)
+        Ok(Some(std::sync::Arc::new(move |id, participant| {
+            fleet.speaks_for(id, participant)
         })))
     }
     #[cfg(not(feature = "security"))]

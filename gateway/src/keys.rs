@@ -187,10 +187,16 @@ pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Resul
 }
 
 /// Who may speak for which device id in a secured fleet; see the module docs.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct FleetIdentity {
     fleet: String,
+    /// The expected GUID start per id, computed once: [`FleetIdentity::speaks_for`] runs for
+    /// every sample. Bounded: a flood of invented ids starts it afresh.
+    starts: std::sync::Mutex<std::collections::HashMap<DeviceId, Option<[u8; 6]>>>,
 }
+
+/// Most ids whose GUID start [`FleetIdentity`] remembers.
+const MAX_CACHED_IDS: usize = 4096;
 
 impl FleetIdentity {
     /// The fleet's name (the certificates' organisation).
@@ -205,6 +211,7 @@ impl FleetIdentity {
     pub fn from_certificate(pem: &[u8]) -> anyhow::Result<FleetIdentity> {
         Ok(FleetIdentity {
             fleet: fleet_of(&X509::from_pem(pem)?)?,
+            starts: Default::default(),
         })
     }
 
@@ -225,14 +232,18 @@ impl FleetIdentity {
 
     /// Whether `participant` (authenticated by DDS Security) holds device `id`'s certificate.
     pub fn speaks_for(&self, id: DeviceId, participant: ParticipantId) -> bool {
-        self.guid_start(id)
-            .is_ok_and(|start| guid_start_of(participant) == start)
+        let mut starts = (self.starts.lock()).unwrap_or_else(std::sync::PoisonError::into_inner);
+        if starts.len() >= MAX_CACHED_IDS && !starts.contains_key(&id) {
+            starts.clear();
+        }
+        let expected = *starts.entry(id).or_insert_with(|| self.guid_start(id).ok());
+        expected.is_some_and(|start| guid_start_of(participant) == start)
     }
 }
 
 /// The first six bytes of `participant`'s GUID prefix (which `ParticipantId` holds in its low
 /// 12 bytes, `dds::participant_id`).
-pub fn guid_start_of(participant: ParticipantId) -> [u8; 6] {
+fn guid_start_of(participant: ParticipantId) -> [u8; 6] {
     let bytes = participant.0.to_be_bytes();
     let mut start = [0u8; 6];
     start.copy_from_slice(&bytes[4..10]);
@@ -422,6 +433,7 @@ mod tests {
     fn the_guid_start_names_one_device() {
         let fleet = FleetIdentity {
             fleet: "test fleet".into(),
+            starts: Default::default(),
         };
         let a = fleet.guid_start(11).expect("hash");
         let b = fleet.guid_start(12).expect("hash");
