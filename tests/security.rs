@@ -35,11 +35,6 @@ fn security(fleet: &Path, id: i64) -> String {
     rove_gateway::harness::security_toml(Some(fleet), id)
 }
 
-fn log_of(rig: &Rig, name: &str) -> String {
-    let proc = rig.procs.iter().find(|p| p.name == name).expect("process");
-    std::fs::read_to_string(&proc.log).unwrap_or_default()
-}
-
 /// The secured vehicle, and the secured laptop (11) driving it; returns the vehicle's record.
 fn secured_laptop_drives(rig: &mut Rig, fleet: &Path) -> PathBuf {
     let output = format!("{}[output]\nadapter = \"sim\"\n", security(fleet, V));
@@ -113,7 +108,7 @@ fn a_certificate_for_one_device_cannot_speak_for_another() {
     );
     let needle = "which its certificate does not name";
     crate::util::eventually("the vehicle refuses 12", || {
-        if log_of(&rig, "vehicle-100").contains(needle) {
+        if rig.log_of("vehicle-100").contains(needle) {
             Ok(())
         } else {
             Err("not yet")

@@ -77,13 +77,8 @@ fn assert_vehicle_kept(record: &Path, rogue_ids: &[i64]) {
     );
 }
 
-fn log_of(rig: &Rig, name: &str) -> String {
-    let proc = rig.procs.iter().find(|p| p.name == name).expect("process");
-    std::fs::read_to_string(&proc.log).unwrap_or_default()
-}
-
 fn assert_reported(rig: &Rig, name: &str, needle: &str) {
-    let log = log_of(rig, name);
+    let log = rig.log_of(name);
     assert!(
         log.contains(needle),
         "{name} did not report {needle:?}:\n{log}"
@@ -162,7 +157,7 @@ fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle(
     let driven = records(&other).into_iter().find(|o| o.action == "apply");
     assert!(driven.is_none(), "vehicle 101 was driven: {driven:?}");
     assert_reported(&rig, "operator-11", "which we do not drive: not answered");
-    let log = log_of(&rig, "operator-11");
+    let log = rig.log_of("operator-11");
     assert!(
         !log.contains("yielding vehicle"),
         "the laptop yielded:\n{log}"
@@ -236,6 +231,6 @@ fn a_forged_finish_in_the_holders_name_ends_no_grant() {
     assert!(lost.is_none(), "the grant ended: {lost:?}");
     assert_reported(&rig, "vehicle-100", "claims device id 13");
     assert_reported(&rig, "operator-11", "claims device id 13");
-    let log = log_of(&rig, "operator-11");
+    let log = rig.log_of("operator-11");
     assert!(!log.contains("driving again"), "the laptop resumed:\n{log}");
 }

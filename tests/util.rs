@@ -55,6 +55,12 @@ impl Rig {
         }
     }
 
+    /// The log so far of the first process started as `name` (`vehicle-100`, `operator-11`).
+    pub fn log_of(&self, name: &str) -> String {
+        let proc = self.procs.iter().find(|p| p.name == name).expect("process");
+        std::fs::read_to_string(&proc.log).unwrap_or_default()
+    }
+
     /// `rove status --json` in the namespace.
     pub fn status(&self) -> Value {
         let out = Command::new("ip")

@@ -55,6 +55,13 @@ pub struct WriterId {
     pub entity: u32,
 }
 
+/// The participant's 12-byte GUID prefix in hex.
+impl fmt::Display for ParticipantId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:024x}", self.0)
+    }
+}
+
 impl fmt::Display for WriterId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:x}/{:x}", self.participant.0, self.entity)
