@@ -249,14 +249,16 @@ impl Sec {
         harness::security_toml(self.0.as_deref(), id)
     }
 
-    /// `rove status --events`, secured like everyone else.
-    fn status_args(&self) -> Vec<String> {
-        let mut args = vec!["status".to_string(), "--events".to_string()];
-        if let Some(fleet) = &self.0 {
-            args.push("--security".into());
-            args.push(fleet.join(OBSERVER.to_string()).display().to_string());
+    /// Starts `rove status --events` as `name`, secured like everyone else; returns its
+    /// index (its log is the event stream).
+    fn spawn_status(&self, rig: &mut Rig, name: &str) -> usize {
+        let observer = self.0.as_ref().map(|f| f.join(OBSERVER.to_string()));
+        let observer = observer.as_ref().map(|d| d.display().to_string());
+        let mut args = vec!["status", "--events"];
+        if let Some(dir) = &observer {
+            args.extend(["--security", dir.as_str()]);
         }
-        args
+        rig.spawn(name, &args)
     }
 
     fn vehicle(&self, rig: &mut Rig) -> PathBuf {
@@ -295,9 +297,7 @@ pub fn run(
         true => Some(rig.fleet(&bench_ids(options))?),
         false => None,
     });
-    let status = sec.status_args();
-    let status: Vec<&str> = status.iter().map(String::as_str).collect();
-    let observer = rig.spawn("observer", &status);
+    let observer = sec.spawn_status(&mut rig, "observer");
     let events_path = rig.procs[observer].log.clone();
     let mut events = Follow::new(&events_path);
     let report = match options.scenario {
@@ -445,9 +445,7 @@ fn latejoin(
     let mut listed = Vec::new();
     for run in 0..options.runs {
         let t0 = wall_us();
-        let status = sec.status_args();
-        let status: Vec<&str> = status.iter().map(String::as_str).collect();
-        let p = rig.spawn(&format!("joiner-{run}"), &status);
+        let p = sec.spawn_status(rig, &format!("joiner-{run}"));
         let path = rig.procs[p].log.clone();
         let deadline = Instant::now() + harness::PATIENCE;
         let done = loop {
