@@ -7,6 +7,7 @@
 
 mod util;
 
+mod boards;
 mod console_api;
 mod hierarchy;
 mod inputs;

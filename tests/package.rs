@@ -8,9 +8,9 @@
 //! default configs, and (as root) that postinst creates the `rove` user, against a copy of
 //! `/etc` in a private mount namespace so the machine's own users are untouched.
 
-use crate::util::{Scratch, repo_root};
+use crate::util::{Scratch, elf_arch, repo_root, run_any_arch};
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 /// `gateway/`: the package's directory, which cargo-deb's asset sources are relative to.
@@ -168,16 +168,22 @@ fn dpkg_deb(option: &str, deb: &Path, rest: &[&str]) -> String {
 }
 
 #[test]
-fn the_built_package_holds_binary_units_and_conffiles() {
-    let Some(deb) = std::env::var_os("ROVE_DEB").map(PathBuf::from) else {
-        eprintln!("skipped: set ROVE_DEB to a package built by `cargo deb -p rove-gateway`");
+fn the_built_packages_hold_binary_units_and_conffiles() {
+    let Some(debs) = std::env::var_os("ROVE_DEB") else {
+        eprintln!("skipped: set ROVE_DEB to packages built by `cargo deb -p rove-gateway`");
         return;
     };
     // Tests run in gateway/; a relative path is taken from the workspace root, where
     // `cargo deb` is run.
-    let deb = repo_root().join(deb);
+    for deb in debs.to_string_lossy().split_whitespace() {
+        check_package(&repo_root().join(deb));
+    }
+}
+
+/// One package, for any of the architectures: a board's binary runs under qemu-user.
+fn check_package(deb: &Path) {
     // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
-    let listing = dpkg_deb("--contents", &deb, &[]);
+    let listing = dpkg_deb("--contents", deb, &[]);
     let files: Vec<(&str, &str)> = listing
         .lines()
         .filter_map(|l| {
@@ -206,8 +212,8 @@ fn the_built_package_holds_binary_units_and_conffiles() {
         assert_eq!(mode(path), "-rw-r--r--", "{path}");
     }
 
-    assert_eq!(dpkg_deb("--field", &deb, &["Package"]).trim(), "rove");
-    let depends = dpkg_deb("--field", &deb, &["Depends"]);
+    assert_eq!(dpkg_deb("--field", deb, &["Package"]).trim(), "rove");
+    let depends = dpkg_deb("--field", deb, &["Depends"]);
     assert!(depends.contains("passwd"), "Depends: {depends}");
 
     // Control files: conffiles and the maintainer scripts.
@@ -216,7 +222,7 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     let control = dir.join("control");
     dpkg_deb(
         "--control",
-        &deb,
+        deb,
         &[control.to_str().expect("utf-8 temp dir")],
     );
     let conffiles = std::fs::read_to_string(control.join("conffiles")).expect("conffiles");
@@ -231,11 +237,15 @@ fn the_built_package_holds_binary_units_and_conffiles() {
     assert!(prerm.contains("systemctl --system stop"), "{prerm}");
     postinst_creates_the_service_user(&control.join("postinst"), dir);
 
-    // The packaged binary runs and accepts the packaged default configs.
+    // The packaged binary is for the package's architecture, runs (under qemu-user for a
+    // board's) and accepts the packaged default configs.
     let root = dir.join("root");
-    dpkg_deb("--extract", &deb, &[root.to_str().expect("utf-8 temp dir")]);
+    dpkg_deb("--extract", deb, &[root.to_str().expect("utf-8 temp dir")]);
+    let binary = root.join("usr/bin/rove");
+    let arch = dpkg_deb("--field", deb, &["Architecture"]);
+    assert_eq!(elf_arch(&binary), Some(arch.trim()), "{}", deb.display());
     for config in ["vehicle.toml", "operator.toml"] {
-        let out = Command::new(root.join("usr/bin/rove"))
+        let out = run_any_arch(&binary)
             .arg("check-config")
             .arg(root.join("etc/rove").join(config))
             .output()

@@ -248,3 +248,42 @@ pub fn wait_duty(root: &Path, ch: u32, want: &str) {
         }
     });
 }
+
+// ---------------------------------------------------------------------------------------------
+// Binaries built for another architecture
+
+/// A command running `bin`, through qemu-user when `bin` is an ELF for a board's architecture
+/// (aarch64: `qemu-aarch64-static`, 32-bit ARM: `qemu-arm-static`), directly otherwise.
+pub fn run_any_arch(bin: &Path) -> Command {
+    match elf_arch(bin) {
+        Some(arch @ ("arm64" | "armhf")) => {
+            let qemu = if arch == "arm64" {
+                "qemu-aarch64-static"
+            } else {
+                "qemu-arm-static"
+            };
+            rove_testkit::require_tool(qemu, "qemu-user-static");
+            let mut command = Command::new(qemu);
+            command.arg(bin);
+            command
+        }
+        _ => Command::new(bin),
+    }
+}
+
+/// Debian's name for the architecture of an ELF executable (`amd64`, `arm64`, `armhf`), read
+/// from its header's `e_machine`; `None` if it is not an ELF or of another machine.
+pub fn elf_arch(bin: &Path) -> Option<&'static str> {
+    let mut header = [0u8; 20];
+    let mut file = std::fs::File::open(bin).ok()?;
+    std::io::Read::read_exact(&mut file, &mut header).ok()?;
+    if &header[..4] != b"\x7fELF" {
+        return None;
+    }
+    match u16::from_le_bytes([header[18], header[19]]) {
+        62 => Some("amd64"),
+        183 => Some("arm64"),
+        40 => Some("armhf"),
+        _ => None,
+    }
+}
