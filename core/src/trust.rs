@@ -263,8 +263,10 @@ impl Identities {
     }
 }
 
-/// One entry of a vehicle's access list: an operator id and the highest rank it may claim.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// One entry of a vehicle's access list: an operator id and the highest rank it may claim
+/// (`[[access.operators]]` in a vehicle's config).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Grant {
     /// The operator's device id.
     pub id: DeviceId,

@@ -53,86 +53,69 @@ rove_core::config_types! {
     }
 }
 
-/// `[vehicle]`.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct VehicleSection {
-    /// Owner silence before re-arbitration (absent: 100).
-    pub command_timeout_ms: Option<Int>,
-}
+rove_core::config_types! {
+    /// `[vehicle]`.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct VehicleSection {
+        command_timeout_ms: Option<Int> => "Owner silence before re-arbitration (absent: 100).",
+    }
 
-/// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SecuritySection {
-    /// This device's directory from `rove keys add` (relative paths: to the config file):
-    /// identity CA, certificate, private key, permissions CA, governance and permissions.
-    pub dir: std::path::PathBuf,
-}
+    /// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct SecuritySection {
+        dir: std::path::PathBuf => "This device's directory from `rove keys add` (relative \
+            paths: to the config file): identity CA, certificate, private key, permissions CA, \
+            governance and permissions.",
+    }
 
-/// `[access]`: who may drive this vehicle. Absent: any id, at any strength inside the
-/// hierarchy (docs/design.md §4b).
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AccessSection {
-    /// The operators allowed to drive (`[[access.operators]]`).
-    #[serde(default)]
-    pub operators: Vec<AccessEntry>,
-}
+    /// `[access]`: who may drive this vehicle. Absent: any id, at any strength inside the
+    /// hierarchy (docs/design.md §4b).
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct AccessSection {
+        #[serde(default)] operators: Vec<Grant> => "The operators allowed to drive, each with \
+            the highest level and device class it may claim (`[[access.operators]]`).",
+    }
 
-/// One operator allowed to drive, with the highest rank it may claim.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AccessEntry {
-    /// Its device id.
-    pub id: DeviceId,
-    /// The highest level it may claim.
-    pub level: Level,
-    /// The highest device class it may claim at that level.
-    pub device_class: DeviceClass,
-}
+    /// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
+    ///
+    /// Files are not read through this tagged enum (serde buffers a tagged table and loses
+    /// every line inside it) but through `parse_vehicle`; it remains for errors about
+    /// `adapter` itself.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(tag = "adapter", rename_all = "lowercase")]
+    pub enum OutputSection {
+        Sim => "Records outputs in memory, for tests, demos and benchmarks (`--record` writes \
+            them out)." (SimSection),
+        Pwm => "A PWM vehicle described by its channel list (a new vehicle type needs only \
+            TOML)." (Box<rove_pwm::PwmVehicleSettings>),
+        Eyedrive => "The Eyedrive UGV: steering and throttle servos."
+            (Box<rove_eyedrive::EyedriveSettings>),
+        Naza => "The DJI Naza-M multirotor autopilot: A/E/T/R/U channels."
+            (Box<rove_naza::NazaSettings>),
+        Mavlink => "An ArduPilot or PX4 autopilot over MAVLink (RC override or MANUAL_CONTROL)."
+            (Box<rove_mavlink::MavlinkSettings>),
+        Can => "CAN servos and ESCs: raw frames defined by config, DroneCAN actuator commands."
+            (Box<rove_can::CanSettings>),
+    }
 
-/// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
-///
-/// Files are not read through this tagged enum (serde buffers a tagged table and loses every
-/// line inside it) but through `parse_vehicle`; it remains for errors about `adapter` itself.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "adapter", rename_all = "lowercase")]
-pub enum OutputSection {
-    /// Records outputs in memory, for tests, demos and benchmarks (`--record` writes them out).
-    Sim(SimSection),
-    /// A PWM vehicle described by its channel list (a new vehicle type needs only TOML).
-    Pwm(Box<rove_pwm::PwmVehicleSettings>),
-    /// The Eyedrive UGV: steering and throttle servos.
-    Eyedrive(Box<rove_eyedrive::EyedriveSettings>),
-    /// The DJI Naza-M multirotor autopilot: A/E/T/R/U channels.
-    Naza(Box<rove_naza::NazaSettings>),
-    /// An ArduPilot or PX4 autopilot over MAVLink (RC override or MANUAL_CONTROL).
-    Mavlink(Box<rove_mavlink::MavlinkSettings>),
-    /// CAN servos and ESCs: raw frames defined by config, DroneCAN actuator commands.
-    Can(Box<rove_can::CanSettings>),
-}
+    /// `[output] adapter = "sim"` takes no other keys.
+    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct SimSection {}
 
-/// `[output] adapter = "sim"` takes no other keys.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimSection {}
-
-/// A validated output adapter choice.
-#[derive(Debug, Clone)]
-pub enum OutputConfig {
-    /// The core's recording sim output.
-    Sim,
-    /// A config-defined PWM vehicle.
-    Pwm(rove_pwm::PwmVehicleConfig),
-    /// The Eyedrive preset (a PWM vehicle underneath).
-    Eyedrive(rove_pwm::PwmVehicleConfig),
-    /// The Naza-M.
-    Naza(rove_naza::NazaConfig),
-    /// A MAVLink autopilot.
-    Mavlink(Box<rove_mavlink::MavlinkConfig>),
-    /// A CAN bus.
-    Can(Box<rove_can::CanConfig>),
+    /// A validated output adapter choice.
+    #[derive(Debug, Clone)]
+    pub enum OutputConfig {
+        Sim => "The core's recording sim output.",
+        Pwm => "A config-defined PWM vehicle." (rove_pwm::PwmVehicleConfig),
+        Eyedrive => "The Eyedrive preset (a PWM vehicle underneath)." (rove_pwm::PwmVehicleConfig),
+        Naza => "The Naza-M." (rove_naza::NazaConfig),
+        Mavlink => "A MAVLink autopilot." (Box<rove_mavlink::MavlinkConfig>),
+        Can => "A CAN bus." (Box<rove_can::CanConfig>),
+    }
 }
 
 impl OutputSection {
@@ -151,31 +134,11 @@ impl OutputSection {
     }
 }
 
-/// A vehicle file whose `[output]` is read as one adapter's settings `T` (see
-/// [`parse_vehicle`]).
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct VehicleFile<T> {
-    device: DeviceSection,
-    #[serde(default)]
-    network: NetworkSection,
-    #[serde(default)]
-    log: LogSection,
-    #[serde(default)]
-    vehicle: VehicleSection,
-    #[serde(default)]
-    hierarchy: HierarchyTable,
-    access: Option<AccessSection>,
-    security: Option<SecuritySection>,
-    #[serde(default)]
-    output: T,
-}
-
 /// Reads a vehicle file in two steps so that errors inside `[output]` keep their lines: first
 /// `adapter`, then the same text, with the `adapter` key blanked (every byte offset and line
 /// unchanged), as that adapter's settings. An unknown or missing adapter is reported by the
 /// tagged [`OutputSection`].
-fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle> {
+fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle<OutputSection>> {
     #[derive(Deserialize)]
     struct Probe {
         output: Option<ProbeOutput>,
@@ -184,12 +147,12 @@ fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle> {
     struct ProbeOutput {
         adapter: Option<toml::Spanned<String>>,
     }
-    fn read<T: for<'de> Deserialize<'de> + Default>(
+    fn read<T: for<'de> Deserialize<'de>>(
         path: &Path,
         text: &str,
         wrap: fn(T) -> OutputSection,
-    ) -> anyhow::Result<RawVehicle> {
-        let file: VehicleFile<T> = parse(path, text)?;
+    ) -> anyhow::Result<RawVehicle<OutputSection>> {
+        let file: RawVehicle<T> = parse(path, text)?;
         Ok(RawVehicle {
             device: file.device,
             network: file.network,
@@ -240,30 +203,22 @@ fn blank_key_value(text: &str, value: std::ops::Range<usize>) -> String {
     format!("{}{blank}{}", &text[..start], &text[end..])
 }
 
-/// A vehicle's file as written.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawVehicle {
-    /// `[device]`.
-    pub device: DeviceSection,
-    /// `[network]`.
-    #[serde(default)]
-    pub network: NetworkSection,
-    /// `[log]`.
-    #[serde(default)]
-    pub log: LogSection,
-    /// `[vehicle]`.
-    #[serde(default)]
-    pub vehicle: VehicleSection,
-    /// `[hierarchy]`: the strengths operators may have (absent: docs/design.md §3).
-    #[serde(default)]
-    pub hierarchy: HierarchyTable,
-    /// `[access]`: who may drive.
-    pub access: Option<AccessSection>,
-    /// `[security]`.
-    pub security: Option<SecuritySection>,
-    /// `[output]`.
-    pub output: OutputSection,
+rove_core::config_types! {
+    /// A vehicle's file as written. `[output]` is `O`: the tagged [`OutputSection`], or one
+    /// adapter's settings while `parse_vehicle` reads it.
+    #[derive(Debug, Clone, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct RawVehicle<O> {
+        device: DeviceSection => "`[device]`.",
+        #[serde(default)] network: NetworkSection => "`[network]`.",
+        #[serde(default)] log: LogSection => "`[log]`.",
+        #[serde(default)] vehicle: VehicleSection => "`[vehicle]`.",
+        #[serde(default)] hierarchy: HierarchyTable => "`[hierarchy]`: the strengths operators \
+            may have (absent: docs/design.md §3).",
+        access: Option<AccessSection> => "`[access]`: who may drive.",
+        security: Option<SecuritySection> => "`[security]`.",
+        output: O => "`[output]`.",
+    }
 }
 
 rove_core::config_types! {
@@ -283,13 +238,7 @@ rove_core::config_types! {
     #[derive(Debug, Clone, Serialize, Deserialize)]
     #[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
     pub enum InputSection {
-        Constant => "Constant stick values." {
-            #[serde(default)] throttle: Int => "Throttle axis (absent: 0).",
-            #[serde(default)] roll: Int => "Roll axis (absent: 0).",
-            #[serde(default)] pitch: Int => "Pitch axis (absent: 0).",
-            #[serde(default)] yaw: Int => "Yaw axis (absent: 0).",
-            mode: Option<ModeName> => "Mode (absent: manual).",
-        },
+        Constant => "Constant stick values." (ConstantInput),
         Joystick => "An evdev joystick or gamepad." (Box<rove_inputs::InputSettings>),
         Keyboard => "An evdev keyboard." (Box<rove_inputs::InputSettings>),
         Replay => "A recorded event stream (tests, demos, benchmarks)."
@@ -303,6 +252,16 @@ rove_core::config_types! {
             starts at once." (MovementCommand, Mode),
         Device => "A device or recording; driving waits until it reports live, centred sticks."
             (Box<rove_inputs::InputConfig>),
+    }
+
+    /// `[input] source = "constant"`: the same sticks and mode for ever.
+    #[serde(deny_unknown_fields)]
+    pub settings ConstantInput {
+        #[serde(default)] throttle: Int => "Throttle axis (absent: 0).",
+        #[serde(default)] roll: Int => "Roll axis (absent: 0).",
+        #[serde(default)] pitch: Int => "Pitch axis (absent: 0).",
+        #[serde(default)] yaw: Int => "Yaw axis (absent: 0).",
+        mode: Option<ModeName> => "Mode (absent: manual).",
     }
 
     /// Mode names in config.
@@ -534,68 +493,44 @@ fn located(path: &Path, text: &str, error: rove_core::Error) -> anyhow::Error {
     }
 }
 
-/// The 1-based line where the dotted `key` (e.g. `operator.stream_hz`, `mobile.laptop` inside
-/// `[hierarchy]`, or an inline table entry) is written, found by scanning table headers and
-/// `key =` lines. `None` if the key is absent (a default that broke a rule with another key).
+/// The 1-based line where the dotted `key` (`operator.stream_hz`, `output.channels[2].max_us`,
+/// `hierarchy.mobile.laptop` in an inline table, `operator.drive[1]`) is written, from the
+/// parsed document's own positions; a key in an older spelling counts as its current name. An
+/// absent key (left to a default that broke a rule) points at the nearest table that holds it;
+/// `None` if nothing of it is in the file.
 pub fn key_line(text: &str, key: &str) -> Option<usize> {
-    let mut table = String::new();
-    let mut best = None;
-    // `[[a.b]]` headers: the n-th one (from 0) is table `a.b[n]`.
-    let mut arrays: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
-    for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if let Some(header) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
-            let name = header.trim().to_string();
-            let n = arrays.entry(name.clone()).or_insert(0);
-            table = format!("{name}[{n}]");
-            *n += 1;
-            if table == key || key.starts_with(&format!("{table}.")) {
-                best = Some(i + 1);
-            }
-            continue;
-        }
-        if let Some(header) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
-            table = header.trim().to_string();
-            if table == key {
-                best = Some(i + 1);
-            }
-            continue;
-        }
-        let Some((name, rest)) = line.split_once('=') else {
-            continue;
+    use toml_edit::{Item, TableLike, Value};
+    let doc = toml_edit::ImDocument::parse(text).ok()?;
+    // The byte offset of the deepest part of `key` found so far.
+    let (mut table, mut at): (&dyn TableLike, Option<usize>) = (doc.as_table(), None);
+    for segment in key.split('.') {
+        let (name, index) = match segment.split_once('[') {
+            Some((name, i)) => (name, i.trim_end_matches(']').parse::<usize>().ok()),
+            None => (segment, None),
         };
-        let name = canonical(name.trim());
-        let full = if table.is_empty() {
-            name.to_string()
-        } else {
-            format!("{table}.{name}")
+        let old = rove_core::config::ALIASES
+            .iter()
+            .filter(|(_, new)| *new == name);
+        let names = std::iter::once(name).chain(old.map(|(old, _)| *old));
+        let Some((k, item)) = names.into_iter().find_map(|n| table.get_key_value(n)) else {
+            break;
         };
-        // `drive[0]` is written on the `drive = [...]` line.
-        let base = key.split('[').next().unwrap_or(key);
-        if full == key || full == base {
-            return Some(i + 1);
-        }
-        // Inline tables: `mobile = { laptop = 315 }` holds `mobile.laptop`.
-        if let Some(inner) = key.strip_prefix(&format!("{full}.")) {
-            let pattern = format!("{inner} =");
-            let compact = format!("{inner}=");
-            if rest.contains(&pattern) || rest.contains(&compact) {
-                return Some(i + 1);
-            }
-        }
-        if key.starts_with(&format!("{full}.")) || key == table {
-            best = best.or(Some(i + 1));
-        }
+        at = k.span().or(item.span()).map(|span| span.start).or(at);
+        let next = match (item, index) {
+            (Item::ArrayOfTables(tables), Some(i)) => tables.get(i).map(|t| {
+                at = t.span().map(|span| span.start).or(at);
+                t as &dyn TableLike
+            }),
+            (Item::Value(Value::Array(values)), Some(i)) => values.get(i).and_then(|v| {
+                at = v.span().map(|span| span.start).or(at);
+                v.as_inline_table().map(|t| t as &dyn TableLike)
+            }),
+            (item, _) => item.as_table_like(),
+        };
+        let Some(next) = next else { break };
+        table = next;
     }
-    best
-}
-
-/// The name errors use for a key written in an older spelling (a serde alias).
-fn canonical(key: &str) -> &str {
-    let alias = rove_core::config::ALIASES
-        .iter()
-        .find(|(old, _)| *old == key);
-    alias.map_or(key, |(_, current)| current)
+    at.map(|at| text[..at.min(text.len())].matches('\n').count() + 1)
 }
 
 const DEFAULT_HEARTBEAT_MS: Int = 500;
@@ -662,7 +597,7 @@ fn is_log_filter(filter: &str) -> bool {
         && tracing_subscriber::EnvFilter::try_new(filter).is_ok()
 }
 
-impl RawVehicle {
+impl RawVehicle<OutputSection> {
     /// Validates, filling defaults.
     ///
     /// # Errors
@@ -692,14 +627,7 @@ impl RawVehicle {
                     let shown = (key.as_str(), entry.id);
                     unique.check(&mut errors, entry.id, format!("operators[{i}]"), shown, "");
                 }
-                let grants: Vec<Grant> = (section.operators.iter())
-                    .map(|e| Grant {
-                        id: e.id,
-                        level: e.level,
-                        device_class: e.device_class,
-                    })
-                    .collect();
-                Access::listed(hierarchy, &grants)
+                Access::listed(hierarchy, &section.operators)
             }
         };
         errors.into_result(VehicleConfig {
@@ -759,23 +687,14 @@ impl RawOperator {
                 .map(InputChoice::Device);
             errors.section("input", input).unwrap_or(constant.clone())
         };
-        let input = match self.input.get_or_insert_with(InputSection::centred) {
-            InputSection::Constant {
-                throttle,
-                roll,
-                pitch,
-                yaw,
-                mode,
-            } => {
-                let sticks = [
-                    ("throttle", throttle),
-                    ("roll", roll),
-                    ("pitch", pitch),
-                    ("yaw", yaw),
-                ];
+        let centred = || InputSection::Constant(ConstantInput::default());
+        let input = match self.input.get_or_insert_with(centred) {
+            InputSection::Constant(c) => {
+                let (t, r, p, y) = (c.throttle, c.roll, c.pitch, c.yaw);
+                let sticks = [("throttle", t), ("roll", r), ("pitch", p), ("yaw", y)];
                 let [throttle, roll, pitch, yaw] = sticks.map(|(key, v)| {
                     let range = i16::MIN.into()..=i16::MAX.into();
-                    (errors.int(&format!("input.{key}"), *v, range, "")).unwrap_or(0)
+                    (errors.int(&format!("input.{key}"), v, range, "")).unwrap_or(0)
                 });
                 let movement = MovementCommand {
                     throttle,
@@ -783,7 +702,7 @@ impl RawOperator {
                     pitch,
                     yaw,
                 };
-                InputChoice::Constant(movement, (*mode.get_or_insert(ModeName::Manual)).into())
+                InputChoice::Constant(movement, (*c.mode.get_or_insert(ModeName::Manual)).into())
             }
             InputSection::Joystick(s) => device(s, rove_inputs::SourceKind::Joystick),
             InputSection::Keyboard(s) => device(s, rove_inputs::SourceKind::Keyboard),
@@ -800,21 +719,6 @@ impl RawOperator {
             input,
             api_socket: self.console.api_socket.clone(),
         })
-    }
-}
-
-impl InputSection {
-    /// No `[input]`: centred sticks in MANUAL.
-    fn centred() -> Self {
-        let (throttle, roll, pitch, yaw) = (0, 0, 0, 0);
-        let mode = Some(ModeName::Manual);
-        InputSection::Constant {
-            throttle,
-            roll,
-            pitch,
-            yaw,
-            mode,
-        }
     }
 }
 
