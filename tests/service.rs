@@ -317,16 +317,21 @@ impl Manager {
     /// Waits for a notification with the line `line` (or, ending in `…`, a line starting with
     /// it), skipping others.
     fn wait_for(&mut self, line: &str) -> (Instant, String) {
+        self.wait_for_match(line, |text| has_line(text, line))
+    }
+
+    /// Waits for a notification that `matches`, skipping others.
+    fn wait_for_match(&mut self, what: &str, matches: impl Fn(&str) -> bool) -> (Instant, String) {
         let deadline = Instant::now() + PATIENCE;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             let Some((at, text)) = self.recv(left) else {
                 panic!(
-                    "no {line:?} within {PATIENCE:?}; received so far: {:#?}",
+                    "no {what:?} within {PATIENCE:?}; received so far: {:#?}",
                     self.seen
                 );
             };
-            if has_line(&text, line) {
+            if matches(&text) {
                 return (at, text);
             }
         }
@@ -533,6 +538,93 @@ fn sd_notify_ready_status_keepalives_stall_and_stopping() {
             .any(|l| l.starts_with("<4>") && l.contains("test hook")),
         "the stall hook's warning is not at priority 4:\n{log}"
     );
+}
+
+/// How long the hung-output test's vehicle lets its output stay hung before it stops the
+/// keep-alives (`[vehicle] output_hung_limit_ms`).
+const HUNG_LIMIT: Duration = Duration::from_secs(3);
+
+#[test]
+fn a_hung_output_leaves_the_vehicle_deciding_and_stops_keepalives_past_its_limit() {
+    let mut rig = Rig::new("hung-output");
+    let root = fake_sysfs(&rig.dir);
+    let limit_ms = HUNG_LIMIT.as_millis();
+    let output = format!(
+        "[vehicle]\noutput_hung_limit_ms = {limit_ms}\n{}",
+        eyedrive_sysfs(&root)
+    );
+    let config = rig.write("vehicle.toml", &vehicle_toml(V, &output));
+    let mut manager = Manager::bind(&rig.dir);
+    let mut vehicle = Service::start(&rig, "vehicle", &config, &manager.path, WATCHDOG, &[]);
+    manager.wait_for("READY=1");
+
+    // The throttle's duty_cycle becomes a FIFO nobody reads: the next write to it blocks in
+    // open(2), as a wedged device write would.
+    let fifo = root.join("pwmchip0/pwm1/duty_cycle");
+    std::fs::remove_file(&fifo).expect("remove duty_cycle");
+    let made = Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(made.success(), "mkfifo");
+    let operator = rig.operator(11, "mobile", "phone", &[V], 32767, "", &[]);
+    let (hung_at, _) = manager.wait_for("STATUS=driven by 11 (1 operator live); output hung…");
+    // Keep-alives go on while the output has been hung for less than the limit.
+    let (beat, _) = manager.wait_for("WATCHDOG=1");
+    eprintln!("a keep-alive {:?} after the hung status", beat - hung_at);
+
+    // The vehicle goes on deciding: its owner quits, and it goes to failsafe with the output
+    // still hung.
+    rig.procs[operator].terminate();
+    manager.wait_for("STATUS=failsafe (no operator live); output hung…");
+
+    // Past the limit the keep-alives stop (systemd would restart the unit), and STATUS says so.
+    let stopped = "watchdog keep-alives stopped";
+    let (stopped_at, _) = manager.wait_for_match(stopped, |t| t.contains(stopped));
+    let quiet_until = stopped_at + WATCHDOG;
+    while let Some((at, text)) = manager.recv(quiet_until.saturating_duration_since(Instant::now()))
+    {
+        assert!(
+            !has_line(&text, "WATCHDOG=1"),
+            "a keep-alive {:?} after they stopped",
+            at - stopped_at
+        );
+    }
+
+    // The device returns: the blocked write completes, then only the newest command (the
+    // safe state) is written, nothing of what the operator streamed meanwhile.
+    let written = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let reader = {
+        let (fifo, written) = (fifo.clone(), std::sync::Arc::clone(&written));
+        std::thread::spawn(move || {
+            loop {
+                let value = std::fs::read_to_string(&fifo).expect("read the FIFO");
+                if value == "end" {
+                    return;
+                }
+                written
+                    .lock()
+                    .expect("writes")
+                    .push(value.trim().to_string());
+            }
+        })
+    };
+    // (Two writes can arrive as one read: the FIFO's end of file comes only once no writer
+    // has it open.)
+    let expected = format!("2000000{SAFE_NS}");
+    let all_written = || written.lock().expect("writes").concat();
+    eventually("the blocked write, then the safe state", || {
+        let got = all_written();
+        if got == expected { Ok(()) } else { Err(got) }
+    });
+    manager.wait_for("STATUS=failsafe (no operator live); output ok");
+    manager.wait_for("WATCHDOG=1");
+    vehicle.signal("TERM");
+    assert!(vehicle.wait_exit().success());
+    assert_eq!(
+        written.lock().expect("writes").len(),
+        2,
+        "nothing else written"
+    );
+    std::fs::write(&fifo, "end").expect("end the reader");
+    reader.join().expect("reader");
 }
 
 #[test]

@@ -59,6 +59,10 @@ rove_core::config_types! {
     #[serde(deny_unknown_fields)]
     pub struct VehicleSection {
         command_timeout_ms: Option<Int> => "Owner silence before re-arbitration (absent: 100).",
+        output_deadline_ms: Option<Int> => "A device call (a PWM write, a MAVLink send) running \
+            longer counts as a hung output, ms (absent: 50).",
+        output_hung_limit_ms: Option<Int> => "How long an output may stay hung before the \
+            watchdog keep-alives stop and systemd restarts the unit, ms (absent: 2000).",
     }
 
     /// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
@@ -357,6 +361,10 @@ pub struct VehicleConfig {
     pub access: Access,
     /// Output adapter.
     pub output: OutputConfig,
+    /// `[vehicle] output_deadline_ms`.
+    pub output_deadline: Duration,
+    /// `[vehicle] output_hung_limit_ms`.
+    pub output_hung_limit: Duration,
 }
 
 rove_core::config_types! {
@@ -613,6 +621,11 @@ impl RawVehicle<OutputSection> {
         let timeout = errors
             .int(key, millis, 0..=Int::MAX, "")
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
+        let v = &mut self.vehicle;
+        let deadline = *v.output_deadline_ms.get_or_insert(50);
+        let deadline = errors.millis("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
+        let limit = *v.output_hung_limit_ms.get_or_insert(2000);
+        let limit = errors.millis("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let access = match &self.access {
@@ -639,6 +652,8 @@ impl RawVehicle<OutputSection> {
             common,
             access,
             output,
+            output_deadline: deadline.unwrap_or_default(),
+            output_hung_limit: limit.unwrap_or_default(),
         })
     }
 }

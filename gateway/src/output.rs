@@ -222,6 +222,265 @@ impl ManagedOutput {
     }
 }
 
+/// How long a device call may take before the output counts as hung, and how old a command
+/// may be when the device is free to take it (`[vehicle] output_deadline_ms`, and the command
+/// timeout).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WriteLimits {
+    /// A device call (apply, safe state, keep-alive, reopen) running longer is a hung output.
+    pub deadline: Duration,
+    /// An apply older than this when the device is free again is not written: the arbiter has
+    /// decided something newer by then, or will within this time.
+    pub max_age: Duration,
+}
+
+/// What the control loop knows of the output, for `STATUS=` and logs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OutputReport {
+    /// The adapter's description.
+    pub describe: String,
+    /// Its health as of its last call that returned.
+    pub health: Health,
+    /// What the device says of itself (an autopilot's mode).
+    pub detail: Option<String>,
+    /// How long the call in progress has run, once past [`WriteLimits::deadline`].
+    pub hung: Option<Duration>,
+    /// Applies not written because they were older than [`WriteLimits::max_age`] when the
+    /// device was free again.
+    pub stale: u64,
+}
+
+impl std::fmt::Display for OutputReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (&self.hung, &self.detail) {
+            (Some(hung), _) => write!(f, "hung: a device call has not returned for {hung:.1?}"),
+            (None, Some(detail)) => write!(f, "{} ({detail})", self.health),
+            (None, None) => write!(f, "{}", self.health),
+        }
+    }
+}
+
+/// A command for the output thread, with the time it was decided.
+#[derive(Debug, Clone, Copy)]
+enum Command {
+    Apply(MonoTime, Setpoint),
+    Safe,
+}
+
+#[derive(Debug)]
+struct WorkerState {
+    /// The newest command the thread has not taken yet; a newer one replaces it.
+    pending: Option<Command>,
+    /// When the thread entered the device call in progress, if it is in one.
+    busy_since: Option<MonoTime>,
+    stale: u64,
+    describe: String,
+    health: Health,
+    detail: Option<String>,
+    stop: bool,
+    done: bool,
+}
+
+#[derive(Debug)]
+struct WorkerShared {
+    state: std::sync::Mutex<WorkerState>,
+    /// Wakes the thread (a command, a stop) and the stopping loop (done).
+    wake: std::sync::Condvar,
+}
+
+impl WorkerShared {
+    fn lock(&self) -> std::sync::MutexGuard<'_, WorkerState> {
+        // The state stays consistent under a panic in the device call (nothing is left half
+        // written while holding the lock), so a poisoned lock is used as it is.
+        self.state
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn publish(&self, output: &ManagedOutput) {
+        let mut state = self.lock();
+        state.describe = output.describe();
+        state.health = output.health();
+        state.detail = output.detail();
+    }
+}
+
+/// The output on a thread of its own, so that a device call that blocks (a sysfs write, a TCP
+/// send to a peer that stopped reading) never stalls the control loop: the loop hands over the
+/// newest command without waiting, a slow device never has a queue of old ones, and a call
+/// that runs past its deadline shows as a hung output in [`OutputWorker::report`].
+#[derive(Debug)]
+pub struct OutputWorker {
+    shared: std::sync::Arc<WorkerShared>,
+    clock: crate::runtime::Clock,
+    limits: WriteLimits,
+}
+
+impl OutputWorker {
+    /// Opens the output described by `config` on a thread of its own, which then runs its
+    /// retries and keep-alives. (Adapters need not be `Send`: each lives on the thread that
+    /// opened it.)
+    ///
+    /// # Errors
+    /// The thread cannot be started, or [`ManagedOutput::open`] failed.
+    pub fn start(
+        config: OutputConfig,
+        clock: crate::runtime::Clock,
+        limits: WriteLimits,
+    ) -> anyhow::Result<OutputWorker> {
+        let name = kind(&config);
+        Self::start_with(clock, limits, name, move |now| {
+            ManagedOutput::open(config, now)
+        })
+    }
+
+    /// [`OutputWorker::start`] with the output made by `open` on the thread.
+    fn start_with(
+        clock: crate::runtime::Clock,
+        limits: WriteLimits,
+        name: &str,
+        open: impl FnOnce(MonoTime) -> Result<ManagedOutput, LinkError> + Send + 'static,
+    ) -> anyhow::Result<OutputWorker> {
+        let shared = std::sync::Arc::new(WorkerShared {
+            state: std::sync::Mutex::new(WorkerState {
+                pending: None,
+                busy_since: None,
+                stale: 0,
+                describe: format!("{name:?} (opening)"),
+                health: Health::Down("opening".into()),
+                detail: None,
+                stop: false,
+                done: false,
+            }),
+            wake: std::sync::Condvar::new(),
+        });
+        let thread_shared = std::sync::Arc::clone(&shared);
+        let (opened, result) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("rove-output".into())
+            .spawn(move || {
+                // Opening writes the safe state; a transient failure is retried from `work`.
+                match open(clock.now()) {
+                    Ok(mut output) => {
+                        output.tick(clock.now());
+                        thread_shared.publish(&output);
+                        let _ = opened.send(Ok(()));
+                        work(output, &thread_shared, clock, limits.max_age);
+                    }
+                    Err(e) => {
+                        let _ = opened.send(Err(e.detail));
+                    }
+                }
+            })?;
+        match result.recv() {
+            Ok(Ok(())) => Ok(OutputWorker {
+                shared,
+                clock,
+                limits,
+            }),
+            Ok(Err(detail)) => Err(anyhow::anyhow!("output adapter: {detail}")),
+            Err(_) => Err(anyhow::anyhow!(
+                "output adapter: its thread ended while opening"
+            )),
+        }
+    }
+
+    /// Drives `setpoint` (decided at `now`) as soon as the device is free, unless a newer
+    /// command comes first.
+    pub fn apply(&self, now: MonoTime, setpoint: Setpoint) {
+        self.hand_over(Command::Apply(now, setpoint));
+    }
+
+    /// Puts the outputs in the safe state as soon as the device is free.
+    pub fn safe_state(&self) {
+        self.hand_over(Command::Safe);
+    }
+
+    fn hand_over(&self, command: Command) {
+        self.shared.lock().pending = Some(command);
+        self.shared.wake.notify_all();
+    }
+
+    /// The output as the thread last saw it, and whether a device call is hung.
+    pub fn report(&self) -> OutputReport {
+        let now = self.clock.now();
+        let state = self.shared.lock();
+        let running = state.busy_since.map(|since| now.saturating_since(since));
+        OutputReport {
+            describe: state.describe.clone(),
+            health: state.health.clone(),
+            detail: state.detail.clone(),
+            hung: running.filter(|r| *r > self.limits.deadline),
+            stale: state.stale,
+        }
+    }
+
+    /// Puts the outputs in the safe state and stops the thread, waiting at most `wait` for the
+    /// device. `false` if the device did not return in time (the thread is left blocked; the
+    /// process may still exit, and systemd's `rove failsafe` tries again).
+    pub fn stop(self, wait: Duration) -> bool {
+        let mut state = self.shared.lock();
+        state.pending = Some(Command::Safe);
+        state.stop = true;
+        self.shared.wake.notify_all();
+        let (state, _) = (self.shared.wake)
+            .wait_timeout_while(state, wait, |s| !s.done)
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        state.done
+    }
+}
+
+/// The output thread: takes the newest command, or wakes for the output's own deadline (end
+/// of a hold, a keep-alive, a reopen), and publishes how the output is after each round.
+fn work(
+    mut output: ManagedOutput,
+    shared: &WorkerShared,
+    clock: crate::runtime::Clock,
+    max_age: Duration,
+) {
+    let mut state = shared.lock();
+    loop {
+        while state.pending.is_none() && !state.stop {
+            let now = clock.now();
+            state = match output.next_deadline() {
+                Some(due) if due <= now => break,
+                Some(due) => (shared.wake)
+                    .wait_timeout(state, due.saturating_since(now))
+                    .map(|(s, _)| s)
+                    .unwrap_or_else(|e| e.into_inner().0),
+                None => (shared.wake)
+                    .wait(state)
+                    .unwrap_or_else(std::sync::PoisonError::into_inner),
+            };
+        }
+        let (command, stop) = (state.pending.take(), state.stop);
+        let now = clock.now();
+        let command = match command {
+            Some(Command::Apply(at, _)) if now.saturating_since(at) > max_age => {
+                state.stale += 1;
+                None
+            }
+            command => command,
+        };
+        state.busy_since = Some(now);
+        drop(state);
+        match command {
+            Some(Command::Apply(_, setpoint)) => output.apply(now, &setpoint),
+            Some(Command::Safe) => output.safe_state(now),
+            None => {}
+        }
+        output.tick(clock.now());
+        shared.publish(&output);
+        state = shared.lock();
+        state.busy_since = None;
+        if stop && state.pending.is_none() {
+            state.done = true;
+            shared.wake.notify_all();
+            return;
+        }
+    }
+}
+
 /// The adapter's name as `[output] adapter` spells it.
 pub(crate) fn kind(config: &OutputConfig) -> &'static str {
     match config {
@@ -292,6 +551,178 @@ mod tests {
         fn health(&self) -> Health {
             Health::Ok
         }
+    }
+
+    /// Records the throttle of every apply (and `i16::MIN` for a safe state); every call waits
+    /// while the gate is shut, as a blocked device write would.
+    #[derive(Debug)]
+    struct Gated {
+        calls: Arc<Mutex<Vec<i16>>>,
+        gate: Arc<(Mutex<bool>, std::sync::Condvar)>,
+    }
+
+    impl Gated {
+        fn pass(&self, throttle: i16) -> Result<(), LinkError> {
+            let (shut, opened) = &*self.gate;
+            let guard = shut.lock().map_err(|_| LinkError::fatal("poisoned"))?;
+            let _open = opened
+                .wait_while(guard, |shut| *shut)
+                .map_err(|_| LinkError::fatal("poisoned"))?;
+            self.calls
+                .lock()
+                .map_err(|_| LinkError::fatal("poisoned"))?
+                .push(throttle);
+            Ok(())
+        }
+    }
+
+    impl OutputAdapter for Gated {
+        fn describe(&self) -> String {
+            "gated".into()
+        }
+        fn apply(&mut self, _: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError> {
+            self.pass(setpoint.movement.throttle)
+        }
+        fn safe_state(&mut self, _: MonoTime) -> Result<(), LinkError> {
+            self.pass(i16::MIN)
+        }
+        fn health(&self) -> Health {
+            Health::Ok
+        }
+    }
+
+    fn throttle(t: i16) -> Setpoint {
+        Setpoint {
+            movement: MovementCommand {
+                throttle: t,
+                ..MovementCommand::CENTRED
+            },
+            mode: Mode::Manual,
+        }
+    }
+
+    fn shut(gate: &(Mutex<bool>, std::sync::Condvar), value: bool) {
+        *gate.0.lock().expect("gate") = value;
+        gate.1.notify_all();
+    }
+
+    #[test]
+    fn a_blocked_device_call_never_blocks_the_loop_and_only_the_newest_command_follows() {
+        let calls = Arc::new(Mutex::new(Vec::new()));
+        let gate = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
+        let adapter = Gated {
+            calls: Arc::clone(&calls),
+            gate: Arc::clone(&gate),
+        };
+        // A clock already 10 s old, so that a command decided at 0 is stale.
+        let clock =
+            crate::runtime::Clock::since(std::time::Instant::now() - Duration::from_secs(10));
+        let limits = WriteLimits {
+            deadline: Duration::from_millis(20),
+            max_age: Duration::from_secs(1),
+        };
+        let worker = OutputWorker::start_with(clock, limits, "gated", move |_| {
+            Ok(ManagedOutput {
+                config: OutputConfig::Sim,
+                adapter: Some(Box::new(adapter)),
+                hold_until: None,
+                next_keepalive: None,
+                last_error: None,
+            })
+        })
+        .expect("worker");
+        let recorded = || calls.lock().expect("calls").clone();
+        worker.apply(clock.now(), throttle(1));
+        rove_testkit::eventually("the first apply", || match recorded()[..] {
+            [1] => Ok(()),
+            ref other => Err(format!("{other:?}")),
+        });
+        assert_eq!(worker.report().hung, None);
+
+        // The device blocks: the call is reported hung once past the deadline, and handing
+        // over commands meanwhile does not wait for it.
+        shut(&gate, true);
+        worker.apply(clock.now(), throttle(2));
+        rove_testkit::eventually("the call reported hung", || {
+            worker.report().hung.ok_or("not hung yet")
+        });
+        for t in 3..=50 {
+            worker.apply(clock.now(), throttle(t));
+        }
+        shut(&gate, false);
+        // Only the newest of the commands that queued up is written.
+        rove_testkit::eventually("the newest command", || match recorded()[..] {
+            [1, 2, 50] => Ok(()),
+            ref other => Err(format!("{other:?}")),
+        });
+        rove_testkit::eventually("hung no more", || match worker.report().hung {
+            None => Ok(()),
+            Some(h) => Err(format!("{h:?}")),
+        });
+
+        // A command older than max_age when the device is free is not written; a safe state
+        // always is.
+        worker.apply(MonoTime::ZERO, throttle(99));
+        rove_testkit::eventually("99 skipped", || match worker.report().stale {
+            1 => Ok(()),
+            n => Err(format!("{n} stale")),
+        });
+        worker.safe_state();
+        rove_testkit::eventually("the safe state", || match recorded()[..] {
+            [1, 2, 50, i16::MIN] => Ok(()),
+            ref other => Err(format!("{other:?}")),
+        });
+        shut(&gate, true);
+        worker.apply(clock.now(), throttle(7));
+        rove_testkit::eventually("7 taken", || worker.report().hung.ok_or("not taken yet"));
+        worker.apply(MonoTime::ZERO, throttle(98));
+        shut(&gate, false);
+        rove_testkit::eventually("98 skipped", || match worker.report().stale {
+            2 => Ok(()),
+            n => Err(format!("{n} stale")),
+        });
+        worker.apply(clock.now(), throttle(8));
+        rove_testkit::eventually("the fresh ones", || match recorded()[..] {
+            [1, 2, 50, i16::MIN, 7, 8] => Ok(()),
+            ref other => Err(format!("{other:?}")),
+        });
+        assert!(
+            worker.stop(Duration::from_secs(10)),
+            "a free device stops at once"
+        );
+        assert_eq!(
+            recorded().last(),
+            Some(&i16::MIN),
+            "stopping writes the safe state"
+        );
+    }
+
+    #[test]
+    fn stopping_gives_up_on_a_device_that_does_not_return() {
+        let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
+        let adapter = Gated {
+            calls: Arc::new(Mutex::new(Vec::new())),
+            gate: Arc::clone(&gate),
+        };
+        let clock = crate::runtime::Clock::start();
+        let limits = WriteLimits {
+            deadline: Duration::from_millis(20),
+            max_age: Duration::from_secs(1),
+        };
+        let worker = OutputWorker::start_with(clock, limits, "gated", move |_| {
+            Ok(ManagedOutput {
+                config: OutputConfig::Sim,
+                adapter: Some(Box::new(adapter)),
+                hold_until: None,
+                next_keepalive: None,
+                last_error: None,
+            })
+        })
+        .expect("worker");
+        worker.apply(clock.now(), throttle(5));
+        rove_testkit::eventually("hung", || worker.report().hung.ok_or("not hung yet"));
+        assert!(!worker.stop(Duration::from_millis(50)));
+        shut(&gate, false);
     }
 
     /// Regression (against ArduPilot SITL): a hold that ends in the same loop turn as the first command must not put the

@@ -20,6 +20,12 @@ impl Clock {
         }
     }
 
+    /// A clock that started at `start` (tests: a clock already running for a while).
+    #[cfg(test)]
+    pub(crate) fn since(start: Instant) -> Clock {
+        Clock { start }
+    }
+
     /// Now, for the core.
     pub fn now(&self) -> MonoTime {
         MonoTime::from_nanos(u64::try_from(self.start.elapsed().as_nanos()).unwrap_or(u64::MAX))

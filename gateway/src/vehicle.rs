@@ -2,7 +2,8 @@
 //!
 //! One task, one `select!` loop: every input (command samples, disposals, discovery events,
 //! RequestControl, timers) becomes an arbiter [`Event`]; every decision is carried out at once:
-//! outputs to the adapter, ownership changes to DeviceInfo (published in the same loop turn).
+//! outputs handed to the output's own thread ([`OutputWorker`]: a device call that blocks never
+//! stalls this loop), ownership changes to DeviceInfo (published in the same loop turn).
 //! The loop sleeps until the arbiter's next deadline, so a silent owner is dropped exactly one
 //! command timeout after its last sample, with no polling.
 //!
@@ -12,8 +13,9 @@
 //! domain cleanly.
 //!
 //! Under systemd (see [`crate::sdnotify`]): `STATUS=` names the owner, how many operators are
-//! live and the output's health, and is updated on every owner change and every heartbeat;
-//! `WATCHDOG=1` keep-alives are sent by this loop itself, so a hung loop stops them.
+//! live and the output's health (or that it is hung), and is updated on every owner change and
+//! every heartbeat; `WATCHDOG=1` keep-alives are sent by this loop itself, so a hung loop stops
+//! them, and it stops them once the output has been hung past `[vehicle] output_hung_limit_ms`.
 //!
 //! Trust (docs/design.md §4b): every event carries the participant it came from; the arbiter
 //! pins device ids to participants and believes only strengths inside the hierarchy (or the
@@ -28,7 +30,7 @@
 
 use crate::config::VehicleConfig;
 use crate::dds::{self, Domain, KeyedDeviceInfo};
-use crate::output::ManagedOutput;
+use crate::output::{OutputReport, OutputWorker, WriteLimits};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
@@ -63,10 +65,13 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     let me = config.common.id;
     let mut notify = Notifier::from_env();
     let record = options.record;
-    // Opening writes the safe state; a transient failure is retried from the loop.
-    let mut output = ManagedOutput::open(config.output.clone(), clock.now())
-        .map_err(|e| anyhow::anyhow!("output adapter: {}", e.detail))?;
-    output.tick(clock.now());
+    let limits = WriteLimits {
+        deadline: config.output_deadline,
+        max_age: config.arbiter.command_timeout.get(),
+    };
+    // Opening writes the safe state; a transient failure is retried by the output's thread.
+    let output = OutputWorker::start(config.output.clone(), clock, limits)?;
+    let mut hung = HungWatch::new(config.output_hung_limit);
     let mut log = match &record {
         Some(path) => Some(OutputLog::create(path)?),
         None => None,
@@ -90,8 +95,8 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         name = %config.common.name,
         domain = config.common.domain_id,
         interfaces = ?config.common.interfaces,
-        adapter = %output.describe(),
-        output_health = %output.health(),
+        adapter = %output.report().describe,
+        output_health = %output.report(),
         command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
         watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "vehicle started"
@@ -137,15 +142,11 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         RateLimited::new("ControlCommand from a writer whose ownership strength is unknown");
     // The outputs are safe (or held safe while their device is reopened), the participant is
     // up and the signal handlers are in place: ready.
-    let mut shown = status_line(&arbiter, &output, clock.now());
+    let mut shown = status_line(&arbiter, &output.report(), clock.now());
     notify.ready(&shown);
 
     loop {
-        let deadline = [arbiter.next_deadline(), output.next_deadline()]
-            .into_iter()
-            .flatten()
-            .min()
-            .map(|d| clock.instant(d));
+        let deadline = arbiter.next_deadline().map(|d| clock.instant(d));
         let event = tokio::select! {
             _ = &mut shutdown => break,
             sample = commands.next() => match sample {
@@ -218,15 +219,26 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             },
             _ = heartbeat.tick() => {
                 publish(arbiter.controller_id());
-                let line = suspects.annotate(status_line(&arbiter, &output, clock.now()));
+                let report = output.report();
+                hung.observe(&report);
+                let line = hung.annotate(suspects.annotate(status_line(&arbiter, &report, clock.now())));
                 if line != shown {
                     notify.status(&line);
                     shown = line;
                 }
                 None
             }
-            // From this loop, so that a hung loop stops the keep-alives.
-            _ = keepalive.tick() => { notify.keepalive(); None }
+            // From this loop, so that a hung loop stops the keep-alives; and stopped while the
+            // output has been hung past its limit, so that systemd restarts the unit.
+            _ = keepalive.tick() => {
+                if hung.keepalive(&output.report()) {
+                    notify.keepalive();
+                } else if !shown.ends_with(HungWatch::STOPPED) {
+                    shown = hung.annotate(shown);
+                    notify.status(&shown);
+                }
+                None
+            }
             stall_for = stall.requested() => {
                 warn!(stall_ms = stall_for.as_millis() as u64, "test hook: stalling the control loop");
                 notify.status("control loop stalled by the SIGUSR1 test hook");
@@ -235,10 +247,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                 notify.status(&shown);
                 None
             }
-            _ = sleep_until(deadline) => {
-                output.tick(clock.now());
-                Some(Event::Tick)
-            }
+            _ = sleep_until(deadline) => Some(Event::Tick),
         };
         let Some(event) = event else { continue };
         if tracing::enabled!(tracing::Level::TRACE) {
@@ -246,12 +255,13 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         }
         let now = clock.now();
         let decision = arbiter.step(now, event);
-        carry_out(me, &decision, &mut output, log.as_mut(), &clock, &publish);
+        carry_out(me, &decision, &output, log.as_mut(), &clock, &publish);
         if let Some(suspect) = decision.suspect {
             suspects.report(suspect);
         }
         if decision.owner_change.is_some() {
-            shown = suspects.annotate(status_line(&arbiter, &output, clock.now()));
+            let line = status_line(&arbiter, &output.report(), clock.now());
+            shown = hung.annotate(suspects.annotate(line));
             notify.status(&shown);
         }
     }
@@ -259,7 +269,13 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     // Shutdown: outputs safe first, then tell everyone, then leave.
     info!("vehicle stopping: outputs to safe state");
     notify.stopping("stopping: outputs to safe state");
-    output.safe_state(clock.now());
+    if !output.stop(STOP_WAIT) {
+        warn!(
+            wait_ms = STOP_WAIT.as_millis() as u64,
+            "the output did not return in time for the safe state (hung device): leaving it to \
+             `rove failsafe`"
+        );
+    }
     if let Some(log) = log.as_mut() {
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
@@ -274,7 +290,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
 /// The `STATUS=` line: who drives, how many operators are live, and the output's health.
 /// E.g. `driven by 11 (2 operators live); output ok` or
 /// `failsafe (no operator live); output down: …`.
-fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTime) -> String {
+fn status_line(arbiter: &Arbiter, output: &OutputReport, now: rove_core::MonoTime) -> String {
     // Devices, not streams: an operator holding a grant may have two live writers.
     let live = arbiter
         .sources(now)
@@ -291,12 +307,67 @@ fn status_line(arbiter: &Arbiter, output: &ManagedOutput, now: rove_core::MonoTi
         Some(id) => format!("driven by {id}"),
         None => "failsafe".to_string(),
     };
-    match output.detail() {
-        Some(detail) => format!(
-            "{owner} ({operators}); output {} ({detail})",
-            output.health()
-        ),
-        None => format!("{owner} ({operators}); output {}", output.health()),
+    format!("{owner} ({operators}); output {output}")
+}
+
+/// How long stopping waits for the output's safe state.
+const STOP_WAIT: Duration = Duration::from_millis(500);
+
+/// Watches the output's thread for a device call that does not return: logs when one hangs and
+/// when it returns, and stops the watchdog keep-alives once it has been hung for `limit`.
+#[derive(Debug)]
+struct HungWatch {
+    limit: Duration,
+    hung: bool,
+    stopped: bool,
+}
+
+impl HungWatch {
+    /// The end of `STATUS=` while the keep-alives are stopped.
+    const STOPPED: &str = "; watchdog keep-alives stopped";
+
+    fn new(limit: Duration) -> HungWatch {
+        HungWatch {
+            limit,
+            hung: false,
+            stopped: false,
+        }
+    }
+
+    fn observe(&mut self, report: &OutputReport) {
+        match (report.hung, self.hung) {
+            (Some(hung), false) => warn!(
+                hung_ms = hung.as_millis() as u64,
+                output = %report.describe,
+                "output hung: a device call has not returned; the vehicle goes on deciding, the \
+                 outputs change when it returns"
+            ),
+            (None, true) => info!(output = %report.health, "output call returned"),
+            _ => {}
+        }
+        self.hung = report.hung.is_some();
+    }
+
+    /// Whether the watchdog keep-alive may be sent now.
+    fn keepalive(&mut self, report: &OutputReport) -> bool {
+        self.observe(report);
+        let over = report.hung.is_some_and(|h| h > self.limit);
+        if over && !self.stopped {
+            warn!(
+                limit_ms = self.limit.as_millis() as u64,
+                "output hung longer than [vehicle] output_hung_limit_ms: watchdog keep-alives \
+                 stopped, so that systemd restarts the unit"
+            );
+        }
+        self.stopped = over;
+        !over
+    }
+
+    fn annotate(&self, line: String) -> String {
+        match self.stopped && !line.ends_with(Self::STOPPED) {
+            true => line + Self::STOPPED,
+            false => line,
+        }
     }
 }
 
@@ -377,7 +448,7 @@ impl StallHook {
 fn carry_out(
     me: i64,
     decision: &Decision,
-    output: &mut ManagedOutput,
+    output: &OutputWorker,
     log: Option<&mut OutputLog>,
     clock: &Clock,
     publish: &impl Fn(i64),
@@ -395,13 +466,13 @@ fn carry_out(
     let now = clock.now();
     match decision.output {
         Some(Output::Apply { by, setpoint, .. }) => {
-            output.apply(now, &setpoint);
+            output.apply(now, setpoint);
             if let Some(log) = log {
                 log.record(clock, "apply", Owner::Controller(by), Some(setpoint));
             }
         }
         Some(Output::SafeState { owner, .. }) => {
-            output.safe_state(now);
+            output.safe_state();
             if let Some(log) = log {
                 log.record(clock, "safe", owner, None);
             }
@@ -469,8 +540,13 @@ mod tests {
 
     #[test]
     fn status_line_names_the_owner_counts_live_devices_and_shows_output_health() {
-        let output = ManagedOutput::open(crate::config::OutputConfig::Sim, MonoTime::ZERO)
-            .expect("sim output");
+        let mut output = OutputReport {
+            describe: "sim".into(),
+            health: rove_core::adapter::Health::Ok,
+            detail: None,
+            hung: None,
+            stale: 0,
+        };
         let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
         let t = MonoTime::ZERO;
         assert_eq!(
@@ -496,5 +572,39 @@ mod tests {
             status_line(&arbiter, &output, later),
             "failsafe (no operator live); output ok"
         );
+        // A device call that does not return.
+        output.hung = Some(Duration::from_millis(1250));
+        assert_eq!(
+            status_line(&arbiter, &output, later),
+            "failsafe (no operator live); output hung: a device call has not returned for 1.2s"
+        );
+    }
+
+    #[test]
+    fn keepalives_stop_only_once_the_output_is_hung_past_its_limit() {
+        let mut watch = HungWatch::new(Duration::from_secs(2));
+        let report = |hung_ms: Option<u64>| OutputReport {
+            describe: "pwm".into(),
+            health: rove_core::adapter::Health::Ok,
+            detail: None,
+            hung: hung_ms.map(Duration::from_millis),
+            stale: 0,
+        };
+        assert!(watch.keepalive(&report(None)));
+        assert!(watch.keepalive(&report(Some(60))));
+        assert!(watch.keepalive(&report(Some(2000))));
+        assert_eq!(watch.annotate("x".into()), "x");
+        assert!(!watch.keepalive(&report(Some(2001))));
+        assert_eq!(
+            watch.annotate("x".into()),
+            "x; watchdog keep-alives stopped"
+        );
+        assert_eq!(
+            watch.annotate(watch.annotate("x".into())),
+            "x; watchdog keep-alives stopped"
+        );
+        // The call returned: keep-alives again.
+        assert!(watch.keepalive(&report(None)));
+        assert_eq!(watch.annotate("x".into()), "x");
     }
 }
