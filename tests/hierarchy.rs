@@ -311,3 +311,91 @@ fn garbage_and_misaddressed_traffic_change_nothing() {
         "a command for another vehicle was applied"
     );
 }
+
+/// A vehicle whose control loop stalls for half a second (the hidden SIGUSR1 test hook blocks
+/// its thread, as a hung call would) applies none of the samples that queued up meanwhile: of
+/// a batch it takes only each writer's newest, and a newest sample that waited longer than the
+/// command timeout (its writer died meanwhile) is stale (rove_core::freshness). (SIGSTOP would stop rustdds's threads too, and rustdds 0.15.1 ends
+/// its event loops on the EINTR that SIGCONT brings: docs/rustdds.md.)
+#[test]
+fn a_vehicle_stalled_for_500_ms_applies_none_of_the_commands_that_queued_up() {
+    let mut rig = Rig::new("stall-fresh");
+    let config = rig.write(
+        "vehicle.toml",
+        &format!("[device]\nid = {V}\n[output]\nadapter = \"sim\"\n"),
+    );
+    let record = rig.dir.join("vehicle.jsonl");
+    let (config, record_arg) = (
+        config.to_str().expect("utf-8"),
+        record.to_str().expect("utf-8"),
+    );
+    let name = format!("vehicle-{V}");
+    let args = [
+        "vehicle",
+        "-c",
+        config,
+        "--record",
+        record_arg,
+        "--test-stall-on-sigusr1",
+        "500",
+    ];
+    let vehicle = rig.spawn(&name, &args);
+    let laptop = rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    // While the loop is stalled the laptop streams at 50 Hz: about 25 samples queue up.
+    let stalled = wall_us();
+    let status = std::process::Command::new("kill")
+        .args(["-USR1", &rig.procs[vehicle].pid().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    let resumed = stalled + 500_000;
+    let back = wait_for_output(&record, Some(11), resumed).expect("the laptop's fresh samples");
+    eprintln!(
+        "first apply {:.1} ms after the stall",
+        (back.wall_us as f64 - resumed as f64) / 1000.0
+    );
+    // None of the queued samples is applied: applied, they would come as a burst within
+    // microseconds; fresh ones come 20 ms apart.
+    let burst: Vec<u64> = (records(&record).iter())
+        .filter(|o| o.action == "apply" && o.wall_us >= stalled)
+        .map(|o| o.wall_us)
+        .filter(|t| *t < back.wall_us + 15_000)
+        .collect();
+    assert!(
+        burst.len() <= 3,
+        "a burst of {} applies after the stall: {burst:?}",
+        burst.len()
+    );
+
+    // Stalled again, and the laptop crashes 200 ms into the stall: its newest sample waits
+    // about 300 ms in the queue, so it is stale and never applied (it would drive for a
+    // command timeout after its operator died); the vehicle goes to failsafe.
+    wait_for_output(&record, Some(11), back.wall_us + 1).expect("the laptop drives on");
+    let stalled = wall_us();
+    let status = std::process::Command::new("kill")
+        .args(["-USR1", &rig.procs[vehicle].pid().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    std::thread::sleep(Duration::from_millis(200));
+    rig.procs[laptop].crash();
+    let resumed = stalled + 500_000;
+    wait_for_output(&record, None, resumed).expect("failsafe after the stall");
+    let late: Vec<u64> = (records(&record).iter())
+        .filter(|o| o.owner == Some(11) && o.wall_us >= resumed)
+        .map(|o| o.wall_us - resumed)
+        .collect();
+    assert!(
+        late.is_empty(),
+        "applied from the dead laptop after the stall: {late:?}"
+    );
+    let log = eventually("the stale sample reported", || {
+        let log = rig.log_of(&name);
+        match log.contains("stale ControlCommand sample") {
+            true => Ok(log),
+            false => Err("not yet"),
+        }
+    });
+    assert!(log.contains("in all"), "{log}");
+}

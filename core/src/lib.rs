@@ -34,6 +34,7 @@ pub mod adapter;
 pub mod arbiter;
 pub mod config;
 pub mod error;
+pub mod freshness;
 pub mod handover;
 pub mod hierarchy;
 pub mod mapping;

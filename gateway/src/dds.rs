@@ -341,6 +341,12 @@ pub fn strength_of(ownership: Option<Ownership>) -> Option<Strength> {
     }
 }
 
+/// An RTPS time stamp (seconds and 2⁻³² fractions since the epoch) in nanoseconds.
+pub fn timestamp_nanos(t: rustdds::Timestamp) -> i128 {
+    let ticks = i128::from(t.to_ticks());
+    (ticks >> 32) * 1_000_000_000 + (((ticks & 0xffff_ffff) * 1_000_000_000) >> 32)
+}
+
 /// The core's identity for a DDS writer: participant = GUID prefix, entity = entity id.
 pub fn writer_id(guid: GUID) -> WriterId {
     let bytes = guid.to_bytes();
@@ -411,5 +417,18 @@ mod tests {
         let wrapped = serde_json::to_value(KeyedControlCommand(cmd)).expect("json");
         assert_eq!(wrapped, serde_json::to_value(cmd).expect("json"));
         assert_eq!(KeyedControlCommand(cmd).key(), 2);
+    }
+
+    #[test]
+    fn rtps_time_stamps_convert_to_nanoseconds() {
+        let half_past_five = rustdds::Timestamp::from_ticks((5 << 32) | (1 << 31));
+        assert_eq!(timestamp_nanos(half_past_five), 5_500_000_000);
+        assert_eq!(timestamp_nanos(rustdds::Timestamp::from_ticks(0)), 0);
+        let now = timestamp_nanos(rustdds::Timestamp::now());
+        let wall = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as i128)
+            .unwrap_or_default();
+        assert!((wall - now).abs() < 1_000_000_000, "{now} vs {wall}");
     }
 }

@@ -470,7 +470,12 @@ impl Writers {
                 Effect::Write { writer, command } => {
                     if let Err(e) = self
                         .command_writer(writer)
-                        .write(KeyedControlCommand(command), None)
+                        // The source timestamp lets the vehicle tell a sample that queued up
+                        // from a fresh one (rove_core::freshness).
+                        .write(
+                            KeyedControlCommand(command),
+                            Some(rustdds::Timestamp::now()),
+                        )
                     {
                         self.failed.warn(&e);
                     }

@@ -29,12 +29,13 @@
 //! keeps its default action (the process ends; ExecStopPost makes the outputs safe).
 
 use crate::config::VehicleConfig;
-use crate::dds::{self, Domain, KeyedDeviceInfo};
+use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo};
 use crate::output::{OutputReport, OutputWorker, WriteLimits};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
-use futures::StreamExt;
+use futures::{FutureExt, StreamExt};
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, ParticipantId};
+use rove_core::freshness::Freshness;
 use rove_core::msg::{DeviceInfo, DeviceType};
 use rove_core::trust::Suspect;
 use rustdds::with_key::Sample;
@@ -114,7 +115,6 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         arbiter.certify(certifier);
     }
     let mut suspects = Suspects::default();
-    let mut strengths = HashMap::new();
     let publish = |controller_id| {
         let info = DeviceInfo {
             device_id: me,
@@ -137,9 +137,10 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     tokio::pin!(shutdown);
     let mut keepalive = notify.keepalive_timer();
     let mut stall = StallHook::new(options.stall_on_sigusr1)?;
-    let mut malformed = RateLimited::new("malformed or unreadable ControlCommand sample");
-    let mut unknown_strength =
-        RateLimited::new("ControlCommand from a writer whose ownership strength is unknown");
+    let mut malformed = RateLimited::new("malformed or unreadable RequestControl or DeviceInfo");
+    let mut intake = Intake::new(me, config.arbiter.command_timeout.get());
+    // Events of a batch of samples not yet given to the arbiter.
+    let mut queued = std::collections::VecDeque::new();
     // The outputs are safe (or held safe while their device is reopened), the participant is
     // up and the signal handlers are in place: ready.
     let mut shown = status_line(&arbiter, &output.report(), clock.now());
@@ -150,34 +151,17 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         let event = tokio::select! {
             _ = &mut shutdown => break,
             sample = commands.next() => match sample {
-                Some(Ok(sample)) => {
-                    let guid = sample.sample_info().writer_guid();
-                    let writer = dds::writer_id(guid);
-                    match sample.into_value() {
-                        Sample::Value(cmd) => {
-                            let strength = match strengths.get(&guid) {
-                                Some(s) => Some(*s),
-                                None => {
-                                    let s = domain.discovered_strength(guid);
-                                    if let Some(s) = s { strengths.insert(guid, s); }
-                                    s
-                                }
-                            };
-                            match strength {
-                                Some(strength) => Some(Event::Sample {
-                                    writer, strength, command: cmd.0, arrival: clock.now(),
-                                }),
-                                None => {
-                                    unknown_strength.warn(&writer);
-                                    None
-                                }
-                            }
-                        }
-                        Sample::Dispose(key) if key == me => Some(Event::Released { writer }),
-                        Sample::Dispose(_) => None,
+                Some(first) => {
+                    // With what already queued behind it: only each writer's newest counts.
+                    let mut batch = vec![first];
+                    while batch.len() < MAX_BATCH
+                        && let Some(Some(more)) = commands.next().now_or_never()
+                    {
+                        batch.push(more);
                     }
+                    queued.extend(intake.events(&domain, &clock, batch));
+                    queued.pop_front()
                 }
-                Some(Err(e)) => { malformed.warn(&e); None }
                 None => anyhow::bail!("ControlCommand stream ended"),
             },
             request = requests.next() => match request {
@@ -204,12 +188,12 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             ev = status.next() => match ev {
                 Some(DomainParticipantStatusEvent::WriterDetected { writer }) => {
                     if let Some(s) = dds::strength_of(writer.qos.ownership()) {
-                        strengths.insert(writer.guid, s);
+                        intake.strengths.insert(writer.guid, s);
                     }
                     None
                 }
                 Some(DomainParticipantStatusEvent::WriterLost { guid, .. }) => {
-                    strengths.remove(&guid);
+                    intake.forget(guid);
                     Some(Event::WriterGone { writer: dds::writer_id(guid) })
                 }
                 Some(DomainParticipantStatusEvent::ParticipantLost { id, .. }) => {
@@ -249,20 +233,22 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             }
             _ = sleep_until(deadline) => Some(Event::Tick),
         };
-        let Some(event) = event else { continue };
-        if tracing::enabled!(tracing::Level::TRACE) {
-            tracing::trace!(wall_us = clock.wall_micros(), ?event, "event");
-        }
-        let now = clock.now();
-        let decision = arbiter.step(now, event);
-        carry_out(me, &decision, &output, log.as_mut(), &clock, &publish);
-        if let Some(suspect) = decision.suspect {
-            suspects.report(suspect);
-        }
-        if decision.owner_change.is_some() {
-            let line = status_line(&arbiter, &output.report(), clock.now());
-            shown = hung.annotate(suspects.annotate(line));
-            notify.status(&shown);
+        let mut next = event;
+        while let Some(event) = next.take().or_else(|| queued.pop_front()) {
+            if tracing::enabled!(tracing::Level::TRACE) {
+                tracing::trace!(wall_us = clock.wall_micros(), ?event, "event");
+            }
+            let now = clock.now();
+            let decision = arbiter.step(now, event);
+            carry_out(me, &decision, &output, log.as_mut(), &clock, &publish);
+            if let Some(suspect) = decision.suspect {
+                suspects.report(suspect);
+            }
+            if decision.owner_change.is_some() {
+                let line = status_line(&arbiter, &output.report(), clock.now());
+                shown = hung.annotate(suspects.annotate(line));
+                notify.status(&shown);
+            }
         }
     }
 
@@ -308,6 +294,110 @@ fn status_line(arbiter: &Arbiter, output: &OutputReport, now: rove_core::MonoTim
         None => "failsafe".to_string(),
     };
     format!("{owner} ({operators}); output {output}")
+}
+
+/// Command writers whose delivery baselines are remembered (rove_core::freshness).
+const MAX_WRITERS: usize = 1024;
+
+/// Most ControlCommand samples taken in one turn of the loop.
+const MAX_BATCH: usize = 256;
+
+/// ControlCommand samples into arbiter events: each writer's strength (from discovery), and
+/// which samples are fresh. Of a batch taken at once, only each writer's newest sample counts
+/// (a control stream needs the newest command, not every one), and a sample that queued up
+/// longer than the command timeout (`rove_core::freshness`) is dropped and counted.
+struct Intake {
+    me: i64,
+    strengths: HashMap<rustdds::GUID, rove_core::hierarchy::Strength>,
+    freshness: Freshness,
+    stale: RateLimited,
+    stale_total: u64,
+    unknown_strength: RateLimited,
+    malformed: RateLimited,
+}
+
+impl Intake {
+    fn new(me: i64, command_timeout: Duration) -> Intake {
+        Intake {
+            me,
+            strengths: HashMap::new(),
+            freshness: Freshness::new(command_timeout, MAX_WRITERS),
+            stale: RateLimited::new(
+                "stale ControlCommand sample (it queued up longer than the command timeout)",
+            ),
+            stale_total: 0,
+            unknown_strength: RateLimited::new(
+                "ControlCommand from a writer whose ownership strength is unknown",
+            ),
+            malformed: RateLimited::new("malformed or unreadable ControlCommand sample"),
+        }
+    }
+
+    fn forget(&mut self, writer: rustdds::GUID) {
+        self.strengths.remove(&writer);
+        self.freshness.forget(dds::writer_id(writer));
+    }
+
+    /// The events of a batch of samples, in order.
+    fn events(
+        &mut self,
+        domain: &Domain,
+        clock: &crate::runtime::Clock,
+        batch: Vec<rustdds::dds::ReadResult<rustdds::with_key::DataSample<KeyedControlCommand>>>,
+    ) -> Vec<Event> {
+        let samples: Vec<_> = (batch.into_iter())
+            .filter_map(|r| r.map_err(|e| self.malformed.warn(&e)).ok())
+            .collect();
+        let newest = |i: usize, writer: rustdds::GUID| {
+            !samples[i + 1..]
+                .iter()
+                .any(|later| later.sample_info().writer_guid() == writer)
+        };
+        let mut events = Vec::new();
+        for (i, sample) in samples.iter().enumerate() {
+            let guid = sample.sample_info().writer_guid();
+            let writer = dds::writer_id(guid);
+            let sent = sample
+                .sample_info()
+                .source_timestamp()
+                .map(dds::timestamp_nanos);
+            match sample.value() {
+                Sample::Value(_) if !newest(i, guid) => {}
+                Sample::Value(cmd) => {
+                    if let Some(late) = self.freshness.judge(writer, sent, clock.now()) {
+                        self.stale_total += 1;
+                        let total = self.stale_total;
+                        self.stale.warn(&format_args!(
+                            "from {writer}, {late:?} late; {total} in all"
+                        ));
+                        continue;
+                    }
+                    let strength = match self.strengths.get(&guid) {
+                        Some(s) => Some(*s),
+                        None => {
+                            let s = domain.discovered_strength(guid);
+                            if let Some(s) = s {
+                                self.strengths.insert(guid, s);
+                            }
+                            s
+                        }
+                    };
+                    match strength {
+                        Some(strength) => events.push(Event::Sample {
+                            writer,
+                            strength,
+                            command: cmd.0,
+                            arrival: clock.now(),
+                        }),
+                        None => self.unknown_strength.warn(&writer),
+                    }
+                }
+                Sample::Dispose(key) if *key == self.me => events.push(Event::Released { writer }),
+                Sample::Dispose(_) => {}
+            }
+        }
+        events
+    }
 }
 
 /// How long stopping waits for the output's safe state.
