@@ -303,9 +303,9 @@ const MAX_WRITERS: usize = 1024;
 const MAX_BATCH: usize = 256;
 
 /// ControlCommand samples into arbiter events: each writer's strength (from discovery), and
-/// which samples are fresh. Of a batch taken at once, only each writer's newest sample counts
-/// (a control stream needs the newest command, not every one), and a sample that queued up
-/// longer than the command timeout (`rove_core::freshness`) is dropped and counted.
+/// which samples are fresh. Of a batch taken at once, a writer's Movement sample supersedes its
+/// earlier ones (a control stream needs the newest command, not every one), and a sample that
+/// queued up longer than the command timeout (`rove_core::freshness`) is dropped and counted.
 struct Intake {
     me: i64,
     strengths: HashMap<rustdds::GUID, rove_core::hierarchy::Strength>,
@@ -348,10 +348,14 @@ impl Intake {
         let samples: Vec<_> = (batch.into_iter())
             .filter_map(|r| r.map_err(|e| self.malformed.warn(&e)).ok())
             .collect();
-        let newest = |i: usize, writer: rustdds::GUID| {
-            !samples[i + 1..]
-                .iter()
-                .any(|later| later.sample_info().writer_guid() == writer)
+        // A Movement sample carries the whole setpoint: it supersedes every earlier sample of
+        // its writer (a Probe or a Mode change does not).
+        let superseded = |i: usize, writer: rustdds::GUID| {
+            samples[i + 1..].iter().any(|later| {
+                later.sample_info().writer_guid() == writer
+                    && matches!(later.value(), Sample::Value(c)
+                        if c.0.command_type == rove_core::msg::CommandType::Movement)
+            })
         };
         let mut events = Vec::new();
         for (i, sample) in samples.iter().enumerate() {
@@ -362,7 +366,7 @@ impl Intake {
                 .source_timestamp()
                 .map(dds::timestamp_nanos);
             match sample.value() {
-                Sample::Value(_) if !newest(i, guid) => {}
+                Sample::Value(_) if superseded(i, guid) => {}
                 Sample::Value(cmd) => {
                     if let Some(late) = self.freshness.judge(writer, sent, clock.now()) {
                         self.stale_total += 1;
