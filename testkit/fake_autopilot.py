@@ -23,7 +23,8 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
 
 Test knobs: --ignore-mode-commands N (drop the first N mode commands: no ACK), --deny-modes,
 --garbage (random bytes between messages), --foreign-sysid N (a second system that also sends
-HEARTBEATs and COMMAND_ACKs).
+HEARTBEATs and COMMAND_ACKs), --stop-reading-after S (stop reading, as a wedged autopilot whose
+receive buffer fills).
 
 Everything it receives and does is written to --record as JSON lines with a monotonic time `t`.
 The first line is {"event": "ready", "port": P} once the link is open; P is the UDP or TCP port
@@ -34,6 +35,7 @@ import argparse
 import json
 import os
 import random
+import socket
 import struct
 import sys
 import time
@@ -67,6 +69,9 @@ def main():
     p.add_argument("--garbage", action="store_true")
     p.add_argument("--foreign-sysid", type=int, default=0)
     p.add_argument("--duration", type=float, default=120.0, help="exit after this long (bounded)")
+    p.add_argument("--stop-reading-after", type=float, default=0.0,
+                   help="stop reading S seconds after the GCS's first RC override (a wedged "
+                        "autopilot whose receive buffer fills), still sending HEARTBEATs")
     a = p.parse_args()
 
     safe_mode = PX4_AUTO_LOITER if a.autopilot == "px4" else ROVER_HOLD
@@ -88,6 +93,10 @@ def main():
         port = m.port.getsockname()[1]
     elif a.connection.startswith("tcpin:"):
         port = m.listen.getsockname()[1]
+        if a.stop_reading_after:
+            # A small receive buffer, inherited by the accepted connection (and no window
+            # autotuning): once reading stops, the GCS's sends fill it within seconds.
+            m.listen.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     fail_modes = {int(x) for x in a.fail_modes.split(",") if x}
     next_burst = time.monotonic() + 0.5
     burst_seq = 0
@@ -101,6 +110,8 @@ def main():
     ignore_modes = a.ignore_mode_commands
     next_hb = time.monotonic()
     last_gcs = None
+    first_override = None
+    stopped_reading = False
     failsafe_fired = False
 
     def send_raw(data):
@@ -153,6 +164,13 @@ def main():
             mode = safe_mode
             record("gcs_failsafe", mode=mode)
 
+        if (a.stop_reading_after and first_override is not None
+                and now - first_override > a.stop_reading_after):
+            if not stopped_reading:
+                stopped_reading = True
+                record("stopped_reading")
+            time.sleep(0.02)
+            continue
         msg = m.recv_match(blocking=True, timeout=0.02)
         if msg is None:
             continue
@@ -170,6 +188,8 @@ def main():
             record("heartbeat", src=src, comp=srccomp, type=msg.type, autopilot=msg.autopilot,
                    version=msg.get_msgbuf()[0] == 0xFD and 2 or 1)
         elif kind == "RC_CHANNELS_OVERRIDE":
+            if first_override is None:
+                first_override = time.monotonic()
             raw = [getattr(msg, "chan%d_raw" % i, 0) for i in range(1, 19)]
             accepted = src == a.gcs_sysid and msg.target_system == a.sysid
             if accepted:

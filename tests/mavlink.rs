@@ -230,3 +230,38 @@ fn r20_rove_failsafe_completes_within_200_ms_twenty_times() {
         "holds {holds}, releases {releases}"
     );
 }
+
+/// An autopilot on TCP that stops reading: the vehicle's sends fill the connection and then
+/// time out (they never block the output), the link is reopened, and the vehicle goes on
+/// deciding: its owner's crash still brings the failsafe.
+#[test]
+fn an_autopilot_that_stops_reading_times_sends_out_and_never_stalls_the_vehicle() {
+    let mut rig = Rig::new("mavlink-wedged");
+    let ap = rig.autopilot(&[
+        "--connection",
+        "tcpin:127.0.0.1:5760",
+        "--stop-reading-after",
+        "1",
+    ]);
+    // 200 Hz overrides fill the link's buffers within seconds once nobody reads.
+    let output = "[output]\nadapter = \"mavlink\"\nconnection = \"tcpout:127.0.0.1:5760\"\n\
+                  rate_hz = 200\n";
+    let record = rig.vehicle_with_output(V, output);
+    let op = rig.operator(11, "mobile", "phone", &[V], 32767, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("operator drives");
+    ap.wait_for("the autopilot stops reading", |e| {
+        e["event"] == "stopped_reading"
+    });
+    let name = format!("vehicle-{V}");
+    let log = crate::util::eventually("a send timed out", || {
+        let log = rig.log_of(&name);
+        match log.contains("send timed out after 25ms") {
+            true => Ok(log),
+            false => Err("not yet"),
+        }
+    });
+    assert!(!log.contains("output hung"), "{log}");
+    let crash = wall_us();
+    rig.procs[op].crash();
+    wait_for_output(&record, None, crash).expect("failsafe after the owner's crash");
+}

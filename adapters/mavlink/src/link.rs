@@ -34,6 +34,14 @@ use tracing::{debug, info, warn};
 pub const RECONNECT: Duration = Duration::from_millis(500);
 /// Read timeout, so the thread notices a stop request.
 const READ_TIMEOUT: Duration = Duration::from_millis(100);
+/// Send timeout of TCP and UDP (SO_SNDTIMEO; a serial port's is its [`READ_TIMEOUT`]): a peer
+/// that stops taking data fails the send within it instead of blocking the output, under the
+/// gateway's default 50 ms output deadline.
+pub const SEND_TIMEOUT: Duration = Duration::from_millis(25);
+/// TCP send buffer. A control link must never hold seconds of old commands in the kernel: 8 KiB
+/// (the kernel doubles the 4 KiB asked) is a few seconds of RC overrides at 25 Hz, so a peer
+/// that stops reading makes sends time out soon rather than after megabytes.
+const TCP_SEND_BUFFER: usize = 4096;
 /// TCP connect timeout: an unreachable host must not hold the reader past a few reconnects.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 /// COMMAND_ACKs kept for the adapter; older ones are dropped (a flood cannot grow memory).
@@ -281,10 +289,23 @@ impl Link {
             }
         };
         written.map_err(|e| {
-            LinkError::transient(format!(
-                "mavlink {}: send failed: {e}",
-                self.shared.endpoint
-            ))
+            let timed_out = matches!(
+                e.kind(),
+                io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+            );
+            if let (true, Writer::Tcp(s)) = (timed_out, &*writer) {
+                // Part of a frame may have left: the stream is out of step. Closing it makes
+                // the reader reconnect.
+                let _ = lock(s).shutdown(std::net::Shutdown::Both);
+                *lock(&self.shared.writer) = None;
+            }
+            let why = match timed_out {
+                true => format!(
+                    "send timed out after {SEND_TIMEOUT:?} (the autopilot is not taking data)"
+                ),
+                false => format!("send failed: {e}"),
+            };
+            LinkError::transient(format!("mavlink {}: {why}", self.shared.endpoint))
         })
     }
 }
@@ -312,6 +333,7 @@ fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
         Endpoint::UdpIn(a) => {
             let sock = Arc::new(UdpSocket::bind(resolve(a)?)?);
             sock.set_read_timeout(Some(READ_TIMEOUT))?;
+            sock.set_write_timeout(Some(SEND_TIMEOUT))?;
             let peer = Arc::new(Mutex::new(None));
             (
                 Reader::Udp(Arc::clone(&sock), Some(Arc::clone(&peer))),
@@ -327,6 +349,7 @@ fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
             };
             let sock = Arc::new(UdpSocket::bind(any)?);
             sock.set_read_timeout(Some(READ_TIMEOUT))?;
+            sock.set_write_timeout(Some(SEND_TIMEOUT))?;
             (
                 Reader::Udp(Arc::clone(&sock), None),
                 Writer::Udp(sock, Arc::new(Mutex::new(Some(to)))),
@@ -338,6 +361,8 @@ fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
             // of two back-to-back messages ~44 ms).
             stream.set_nodelay(true)?;
             stream.set_read_timeout(Some(READ_TIMEOUT))?;
+            stream.set_write_timeout(Some(SEND_TIMEOUT))?;
+            socket2::SockRef::from(&stream).set_send_buffer_size(TCP_SEND_BUFFER)?;
             let writer = stream.try_clone()?;
             (Reader::Tcp(stream), Writer::Tcp(Mutex::new(writer)))
         }
