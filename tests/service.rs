@@ -162,6 +162,10 @@ fn every_unit_notifies_checks_its_config_first_and_restarts_with_a_limit() {
             assert_eq!(one(&u, key), want, "{ctx}: {key}=");
         }
         assert!(!one(&u, "WatchdogSec").is_empty(), "{ctx}: WatchdogSec=");
+        assert!(
+            one(&u, "MemoryMax").ends_with('M'),
+            "{ctx}: a memory cap (MemoryMax=) turns a blow-up into a restart"
+        );
         assert!(one(&u, "StartLimitBurst").parse::<u32>().is_ok(), "{ctx}");
         assert!(
             one(&u, "RestartPreventExitStatus")
@@ -618,11 +622,7 @@ fn a_hung_output_leaves_the_vehicle_deciding_and_stops_keepalives_past_its_limit
     manager.wait_for("WATCHDOG=1");
     vehicle.signal("TERM");
     assert!(vehicle.wait_exit().success());
-    assert_eq!(
-        written.lock().expect("writes").len(),
-        2,
-        "nothing else written"
-    );
+    assert_eq!(all_written(), expected, "nothing else written");
     std::fs::write(&fifo, "end").expect("end the reader");
     reader.join().expect("reader");
 }

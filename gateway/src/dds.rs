@@ -91,6 +91,9 @@ pub fn control_command_qos(strength: Strength) -> QosPolicies {
 /// than the writers that can send in one loop turn.
 pub const COMMAND_READER_DEPTH: i32 = 64;
 
+/// Samples a RequestControl reader keeps (the topic itself keeps 16).
+pub const REQUEST_READER_DEPTH: i32 = 256;
+
 /// RequestControl: the DDS default QoS, made reliable on our side (a writer's default) with a
 /// short history, so handover messages are not lost between rove peers.
 pub fn request_control_qos() -> QosPolicies {
@@ -275,8 +278,18 @@ impl Domain {
     /// # Errors
     /// rustdds refuses to create it.
     pub fn request_reader(&self) -> anyhow::Result<rustdds::no_key::DataReaderCdr<RequestControl>> {
+        // The topic is keyless: one history for every sender's REQUEST, ACCEPT, REFUSE and
+        // FINISH. With the topic's KEEP_LAST 16 a burst of sixteen (a flood, or many operators
+        // at once) evicted an ACCEPT or a FINISH before the loop took it. The reader keeps
+        // more; as for commands, matching is unchanged.
+        let qos = QosPolicyBuilder::new()
+            .history(History::KeepLast {
+                depth: REQUEST_READER_DEPTH,
+            })
+            .build();
+        let qos = request_control_qos().modify_by(&qos);
         self.subscriber
-            .create_datareader_no_key_cdr(&self.request_control, Some(request_control_qos()))
+            .create_datareader_no_key_cdr(&self.request_control, Some(qos))
             .context("cannot create RequestControl reader")
     }
 

@@ -188,7 +188,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             ev = status.next() => match ev {
                 Some(DomainParticipantStatusEvent::WriterDetected { writer }) => {
                     if let Some(s) = dds::strength_of(writer.qos.ownership()) {
-                        intake.strengths.insert(writer.guid, s);
+                        intake.learn(writer.guid, s);
                     }
                     None
                 }
@@ -333,6 +333,14 @@ impl Intake {
         }
     }
 
+    /// Remembers a writer's strength; beyond [`MAX_WRITERS`] writers it is looked up in
+    /// discovery each time instead (a flood of writers cannot grow the table).
+    fn learn(&mut self, writer: rustdds::GUID, strength: rove_core::hierarchy::Strength) {
+        if self.strengths.len() < MAX_WRITERS || self.strengths.contains_key(&writer) {
+            self.strengths.insert(writer, strength);
+        }
+    }
+
     fn forget(&mut self, writer: rustdds::GUID) {
         self.strengths.remove(&writer);
         self.freshness.forget(dds::writer_id(writer));
@@ -381,7 +389,7 @@ impl Intake {
                         None => {
                             let s = domain.discovered_strength(guid);
                             if let Some(s) = s {
-                                self.strengths.insert(guid, s);
+                                self.learn(guid, s);
                             }
                             s
                         }
