@@ -75,3 +75,55 @@ fn rove_failsafe_writes_the_safe_state_and_exits() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("no-such-pwm-class"), "{stderr}");
 }
+
+/// `rove doctor` on a fake board (the hidden `--root` puts /sys, /dev, /etc and /proc in a
+/// temp dir): a bare computer lacks what the Pi config needs (exit 1, each line with its fix);
+/// a Pi with its GPIO and the service user in its groups passes (exit 0).
+#[test]
+fn rove_doctor_reports_what_a_board_lacks_for_a_config_and_passes_a_ready_one() {
+    let scratch = Scratch::new("doctor");
+    let root = &scratch.dir;
+    let config = crate::util::repo_root().join("configs/vehicle-eyedrive-pi.toml");
+    let doctor = || {
+        Command::new(ROVE)
+            .args(["doctor", "--root"])
+            .arg(root)
+            .arg("-c")
+            .arg(&config)
+            .output()
+            .expect("run rove doctor")
+    };
+    let out = doctor();
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{report}");
+    for line in [
+        "missing  user: rove has no groups in /etc/group",
+        "missing  board: no device-tree model (not a Raspberry Pi) — backend = \"rppal\" needs",
+        "missing  gpio: no /dev/gpiochip*",
+    ] {
+        assert!(
+            report.lines().any(|l| l.starts_with(line)),
+            "{line:?} in:\n{report}"
+        );
+    }
+
+    let put = |path: &str, text: &str| {
+        let path = root.join(path);
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("dirs");
+        std::fs::write(path, text).expect("write");
+    };
+    // Device files belong to the test's user (root, gid 0): the fake group 0 is `gpio`.
+    put("etc/group", "gpio:x:0:rove\nrove:x:999:\n");
+    put("proc/device-tree/model", "Raspberry Pi 4 Model B Rev 1.5\0");
+    put("dev/gpiochip0", "");
+    use std::os::unix::fs::PermissionsExt;
+    let perms = std::fs::Permissions::from_mode(0o660);
+    std::fs::set_permissions(root.join("dev/gpiochip0"), perms).expect("mode");
+    let out = doctor();
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{report}");
+    assert!(
+        report.contains("ok       gpio: /dev/gpiochip0 (group gpio, mode 660)"),
+        "{report}"
+    );
+}

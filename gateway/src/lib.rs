@@ -8,6 +8,7 @@
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
 //! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover`.
+//! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
 //! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
 //! - `keys` (with the `security` feature): `rove keys`, a fleet's DDS Security files.
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
@@ -19,6 +20,7 @@ pub mod bench;
 pub mod config;
 pub mod dds;
 pub mod demo;
+pub mod doctor;
 pub mod harness;
 #[cfg(feature = "security")]
 pub mod keys;

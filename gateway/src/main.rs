@@ -2,7 +2,7 @@
 //! the demo (docs/design.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::{bench, config, demo, harness, operator, runtime, status, vehicle};
+use rove_gateway::{bench, config, demo, doctor, harness, operator, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
@@ -111,6 +111,21 @@ enum Command {
     Keys {
         #[command(subcommand)]
         what: KeysCommand,
+    },
+    /// What this computer offers (PWM chips, GPIO and the board, serial ports, CAN interfaces,
+    /// input devices, the service user's groups) and, with `-c`, what a config needs from it
+    /// (its channels, ports, interfaces and addresses): one line each, ok, missing or wrong
+    /// with the fix. Exits 1 if anything is missing or wrong.
+    Doctor {
+        /// A vehicle or operator config whose needs to check.
+        #[arg(short, long)]
+        config: Option<std::path::PathBuf>,
+        /// The service user.
+        #[arg(long, default_value = "rove")]
+        user: String,
+        /// Test hook, hidden from --help: read /sys, /dev, /etc and /proc under DIR.
+        #[arg(long, hide = true, value_name = "DIR", default_value = "/")]
+        root: std::path::PathBuf,
     },
     /// Validate a vehicle or operator config; print the effective config with `--print`.
     CheckConfig {
@@ -421,6 +436,24 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 Ok(())
             }
         },
+        Command::Doctor { config, user, root } => {
+            let loaded = match &config {
+                Some(path) => Some(config::load_any(path).map_err(bad_config)?.0),
+                None => None,
+            };
+            let found = doctor::check(&doctor::Roots(root), &user, loaded.as_ref());
+            for finding in &found {
+                println!("{finding}");
+            }
+            let bad = found
+                .iter()
+                .filter(|f| f.status != doctor::Status::Ok)
+                .count();
+            match bad {
+                0 => Ok(()),
+                n => Err(anyhow::anyhow!("{n} missing or wrong")),
+            }
+        }
         Command::CheckConfig { file, print } => {
             let (loaded, effective) = config::load_any(&file)?;
             let role = match &loaded {
