@@ -298,6 +298,9 @@ pub enum Ignored {
     PriorityWithoutGrant,
     /// The source table is full (see [`ArbiterConfig::max_sources`]).
     TooManySources,
+    /// The sender's participant already has its share of the source table (see
+    /// [`ArbiterConfig::per_participant`]).
+    ParticipantQuota,
     /// A release or departure of a writer or participant the arbiter does not know.
     UnknownSource,
     /// An ACCEPT from a device that neither owns the vehicle nor just stepped down.
@@ -349,6 +352,12 @@ pub struct ArbiterConfig {
     /// Sources are otherwise kept until their writer or participant leaves. 256 is far above any
     /// real fleet (the handover benchmarks use ≤ 32).
     pub max_sources: usize,
+    /// Most sources one participant may hold, so that one flooding participant cannot fill
+    /// the table. An operator has a regular and a priority writer per vehicle; 8 leaves room
+    /// for a gateway that speaks for several devices. A participant's silent sources make room
+    /// for its new ones. (The grant holder gets room in a full table at the expense of the
+    /// weakest live stream that neither owns nor holds the grant.)
+    pub per_participant: usize,
     /// How long device ids stay pinned to their participants.
     pub trust: TrustConfig,
 }
@@ -358,6 +367,7 @@ impl Default for ArbiterConfig {
         ArbiterConfig {
             command_timeout: CommandTimeout::DEFAULT,
             max_sources: 256,
+            per_participant: 8,
             trust: TrustConfig::default(),
         }
     }
@@ -734,19 +744,41 @@ impl Arbiter {
         device: DeviceId,
         strength: Strength,
     ) -> Result<usize, Ignored> {
+        let owner = self.owner.writer();
+        let grant = self.grant;
+        // Never evicted: the owner's stream, the grant holder's, and live ones (but below).
+        let keep = |s: &Source| {
+            s.is_live(now)
+                || Some(s.controller.writer) == owner
+                || is_grant_stream(&s.controller, grant)
+        };
+        let participant = writer.participant;
+        let theirs = |s: &Source| s.controller.writer.participant == participant;
+        if self.sources.iter().filter(|s| theirs(s)).count() >= self.config.per_participant {
+            self.sources.retain(|s| !theirs(s) || keep(s));
+            if self.sources.iter().filter(|s| theirs(s)).count() >= self.config.per_participant {
+                return Err(Ignored::ParticipantQuota);
+            }
+        }
         if self.sources.len() >= self.config.max_sources {
             // Make room by forgetting silent streams. Only here, under a flood of writers, does
             // the arbiter forget a stream that has not left: a later release of a forgotten
             // stream is then unknown. The owner and the grant holder's streams are never evicted.
-            let owner = self.owner.writer();
-            let grant = self.grant;
-            self.sources.retain(|s| {
-                s.is_live(now)
-                    || Some(s.controller.writer) == owner
-                    || is_grant_stream(&s.controller, grant)
-            });
-            if self.sources.len() >= self.config.max_sources {
-                return Err(Ignored::TooManySources);
+            self.sources.retain(keep);
+        }
+        if self.sources.len() >= self.config.max_sources {
+            // The grant holder still gets in, in place of the weakest live stream that neither
+            // owns nor holds the grant (a flood must not keep a granted operator out).
+            let weakest = (self.sources.iter().enumerate())
+                .filter(|(_, s)| Some(s.controller.writer) != owner)
+                .filter(|(_, s)| !is_grant_stream(&s.controller, grant))
+                .min_by_key(|(_, s)| s.controller.strength)
+                .map(|(i, _)| i);
+            match weakest {
+                Some(i) if grant == Some(device) => {
+                    self.sources.remove(i);
+                }
+                _ => return Err(Ignored::TooManySources),
             }
         }
         self.sources.push(Source {

@@ -550,6 +550,71 @@ fn the_source_table_is_bounded_and_a_flood_cannot_displace_the_owner() {
     assert_eq!(change(&d), Some((Some(OP_A), Some(5), Reason::Preempted)));
 }
 
+/// Writer `entity` of participant `participant`.
+fn pw_of(participant: u32, entity: u32) -> rove_core::arbiter::WriterId {
+    rove_core::arbiter::WriterId {
+        participant: ParticipantId(u128::from(participant)),
+        entity,
+    }
+}
+
+#[test]
+fn one_participant_cannot_fill_the_source_table() {
+    let mut rig = Rig::new();
+    rig.drive(0, w(1), OP_A, 220, 1);
+    // Participant 9 streams as twenty devices: it gets its share of eight.
+    let mut refused = 0;
+    for n in 0..20u32 {
+        let d = rig.drive(1, pw_of(9, n + 1), 100 + i64::from(n), 110, 0);
+        if d.ignored == Some(Ignored::ParticipantQuota) {
+            refused += 1;
+        }
+    }
+    assert_eq!(refused, 12);
+    assert_eq!(rig.arb.sources(ms(1)).count(), 9);
+    // Everyone else still gets in: a stronger operator takes over.
+    let d = rig.drive(2, w(2), OP_B, 340, 2);
+    assert_eq!(
+        change(&d),
+        Some((Some(OP_A), Some(OP_B), Reason::Preempted))
+    );
+    // Once its streams are silent, the participant's new ones replace them.
+    rig.drive(150, w(2), OP_B, 340, 2);
+    let d = rig.drive(151, pw_of(9, 50), 150, 110, 0);
+    assert_eq!(d.ignored, None);
+}
+
+#[test]
+fn a_grant_holder_gets_room_in_a_table_full_of_live_strangers() {
+    let mut rig = Rig::with(ArbiterConfig {
+        max_sources: 4,
+        ..ArbiterConfig::default()
+    });
+    rig.drive(0, w(1), OP_A, 220, 1);
+    for n in 20..23u32 {
+        rig.drive(1, w(n), i64::from(n), 110, 0);
+    }
+    let d = rig.drive(2, w(2), OP_B, 120, 2);
+    assert_eq!(d.ignored, Some(Ignored::TooManySources));
+    rig.at(
+        3,
+        Event::GrantAccepted {
+            holder: OP_B,
+            granted_by: OP_A,
+            stamp: S,
+            sender: by(OP_A),
+        },
+    );
+    // The strangers are still live; the granted operator's priority stream gets in anyway.
+    for n in 20..23u32 {
+        rig.drive(4, w(n), i64::from(n), 110, 0);
+    }
+    let d = rig.drive(5, pw(2), OP_B, 65535, 22);
+    assert_eq!(change(&d), Some((Some(OP_A), Some(OP_B), Reason::Granted)));
+    assert_eq!(applied(&d), Some((OP_B, 22)));
+    assert_eq!(rig.arb.sources(ms(5)).count(), 4);
+}
+
 #[test]
 fn a_strength_update_is_taken_from_the_next_sample() {
     let mut rig = Rig::new();
