@@ -340,15 +340,19 @@ fn a_vehicle_stalled_for_500_ms_applies_none_of_the_commands_that_queued_up() {
         "500",
     ];
     let vehicle = rig.spawn(&name, &args);
+    let stall = |rig: &Rig| {
+        let pid = rig.procs[vehicle].pid().to_string();
+        let status = std::process::Command::new("kill")
+            .args(["-USR1", &pid])
+            .status()
+            .expect("kill");
+        assert!(status.success(), "kill -USR1");
+    };
     let laptop = rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
     // While the loop is stalled the laptop streams at 50 Hz: about 25 samples queue up.
     let stalled = wall_us();
-    let status = std::process::Command::new("kill")
-        .args(["-USR1", &rig.procs[vehicle].pid().to_string()])
-        .status()
-        .expect("kill");
-    assert!(status.success());
+    stall(&rig);
     let resumed = stalled + 500_000;
     let back = wait_for_output(&record, Some(11), resumed).expect("the laptop's fresh samples");
     eprintln!(
@@ -373,11 +377,7 @@ fn a_vehicle_stalled_for_500_ms_applies_none_of_the_commands_that_queued_up() {
     // command timeout after its operator died); the vehicle goes to failsafe.
     wait_for_output(&record, Some(11), back.wall_us + 1).expect("the laptop drives on");
     let stalled = wall_us();
-    let status = std::process::Command::new("kill")
-        .args(["-USR1", &rig.procs[vehicle].pid().to_string()])
-        .status()
-        .expect("kill");
-    assert!(status.success());
+    stall(&rig);
     std::thread::sleep(Duration::from_millis(200));
     rig.procs[laptop].crash();
     let resumed = stalled + 500_000;

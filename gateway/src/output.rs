@@ -591,6 +591,32 @@ mod tests {
         }
     }
 
+    /// An output thread over a [`Gated`] adapter: deadline 20 ms, max age 1 s.
+    fn gated_worker(
+        clock: crate::runtime::Clock,
+        calls: &Arc<Mutex<Vec<i16>>>,
+        gate: &Arc<(Mutex<bool>, std::sync::Condvar)>,
+    ) -> OutputWorker {
+        let adapter = Gated {
+            calls: Arc::clone(calls),
+            gate: Arc::clone(gate),
+        };
+        let limits = WriteLimits {
+            deadline: Duration::from_millis(20),
+            max_age: Duration::from_secs(1),
+        };
+        OutputWorker::start_with(clock, limits, "gated", move |_| {
+            Ok(ManagedOutput {
+                config: OutputConfig::Sim,
+                adapter: Some(Box::new(adapter)),
+                hold_until: None,
+                next_keepalive: None,
+                last_error: None,
+            })
+        })
+        .expect("worker")
+    }
+
     fn throttle(t: i16) -> Setpoint {
         Setpoint {
             movement: MovementCommand {
@@ -610,27 +636,10 @@ mod tests {
     fn a_blocked_device_call_never_blocks_the_loop_and_only_the_newest_command_follows() {
         let calls = Arc::new(Mutex::new(Vec::new()));
         let gate = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
-        let adapter = Gated {
-            calls: Arc::clone(&calls),
-            gate: Arc::clone(&gate),
-        };
         // A clock already 10 s old, so that a command decided at 0 is stale.
         let clock =
             crate::runtime::Clock::since(std::time::Instant::now() - Duration::from_secs(10));
-        let limits = WriteLimits {
-            deadline: Duration::from_millis(20),
-            max_age: Duration::from_secs(1),
-        };
-        let worker = OutputWorker::start_with(clock, limits, "gated", move |_| {
-            Ok(ManagedOutput {
-                config: OutputConfig::Sim,
-                adapter: Some(Box::new(adapter)),
-                hold_until: None,
-                next_keepalive: None,
-                last_error: None,
-            })
-        })
-        .expect("worker");
+        let worker = gated_worker(clock, &calls, &gate);
         let recorded = || calls.lock().expect("calls").clone();
         worker.apply(clock.now(), throttle(1));
         rove_testkit::eventually("the first apply", || match recorded()[..] {
@@ -700,25 +709,8 @@ mod tests {
     #[test]
     fn stopping_gives_up_on_a_device_that_does_not_return() {
         let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
-        let adapter = Gated {
-            calls: Arc::new(Mutex::new(Vec::new())),
-            gate: Arc::clone(&gate),
-        };
         let clock = crate::runtime::Clock::start();
-        let limits = WriteLimits {
-            deadline: Duration::from_millis(20),
-            max_age: Duration::from_secs(1),
-        };
-        let worker = OutputWorker::start_with(clock, limits, "gated", move |_| {
-            Ok(ManagedOutput {
-                config: OutputConfig::Sim,
-                adapter: Some(Box::new(adapter)),
-                hold_until: None,
-                next_keepalive: None,
-                last_error: None,
-            })
-        })
-        .expect("worker");
+        let worker = gated_worker(clock, &Arc::new(Mutex::new(Vec::new())), &gate);
         worker.apply(clock.now(), throttle(5));
         rove_testkit::eventually("hung", || worker.report().hung.ok_or("not hung yet"));
         assert!(!worker.stop(Duration::from_millis(50)));
