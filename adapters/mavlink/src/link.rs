@@ -34,7 +34,7 @@ use tracing::{debug, info, warn};
 pub const RECONNECT: Duration = Duration::from_millis(500);
 /// Read timeout, so the thread notices a stop request.
 const READ_TIMEOUT: Duration = Duration::from_millis(100);
-/// Send timeout of TCP and UDP (SO_SNDTIMEO; a serial port's is its [`READ_TIMEOUT`]): a peer
+/// Send timeout of TCP and UDP (SO_SNDTIMEO; a serial port's is its 100 ms read timeout): a peer
 /// that stops taking data fails the send within it instead of blocking the output, under the
 /// gateway's default 50 ms output deadline.
 pub const SEND_TIMEOUT: Duration = Duration::from_millis(25);
