@@ -195,6 +195,8 @@ struct World {
     periods: u64,
     /// The operator each one last yielded the vehicle to (its ACCEPT).
     yielded_to: [Option<usize>; 3],
+    /// When each operator's regular writer last sent the vehicle a sample (PROBEs included).
+    last_sample: [Option<MonoTime>; 3],
 }
 
 impl World {
@@ -244,6 +246,7 @@ impl World {
             vehicle: Arbiter::new(V, ArbiterConfig::default()).with_access(access()),
             periods: 0,
             yielded_to: [None; 3],
+            last_sample: [None; 3],
         }
     }
 
@@ -429,6 +432,9 @@ impl World {
                 );
             }
             if let Effect::Write { writer, command } = &effect {
+                if *writer == Writer::Regular && command.dest_id == V {
+                    self.last_sample[i] = Some(self.now);
+                }
                 let s = &self.sessions[i];
                 if *writer == Writer::Regular && command.command_type == CommandType::Movement {
                     prop_assert!(s.input().2, "op {i} drives without live input");
@@ -538,8 +544,14 @@ impl World {
             prop_assert!(i < 3, "owned by unknown device {d}");
             if self.live(i) {
                 let s = &self.sessions[i];
+                // An operator that stopped sending (it stood by for a grant that never came,
+                // gave up, then lost its input) owns until the vehicle times it out, a command
+                // timeout after its last sample, as after any stop.
+                let timing_out = self.last_sample[i].is_some_and(|t| {
+                    self.now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS)
+                });
                 prop_assert!(
-                    s.streams_to(V) || s.handover().has_yielded(V),
+                    s.streams_to(V) || s.handover().has_yielded(V) || timing_out,
                     "owner {d} neither streams nor stands by: {:?}",
                     s.streams()
                 );
@@ -626,4 +638,44 @@ proptest! {
             w.check_ownership()?;
         }
     }
+}
+
+/// Found by the property test: an operator auto-accepting every request yields to a requester
+/// the vehicle does not know (a rogue's invented id), stands by, gives up when no grant comes,
+/// then loses its input and is told to drive: the vehicle still counts it as owner until its
+/// last PROBE times out.
+#[test]
+fn a_yield_to_an_unknown_requester_then_a_lost_input_is_timed_out_not_driven() {
+    let run = || -> Result<(), TestCaseError> {
+        let policies = [AutoAccept::Never, AutoAccept::Never, AutoAccept::Always];
+        let mut w = World::new(policies, [false, false, true]);
+        w.presence()?;
+        w.publish_owner()?;
+        let sticks = MovementCommand::CENTRED;
+        w.step(2, SessionEvent::Input(InputEvent::Axes(sticks)))?;
+        let request = Forgery::Request {
+            ack: 0,
+            src: 3,
+            owner: 2,
+            priority: 0,
+            stamp: 0,
+        };
+        w.rogue(request)?;
+        w.advance(10)?;
+        w.step(
+            2,
+            SessionEvent::Input(InputEvent::Lost {
+                reason: "lost".into(),
+            }),
+        )?;
+        w.step(2, SessionEvent::Command(Command::Drive { vehicle: V }))?;
+        w.publish_owner()?;
+        w.check_ownership()?;
+        // A command timeout later the vehicle has timed the operator out.
+        w.advance(6)?;
+        w.check_ownership()?;
+        prop_assert_eq!(w.vehicle.owner().device(), None);
+        Ok(())
+    };
+    run().expect("the session and the vehicle agree");
 }
