@@ -112,6 +112,14 @@ fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
     b.wait("B sees the vehicle driven by A", |v| {
         v["event"] == "device" && v["id"] == V && v["owner"] == A
     });
+    // The vehicle's VehicleStatus reaches the console: its mode and output health.
+    b.wait("B sees the vehicle's status", |v| {
+        v["event"] == "vehicle_status"
+            && v["vehicle"] == V
+            && v["mode"] == "manual"
+            && v["failsafe"] == false
+            && v["link"] == "ok"
+    });
     (rig, record, a, b)
 }
 

@@ -574,6 +574,16 @@ fn a_hung_output_leaves_the_vehicle_deciding_and_stops_keepalives_past_its_limit
     let (beat, _) = manager.wait_for("WATCHDOG=1");
     eprintln!("a keep-alive {:?} after the hung status", beat - hung_at);
 
+    // Operators and `rove status` see it in the vehicle's VehicleStatus.
+    eventually("rove status shows the hung output", || {
+        let status = rig.status();
+        let row = Rig::device(&status, V).unwrap_or_default();
+        match row["output"].as_str() {
+            Some(o) if o.starts_with("hung: a device call has not returned") => Ok(()),
+            _ => Err(row.to_string()),
+        }
+    });
+
     // The vehicle goes on deciding: its owner quits, and it goes to failsafe with the output
     // still hung.
     rig.procs[operator].terminate();

@@ -29,6 +29,8 @@ pub mod type_names {
     pub const CONTROL_COMMAND: &str = "RoVe::ControlCommand";
     /// Type name of [`super::RequestControl`].
     pub const REQUEST_CONTROL: &str = "RoVe::RequestControl";
+    /// Type name of [`super::VehicleStatus`].
+    pub const VEHICLE_STATUS: &str = "RoVe::VehicleStatus";
 }
 
 /// Topic names of the seed.
@@ -39,6 +41,8 @@ pub mod topic_names {
     pub const CONTROL_COMMAND: &str = "ControlCommand";
     /// Topic of [`super::RequestControl`].
     pub const REQUEST_CONTROL: &str = "RequestControl";
+    /// Topic of [`super::VehicleStatus`], keyed by `vehicle_id` (rove's own, beside the seed's).
+    pub const VEHICLE_STATUS: &str = "VehicleStatus";
 }
 
 /// `enum Device_type_t { VEHICLE, CONTROLLER }`.
@@ -63,6 +67,38 @@ pub struct DeviceInfo {
     /// Vehicles: the current owner's `device_id`; the vehicle's own id when its failsafe owns it.
     /// Controllers: by convention their own id.
     pub controller_id: DeviceId,
+}
+
+/// `enum Output_state_t { OUTPUT_OK, OUTPUT_DEGRADED, OUTPUT_DOWN, OUTPUT_HUNG }`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize_repr, Deserialize_repr)]
+#[repr(u32)]
+pub enum OutputState {
+    /// Working.
+    Ok = 0,
+    /// Working with problems (retries, dropped frames).
+    Degraded = 1,
+    /// Not working: the outputs are held safe while it is retried.
+    Down = 2,
+    /// A device call has not returned: the outputs cannot change until it does.
+    Hung = 3,
+}
+
+/// `struct VehicleStatus`, topic `VehicleStatus`, key `vehicle_id`: what a vehicle's outputs are
+/// doing. rove's own topic beside the seed's three; a peer that knows only those ignores it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct VehicleStatus {
+    /// The publishing vehicle.
+    pub vehicle_id: DeviceId,
+    /// Its owner, as in DeviceInfo (its own id when its failsafe owns it).
+    pub controller_id: DeviceId,
+    /// The mode last applied (MANUAL before any).
+    pub mode: Mode,
+    /// The outputs are in the safe state.
+    pub failsafe: bool,
+    /// The output's health.
+    pub output: OutputState,
+    /// The output's own words: its error, or an autopilot's mode and armed state.
+    pub detail: String,
 }
 
 /// `enum Command_type_t { PROBE, MOVEMENT, MODE }`.

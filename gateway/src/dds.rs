@@ -19,7 +19,7 @@ use anyhow::Context;
 use rove_core::arbiter::{ParticipantId, WriterId};
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{
-    ControlCommand, DeviceId, DeviceInfo, RequestControl, topic_names, type_names,
+    ControlCommand, DeviceId, DeviceInfo, RequestControl, VehicleStatus, topic_names, type_names,
 };
 use rustdds::policy::{Durability, History, Liveliness, Ownership, Reliability};
 use rustdds::{
@@ -38,6 +38,18 @@ impl Keyed for KeyedDeviceInfo {
     type K = DeviceId;
     fn key(&self) -> DeviceId {
         self.0.device_id
+    }
+}
+
+/// VehicleStatus keyed by `vehicle_id`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct KeyedVehicleStatus(pub VehicleStatus);
+
+impl Keyed for KeyedVehicleStatus {
+    type K = DeviceId;
+    fn key(&self) -> DeviceId {
+        self.0.vehicle_id
     }
 }
 
@@ -115,6 +127,8 @@ pub struct Domain {
     pub control_command: rustdds::Topic,
     /// Topic RequestControl.
     pub request_control: rustdds::Topic,
+    /// Topic VehicleStatus (same QoS as DeviceInfo: late joiners get every vehicle's).
+    pub vehicle_status: rustdds::Topic,
     /// Publisher for all writers.
     pub publisher: rustdds::Publisher,
     /// Subscriber for all readers.
@@ -184,6 +198,12 @@ impl Domain {
             &request_control_qos(),
             TopicKind::NoKey,
         )?;
+        let vehicle_status = topic(
+            topic_names::VEHICLE_STATUS,
+            type_names::VEHICLE_STATUS,
+            &device_info_qos(false),
+            TopicKind::WithKey,
+        )?;
         let publisher = participant
             .create_publisher(&default)
             .context("cannot create publisher")?;
@@ -195,6 +215,7 @@ impl Domain {
             device_info,
             control_command,
             request_control,
+            vehicle_status,
             publisher,
             subscriber,
         })
@@ -222,6 +243,31 @@ impl Domain {
         self.subscriber
             .create_datareader_cdr(&self.device_info, Some(device_info_qos(true)))
             .context("cannot create DeviceInfo reader")
+    }
+
+    /// A VehicleStatus writer.
+    ///
+    /// # Errors
+    /// rustdds refuses to create it (under DDS Security: permissions made before the topic
+    /// existed do not name it).
+    pub fn vehicle_status_writer(
+        &self,
+    ) -> anyhow::Result<rustdds::with_key::DataWriterCdr<KeyedVehicleStatus>> {
+        self.publisher
+            .create_datawriter_cdr(&self.vehicle_status, Some(device_info_qos(false)))
+            .context("cannot create VehicleStatus writer")
+    }
+
+    /// A VehicleStatus reader.
+    ///
+    /// # Errors
+    /// As [`Domain::vehicle_status_writer`].
+    pub fn vehicle_status_reader(
+        &self,
+    ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedVehicleStatus>> {
+        self.subscriber
+            .create_datareader_cdr(&self.vehicle_status, Some(device_info_qos(true)))
+            .context("cannot create VehicleStatus reader")
     }
 
     /// A ControlCommand writer with `strength`.

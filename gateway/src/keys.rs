@@ -49,7 +49,12 @@ use std::path::{Path, PathBuf};
 const VALID_DAYS: u32 = 3650;
 
 /// The topics every device may publish and subscribe.
-const TOPICS: [&str; 3] = ["DeviceInfo", "ControlCommand", "RequestControl"];
+const TOPICS: [&str; 4] = [
+    "DeviceInfo",
+    "ControlCommand",
+    "RequestControl",
+    "VehicleStatus",
+];
 
 /// The common name of device `id`'s certificate.
 pub fn common_name(id: DeviceId) -> String {

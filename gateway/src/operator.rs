@@ -13,7 +13,7 @@
 //! at once), and the participant leaves.
 
 use crate::config::{InputChoice, OperatorConfig};
-use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo};
+use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo, KeyedVehicleStatus};
 use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
@@ -83,6 +83,16 @@ fn discovery_event(event: DomainParticipantStatusEvent) -> Option<SessionEvent> 
     }
 }
 
+/// The next VehicleStatus sample, or never without a reader.
+async fn next_status(
+    statuses: &mut Option<rustdds::with_key::DataReaderStream<KeyedVehicleStatus>>,
+) -> Option<rustdds::dds::ReadResult<rustdds::with_key::DataSample<KeyedVehicleStatus>>> {
+    match statuses {
+        Some(stream) => stream.next().await,
+        None => std::future::pending().await,
+    }
+}
+
 /// Runs the operator role until `shutdown` completes or the console is closed.
 ///
 /// # Errors
@@ -112,6 +122,12 @@ pub async fn run(
     };
     let info_writer = domain.device_info_writer()?;
     let infos = domain.device_info_reader()?;
+    // The vehicles' output health for the console; optional (a secured fleet's permissions
+    // may predate the topic).
+    let statuses = domain
+        .vehicle_status_reader()
+        .map_err(|e| warn!(cause = %format!("{e:#}"), "no VehicleStatus: the console shows no output health"))
+        .ok();
     let requests = domain.request_reader()?;
     let listener = domain.participant.status_listener();
     let my_participant = dds::writer_id(domain.participant.guid()).participant;
@@ -235,6 +251,7 @@ pub async fn run(
 
     let mut infos = infos.async_sample_stream();
     let mut requests = requests.async_sample_stream();
+    let mut statuses = statuses.map(|r| r.async_sample_stream());
     let mut status = listener.as_async_status_stream();
     let mut stream_timer = tokio::time::interval(config.stream_period);
     stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -322,6 +339,23 @@ pub async fn run(
                 Some(Err(e)) => { malformed.warn(&e); Vec::new() }
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
+            Some(sample) = next_status(&mut statuses) => {
+                if let Ok(s) = sample
+                    && let Sample::Value(KeyedVehicleStatus(status)) = s.value()
+                {
+                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    // Believed only from the participant that speaks for the vehicle.
+                    if session.speaks_for(clock.now(), status.vehicle_id, from) {
+                        ui.emit(Event::VehicleStatus {
+                            vehicle: status.vehicle_id,
+                            mode: Some(status.mode),
+                            failsafe: status.failsafe,
+                            link: crate::status::output_text(status),
+                        });
+                    }
+                }
+                Vec::new()
+            }
             sample = requests.next() => match sample {
                 Some(Ok(s)) => {
                     let msg = *s.value();

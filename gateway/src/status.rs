@@ -7,10 +7,11 @@
 //! duplicate, never merged: the row shows what the participant the id is pinned to says
 //! (docs/design.md §4b), and the warning names every participant that claimed it.
 
-use crate::dds::{self, Domain, KeyedDeviceInfo};
+use crate::dds::{self, Domain, KeyedDeviceInfo, KeyedVehicleStatus};
 use futures::StreamExt;
+use rove_console::view::mode_name;
 use rove_core::arbiter::ParticipantId;
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType};
+use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, Mode, OutputState, VehicleStatus};
 use rove_core::trust::{Identities, TrustConfig};
 use rustdds::with_key::Sample;
 use serde::Serialize;
@@ -34,6 +35,15 @@ pub struct DeviceRow {
     pub online: bool,
     /// Milliseconds since its last DeviceInfo.
     pub last_seen_ms: u64,
+    /// Vehicles, from their VehicleStatus: the mode last applied.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mode: Option<&'static str>,
+    /// Vehicles, from their VehicleStatus: the output's health (`ok`, `hung: …`, `down: …`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub output: Option<String>,
+    /// Vehicles, from their VehicleStatus: the outputs are in the safe state.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failsafe: Option<bool>,
 }
 
 /// A snapshot of the domain.
@@ -102,6 +112,8 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     )?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
     let mut requests = domain.request_reader()?.async_sample_stream();
+    let mut statuses = domain.vehicle_status_reader()?.async_sample_stream();
+    let mut vehicles: BTreeMap<DeviceId, VehicleStatus> = BTreeMap::new();
     let clock = crate::runtime::Clock::start();
     let mut seen: BTreeMap<DeviceId, Seen> = BTreeMap::new();
     let mut ids = Identities::new(TrustConfig {
@@ -150,6 +162,26 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 Some(Err(_)) => {} // malformed sample: not a device we can show
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
+            status = statuses.next() => match status {
+                Some(Ok(s)) => {
+                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    match s.into_value() {
+                        // Believed from the participant the vehicle's id is pinned to.
+                        Sample::Value(KeyedVehicleStatus(status)) => {
+                            if ids.claim(clock.now(), status.vehicle_id, from).is_ok() {
+                                vehicles.insert(status.vehicle_id, status);
+                            }
+                        }
+                        Sample::Dispose(id) => {
+                            if ids.claim(clock.now(), id, from).is_ok() {
+                                vehicles.remove(&id);
+                            }
+                        }
+                    }
+                }
+                Some(Err(_)) => {} // malformed sample
+                None => anyhow::bail!("VehicleStatus stream ended"),
+            },
             request = requests.next() => match request {
                 Some(Ok(s)) if options.events => {
                     let rc = s.value();
@@ -159,7 +191,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 None => anyhow::bail!("RequestControl stream ended"),
             },
             _ = tokio::time::sleep_until(next_print), if !options.events => {
-                let snap = snapshot(&seen, options.heartbeat * 3);
+                let snap = snapshot(&seen, &vehicles, options.heartbeat * 3);
                 if options.json {
                     println!("{}", serde_json::to_string(&snap)?);
                 } else {
@@ -174,10 +206,15 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     }
 }
 
-fn snapshot(seen: &BTreeMap<DeviceId, Seen>, offline_after: Duration) -> Snapshot {
+fn snapshot(
+    seen: &BTreeMap<DeviceId, Seen>,
+    vehicles: &BTreeMap<DeviceId, VehicleStatus>,
+    offline_after: Duration,
+) -> Snapshot {
     let devices = seen
         .values()
-        .map(|s| DeviceRow {
+        .map(|s| (s, vehicles.get(&s.info.device_id)))
+        .map(|(s, status)| DeviceRow {
             id: s.info.device_id,
             name: s.info.name.clone(),
             kind: match s.info.device_type {
@@ -187,6 +224,9 @@ fn snapshot(seen: &BTreeMap<DeviceId, Seen>, offline_after: Duration) -> Snapsho
             controller_id: s.info.controller_id,
             online: !s.withdrawn && s.at.elapsed() < offline_after,
             last_seen_ms: u64::try_from(s.at.elapsed().as_millis()).unwrap_or(u64::MAX),
+            mode: status.map(|v| mode_name(v.mode)),
+            output: status.map(output_text),
+            failsafe: status.map(|v| v.failsafe),
         })
         .collect();
     let claims: Vec<Claim> = seen
@@ -217,14 +257,20 @@ pub fn table(snap: &Snapshot) -> String {
         .iter()
         .map(|d| {
             let kind = DeviceKind::from_name(d.kind).unwrap_or(DeviceKind::Controller);
-            rove_console::DeviceRow::from_status(
+            let mut row = rove_console::DeviceRow::from_status(
                 d.id,
                 &d.name,
                 kind,
                 d.controller_id,
                 d.online,
                 Duration::from_millis(d.last_seen_ms),
-            )
+            );
+            row.mode = d
+                .mode
+                .and_then(|m| Mode::ALL.into_iter().find(|x| mode_name(*x) == m));
+            row.link = d.output.clone();
+            row.failsafe = d.failsafe.or(row.failsafe);
+            row
         })
         .collect();
     let mut out = rove_console::view::status_text(&rows, 100);
@@ -239,4 +285,13 @@ pub fn table(snap: &Snapshot) -> String {
         ));
     }
     out
+}
+
+/// A vehicle's output health in a few words: `ok` (with an autopilot's mode), `down: …`,
+/// `hung: …`.
+pub fn output_text(status: &VehicleStatus) -> String {
+    match status.output {
+        OutputState::Hung => format!("hung: {}", status.detail),
+        _ => status.detail.clone(),
+    }
 }

@@ -36,7 +36,7 @@ use crate::sdnotify::Notifier;
 use futures::{FutureExt, StreamExt};
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, ParticipantId};
 use rove_core::freshness::Freshness;
-use rove_core::msg::{DeviceInfo, DeviceType};
+use rove_core::msg::{DeviceInfo, DeviceType, VehicleStatus};
 use rove_core::trust::Suspect;
 use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
@@ -85,6 +85,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     let security = config.common.security.as_deref();
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
     let info_writer = domain.device_info_writer()?;
+    let mut status_writer = StatusWriter::new(me, &domain);
     let commands = domain.command_reader()?;
     let requests = domain.request_reader()?;
     let infos = domain.device_info_reader()?;
@@ -144,6 +145,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     // The outputs are safe (or held safe while their device is reopened), the participant is
     // up and the signal handlers are in place: ready.
     let mut shown = status_line(&arbiter, &output.report(), clock.now());
+    status_writer.update(&arbiter, &output.report());
     notify.ready(&shown);
 
     loop {
@@ -205,6 +207,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                 publish(arbiter.controller_id());
                 let report = output.report();
                 hung.observe(&report);
+                status_writer.update(&arbiter, &report);
                 let line = hung.annotate(suspects.annotate(status_line(&arbiter, &report, clock.now())));
                 if line != shown {
                     notify.status(&line);
@@ -241,11 +244,16 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             let now = clock.now();
             let decision = arbiter.step(now, event);
             carry_out(me, &decision, &output, log.as_mut(), &clock, &publish);
+            if let Some(Output::Apply { setpoint, .. }) = decision.output {
+                status_writer.mode = setpoint.mode;
+            }
             if let Some(suspect) = decision.suspect {
                 suspects.report(suspect);
             }
             if decision.owner_change.is_some() {
-                let line = status_line(&arbiter, &output.report(), clock.now());
+                let report = output.report();
+                status_writer.update(&arbiter, &report);
+                let line = status_line(&arbiter, &report, clock.now());
                 shown = hung.annotate(suspects.annotate(line));
                 notify.status(&shown);
             }
@@ -270,7 +278,85 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     if let Err(e) = info_writer.dispose(&me, None) {
         warn!(cause = ?e, "cannot withdraw DeviceInfo");
     }
+    status_writer.withdraw();
     Ok(())
+}
+
+/// The vehicle's VehicleStatus: published when it changes (checked on every owner change and
+/// every heartbeat), withdrawn on stop. Without a writer (a secured fleet whose permissions
+/// predate the topic) the vehicle runs on and says so once.
+struct StatusWriter {
+    me: i64,
+    writer: Option<rustdds::with_key::DataWriterCdr<dds::KeyedVehicleStatus>>,
+    /// The mode last applied.
+    mode: rove_core::msg::Mode,
+    last: Option<VehicleStatus>,
+}
+
+impl StatusWriter {
+    fn new(me: i64, domain: &Domain) -> StatusWriter {
+        let writer = domain
+            .vehicle_status_writer()
+            .map_err(|e| warn!(cause = %format!("{e:#}"), "no VehicleStatus: operators will not see the output's health"))
+            .ok();
+        StatusWriter {
+            me,
+            writer,
+            mode: rove_core::msg::Mode::Manual,
+            last: None,
+        }
+    }
+
+    fn update(&mut self, arbiter: &Arbiter, report: &OutputReport) {
+        let status = vehicle_status(self.me, arbiter, self.mode, report);
+        if self.last.as_ref() == Some(&status) {
+            return;
+        }
+        if let Some(writer) = &self.writer
+            && let Err(e) = writer.write(dds::KeyedVehicleStatus(status.clone()), None)
+        {
+            warn!(cause = ?e, "cannot publish VehicleStatus");
+        }
+        self.last = Some(status);
+    }
+
+    fn withdraw(&self) {
+        if let Some(writer) = &self.writer
+            && let Err(e) = writer.dispose(&self.me, None)
+        {
+            warn!(cause = ?e, "cannot withdraw VehicleStatus");
+        }
+    }
+}
+
+/// What VehicleStatus says: the owner, the mode last applied, whether the outputs are safe,
+/// and the output's health.
+fn vehicle_status(
+    me: i64,
+    arbiter: &Arbiter,
+    mode: rove_core::msg::Mode,
+    report: &OutputReport,
+) -> VehicleStatus {
+    use rove_core::adapter::Health;
+    use rove_core::msg::OutputState;
+    let output = match (&report.hung, &report.health) {
+        (Some(_), _) => OutputState::Hung,
+        (None, Health::Ok) => OutputState::Ok,
+        (None, Health::Degraded(_)) => OutputState::Degraded,
+        (None, Health::Down(_)) => OutputState::Down,
+    };
+    VehicleStatus {
+        vehicle_id: me,
+        controller_id: arbiter.controller_id(),
+        mode,
+        failsafe: arbiter.owner() == Owner::Failsafe || output == OutputState::Down,
+        output,
+        // Whole durations only, so that a hung call's growing age does not count as a change.
+        detail: match report.hung {
+            Some(hung) => format!("a device call has not returned for {} s", hung.as_secs()),
+            None => report.to_string(),
+        },
+    }
 }
 
 /// The `STATUS=` line: who drives, how many operators are live, and the output's health.
