@@ -14,6 +14,7 @@ mod inputs;
 mod mavlink;
 mod outputs;
 mod package;
+mod robustness;
 mod security;
 mod service;
 mod trust;

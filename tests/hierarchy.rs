@@ -4,7 +4,9 @@
 //! Latencies are measured and printed (run with `--nocapture` to see them), never asserted:
 //! timing goals live in `rove bench`.
 
-use crate::util::{self, ROVE, Rig, eventually, records, wait_for_output, wall_us};
+use crate::util::{
+    self, ROVE, Rig, applies_in_burst, eventually, records, wait_for_output, wall_us,
+};
 use std::path::Path;
 use std::time::Duration;
 
@@ -315,8 +317,8 @@ fn garbage_and_misaddressed_traffic_change_nothing() {
 /// A vehicle whose control loop stalls for half a second (the hidden SIGUSR1 test hook blocks
 /// its thread, as a hung call would) applies none of the samples that queued up meanwhile: of
 /// a batch it takes only each writer's newest, and a newest sample that waited longer than the
-/// command timeout (its writer died meanwhile) is stale (rove_core::freshness). (SIGSTOP would stop rustdds's threads too, and rustdds 0.15.1 ends
-/// its event loops on the EINTR that SIGCONT brings: docs/rustdds.md.)
+/// command timeout (its writer died meanwhile) is stale (rove_core::freshness). The whole process
+/// stopped by SIGSTOP is `robustness::a_vehicle_stopped_and_continued_…`.
 #[test]
 fn a_vehicle_stalled_for_500_ms_applies_none_of_the_commands_that_queued_up() {
     let mut rig = Rig::new("stall-fresh");
@@ -361,11 +363,7 @@ fn a_vehicle_stalled_for_500_ms_applies_none_of_the_commands_that_queued_up() {
     );
     // None of the queued samples is applied: applied, they would come as a burst within
     // microseconds; fresh ones come 20 ms apart.
-    let burst: Vec<u64> = (records(&record).iter())
-        .filter(|o| o.action == "apply" && o.wall_us >= stalled)
-        .map(|o| o.wall_us)
-        .filter(|t| *t < back.wall_us + 15_000)
-        .collect();
+    let burst = applies_in_burst(&record, stalled, back.wall_us);
     assert!(
         burst.len() <= 3,
         "a burst of {} applies after the stall: {burst:?}",

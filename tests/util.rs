@@ -287,3 +287,14 @@ pub fn elf_arch(bin: &Path) -> Option<&'static str> {
         _ => None,
     }
 }
+
+/// The applies recorded from `since_us` until 15 ms after `first_fresh_us` (the first fresh
+/// apply after a stall): a backlog applied at once would come as such a burst, while fresh
+/// samples of a 50 Hz stream come 20 ms apart.
+pub fn applies_in_burst(record: &Path, since_us: u64, first_fresh_us: u64) -> Vec<u64> {
+    (records(record).iter())
+        .filter(|o| o.action == "apply" && o.wall_us >= since_us)
+        .map(|o| o.wall_us)
+        .filter(|t| *t < first_fresh_us + 15_000)
+        .collect()
+}

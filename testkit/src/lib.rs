@@ -129,6 +129,12 @@ pub fn rogue_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("rogue.py")
 }
 
+/// The crafted-packet sender (`rtps_bomb.py`: raw RTPS datagrams built with Python's standard
+/// library; its docstring says what it sends).
+pub fn rtps_bomb_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("rtps_bomb.py")
+}
+
 /// The pymavlink autopilot script (ArduPilot or PX4 as a ground station sees it); its
 /// docstring lists its options and what it records.
 pub fn fake_autopilot_script() -> PathBuf {

@@ -44,6 +44,11 @@ impl AssemblyBuffer {
       error!("Cannot create AssemblyBuffer: fragment_size={fragment_size} data_size={data_size}");
       return None;
     }
+    // rove patch: the sample size is the sender's claim; it is allocated and zero-filled below.
+    if data_size > MAX_FRAGMENTED_SAMPLE_SIZE {
+      debug!("Cannot create AssemblyBuffer: data_size={data_size} > {MAX_FRAGMENTED_SAMPLE_SIZE}");
+      return None;
+    }
 
     let mut buffer_bytes = BytesMut::with_capacity(data_size);
     buffer_bytes.resize(data_size, 0);
@@ -172,7 +177,37 @@ impl AssemblyBuffer {
   pub fn is_complete(&self) -> bool {
     self.received_bitmap.all() // return if all are received
   }
+
+  /// rove patch: the memory this buffer holds, or would hold for `datafrag`: the sample, and a
+  /// byte per fragment for the bitmap and bookkeeping (generous: the bitmap needs a bit).
+  fn cost(datafrag: &DataFrag) -> usize {
+    let data_size = usize::try_from(datafrag.data_size).unwrap_or(usize::MAX);
+    data_size.saturating_add(usize::from(datafrag.total_number_of_fragments()))
+  }
+
+  fn committed_bytes(&self) -> usize {
+    self.buffer_bytes.len() + self.fragment_count
+  }
 }
+
+// rove patch (bounded reassembly). A DATA_FRAG names the size of its whole sample, and a new
+// AssemblyBuffer allocates and zero-fills that size at once, for any writer GUID, matched or not
+// (the SPDP reader is stateless and takes DATA_FRAG from anyone): one 60-byte datagram claiming
+// 4 GiB committed 4 GiB. These three bounds cap what a reader commits to incomplete samples.
+
+/// rove patch: the largest sample a reader reassembles from fragments, bytes. A rustdds writer
+/// fragments what exceeds one datagram (1452 bytes); the largest such samples in practice are
+/// discovery data and DDS Security handshakes carrying certificates and permissions, a few KiB.
+pub(crate) const MAX_FRAGMENTED_SAMPLE_SIZE: usize = 1 << 20;
+
+/// rove patch: the most memory one reader commits to incomplete reassemblies of all writers
+/// together, bytes. A fragment that would open a buffer beyond it is dropped (a reliable
+/// writer repairs it later; incomplete buffers expire after `FRAGMENT_ASSEMBLY_TIMEOUT`).
+pub(crate) const MAX_ASSEMBLY_BYTES_PER_READER: usize = 4 << 20;
+
+/// rove patch: the most remote writers one reader keeps a fragment assembler for. Assemblers
+/// left without buffers make room; a fragment from a further writer is dropped.
+pub(crate) const MAX_FRAGMENTING_WRITERS_PER_READER: usize = 64;
 
 // Upper bound on the number of concurrent (incomplete) reassembly buffers kept
 // per writer. Fragments belonging to one sample normally arrive back-to-back,
@@ -213,11 +248,24 @@ impl FragmentAssembler {
     }
   }
 
+  /// rove patch: the memory held by this writer's incomplete samples.
+  pub fn committed_bytes(&self) -> usize {
+    self.assembly_buffers.values().map(AssemblyBuffer::committed_bytes).sum()
+  }
+
+  /// rove patch: no incomplete sample (the assembler may be dropped).
+  pub fn is_empty(&self) -> bool {
+    self.assembly_buffers.is_empty()
+  }
+
   // Returns completed DDSData, when complete, and disposes the assembly buffer.
+  // rove patch: `budget` is the memory a new assembly buffer may take (see
+  // `MAX_ASSEMBLY_BYTES_PER_READER`).
   pub fn new_datafrag(
     &mut self,
     datafrag: &DataFrag,
     flags: BitFlags<DATAFRAG_Flags>,
+    budget: usize,
   ) -> Option<DDSData> {
     let writer_sn = datafrag.writer_sn;
     let frag_size = self.fragment_size;
@@ -225,6 +273,10 @@ impl FragmentAssembler {
     let sn = datafrag.writer_sn;
     match self.assembly_buffers.entry(sn) {
       Entry::Vacant(v) => {
+        if AssemblyBuffer::cost(datafrag) > budget {
+          debug!("new_datafrag: no room for {sn:?} (reassembly budget left {budget} bytes)");
+          return None;
+        }
         let Some(buf) = AssemblyBuffer::new(datafrag) else {
           error!("new_datafrag: failed to create AssemblyBuffer for {sn:?}");
           return None;
@@ -423,7 +475,7 @@ mod tests {
     let bad = datafrag(2, 2, frag_size, data_size, vec![0u8; 256]);
     let mut fa = FragmentAssembler::new(frag_size, true);
     assert!(fa
-      .new_datafrag(&bad, BitFlags::<DATAFRAG_Flags>::empty())
+      .new_datafrag(&bad, BitFlags::<DATAFRAG_Flags>::empty(), usize::MAX)
       .is_none());
   }
 }

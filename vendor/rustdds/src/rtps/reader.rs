@@ -42,7 +42,10 @@ use crate::{
   network::udp_sender::UDPSender,
   polling::{ReadySender, SharedTimer, WakeReceiver},
   rtps::{
-    fragment_assembler::FragmentAssembler, message_receiver::MessageReceiverState,
+    fragment_assembler::{
+      FragmentAssembler, MAX_ASSEMBLY_BYTES_PER_READER, MAX_FRAGMENTING_WRITERS_PER_READER,
+    },
+    message_receiver::MessageReceiverState,
     rtps_writer_proxy::RtpsWriterProxy, timed_event::DpTimerEvent, Message,
   },
   structure::{
@@ -633,11 +636,26 @@ impl Reader {
       write_options_b = write_options_b.related_sample_identity(related_sample_identity);
     }
 
+    // rove patch: bounded reassembly (see `MAX_ASSEMBLY_BYTES_PER_READER`).
+    if !self.fragment_assemblers.contains_key(&writer_guid)
+      && self.fragment_assemblers.len() >= MAX_FRAGMENTING_WRITERS_PER_READER
+    {
+      self.fragment_assemblers.retain(|_, fa| !fa.is_empty());
+      if self.fragment_assemblers.len() >= MAX_FRAGMENTING_WRITERS_PER_READER {
+        debug!("DataFrag from {writer_guid:?} dropped: too many writers mid-reassembly");
+        return;
+      }
+    }
+    let committed: usize = (self.fragment_assemblers.values())
+      .map(FragmentAssembler::committed_bytes)
+      .sum();
+    let budget = MAX_ASSEMBLY_BYTES_PER_READER.saturating_sub(committed);
+
     // Feed to fragment assembler ...
     let writer_seq_num = datafrag.writer_sn; // for borrow checker
     let completed_dds_data = self
       .fragment_assembler_mutable(writer_guid, datafrag.fragment_size)
-      .new_datafrag(datafrag, datafrag_flags);
+      .new_datafrag(datafrag, datafrag_flags, budget);
 
     // ... and continue processing, if data was completed.
     if let Some(dds_data) = completed_dds_data {
@@ -685,6 +703,8 @@ impl Reader {
           debug!("AssemblyBuffer GC writer {writer:?}");
           fa.garbage_collect_before(expire_before);
         });
+      // rove patch: an assembler without buffers holds nothing worth keeping.
+      self.fragment_assemblers.retain(|_, fa| !fa.is_empty());
     } else {
       trace!("Not yet AssemblyBuffer GC time.");
     }

@@ -1,0 +1,122 @@
+//! A vehicle against what no honest peer sends and what no healthy machine does: crafted RTPS
+//! packets that claim huge samples, and the whole process stopped (SIGSTOP) and continued. Both
+//! broke rustdds 0.15.1 and are fixed by rove's patch of it (`vendor/rustdds/ROVE-PATCH.md`).
+
+use crate::util::*;
+use std::process::Command;
+use std::time::Duration;
+
+const V: i64 = 100;
+
+/// A field of `/proc/PID/status` in KiB (`VmSize`, `VmHWM`).
+fn status_kib(pid: u32, field: &str) -> u64 {
+    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    (text.lines())
+        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or_else(|| panic!("no {field} in /proc/{pid}/status (the process died?)"))
+}
+
+/// Sends `signal` to `pid` (a rig's child: `ip netns exec` execs rove, so it is rove itself).
+fn kill(signal: &str, pid: u32) {
+    let status = Command::new("kill")
+        .args([signal, &pid.to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success(), "kill {signal} {pid}");
+}
+
+/// DATA_FRAG submessages, each from an invented participant and claiming a sample of almost
+/// 4 GiB, sent to the SPDP reader every participant has (it takes fragments from anyone). Stock
+/// rustdds 0.15.1 allocates and zero-fills the claimed size per datagram; patched, a reader
+/// reassembles no sample over 1 MiB and commits at most 4 MiB in all. The vehicle's address
+/// space is limited to what it uses plus 1 GiB while it is attacked, so that a regression
+/// aborts the vehicle (and fails this test) rather than filling the machine's memory.
+#[test]
+fn crafted_fragments_claiming_4_gib_samples_leave_the_vehicle_driving() {
+    let mut rig = Rig::new("datafrag");
+    let record = rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+
+    let pid = rig.procs[0].pid();
+    let limit_bytes = (status_kib(pid, "VmSize") + 1024 * 1024) * 1024;
+    let limit = Command::new("prlimit")
+        .args(["--pid", &pid.to_string(), &format!("--as={limit_bytes}")])
+        .status()
+        .expect("prlimit (util-linux)");
+    assert!(limit.success(), "prlimit --as on the vehicle");
+    let before_kib = status_kib(pid, "VmHWM");
+
+    let out = Command::new("ip")
+        .args(["netns", "exec", &rig.ns])
+        .arg(rove_testkit::python())
+        .arg(rove_testkit::rtps_bomb_script())
+        .args(["datafrag", "--count", "64"])
+        .output()
+        .expect("run rtps_bomb.py");
+    let report = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    assert!(
+        out.status.success() && report.contains("\"sent\""),
+        "rtps_bomb.py: {report}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // Still driving after the datagrams were handled: the laptop's samples keep coming.
+    let after_bombs = wall_us();
+    wait_for_output(&record, Some(11), after_bombs).expect("the laptop still drives");
+    assert!(rig.procs[0].is_running(), "the vehicle died: {report}");
+    let grown_kib = status_kib(pid, "VmHWM").saturating_sub(before_kib);
+    eprintln!("{report}: the vehicle's peak RSS grew by {grown_kib} KiB");
+    assert!(
+        grown_kib < 64 * 1024,
+        "the vehicle's peak RSS grew by {grown_kib} KiB under {report}"
+    );
+}
+
+/// The whole vehicle stopped for 500 ms (SIGSTOP, as a debugger or an overloaded board might)
+/// while the laptop streams at 50 Hz, then continued: its DDS threads carry on (stock rustdds
+/// 0.15.1 ended both event loops on the EINTR that SIGCONT brings, and the vehicle never heard
+/// anything again), none of the samples that queued up in the socket meanwhile is applied as a
+/// burst, and the laptop's next fresh sample drives.
+#[test]
+fn a_vehicle_stopped_and_continued_applies_no_backlog_and_hears_its_owner_again() {
+    let mut rig = Rig::new("sigstop");
+    let record = rig.vehicle(V);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("laptop drives");
+    let pid = rig.procs[0].pid();
+
+    for round in 0..3 {
+        let stopped = wall_us();
+        kill("-STOP", pid);
+        // The stimulus is a 500 ms stop; nothing is awaited here.
+        std::thread::sleep(Duration::from_millis(500));
+        kill("-CONT", pid);
+        let resumed = wall_us();
+        let back = wait_for_output(&record, Some(11), resumed)
+            .unwrap_or_else(|e| panic!("round {round}: the laptop never drove again: {e}"));
+        eprintln!(
+            "round {round}: first apply {:.1} ms after SIGCONT",
+            (back.wall_us as f64 - resumed as f64) / 1000.0
+        );
+        // About 25 samples queued up in the socket. Those sent in the stop's last command
+        // timeout (100 ms: 5 at 50 Hz) are still fresh when they arrive, and rustdds, woken
+        // with the vehicle, may hand them over one by one: applying them, newest last, is
+        // right. Anything older is stale: applied, the backlog would be a burst of about 25.
+        let burst = applies_in_burst(&record, stopped, back.wall_us);
+        assert!(
+            burst.len() <= 8,
+            "round {round}: a burst of {} applies after SIGCONT: {burst:?}",
+            burst.len()
+        );
+    }
+    // Its DDS is alive both ways: the network still sees it, driven by the laptop.
+    eventually("the vehicle seen driven by the laptop", || {
+        let status = rig.status();
+        match Rig::device(&status, V) {
+            Some(v) if v["controller_id"] == 11 => Ok(()),
+            _ => Err(status),
+        }
+    });
+}
