@@ -525,6 +525,12 @@ impl Handover {
         }
     }
 
+    /// Entries in the request, reply and answer tables, all keyed by vehicle.
+    #[cfg(test)]
+    pub(crate) fn table_len(&self) -> usize {
+        self.requests.len() + self.replies.len() + self.answered.len()
+    }
+
     /// True while a request for `vehicle` is being answered here (asking a person, or yielded
     /// to its requester): resends of it are answered even if we no longer look like the owner.
     pub fn is_replying(&self, vehicle: DeviceId) -> bool {

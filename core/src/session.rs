@@ -593,6 +593,12 @@ pub struct OperatorSession {
 /// it is not remembered, so their REQUESTs are never auto-accepted.
 pub const MAX_WRITERS: usize = 1024;
 
+/// Most vehicles whose DeviceInfo is remembered. A fleet has tens; beyond this, a new vehicle
+/// takes the place of one whose id is no longer pinned to a live participant and that we
+/// have nothing to do with, or, with none such, is not remembered (a flood of invented
+/// vehicle ids cannot grow the table).
+pub const MAX_VEHICLES: usize = 1024;
+
 impl OperatorSession {
     /// A session starting at `now`.
     pub fn new(config: SessionConfig, now: MonoTime) -> Self {
@@ -1075,13 +1081,46 @@ impl OperatorSession {
         self.carry_out(stamp, actions, out);
     }
 
+    /// Whether the vehicle table may hold `vehicle` (see [`MAX_VEHICLES`]), making room if it
+    /// must by forgetting vehicles that are neither pinned to a live participant nor ours in
+    /// any way (driven, paused, standing by, held, yielded, selected, prompted or requested).
+    fn has_room_for_vehicle(&mut self, now: MonoTime, vehicle: DeviceId) -> bool {
+        if self.vehicles.len() < MAX_VEHICLES || self.vehicles.contains_key(&vehicle) {
+            return true;
+        }
+        let ours = |v: &DeviceId| {
+            [
+                &self.driving,
+                &self.paused,
+                &self.priority,
+                &self.standby,
+                &self.yielded,
+            ]
+            .iter()
+            .any(|set| set.contains(v))
+                || self.selected == Some(*v)
+                || self.prompt == Some(*v)
+                || self.pending_request.is_some_and(|(r, _)| r == *v)
+        };
+        let gone: Vec<DeviceId> = (self.vehicles.keys())
+            .filter(|v| !ours(v) && self.identities.owner(now, **v).is_none())
+            .copied()
+            .collect();
+        for v in gone {
+            self.vehicles.remove(&v);
+        }
+        self.vehicles.len() < MAX_VEHICLES
+    }
+
     fn on_device_info(&mut self, now: MonoTime, stamp: TimeT, info: DeviceInfo, out: &mut Out) {
         if info.device_type == DeviceType::Vehicle {
             // A yielded vehicle's published owner can show that its grant is over.
             let actions = self
                 .handover
                 .on_vehicle_owner(info.device_id, info.controller_id);
-            self.vehicles.insert(info.device_id, info);
+            if self.has_room_for_vehicle(now, info.device_id) {
+                self.vehicles.insert(info.device_id, info);
+            }
             self.carry_out(stamp, actions, out);
         }
         // `--request`: ask once the vehicle and its owner are known from a live sample.

@@ -844,3 +844,55 @@ fn a_prompt_answered_after_the_vehicle_is_no_longer_ours_refuses() {
     assert!(refused(&out).is_some_and(|why| why.contains("no longer ours")));
     assert!(!s.handover().has_yielded(V));
 }
+
+#[test]
+fn the_vehicle_table_stays_bounded_under_invented_vehicles_and_keeps_ours() {
+    let mut s = constant();
+    step(&mut s, 0, vehicle(V, V));
+    // Three waves of more invented vehicles than the table holds, each after the last wave's
+    // pins lapsed (3 s): the table never outgrows its bound, forgets the lapsed strangers for
+    // the newcomers, and keeps the vehicle we drive, whose pin lapsed too.
+    for wave in 0..3 {
+        let t = 10_000 * wave + 1;
+        let first = 10_000 * (wave as DeviceId + 1);
+        for id in first..first + MAX_VEHICLES as DeviceId + 100 {
+            step(&mut s, t, vehicle(id, id));
+        }
+        assert!(s.vehicles().len() <= MAX_VEHICLES, "wave {wave}");
+        assert!(
+            s.vehicles().contains_key(&V),
+            "wave {wave}: our vehicle forgotten"
+        );
+        assert!(
+            s.vehicles().contains_key(&first),
+            "wave {wave}: no room made"
+        );
+    }
+}
+
+#[test]
+fn a_flood_of_requests_grows_no_handover_table_beyond_the_vehicles_we_answer_for() {
+    let mut s = constant();
+    step(&mut s, 0, vehicle(V, ME));
+    // 5 000 requesters each ask for V (ours, named us) and for a vehicle of their own
+    // invention: only V may be answered, and each table is keyed by vehicle.
+    for n in 0..5_000 {
+        let requester = 20_000 + n;
+        let t = 1 + n as u64;
+        step(&mut s, t, request_from(requester, 120, t));
+        let elsewhere = RequestControl {
+            src_id: requester,
+            dest_id: 50_000 + n,
+            current_controller_id: ME,
+            src_priority: 120,
+            ack: Ack::Request,
+            timestamp: stamp(t),
+        };
+        step(&mut s, t, rc(elsewhere));
+        assert!(
+            s.handover().table_len() <= 2,
+            "after {n}: {}",
+            s.handover().table_len()
+        );
+    }
+}

@@ -296,7 +296,16 @@ impl Domain {
         // a new grant holder's first sample was lost to a standing-by owner's PROBE in ~10 %
         // of handovers (applied 20 ms late, at the next keep-alive). The reader keeps more;
         // history depth is not a request/offered QoS, so matching is unchanged.
+        //
+        // Best effort, whatever the writers offer (a best-effort reader matches reliable and
+        // best-effort writers alike): a reliable reader hands over no sample while an earlier
+        // one from the same writer is missing, so one lost packet held back the owner's stream
+        // until its repair, often past the command timeout, and the next operator drove for a
+        // moment (measured: 10 owner changes a minute at 10 % loss). A control stream needs
+        // its newest sample, not every sample; a lost release is covered by the sender's
+        // repeats and, at worst, by the command timeout (docs/design.md).
         let qos = QosPolicyBuilder::new()
+            .reliability(Reliability::BestEffort)
             .history(History::KeepLast {
                 depth: COMMAND_READER_DEPTH,
             })

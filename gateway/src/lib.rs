@@ -7,7 +7,8 @@
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
-//! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover`.
+//! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover` and `input`;
+//!   [`chaos`]: `rove bench chaos` (random faults and packet loss, counted against the contract).
 //! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
 //! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
 //! - `keys` (with the `security` feature): `rove keys`, a fleet's DDS Security files.
@@ -17,6 +18,7 @@
 #![deny(missing_docs)]
 
 pub mod bench;
+pub mod chaos;
 pub mod config;
 pub mod dds;
 pub mod demo;

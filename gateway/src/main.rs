@@ -2,7 +2,9 @@
 //! the demo (docs/design.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::{bench, config, demo, doctor, harness, operator, runtime, status, vehicle};
+use rove_gateway::{
+    bench, chaos, config, demo, doctor, harness, operator, runtime, status, vehicle,
+};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
@@ -200,6 +202,29 @@ enum BenchCommand {
         #[arg(long, default_value_t = 200.0)]
         rate_hz: f64,
     },
+    /// Random faults (kill, terminate, stop, restart of operators and of the vehicle under a
+    /// supervisor) and packet loss, counted against the ownership contract (needs root and
+    /// nftables).
+    Chaos {
+        /// Operators, of distinct strengths (2–12).
+        #[arg(long, default_value_t = 4)]
+        operators: usize,
+        /// Faults in the chaos phase.
+        #[arg(long, default_value_t = 1000)]
+        events: usize,
+        /// Mean time between faults, ms.
+        #[arg(long, default_value_t = 300)]
+        interval_ms: u64,
+        /// Length of each loss phase (10 %, then 30 % of UDP packets dropped), s; 0 skips them.
+        #[arg(long, default_value_t = 60)]
+        loss_s: u64,
+        /// Seed of the fault sequence.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
@@ -389,6 +414,26 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench {
             what: BenchCommand::Input { events, rate_hz },
         } => bench::input_cli(&std::env::current_exe()?, events, rate_hz),
+        Command::Bench {
+            what:
+                BenchCommand::Chaos {
+                    operators,
+                    events,
+                    interval_ms,
+                    loss_s,
+                    seed,
+                    json,
+                },
+        } => {
+            let options = chaos::Options {
+                operators,
+                events,
+                interval: std::time::Duration::from_millis(interval_ms),
+                loss: std::time::Duration::from_secs(loss_s),
+                seed,
+            };
+            chaos::cli(&std::env::current_exe()?, &options, json.as_deref())
+        }
         Command::Bench {
             what:
                 BenchCommand::Handover {

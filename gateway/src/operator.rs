@@ -33,6 +33,13 @@ use tracing::{info, warn};
 
 type CommandWriter = rustdds::with_key::DataWriterCdr<KeyedControlCommand>;
 
+/// How many times a release (dispose) is sent. Vehicles read commands best effort, so each copy
+/// may be lost on its own: at 10 % packet loss one copy is lost one time in 10, three one time
+/// in 1 000. A vehicle that misses all of them hands over after the command timeout instead,
+/// as for a crash. A repeat costs one small datagram; the vehicle ignores a release of a source
+/// it has already released.
+const RELEASE_REPEATS: usize = 3;
+
 /// Longest wait, per writer, for peers to acknowledge the final FINISH and disposals on exit.
 /// Loopback acknowledges in about a millisecond; 300 ms covers a loaded radio link without
 /// holding up a systemd stop noticeably. If it runs out, peers fall back to the command timeout.
@@ -515,8 +522,13 @@ impl Writers {
                     }
                 }
                 Effect::Release { writer, vehicle } => {
-                    if let Err(e) = self.command_writer(writer).dispose(&vehicle, None) {
-                        warn!(vehicle, cause = ?e, "release (dispose) failed");
+                    // Vehicles read commands best effort (dds::Domain::command_reader): a lost
+                    // dispose would leave them waiting a command timeout, so it is repeated.
+                    for _ in 0..RELEASE_REPEATS {
+                        if let Err(e) = self.command_writer(writer).dispose(&vehicle, None) {
+                            warn!(vehicle, cause = ?e, "release (dispose) failed");
+                            break;
+                        }
                     }
                 }
                 Effect::Send(msg) => {
