@@ -21,8 +21,8 @@
 //! - **stale**: an apply from X later than the command timeout plus 15 ms after X was killed or
 //!   terminated;
 //! - **failsafe while live**: the vehicle going safe while such an operator runs;
-//! - **owner changes** under loss (none is demanded: nothing else happens then), and failsafe
-//!   entries under loss;
+//! - **owner changes** under loss (none is demanded: nothing else happens then; a weaker
+//!   operator driving then counts here, not as a wrong owner), and failsafe entries under loss;
 //! - **recovery**: from the partition's heal to the first apply from the healed operator.
 
 use crate::harness::{Out, Rig, records, wall_us};
@@ -42,6 +42,10 @@ const COMMAND_TIMEOUT_US: u64 = 100_000;
 /// needs to resume a continued process and deliver its next sample. A fault's effect that
 /// outlasts it is counted.
 pub const GRACE_US: u64 = 300_000;
+
+/// How soon after a partition heals the right owner must drive again (the issue's target: one
+/// second; discovery already knows the peer, so its next sample takes over).
+pub const HEAL_US: u64 = 1_000_000;
 
 /// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3).
 const LADDER: [(&str, &str); 12] = [
@@ -94,6 +98,16 @@ pub enum Fault {
         /// SIGTERM rather than SIGKILL.
         graceful: bool,
     },
+    /// The operator's link was cut (a silent partition).
+    Cut {
+        /// The operator.
+        id: i64,
+    },
+    /// The operator's link was restored.
+    Heal {
+        /// The operator.
+        id: i64,
+    },
     /// A loss phase began (`pct` % of UDP packets dropped) or ended (`pct` 0).
     Loss {
         /// Percentage of UDP packets dropped.
@@ -104,8 +118,10 @@ pub enum Fault {
 /// One entry of the bench's log.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct Logged {
-    /// Wall clock, µs.
+    /// Wall clock, µs, before the bench began doing it (a signal may act at once).
     pub at: u64,
+    /// Wall clock, µs, once it was done (the signal sent, the process spawned).
+    pub done: u64,
     /// What was done.
     pub fault: Fault,
 }
@@ -138,8 +154,9 @@ struct OpState {
     dead_since: Option<u64>,
     /// Has driven this vehicle since both were last started.
     drove: bool,
-    /// Its last change of state (start, cont, …): judged only `GRACE_US` later.
-    changed_at: u64,
+    /// Not judged before this instant (µs): a start, continue or heal takes effect only after
+    /// a grace period.
+    settles_at: u64,
 }
 
 /// Counts contract violations in `outputs` (the vehicle's record, in time order) given what the
@@ -150,6 +167,13 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
     let mut vehicle_changed_at = 0u64;
     let mut loss: u8 = 0;
     let mut last_owner: Option<Option<i64>> = None;
+    // When each operator was last applied: a violation's example says how long the operator
+    // that should have driven had been silent (a stall longer than the command timeout, say).
+    let mut last_applied: BTreeMap<i64, u64> = BTreeMap::new();
+    let silent = |last: &BTreeMap<i64, u64>, y: i64, t: u64| match last.get(&y) {
+        Some(at) => format!("{} ms after its last apply", (t - at) / 1000),
+        None => "never applied".to_string(),
+    };
     let mut next = log.iter().peekable();
     let example = |counts: &mut Counts, what: String| {
         if counts.examples.len() < 10 {
@@ -159,14 +183,16 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
     for out in outputs {
         // Apply every logged fault up to this output.
         while let Some(entry) = next.next_if(|e| e.at <= out.wall_us) {
-            let at = entry.at;
+            // A fault takes effect for the analysis from `at` (a signal may act at once); what
+            // comes after it (settling, the death stale outputs are measured from), from `done`.
+            let done = entry.done;
             match entry.fault {
                 Fault::Start { id } => {
                     ops.insert(
                         id,
                         OpState {
                             running: true,
-                            changed_at: at,
+                            settles_at: done + GRACE_US,
                             ..OpState::default()
                         },
                     );
@@ -174,19 +200,19 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
                 Fault::Kill { id } | Fault::Term { id } => {
                     let s = ops.entry(id).or_default();
                     (s.running, s.stopped, s.drove) = (false, false, false);
-                    s.dead_since = Some(at);
-                    s.changed_at = at;
+                    s.dead_since = Some(done);
                 }
-                Fault::Stop { id } => {
-                    let s = ops.entry(id).or_default();
-                    (s.stopped, s.changed_at) = (true, at);
-                }
+                Fault::Stop { id } | Fault::Cut { id } => ops.entry(id).or_default().stopped = true,
                 Fault::Cont { id } => {
                     let s = ops.entry(id).or_default();
-                    (s.stopped, s.changed_at) = (false, at);
+                    (s.stopped, s.settles_at) = (false, done + GRACE_US);
+                }
+                Fault::Heal { id } => {
+                    let s = ops.entry(id).or_default();
+                    (s.stopped, s.settles_at) = (false, done + HEAL_US);
                 }
                 Fault::VehicleRestart { .. } => {
-                    vehicle_changed_at = at;
+                    vehicle_changed_at = done;
                     for s in ops.values_mut() {
                         s.drove = false;
                     }
@@ -198,13 +224,9 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
             }
         }
         let t = out.wall_us;
-        let settled = |since: u64| t > since + GRACE_US;
         // Operators that must win now: running, not stopped, drove, and settled.
-        let live = |id: &i64, s: &OpState| -> bool {
-            let _ = id;
-            s.running && !s.stopped && s.drove && settled(s.changed_at)
-        };
-        let vehicle_settled = settled(vehicle_changed_at);
+        let live = |_: &i64, s: &OpState| s.running && !s.stopped && s.drove && t > s.settles_at;
+        let vehicle_settled = t > vehicle_changed_at + GRACE_US;
         match (out.action.as_str(), out.owner) {
             ("apply", Some(x)) => {
                 if let Some(s) = ops.get(&x)
@@ -219,14 +241,17 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
                     );
                 }
                 let rank = ranks.get(&x).copied().unwrap_or(0);
+                // Under loss a lapse of the stronger stream is counted as an owner change.
                 if vehicle_settled
+                    && loss == 0
                     && let Some((y, _)) = (ops.iter())
                         .find(|(y, s)| ranks.get(y).copied().unwrap_or(0) > rank && live(y, s))
                 {
                     counts.wrong_owner += 1;
+                    let why = silent(&last_applied, *y, t);
                     example(
                         &mut counts,
-                        format!("wrong owner at {t}: {x} drove while {y} ran"),
+                        format!("wrong owner at {t}: {x} drove while {y} ran, {why}"),
                     );
                 }
                 if let Some(s) = ops.get_mut(&x)
@@ -234,11 +259,13 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
                 {
                     s.drove = true;
                 }
+                last_applied.insert(x, t);
             }
             ("safe", _) => {
                 if vehicle_settled && let Some((y, _)) = ops.iter().find(|(y, s)| live(y, s)) {
                     counts.failsafe_while_live += 1;
-                    example(&mut counts, format!("failsafe at {t} while {y} ran"));
+                    let why = silent(&last_applied, *y, t);
+                    example(&mut counts, format!("failsafe at {t} while {y} ran, {why}"));
                 }
             }
             _ => {}
@@ -272,6 +299,8 @@ pub struct Options {
     pub loss: Duration,
     /// Seed of the fault sequence (the same seed, the same sequence).
     pub seed: u64,
+    /// How long each of the three partitions lasts; 0 skips them.
+    pub partition: Duration,
 }
 
 /// What a chaos run measured.
@@ -295,6 +324,8 @@ pub struct Report {
     pub owner_changes_per_min: BTreeMap<u8, f64>,
     /// How long each `rove failsafe` of the supervisor took, ms.
     pub failsafe_ms: Vec<f64>,
+    /// From each partition's heal to the first apply from the operator behind it, ms.
+    pub recovery_ms: Vec<f64>,
 }
 
 /// A small deterministic generator (xorshift64*): a seed replays a run's fault sequence.
@@ -335,25 +366,28 @@ struct Fleet {
 }
 
 impl Fleet {
-    fn note(&mut self, fault: Fault) {
-        self.log.push(Logged {
-            at: wall_us(),
-            fault,
-        });
+    /// Logs `fault`, begun at `at` (wall µs) and done now.
+    fn note(&mut self, at: u64, fault: Fault) {
+        let done = wall_us();
+        self.log.push(Logged { at, done, fault });
     }
 
     fn start(&mut self, id: i64) {
+        let at = wall_us();
         let (level, class) = LADDER[(id - 11) as usize];
         let proc = (self.rig).operator(id, level, class, &[VEHICLE], 1000 + id as i16, "", &[]);
         self.running.insert(id, proc);
-        self.note(Fault::Start { id });
+        self.note(at, Fault::Start { id });
     }
 
-    fn signal(&self, id: i64, signal: &str) {
+    /// Sends `signal` to operator `id` and logs `fault`.
+    fn signal(&mut self, id: i64, signal: &str, fault: Fault) {
+        let at = wall_us();
         if let Some(&proc) = self.running.get(&id) {
             let pid = self.rig.procs[proc].pid().to_string();
             let _ = Command::new("kill").args([signal, &pid]).status();
         }
+        self.note(at, fault);
     }
 
     fn cont_due(&mut self, now: Instant) {
@@ -363,13 +397,12 @@ impl Fleet {
             .collect();
         for id in due {
             self.stopped.remove(&id);
-            self.signal(id, "-CONT");
-            self.note(Fault::Cont { id });
+            self.signal(id, "-CONT", Fault::Cont { id });
         }
     }
 
     fn restart_vehicle(&mut self, graceful: bool) -> anyhow::Result<()> {
-        self.note(Fault::VehicleRestart { graceful });
+        let at = wall_us();
         let proc = &mut self.rig.procs[self.vehicle];
         if graceful {
             proc.terminate();
@@ -403,6 +436,7 @@ impl Fleet {
             self.record.to_str().unwrap_or_default(),
         ];
         self.vehicle = self.rig.spawn(&format!("vehicle-{VEHICLE}"), &args);
+        self.note(at, Fault::VehicleRestart { graceful });
         Ok(())
     }
 
@@ -417,17 +451,112 @@ impl Fleet {
     }
 }
 
+/// The vehicle's end of the veth pair to the far namespace.
+const VETH_NEAR: &str = "10.77.0.1";
+/// The far operator's end.
+const VETH_FAR: &str = "10.77.0.2";
+
+/// A second namespace joined to `near`'s by a veth pair (`VETH_NEAR` there, `VETH_FAR` here),
+/// multicast routed over it: a host of its own on a link the bench can cut.
+fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
+    let far = Rig::new(rove, "bench-chaos-far")?;
+    let tag = std::process::id() % 100_000;
+    let (a, b) = (format!("rc{tag}a"), format!("rc{tag}b"));
+    let steps: [&[&str]; 8] = [
+        &[
+            "ip", "link", "add", &a, "netns", &near.ns, "type", "veth", "peer", "name", &b,
+            "netns", &far.ns,
+        ],
+        &[
+            "ip",
+            "-n",
+            &near.ns,
+            "addr",
+            "add",
+            &format!("{VETH_NEAR}/24"),
+            "dev",
+            &a,
+        ],
+        &[
+            "ip",
+            "-n",
+            &far.ns,
+            "addr",
+            "add",
+            &format!("{VETH_FAR}/24"),
+            "dev",
+            &b,
+        ],
+        &[
+            "ip",
+            "-n",
+            &near.ns,
+            "link",
+            "set",
+            &a,
+            "up",
+            "multicast",
+            "on",
+        ],
+        &[
+            "ip",
+            "-n",
+            &far.ns,
+            "link",
+            "set",
+            &b,
+            "up",
+            "multicast",
+            "on",
+        ],
+        &[
+            "ip",
+            "-n",
+            &far.ns,
+            "route",
+            "replace",
+            "224.0.0.0/4",
+            "dev",
+            &b,
+        ],
+        &["ip", "-n", &far.ns, "link", "set", "lo", "up"],
+        &["ip", "-n", &far.ns, "route", "show"],
+    ];
+    for step in steps {
+        let out = Command::new(step[0]).args(&step[1..]).output()?;
+        anyhow::ensure!(
+            out.status.success(),
+            "{step:?}: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(far)
+}
+
 /// nftables in the rig's namespace: drops `pct` % of UDP packets (0 removes the rule).
 fn set_loss(rig: &Rig, pct: u8) -> anyhow::Result<()> {
-    let script = if pct == 0 {
-        "delete table inet rove_chaos\n".to_string()
-    } else {
-        format!(
-            "table inet rove_chaos\ndelete table inet rove_chaos\ntable inet rove_chaos {{\n\
-             chain input {{ type filter hook input priority 0; meta l4proto udp numgen random \
-             mod 100 < {pct} drop; }}\n}}\n"
-        )
-    };
+    let rule = format!("meta l4proto udp numgen random mod 100 < {pct} drop");
+    nft(rig, (pct > 0).then_some(&rule), "input")
+}
+
+/// The far operator's veth cut (both ways, silently: nothing is refused) or restored.
+fn set_cut(rig: &Rig, cut: bool) -> anyhow::Result<()> {
+    nft(rig, cut.then_some("meta l4proto udp drop"), "input, output")
+}
+
+/// Replaces rove's nftables table in `rig`'s namespace with one holding `rule` in a filter
+/// chain on each of `hooks`; `None` removes the table.
+fn nft(rig: &Rig, rule: Option<&str>, hooks: &str) -> anyhow::Result<()> {
+    let mut script = "table inet rove_chaos\ndelete table inet rove_chaos\n".to_string();
+    if let Some(rule) = rule {
+        script.push_str("table inet rove_chaos {\n");
+        for hook in hooks.split(", ") {
+            script.push_str(&format!(
+                "chain {hook} {{ type filter hook {hook} priority 0; {rule}; }}\n"
+            ));
+        }
+        script.push_str("}\n");
+    }
     let path = rig.write("chaos.nft", &script);
     let out = Command::new("ip")
         .args(["netns", "exec", &rig.ns, "nft", "-f"])
@@ -451,13 +580,23 @@ pub fn run(
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    anyhow::ensure!(
-        (2..=LADDER.len()).contains(&options.operators),
-        "--operators must be 2..={}",
-        LADDER.len()
-    );
+    anyhow::ensure!(options.operators >= 2, "--operators must be at least 2");
     let mut rig = Rig::new(rove, "bench-chaos")?;
-    let record = rig.vehicle(VEHICLE);
+    let partitions = !options.partition.is_zero();
+    // With partitions, the vehicle also listens on its end of the veth pair to the far
+    // namespace, where the strongest operator will run.
+    let far = if partitions {
+        Some(far_namespace(rove, &rig)?)
+    } else {
+        None
+    };
+    let network = if partitions {
+        format!("[network]\ninterfaces = [\"127.0.0.1\", \"{VETH_NEAR}\"]\n")
+    } else {
+        String::new()
+    };
+    let record =
+        rig.vehicle_with_output(VEHICLE, &format!("[output]\nadapter = \"sim\"\n{network}"));
     let vehicle = rig.procs.len() - 1;
     let mut fleet = Fleet {
         rig,
@@ -468,10 +607,16 @@ pub fn run(
         log: Vec::new(),
         failsafe_ms: Vec::new(),
     };
-    // The strongest `operators` cells, so that ranks follow strengths.
-    let first = LADDER.len() - options.operators;
-    let ids: Vec<i64> = (first..LADDER.len()).map(|i| 11 + i as i64).collect();
-    let ranks: BTreeMap<i64, usize> = ids.iter().enumerate().map(|(r, id)| (*id, r)).collect();
+    // The strongest `operators` cells (below the far operator's, the strongest, with
+    // partitions), so that ranks follow strengths.
+    let top = LADDER.len() - usize::from(partitions);
+    anyhow::ensure!(options.operators <= top, "--operators must be 2..={top}");
+    let ids: Vec<i64> = (top - options.operators..top)
+        .map(|i| 11 + i as i64)
+        .collect();
+    let far_id = 11 + top as i64;
+    let mut ranks: BTreeMap<i64, usize> = ids.iter().enumerate().map(|(r, id)| (*id, r)).collect();
+    ranks.insert(far_id, ids.len());
     for &id in &ids {
         fleet.start(id);
     }
@@ -524,18 +669,15 @@ pub fn run(
                 let id = movable[rng.below(movable.len())];
                 match kind {
                     "kill" => {
-                        fleet.signal(id, "-KILL");
-                        fleet.note(Fault::Kill { id });
+                        fleet.signal(id, "-KILL", Fault::Kill { id });
                         fleet.running.remove(&id);
                     }
                     "term" => {
-                        fleet.signal(id, "-TERM");
-                        fleet.note(Fault::Term { id });
+                        fleet.signal(id, "-TERM", Fault::Term { id });
                         fleet.running.remove(&id);
                     }
                     _ => {
-                        fleet.signal(id, "-STOP");
-                        fleet.note(Fault::Stop { id });
+                        fleet.signal(id, "-STOP", Fault::Stop { id });
                         let pause =
                             rng.between(Duration::from_millis(100), Duration::from_millis(600));
                         fleet.stopped.insert(id, Instant::now() + pause);
@@ -560,12 +702,45 @@ pub fn run(
         std::thread::sleep(Duration::from_secs(1));
         for pct in [10, 30] {
             progress(&format!("{pct} % UDP loss for {:?}", options.loss));
+            let at = wall_us();
             set_loss(&fleet.rig, pct)?;
-            fleet.note(Fault::Loss { pct });
+            fleet.note(at, Fault::Loss { pct });
             std::thread::sleep(options.loss);
         }
+        let at = wall_us();
         set_loss(&fleet.rig, 0)?;
-        fleet.note(Fault::Loss { pct: 0 });
+        fleet.note(at, Fault::Loss { pct: 0 });
+    }
+    let mut recovery_ms = Vec::new();
+    // The far namespace (and its operator) lives until the record is read: dropping it kills
+    // the operator, which the analysis would not know of.
+    let mut far = far;
+    if let Some(far) = far.as_mut() {
+        let (level, class) = LADDER[top];
+        let network = format!("[network]\ninterfaces = [\"{VETH_FAR}\"]\n");
+        let at = wall_us();
+        far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
+        fleet.note(at, Fault::Start { id: far_id });
+        crate::harness::wait_for_output(&fleet.record, Some(far_id), 0)
+            .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
+        for n in 0..3 {
+            progress(&format!(
+                "partition {}: cut for {:?}",
+                n + 1,
+                options.partition
+            ));
+            let at = wall_us();
+            set_cut(far, true)?;
+            fleet.note(at, Fault::Cut { id: far_id });
+            std::thread::sleep(options.partition);
+            let healed = wall_us();
+            set_cut(far, false)?;
+            fleet.note(healed, Fault::Heal { id: far_id });
+            let back = crate::harness::wait_for_output(&fleet.record, Some(far_id), healed)
+                .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
+            recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
+            std::thread::sleep(Duration::from_secs(1));
+        }
     }
     // The last outputs reach the record.
     std::thread::sleep(Duration::from_millis(200));
@@ -573,6 +748,7 @@ pub fn run(
     let mut outputs = records(&fleet.record);
     outputs.sort_by_key(|o| o.wall_us);
     let counts = analyse(&fleet.log, &outputs, &ranks);
+    drop(far);
     let minutes = options.loss.as_secs_f64() / 60.0;
     let owner_changes_per_min = [10u8, 30]
         .into_iter()
@@ -596,6 +772,7 @@ pub fn run(
         counts,
         owner_changes_per_min,
         failsafe_ms: fleet.failsafe_ms,
+        recovery_ms,
     })
 }
 
@@ -630,6 +807,12 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             stats.max
         );
     }
+    if !report.recovery_ms.is_empty() {
+        println!(
+            "  partitions healed: the far operator drove again after {:.1?} ms",
+            report.recovery_ms
+        );
+    }
     for example in &c.examples {
         println!("  e.g. {example}");
     }
@@ -662,7 +845,11 @@ mod tests {
     }
 
     fn at(at: u64, fault: Fault) -> Logged {
-        Logged { at, fault }
+        Logged {
+            at,
+            done: at,
+            fault,
+        }
     }
 
     const WEAK: i64 = 11;

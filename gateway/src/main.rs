@@ -221,6 +221,10 @@ enum BenchCommand {
         /// Seed of the fault sequence.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Length of each of three partitions of the strongest operator, which runs in a
+        /// namespace of its own joined by a veth pair, s; 0 skips them.
+        #[arg(long, default_value_t = 5)]
+        partition_s: u64,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -422,6 +426,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     interval_ms,
                     loss_s,
                     seed,
+                    partition_s,
                     json,
                 },
         } => {
@@ -431,6 +436,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 interval: std::time::Duration::from_millis(interval_ms),
                 loss: std::time::Duration::from_secs(loss_s),
                 seed,
+                partition: std::time::Duration::from_secs(partition_s),
             };
             chaos::cli(&std::env::current_exe()?, &options, json.as_deref())
         }
