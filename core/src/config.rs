@@ -35,11 +35,22 @@ use std::time::Duration;
 /// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
 /// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. `pub settings Name`
 /// is a struct with the derives of every table as written (`Debug, Clone, Default, PartialEq,
-/// Serialize, Deserialize`). Attributes (docs, derives, serde's) before an item, a field or a
-/// variant are kept.
+/// Serialize, Deserialize`), and `pub table Name` one that also rejects unknown keys
+/// (`deny_unknown_fields`: every table that flattens nothing, see the module docs). Attributes
+/// (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    ($(#[$attr:meta])* pub table $name:ident $(<$($g:ident),+>)? {
+        $($body:tt)*
+    } $($rest:tt)*) => {
+        $crate::config_types! {
+            #[serde(deny_unknown_fields)]
+            $(#[$attr])*
+            pub settings $name $(<$($g),+>)? { $($body)* }
+            $($rest)*
+        }
+    };
     ($(#[$attr:meta])* pub settings $name:ident $(<$($g:ident),+>)? {
         $($body:tt)*
     } $($rest:tt)*) => {

@@ -154,15 +154,9 @@ rove_core::config_types! {
 }
 
 impl NazaConfig {
-    /// Index of each channel in the generic config.
-    pub const AILERON: usize = 0;
-    /// Elevator channel index.
-    pub const ELEVATOR: usize = 1;
-    /// Throttle channel index.
+    /// Index of the throttle channel in the generic config.
     pub const THROTTLE: usize = 2;
-    /// Rudder channel index.
-    pub const RUDDER: usize = 3;
-    /// Mode (U) channel index.
+    /// Index of the mode (U) channel in the generic config.
     pub const MODE: usize = 4;
 }
 

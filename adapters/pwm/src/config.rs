@@ -82,8 +82,7 @@ impl Polarity {
 rove_core::config_types! {
     /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
     /// `"eyedrive"` and `"naza"` (flattened into each).
-    #[serde(deny_unknown_fields)]
-    pub settings PwmBackendSettings {
+    pub table PwmBackendSettings {
         backend: Option<BackendKind> => "Which device drives the channels.",
         period_us: Option<Int> => "PWM period, µs.",
         sysfs_root: Option<PathBuf> => "sysfs: the PWM class directory.",
@@ -92,8 +91,7 @@ rove_core::config_types! {
 
     /// Where a channel is wired, as written: the one definition of the address keys, shared by
     /// generic channels and the preset tables (flattened into each).
-    #[serde(deny_unknown_fields)]
-    pub settings PwmAddressSettings {
+    pub table PwmAddressSettings {
         chip: Option<Int> => "sysfs: the `pwmchipN`.",
         channel: Option<Int> => "sysfs: the channel within the chip (`pwmchipN/pwmM`).",
         pin: Option<Int> => "rppal: software PWM on this BCM GPIO pin.",
@@ -325,66 +323,59 @@ impl PwmAddressSettings {
             errors.add("pin", shown, rule);
             return None;
         }
+        // The one address key given (checked above), the channel's before the chip's.
+        let keys = [("pin", self.pin), ("pwm_channel", self.pwm_channel)];
+        let keys = keys
+            .into_iter()
+            .chain([("channel", self.channel), ("chip", self.chip)]);
+        let given = keys.filter_map(|(key, v)| v.map(|v| (key, v))).next();
         let u32_range = 0..=Int::from(u32::MAX);
-        let sysfs = |errors: &mut ConfigErrors| -> Option<ChannelAddress> {
-            let chip = match self.chip {
-                Some(c) => errors.int("chip", c, u32_range.clone(), "")?,
-                None => default_chip,
-            };
-            let Some(channel) = self.channel else {
-                let rule =
-                    "must name the channel within the chip (pwmchipN/pwmM) for backend = \"sysfs\"";
-                errors.absent("channel", rule);
-                return None;
-            };
-            let channel = errors.int("channel", channel, u32_range.clone(), "")?;
-            Some(ChannelAddress::Sysfs { chip, channel })
-        };
-        match backend {
-            BackendKind::Sysfs if pin.is_some() || hw.is_some() => {
-                let key = if pin.is_some() { "pin" } else { "pwm_channel" };
-                let value = self.pin.or(self.pwm_channel).unwrap_or_default();
+        match (backend, given) {
+            (BackendKind::Sysfs, Some((key @ ("pin" | "pwm_channel"), v))) => {
                 let rule =
                     "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`";
-                errors.add(key, value, rule);
+                errors.add(key, v, rule);
                 None
             }
-            BackendKind::Sysfs => sysfs(errors),
-            BackendKind::Rppal if sysfs_given => {
-                let key = if self.channel.is_some() {
-                    "channel"
-                } else {
-                    "chip"
-                };
-                let value = self.channel.or(self.chip).unwrap_or_default();
+            (BackendKind::Rppal, Some((key @ ("channel" | "chip"), v))) => {
                 let rule = "only applies to backend = \"sysfs\"; rppal channels take `pin` or \
                             `pwm_channel`";
-                errors.add(key, value, rule);
+                errors.add(key, v, rule);
                 None
             }
-            BackendKind::Rppal => match (pin, hw) {
-                (Some(pin), None) => {
+            (_, Some(("pin", _))) => {
+                if backend == BackendKind::Rppal {
                     let rule = "software PWM on a GPIO pin has no polarity setting; use a \
                                 hardware `pwm_channel` or invert externally";
                     errors.not_for("polarity", self.polarity.map(Polarity::as_sysfs), rule);
-                    pin.map(ChannelAddress::GpioPin)
                 }
-                (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
-                _ => {
-                    let rule = "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
-                                for backend = \"rppal\"";
-                    errors.absent("pin", rule);
-                    None
-                }
-            },
+                pin.flatten().map(ChannelAddress::GpioPin)
+            }
+            (_, Some(("pwm_channel", _))) => hw.flatten().map(ChannelAddress::HardwarePwm),
+            (BackendKind::Rppal, None) => {
+                let rule = "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) for \
+                            backend = \"rppal\"";
+                errors.absent("pin", rule);
+                None
+            }
             // Sim takes any one address form (so that a Pi config runs on a laptop by changing
             // only `backend`), or none.
-            BackendKind::Sim => match (pin, hw) {
-                (Some(pin), _) => pin.map(ChannelAddress::GpioPin),
-                (_, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
-                _ if sysfs_given => sysfs(errors),
-                _ => Some(ChannelAddress::Unaddressed),
-            },
+            (BackendKind::Sim, None) => Some(ChannelAddress::Unaddressed),
+            // `chip`/`channel`, given or (sysfs) required.
+            _ => {
+                let chip = match self.chip {
+                    Some(c) => errors.int("chip", c, u32_range.clone(), "")?,
+                    None => default_chip,
+                };
+                let Some(channel) = self.channel else {
+                    let rule = "must name the channel within the chip (pwmchipN/pwmM) for \
+                                backend = \"sysfs\"";
+                    errors.absent("channel", rule);
+                    return None;
+                };
+                let channel = errors.int("channel", channel, u32_range, "")?;
+                Some(ChannelAddress::Sysfs { chip, channel })
+            }
         }
     }
 }
