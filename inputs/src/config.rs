@@ -214,21 +214,19 @@ impl InputConfig {
     /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
     /// when the source already was a device.
     pub fn with_device(mut self, selector: DeviceSelector) -> Self {
-        self.source = match self.source {
+        let reopen = Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs());
+        let (grab, reopen_interval) = match self.source {
             SourceConfig::Evdev {
                 grab,
                 reopen_interval,
                 ..
-            } => SourceConfig::Evdev {
-                selector,
-                grab,
-                reopen_interval,
-            },
-            SourceConfig::Replay { .. } => SourceConfig::Evdev {
-                selector,
-                grab: false,
-                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs()),
-            },
+            } => (grab, reopen_interval),
+            SourceConfig::Replay { .. } => (false, reopen),
+        };
+        self.source = SourceConfig::Evdev {
+            selector,
+            grab,
+            reopen_interval,
         };
         if self.kind == SourceKind::Replay {
             self.kind = SourceKind::Joystick;
@@ -239,18 +237,14 @@ impl InputConfig {
     /// Makes a relative replay `file` or device path relative to `base` (the directory of the
     /// config file), so a config works wherever the process was started.
     pub fn resolve_relative_to(&mut self, base: &Path) {
-        let fix = |p: &mut PathBuf| {
-            if p.is_relative() {
-                *p = base.join(&*p);
-            }
-        };
-        match &mut self.source {
-            SourceConfig::Replay { file } => fix(file),
-            SourceConfig::Evdev {
-                selector: DeviceSelector::Path(p),
-                ..
-            } => fix(p),
-            SourceConfig::Evdev { .. } => {}
+        if let SourceConfig::Replay { file: p }
+        | SourceConfig::Evdev {
+            selector: DeviceSelector::Path(p),
+            ..
+        } = &mut self.source
+            && p.is_relative()
+        {
+            *p = base.join(&*p);
         }
     }
 }
@@ -290,12 +284,7 @@ impl InputSettings {
                 SourceKind::Joystick
             }
         };
-        let config = self.validate_inner(kind, &mut errors);
-        errors.into_result(config)
-    }
-
-    fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
-        let source = self.validate_source(kind, errors);
+        let source = self.validate_source(kind, &mut errors);
         let rule = " ms (leave it out to turn silence detection off)";
         let silence = (self.silence_timeout_ms, SILENCE_TIMEOUT_RANGE_MS);
         let silence_timeout = errors.opt_int("silence_timeout_ms", silence.0, silence.1, rule);
@@ -328,7 +317,7 @@ impl InputSettings {
                     // An axis used as a stick cannot also be a button, in either direction.
                     let (key, name) = (format!("{prefix}.abs"), abs_name(code));
                     for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
-                        claim(errors, c, &key, &name);
+                        claim(&mut errors, c, &key, &name);
                     }
                 }
                 Some(AxisInput::Keys {
@@ -337,7 +326,7 @@ impl InputSettings {
                     for (key, code) in [("negative", negative), ("positive", positive)] {
                         let Some(code) = code else { continue };
                         let (key, name) = (format!("{prefix}.{key}"), crate::codes::key_name(code));
-                        claim(errors, Control::Key(code), &key, &name);
+                        claim(&mut errors, Control::Key(code), &key, &name);
                     }
                 }
                 None => {}
@@ -374,17 +363,17 @@ impl InputSettings {
                 errors.add(key, format!("{value:?}"), rule);
                 continue;
             };
-            claim(errors, control, &key, value);
+            claim(&mut errors, control, &key, value);
             match action {
                 None => mapping.deadman = Some(control),
                 Some(a) => mapping.actions.push((control, a)),
             }
         }
-        InputConfig {
+        errors.into_result(InputConfig {
             kind,
             source,
             mapping,
-        }
+        })
     }
 
     fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {
