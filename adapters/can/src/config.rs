@@ -16,7 +16,7 @@ use crate::dronecan::{
 };
 use crate::raw::{Endian, FieldLayout, Width};
 use crate::scale::{Scale, Source, UnitScale, axis_name};
-use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{Int, Unique, UnknownKeys};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::Axis;
 use serde::de::{self, MapAccess, Visitor};
@@ -507,7 +507,7 @@ fn validate_field(
     earlier: &[RawOutputConfig],
     errors: &mut ConfigErrors,
 ) -> Option<RawOutputConfig> {
-    (o.unknown).check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
+    (o.unknown).check(errors, &[FIELD_KEYS, ScaleSettings::<Int>::KEYS]);
     let name = (o.name.clone()).unwrap_or_else(|| default_name.into());
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
         errors.add("name", "\"\"", "must not be empty");
@@ -648,7 +648,7 @@ const ESC_KEYS: &[&str] = &["name", "index", "source"];
 
 impl ServoSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
-        (self.unknown).check(errors, &[SERVO_KEYS, keys_of::<ScaleSettings<f64>>()]);
+        (self.unknown).check(errors, &[SERVO_KEYS, ScaleSettings::<f64>::KEYS]);
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let actuator_id = errors.req_int("actuator_id", self.actuator_id, 0..=255, "");
         let source = errors
@@ -671,7 +671,7 @@ impl ServoSettings {
 
 impl EscSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
-        (self.unknown).check(errors, &[ESC_KEYS, keys_of::<ScaleSettings<Int>>()]);
+        (self.unknown).check(errors, &[ESC_KEYS, ScaleSettings::<Int>::KEYS]);
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let unit = format!(" (RawCommand has {MAX_ESCS} channels)");
         let index = errors.req_int("index", self.index, 0..=(MAX_ESCS as Int - 1), &unit);

@@ -9,7 +9,7 @@
 //! connection = "tcpout:127.0.0.1:5760"
 //! ```
 
-use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{Int, Unique, UnknownKeys};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, AxisMap, AxisMapSettings};
 use rove_core::msg::Mode;
@@ -471,7 +471,7 @@ impl MavlinkSettings {
         for (i, c) in self.channels.iter().enumerate() {
             let owner = format!("channels[{i}]");
             let (channel, map) = errors.within(&owner, |ce| {
-                let keys = [&["channel", "axis"], keys_of::<AxisMapSettings>()];
+                let keys = [&["channel", "axis"], AxisMapSettings::KEYS];
                 c.unknown.check(ce, &keys);
                 let channel = ce.req_int::<u8>("channel", c.channel, 1..=max_channel, rule);
                 if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {

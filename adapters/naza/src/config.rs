@@ -2,11 +2,11 @@
 //! [`NazaConfig`] (a generic PWM vehicle plus the Naza's own policies). Errors name the Naza
 //! keys (`mode.atti_us`, `throttle.max_us`), not the generic channel list.
 
-use rove_core::config::{Int, UnknownKeys, keys_of};
+use rove_core::config::{Int, UnknownKeys};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{ModeLevels, ModeLevelsSettings};
 use rove_core::msg::{Mode, MovementCommand};
-use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
+use rove_pwm::config::{SERVO_KEYS, finish_preset, preset_tables, rename_channels};
 use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
     PwmVehicleConfig, PwmVehicleSettings,
@@ -221,14 +221,14 @@ impl NazaSettings {
     pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
         let naza_keys: Vec<&str> = NAZA_KEYS.split_whitespace().collect();
-        let keys = [keys_of::<PwmBackendSettings>(), &naza_keys];
+        let keys = [PwmBackendSettings::KEYS, &naza_keys];
         self.unknown.check(&mut errors, &keys);
         let names = CHANNELS.map(|c| c.0);
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
         let sticks = sticks.map(|t| t.as_ref().map(|t| &t.unknown));
-        preset_tables(&mut errors, &names[..4], &sticks, &servo_keys());
+        preset_tables(&mut errors, &names[..4], &sticks, &SERVO_KEYS);
         let mode_keys = [
-            keys_of::<PwmAddressSettings>(),
+            PwmAddressSettings::KEYS,
             &["manual_us", "atti_us", "gps_us"],
         ];
         let mode = [self.mode.as_ref().map(|m| &m.unknown)];

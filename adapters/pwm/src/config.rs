@@ -6,7 +6,7 @@
 //! Keys of errors are relative to the `[output]` table, e.g. `channels[2].max_us`; the gateway
 //! puts `output.` in front.
 
-use rove_core::config::{ABSENT, Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{ABSENT, Int, Unique, UnknownKeys};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{
     Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US, pulse,
@@ -253,7 +253,7 @@ impl PwmVehicleSettings {
     /// key table, does not apply to its backend or source, or repeats a name or an address.
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [keys_of::<PwmBackendSettings>(), &["channels"]];
+        let keys = [PwmBackendSettings::KEYS, &["channels"]];
         self.unknown.check(&mut errors, &keys);
         let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
@@ -390,9 +390,9 @@ impl ChannelSettings {
     ) -> Option<ChannelConfig> {
         let pieces = [
             CHANNEL_KEYS,
-            keys_of::<PwmAddressSettings>(),
-            keys_of::<AxisMapSettings>(),
-            keys_of::<ModeLevelsSettings>(),
+            PwmAddressSettings::KEYS,
+            AxisMapSettings::KEYS,
+            ModeLevelsSettings::KEYS,
         ];
         self.unknown.check(errors, &pieces);
         let name = match self.name.as_deref() {
@@ -508,10 +508,7 @@ pub fn preset_tables(
 }
 
 /// The keys of a preset's servo channel table.
-pub fn servo_keys() -> [&'static [&'static str]; 2] {
-    let address = keys_of::<PwmAddressSettings>();
-    [address, keys_of::<AxisMapSettings>()]
-}
+pub const SERVO_KEYS: [&[&str]; 2] = [PwmAddressSettings::KEYS, AxisMapSettings::KEYS];
 
 /// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
 /// (`names[i]`), so that errors name the keys as written.
