@@ -419,20 +419,16 @@ impl ChannelSettings {
         }
         let levels = self.levels.given().into_iter();
         let levels = levels.map(|(k, v)| (k, v.to_string()));
-        // (source, lowest and highest pulse it can output, default failsafe)
-        let (source, lo, hi, default_failsafe) = match kind {
+        // (source, the failsafe's range, highest pulse it can output, default failsafe)
+        let (source, range, hi, default_failsafe) = match kind {
             ChannelSourceKind::Mode => {
                 not_for(errors, self.map.given());
                 let levels = errors.section("", self.levels.validate(DEFAULT_MODE_LEVELS))?;
-                let all = Mode::ALL.map(|m| levels.level(m));
-                let (lo, hi) = (all.iter().min().copied(), all.iter().max().copied());
-                let assisted = levels.level(Mode::Assisted);
-                (
-                    ChannelSource::Mode(levels),
-                    lo.unwrap_or(0),
-                    hi.unwrap_or(0),
-                    assisted,
-                )
+                let hi = Mode::ALL.map(|m| levels.level(m)).into_iter().max();
+                let (source, assisted) =
+                    (ChannelSource::Mode(levels), levels.level(Mode::Assisted));
+                // A mode channel may fail safe to any level the device understands.
+                (source, PULSE_RANGE_US, hi.unwrap_or(0), assisted)
             }
             ChannelSourceKind::Constant => {
                 not_for(errors, self.map.given().into_iter().chain(levels).collect());
@@ -441,7 +437,7 @@ impl ChannelSettings {
                     return None;
                 };
                 let v = pulse(errors, "value_us", v)?;
-                (ChannelSource::Constant(v), v, v, v)
+                (ChannelSource::Constant(v), v.into()..=v.into(), v, v)
             }
             axis => {
                 not_for(errors, levels.collect());
@@ -453,18 +449,15 @@ impl ChannelSettings {
                 };
                 let map = errors.section("", self.map.validate())?;
                 let source = ChannelSource::Axis(axis, map);
-                (source, map.min_us(), map.max_us(), map.centre_us())
+                let range = map.min_us().into()..=map.max_us().into();
+                (source, range, map.max_us(), map.centre_us())
             }
         };
         let given_failsafe = self.failsafe_us.is_some();
         let failsafe_us = *self.failsafe_us.get_or_insert(default_failsafe.into());
-        let (flo, fhi) = match source {
-            // A mode channel may fail safe to any level the device understands.
-            ChannelSource::Mode(_) => (*PULSE_RANGE_US.start(), *PULSE_RANGE_US.end()),
-            _ => (lo.into(), hi.into()),
-        };
-        if !(flo..=fhi).contains(&failsafe_us) {
-            let rule = format!("must be within the channel's range {flo}..={fhi} µs");
+        if !range.contains(&failsafe_us) {
+            let (lo, hi) = (range.start(), range.end());
+            let rule = format!("must be within the channel's range {lo}..={hi} µs");
             errors.add("failsafe_us", failsafe_us, rule);
         }
         let highest = Int::from(hi).max(failsafe_us);
