@@ -655,17 +655,14 @@ impl RawOperator {
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        let own = op
+        for (i, v) in op
             .drive
             .iter()
             .enumerate()
-            .filter(|(_, v)| **v == self.device.id);
-        for (i, v) in own {
-            errors.add(
-                format!("operator.drive[{i}]"),
-                v,
-                "is this operator's own device id",
-            );
+            .filter(|(_, v)| **v == self.device.id)
+        {
+            let rule = "is this operator's own device id";
+            errors.add(format!("operator.drive[{i}]"), v, rule);
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
         let mut device = |settings: &mut rove_inputs::InputSettings, kind| {

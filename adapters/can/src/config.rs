@@ -365,7 +365,7 @@ impl CanSettings {
             errors.add("interface", format!("{interface:?}"), rule);
         }
         let rate = check_rate(&mut self.rate_hz, DEFAULT_RATE_HZ, &mut errors);
-        let (mut frames, mut ids, mut our_ids) = (Vec::new(), Unique::default(), Vec::new());
+        let (mut frames, mut ids) = (Vec::new(), Unique::default());
         for (i, f) in self.frames.iter_mut().enumerate() {
             let owner = format!("frames[{i}]");
             let frame = errors.within(&owner, |fe| {
@@ -375,7 +375,6 @@ impl CanSettings {
                     .and_then(|id| CanId::new(id, f.extended.unwrap_or(false)).ok());
                 if let Some(id) = id {
                     ids.check(fe, id, &owner, ("id", id), "has the same identifier");
-                    our_ids.push((id, i));
                 }
                 frame
             });
@@ -384,7 +383,7 @@ impl CanSettings {
         let dronecan = (self.dronecan.as_mut())
             .and_then(|d| errors.within("dronecan", |de| d.validate(rate, &mut names, de)));
         if let Some(dc) = &dronecan {
-            // Our own DroneCAN identifiers must not be reused by a raw frame.
+            // Our own DroneCAN identifiers must not be reused by a raw frame (the first is named).
             let ours = [
                 (ARRAY_COMMAND, dc.priority),
                 (RAW_COMMAND, dc.priority),
@@ -392,9 +391,9 @@ impl CanSettings {
             ];
             for (t, priority) in ours {
                 let id = CanId::Extended(dronecan::message_id(priority, t.id, dc.node_id));
-                for (_, i) in our_ids.iter().filter(|(other, _)| *other == id).take(1) {
+                if let Some(frame) = ids.claim(id, "dronecan") {
                     let rule = format!("must differ from our DroneCAN {} identifier", t.name);
-                    errors.add(format!("frames[{i}].id"), id, rule);
+                    errors.add(format!("{frame}.id"), id, rule);
                 }
             }
         }
