@@ -348,17 +348,6 @@ pub fn mode_table(autopilot: AutopilotKind, vehicle: VehicleKind) -> Vec<(&'stat
     entries.filter_map(mode).collect()
 }
 
-/// The autopilot's default RCMAP for rc_override.
-fn default_channels(vehicle: VehicleKind) -> Vec<(u8, Axis)> {
-    match vehicle {
-        VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
-        VehicleKind::Copter => {
-            let axes = [Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw];
-            (1..=4).zip(axes).collect()
-        }
-    }
-}
-
 impl MavlinkSettings {
     /// Validates, filling defaults into `self`, collecting every error with its key (relative
     /// to `[output]`).
@@ -454,7 +443,14 @@ impl MavlinkSettings {
             return Vec::new();
         }
         if self.channels.is_empty() {
-            self.channels = (default_channels(vehicle).into_iter())
+            // The autopilot's default RCMAP.
+            let rcmap: Vec<(u8, Axis)> = match vehicle {
+                VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
+                VehicleKind::Copter => (1..=4)
+                    .zip([Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw])
+                    .collect(),
+            };
+            self.channels = (rcmap.into_iter())
                 .map(|(channel, axis)| ChannelSettings {
                     channel: Some(channel.into()),
                     axis: Some(axis),
