@@ -35,13 +35,24 @@ use std::time::Duration;
 /// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
 /// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. `pub settings Name`
 /// is a struct with the derives of every table as written (`Debug, Clone, Default, PartialEq,
-/// Serialize, Deserialize`), and `pub table Name` one that also rejects unknown keys
+/// Serialize, Deserialize`) whose `Name::KNOWN` lists the keys it takes, for
+/// [`UnknownKeys::check`]: its own and, for a `#[serde(flatten)]` field, the piece's `KEYS`.
+/// `pub table Name` is one with the same derives that rejects unknown keys instead
 /// (`deny_unknown_fields`: every table that flattens nothing, see the module docs) and lists
-/// them in `Name::KEYS`, for [`UnknownKeys::check`] of the tables it is flattened into.
+/// them in `Name::KEYS`.
 /// Attributes (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    (@known [$($known:expr,)*]) => { &[$($known),*] };
+    (@known [$($known:expr,)*] #[serde(flatten)] $field:ident: $ty:ty => $doc:literal,
+        $($rest:tt)*) => {
+        $crate::config_types!(@known [$($known,)* <$ty>::KEYS,] $($rest)*)
+    };
+    (@known [$($known:expr,)*] $(#[$a:meta])* $field:ident: $ty:ty => $doc:literal,
+        $($rest:tt)*) => {
+        $crate::config_types!(@known [$($known,)* &[stringify!($field)],] $($rest)*)
+    };
     ($(#[$attr:meta])* pub table $name:ident $(<$($g:ident),+>)? {
         $($(#[$field_attr:meta])* $field:ident: $ty:ty => $doc:literal,)*
     } $($rest:tt)*) => {
@@ -50,15 +61,21 @@ macro_rules! config_types {
             pub const KEYS: &'static [&'static str] = &[$(stringify!($field)),*];
         }
         $crate::config_types! {
+            #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
             #[serde(deny_unknown_fields)]
             $(#[$attr])*
-            pub settings $name $(<$($g),+>)? { $($(#[$field_attr])* $field: $ty => $doc,)* }
+            pub struct $name $(<$($g),+>)? { $($(#[$field_attr])* $field: $ty => $doc,)* }
             $($rest)*
         }
     };
     ($(#[$attr:meta])* pub settings $name:ident $(<$($g:ident),+>)? {
         $($body:tt)*
     } $($rest:tt)*) => {
+        impl $(<$($g),+>)? $name $(<$($g),+>)? {
+            /// Every key the table takes, its own and its flattened pieces', in order.
+            pub const KNOWN: &'static [&'static [&'static str]] =
+                $crate::config_types!(@known [] $($body)*);
+        }
         $crate::config_types! {
             #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
             $(#[$attr])*
@@ -242,6 +259,9 @@ impl<K: Eq + Hash> Unique<K> {
 pub struct UnknownKeys(pub Vec<(String, String)>);
 
 impl UnknownKeys {
+    /// None of its own: the keys it takes are the unknown ones.
+    pub const KEYS: &'static [&'static str] = &[];
+
     /// Records `key = value: unknown key …` for each collected key; `known` lists the keys the
     /// table takes, for the message.
     pub fn check(&self, errors: &mut ConfigErrors, known: &[&[&str]]) {
@@ -321,13 +341,13 @@ mod tests {
         }
     }
 
-    #[derive(Debug, Default, Deserialize)]
-    struct Table {
-        name: Option<String>,
-        #[serde(flatten)]
-        piece: Piece,
-        #[serde(flatten)]
-        unknown: UnknownKeys,
+    crate::config_types! {
+        /// A table built from a piece.
+        pub settings Table {
+            name: Option<String> => "A key of its own.",
+            #[serde(flatten)] piece: Piece => "The piece's keys.",
+            #[serde(flatten)] unknown: UnknownKeys => "The others.",
+        }
     }
 
     #[test]
@@ -346,7 +366,7 @@ mod tests {
         assert_eq!(t.piece.a, Some(3));
         assert_eq!(t.name.as_deref(), Some("x"));
         let mut errors = ConfigErrors::default();
-        t.unknown.check(&mut errors, &[&["name"], Piece::KEYS]);
+        t.unknown.check(&mut errors, Table::KNOWN);
         assert_eq!(
             errors.to_string(),
             "bogus = […]: unknown key, expected one of `name`, `a`\n\

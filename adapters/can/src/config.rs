@@ -506,7 +506,7 @@ fn validate_field(
     earlier: &[RawOutputConfig],
     errors: &mut ConfigErrors,
 ) -> Option<RawOutputConfig> {
-    (o.unknown).check(errors, &[FIELD_KEYS, ScaleSettings::<Int>::KEYS]);
+    (o.unknown).check(errors, FieldSettings::KNOWN);
     let name = (o.name.clone()).unwrap_or_else(|| default_name.into());
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
         errors.add("name", "\"\"", "must not be empty");
@@ -564,9 +564,6 @@ fn validate_field(
         failsafe,
     })
 }
-
-/// The keys of an output table that are not in [`ScaleSettings`].
-const FIELD_KEYS: &[&str] = &["name", "source", "offset", "width", "endian", "signed"];
 
 impl DroneCanSettings {
     fn validate(
@@ -641,13 +638,9 @@ fn actuators<S, C>(
     ok.then_some(out)
 }
 
-/// The keys of a servo or ESC table that are not in [`ScaleSettings`].
-const SERVO_KEYS: &[&str] = &["name", "actuator_id", "source"];
-const ESC_KEYS: &[&str] = &["name", "index", "source"];
-
 impl ServoSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
-        (self.unknown).check(errors, &[SERVO_KEYS, ScaleSettings::<f64>::KEYS]);
+        (self.unknown).check(errors, Self::KNOWN);
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let actuator_id = errors.req_int("actuator_id", self.actuator_id, 0..=255, "");
         let source = errors
@@ -670,7 +663,7 @@ impl ServoSettings {
 
 impl EscSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
-        (self.unknown).check(errors, &[ESC_KEYS, ScaleSettings::<Int>::KEYS]);
+        (self.unknown).check(errors, Self::KNOWN);
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let unit = format!(" (RawCommand has {MAX_ESCS} channels)");
         let index = errors.req_int("index", self.index, 0..=(MAX_ESCS as Int - 1), &unit);

@@ -467,8 +467,7 @@ impl MavlinkSettings {
         for (i, c) in self.channels.iter().enumerate() {
             let owner = format!("channels[{i}]");
             let (channel, map) = errors.within(&owner, |ce| {
-                let keys = [&["channel", "axis"], AxisMapSettings::KEYS];
-                c.unknown.check(ce, &keys);
+                c.unknown.check(ce, ChannelSettings::KNOWN);
                 let channel = ce.req_int::<u8>("channel", c.channel, 1..=max_channel, rule);
                 if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
                     let rule = format!("is already used by {first}");

@@ -6,7 +6,7 @@ use rove_core::config::{Int, UnknownKeys};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{ModeLevels, ModeLevelsSettings};
 use rove_core::msg::{Mode, MovementCommand};
-use rove_pwm::config::{SERVO_KEYS, finish_preset, preset_tables, rename_channels};
+use rove_pwm::config::{finish_preset, preset_tables, rename_channels};
 use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
     PwmVehicleConfig, PwmVehicleSettings,
@@ -127,10 +127,6 @@ rove_core::config_types! {
     }
 }
 
-/// The keys of `[output]` for the Naza-M besides the backend keys.
-const NAZA_KEYS: &str = "aileron elevator throttle rudder mode failsafe_mode failsafe_policy \
-                         land_throttle_us land_ramp_ms csc csc_hold_ms";
-
 rove_core::config_types! {
     /// The throttle in failsafe, validated.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -220,19 +216,13 @@ impl NazaSettings {
     /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…).
     pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
-        let naza_keys: Vec<&str> = NAZA_KEYS.split_whitespace().collect();
-        let keys = [PwmBackendSettings::KEYS, &naza_keys];
-        self.unknown.check(&mut errors, &keys);
+        self.unknown.check(&mut errors, Self::KNOWN);
         let names = CHANNELS.map(|c| c.0);
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
         let sticks = sticks.map(|t| t.as_ref().map(|t| &t.unknown));
-        preset_tables(&mut errors, &names[..4], &sticks, &SERVO_KEYS);
-        let mode_keys = [
-            PwmAddressSettings::KEYS,
-            &["manual_us", "atti_us", "gps_us"],
-        ];
+        preset_tables(&mut errors, &names[..4], &sticks, StickSettings::KNOWN);
         let mode = [self.mode.as_ref().map(|m| &m.unknown)];
-        preset_tables(&mut errors, &names[4..], &mode, &mode_keys);
+        preset_tables(&mut errors, &names[4..], &mode, ModeChannelSettings::KNOWN);
         let hold_ms = *self.csc_hold_ms.get_or_insert(DEFAULT_CSC_HOLD_MS);
         let hold = errors.millis("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
         let policy = *self.failsafe_policy.get_or_insert(FailsafePolicy::Hover);

@@ -145,9 +145,6 @@ rove_core::config_types! {
     }
 }
 
-/// The keys of a `[[output.channels]]` table that are not in a flattened piece.
-const CHANNEL_KEYS: &[&str] = &["name", "source", "value_us", "failsafe_us"];
-
 rove_core::config_types! {
     /// Where a channel is wired.
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -253,8 +250,7 @@ impl PwmVehicleSettings {
     /// key table, does not apply to its backend or source, or repeats a name or an address.
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [PwmBackendSettings::KEYS, &["channels"]];
-        self.unknown.check(&mut errors, &keys);
+        self.unknown.check(&mut errors, Self::KNOWN);
         let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
             let rule = "must list at least one channel ([[output.channels]])";
@@ -388,13 +384,7 @@ impl ChannelSettings {
         period_us: Int,
         errors: &mut ConfigErrors,
     ) -> Option<ChannelConfig> {
-        let pieces = [
-            CHANNEL_KEYS,
-            PwmAddressSettings::KEYS,
-            AxisMapSettings::KEYS,
-            ModeLevelsSettings::KEYS,
-        ];
-        self.unknown.check(errors, &pieces);
+        self.unknown.check(errors, Self::KNOWN);
         let name = match self.name.as_deref() {
             Some(n) if !n.trim().is_empty() => Some(n.to_string()),
             other => {
@@ -499,9 +489,6 @@ pub fn preset_tables(
         }
     }
 }
-
-/// The keys of a preset's servo channel table.
-pub const SERVO_KEYS: [&[&str]; 2] = [PwmAddressSettings::KEYS, AxisMapSettings::KEYS];
 
 /// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
 /// (`names[i]`), so that errors name the keys as written.
