@@ -22,7 +22,7 @@
 //! `rove check-config --print` shows) and load again as the same validated config.
 
 use crate::error::{ConfigErrors, Result};
-use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
+use serde::de::{Deserializer, IgnoredAny, MapAccess, Visitor};
 use serde::{Deserialize, Serialize, Serializer};
 use std::collections::HashMap;
 use std::fmt;
@@ -35,14 +35,47 @@ use std::time::Duration;
 /// `Name => "doc",` for `#[doc = "doc"] Name,`, and a variant with data takes it after the doc:
 /// `Name => "doc" (Type),` or `Name => "doc" { field: Type => "doc", },`. `pub settings Name`
 /// is a struct with the derives of every table as written (`Debug, Clone, Default, PartialEq,
-/// Serialize, Deserialize`). Attributes (docs, derives, serde's) before an item, a field or a
-/// variant are kept.
+/// Serialize, Deserialize`) whose `Name::KNOWN` lists the keys it takes, for
+/// [`UnknownKeys::check`]: its own and, for a `#[serde(flatten)]` field, the piece's `KEYS`.
+/// `pub table Name` is one with the same derives that rejects unknown keys instead
+/// (`deny_unknown_fields`: every table that flattens nothing, see the module docs) and lists
+/// them in `Name::KEYS`.
+/// Attributes (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    (@known [$($known:expr,)*]) => { &[$($known),*] };
+    (@known [$($known:expr,)*] #[serde(flatten)] $field:ident: $ty:ty => $doc:literal,
+        $($rest:tt)*) => {
+        $crate::config_types!(@known [$($known,)* <$ty>::KEYS,] $($rest)*)
+    };
+    (@known [$($known:expr,)*] $(#[$a:meta])* $field:ident: $ty:ty => $doc:literal,
+        $($rest:tt)*) => {
+        $crate::config_types!(@known [$($known,)* &[stringify!($field)],] $($rest)*)
+    };
+    ($(#[$attr:meta])* pub table $name:ident $(<$($g:ident),+>)? {
+        $($(#[$field_attr:meta])* $field:ident: $ty:ty => $doc:literal,)*
+    } $($rest:tt)*) => {
+        impl $(<$($g),+>)? $name $(<$($g),+>)? {
+            /// The keys the table takes, as currently spelt.
+            pub const KEYS: &'static [&'static str] = &[$(stringify!($field)),*];
+        }
+        $crate::config_types! {
+            #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
+            #[serde(deny_unknown_fields)]
+            $(#[$attr])*
+            pub struct $name $(<$($g),+>)? { $($(#[$field_attr])* $field: $ty => $doc,)* }
+            $($rest)*
+        }
+    };
     ($(#[$attr:meta])* pub settings $name:ident $(<$($g:ident),+>)? {
         $($body:tt)*
     } $($rest:tt)*) => {
+        impl $(<$($g),+>)? $name $(<$($g),+>)? {
+            /// Every key the table takes, its own and its flattened pieces', in order.
+            pub const KNOWN: &'static [&'static [&'static str]] =
+                $crate::config_types!(@known [] $($body)*);
+        }
         $crate::config_types! {
             #[derive(Debug, Clone, Default, PartialEq, ::serde::Serialize, ::serde::Deserialize)]
             $(#[$attr])*
@@ -76,7 +109,7 @@ macro_rules! config_types {
 pub type Int = i64;
 
 /// Older spellings still accepted (serde aliases), as (old, current): errors name the current
-/// key, the gateway finds either on its line, and "expected one of" lists only the current.
+/// key and the gateway finds either on its line.
 pub const ALIASES: &[(&str, &str)] = &[("invert", "reverse"), ("deadzone_pct", "deadband_pct")];
 
 /// Shown as the value of a key that is absent but required.
@@ -226,12 +259,14 @@ impl<K: Eq + Hash> Unique<K> {
 pub struct UnknownKeys(pub Vec<(String, String)>);
 
 impl UnknownKeys {
+    /// None of its own: the keys it takes are the unknown ones.
+    pub const KEYS: &'static [&'static str] = &[];
+
     /// Records `key = value: unknown key …` for each collected key; `known` lists the keys the
     /// table takes, for the message.
     pub fn check(&self, errors: &mut ConfigErrors, known: &[&[&str]]) {
         for (key, value) in &self.0 {
             let names: Vec<String> = (known.iter().flat_map(|k| k.iter()))
-                .filter(|k| !ALIASES.iter().any(|(old, _)| old == *k))
                 .map(|k| format!("`{k}`"))
                 .collect();
             let rule = format!("unknown key, expected one of {}", names.join(", "));
@@ -295,67 +330,24 @@ impl Shown {
     }
 }
 
-/// The keys a flatten-free serde struct takes (aliases included), for [`UnknownKeys::check`]:
-/// read from what its derived `Deserialize` hands the deserializer.
-pub fn keys_of<T: for<'de> Deserialize<'de>>() -> &'static [&'static str] {
-    struct Probe(&'static [&'static str]);
-    #[derive(Debug)]
-    struct Stop;
-    impl fmt::Display for Stop {
-        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-            f.write_str("probe")
-        }
-    }
-    impl std::error::Error for Stop {}
-    impl de::Error for Stop {
-        fn custom<M: fmt::Display>(_: M) -> Self {
-            Stop
-        }
-    }
-    impl<'de> Deserializer<'de> for &mut Probe {
-        type Error = Stop;
-        fn deserialize_any<V: Visitor<'de>>(self, _: V) -> std::result::Result<V::Value, Stop> {
-            Err(Stop)
-        }
-        fn deserialize_struct<V: Visitor<'de>>(
-            self,
-            _: &'static str,
-            fields: &'static [&'static str],
-            _: V,
-        ) -> std::result::Result<V::Value, Stop> {
-            self.0 = fields;
-            Err(Stop)
-        }
-        serde::forward_to_deserialize_any! {
-            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes byte_buf
-            option unit unit_struct newtype_struct seq tuple tuple_struct map enum identifier
-            ignored_any
-        }
-    }
-    let mut probe = Probe(&[]);
-    // The error is the probe's own stop signal; only the recorded field list matters.
-    let _ = T::deserialize(&mut probe);
-    probe.0
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[derive(Debug, Default, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    struct Piece {
-        #[serde(alias = "b")]
-        a: Option<Int>,
+    crate::config_types! {
+        /// A piece with an older spelling.
+        pub table Piece {
+            #[serde(alias = "b")] a: Option<Int> => "Spelt `b` before.",
+        }
     }
 
-    #[derive(Debug, Default, Deserialize)]
-    struct Table {
-        name: Option<String>,
-        #[serde(flatten)]
-        piece: Piece,
-        #[serde(flatten)]
-        unknown: UnknownKeys,
+    crate::config_types! {
+        /// A table built from a piece.
+        pub settings Table {
+            name: Option<String> => "A key of its own.",
+            #[serde(flatten)] piece: Piece => "The piece's keys.",
+            #[serde(flatten)] unknown: UnknownKeys => "The others.",
+        }
     }
 
     #[test]
@@ -374,12 +366,11 @@ mod tests {
         assert_eq!(t.piece.a, Some(3));
         assert_eq!(t.name.as_deref(), Some("x"));
         let mut errors = ConfigErrors::default();
-        t.unknown
-            .check(&mut errors, &[&["name"], keys_of::<Piece>()]);
+        t.unknown.check(&mut errors, Table::KNOWN);
         assert_eq!(
             errors.to_string(),
-            "bogus = […]: unknown key, expected one of `name`, `a`, `b`\n\
-             c = \"s\": unknown key, expected one of `name`, `a`, `b`"
+            "bogus = […]: unknown key, expected one of `name`, `a`\n\
+             c = \"s\": unknown key, expected one of `name`, `a`"
         );
     }
 

@@ -53,32 +53,24 @@ impl Axis {
     }
 }
 
-/// A channel's mapping as written in TOML: the one definition of these keys, flattened into
-/// the PWM and MAVLink channel tables (`#[serde(flatten)]`). `min_us`/`centre_us`/`max_us`
-/// default to the servo standard 1000/1500/2000 µs; the others to "off". Integers are read
-/// wide ([`crate::config::Int`]) and range-checked by [`AxisMapSettings::validate`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxisMapSettings {
-    /// Pulse at −32767 (or +32767 when reversed), µs.
-    pub min_us: Option<Int>,
-    /// Pulse at 0 before trim, µs.
-    pub centre_us: Option<Int>,
-    /// Pulse at +32767 (or −32767 when reversed), µs.
-    pub max_us: Option<Int>,
-    /// Shift of the centre, µs.
-    pub trim_us: Option<Int>,
-    /// Swap directions (`invert` is accepted as an older spelling).
-    #[serde(alias = "invert")]
-    pub reverse: Option<bool>,
-    /// Dead zone around centre, percent of full scale (0..=50; `deadzone_pct` is accepted as
-    /// an older spelling).
-    #[serde(alias = "deadzone_pct")]
-    pub deadband_pct: Option<f64>,
-    /// Expo (0..=1).
-    pub expo: Option<f64>,
-    /// Slew limit in µs per second (absent: none).
-    pub slew_us_per_s: Option<Int>,
+crate::config_types! {
+    /// A channel's mapping as written in TOML: the one definition of these keys, flattened into
+    /// the PWM and MAVLink channel tables (`#[serde(flatten)]`). `min_us`/`centre_us`/`max_us`
+    /// default to the servo standard 1000/1500/2000 µs; the others to "off". Integers are read
+    /// wide ([`crate::config::Int`]) and range-checked by [`AxisMapSettings::validate`].
+    #[derive(Copy)]
+    pub table AxisMapSettings {
+        min_us: Option<Int> => "Pulse at −32767 (or +32767 when reversed), µs.",
+        centre_us: Option<Int> => "Pulse at 0 before trim, µs.",
+        max_us: Option<Int> => "Pulse at +32767 (or −32767 when reversed), µs.",
+        trim_us: Option<Int> => "Shift of the centre, µs.",
+        #[serde(alias = "invert")] reverse: Option<bool> => "Swap directions (`invert` is \
+            accepted as an older spelling).",
+        #[serde(alias = "deadzone_pct")] deadband_pct: Option<f64> => "Dead zone around centre, \
+            percent of full scale (0..=50; `deadzone_pct` is accepted as an older spelling).",
+        expo: Option<f64> => "Expo (0..=1).",
+        slew_us_per_s: Option<Int> => "Slew limit in µs per second (absent: none).",
+    }
 }
 
 /// A validated axis → pulse mapping.
@@ -284,16 +276,14 @@ impl SlewLimiter {
     }
 }
 
-/// The levels of a mode-switch channel as written in TOML: the pulse for each mode.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModeLevelsSettings {
-    /// Pulse for MANUAL, µs.
-    pub manual_us: Option<Int>,
-    /// Pulse for ASSISTED, µs.
-    pub assisted_us: Option<Int>,
-    /// Pulse for AUTO, µs.
-    pub auto_us: Option<Int>,
+crate::config_types! {
+    /// The levels of a mode-switch channel as written in TOML: the pulse for each mode.
+    #[derive(Copy, Eq)]
+    pub table ModeLevelsSettings {
+        manual_us: Option<Int> => "Pulse for MANUAL, µs.",
+        assisted_us: Option<Int> => "Pulse for ASSISTED, µs.",
+        auto_us: Option<Int> => "Pulse for AUTO, µs.",
+    }
 }
 
 /// Pulse levels of a mode-switch channel, one per [`Mode`].

@@ -23,17 +23,13 @@ use std::time::Duration;
 
 rove_core::config_types! {
     /// `[device]`.
-    #[derive(Debug, Clone, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct DeviceSection {
+    pub table DeviceSection {
         id: DeviceId => "This device's id on the network; unique per device.",
         name: Option<String> => "Human-readable name (absent: `rove-<id>`).",
     }
 
     /// `[network]`.
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct NetworkSection {
+    pub table NetworkSection {
         domain_id: Option<Int> => "DDS domain id (absent: 0).",
         interfaces: Option<Vec<Ipv4Addr>> => "IPv4 addresses of the interfaces DDS may use \
             (absent: loopback only).",
@@ -43,21 +39,15 @@ rove_core::config_types! {
     }
 
     /// `[log]`.
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct LogSection {
+    pub table LogSection {
         level: Option<String> => "A level (`error`, `warn`, `info`, `debug`, `trace`) or tracing \
             filter directives such as `\"info,rove_gateway=debug\"` (absent: `info`). rustdds \
             stays at `warn` unless a directive names it (its `info` is very chatty). `RUST_LOG`, \
             when set, overrides all of this.",
     }
-}
 
-rove_core::config_types! {
     /// `[vehicle]`.
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct VehicleSection {
+    pub table VehicleSection {
         command_timeout_ms: Option<Int> => "Owner silence before re-arbitration (absent: 100).",
         output_deadline_ms: Option<Int> => "A device call (a PWM write, a MAVLink send) running \
             longer counts as a hung output, ms (absent: 50).",
@@ -66,9 +56,7 @@ rove_core::config_types! {
     }
 
     /// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
-    #[derive(Debug, Clone, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct SecuritySection {
+    pub table SecuritySection {
         dir: std::path::PathBuf => "This device's directory from `rove keys add` (relative \
             paths: to the config file): identity CA, certificate, private key, permissions CA, \
             governance and permissions.",
@@ -76,9 +64,7 @@ rove_core::config_types! {
 
     /// `[access]`: who may drive this vehicle. Absent: any id, at any strength inside the
     /// hierarchy (docs/design.md §4b).
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct AccessSection {
+    pub table AccessSection {
         #[serde(default)] operators: Vec<Grant> => "The operators allowed to drive, each with \
             the highest level and device class it may claim (`[[access.operators]]`).",
     }
@@ -210,9 +196,7 @@ fn blank_key_value(text: &str, value: std::ops::Range<usize>) -> String {
 rove_core::config_types! {
     /// A vehicle's file as written. `[output]` is `O`: the tagged [`OutputSection`], or one
     /// adapter's settings while `parse_vehicle` reads it.
-    #[derive(Debug, Clone, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct RawVehicle<O> {
+    pub table RawVehicle<O> {
         device: DeviceSection => "`[device]`.",
         #[serde(default)] network: NetworkSection => "`[network]`.",
         #[serde(default)] log: LogSection => "`[log]`.",
@@ -223,9 +207,7 @@ rove_core::config_types! {
         security: Option<SecuritySection> => "`[security]`.",
         output: O => "`[output]`.",
     }
-}
 
-rove_core::config_types! {
     /// `[operator]`.
     #[derive(Debug, Clone, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
@@ -259,8 +241,7 @@ rove_core::config_types! {
     }
 
     /// `[input] source = "constant"`: the same sticks and mode for ever.
-    #[serde(deny_unknown_fields)]
-    pub settings ConstantInput {
+    pub table ConstantInput {
         #[serde(default)] throttle: Int => "Throttle axis (absent: 0).",
         #[serde(default)] roll: Int => "Roll axis (absent: 0).",
         #[serde(default)] pitch: Int => "Pitch axis (absent: 0).",
@@ -306,9 +287,7 @@ rove_core::config_types! {
     }
 
     /// `[console]`: the local API for other front ends (docs/api.md).
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct ConsoleSection {
+    pub table ConsoleSection {
         api_socket: Option<std::path::PathBuf> => "Unix socket path of the local API, created with \
             mode 0660 (absent: no API).",
     }
@@ -350,24 +329,18 @@ impl Common {
     }
 }
 
-/// A validated vehicle configuration.
-#[derive(Debug, Clone)]
-pub struct VehicleConfig {
-    /// Identity and network.
-    pub common: Common,
-    /// Arbiter settings.
-    pub arbiter: ArbiterConfig,
-    /// The ids and strengths this vehicle believes.
-    pub access: Access,
-    /// Output adapter.
-    pub output: OutputConfig,
-    /// `[vehicle] output_deadline_ms`.
-    pub output_deadline: Duration,
-    /// `[vehicle] output_hung_limit_ms`.
-    pub output_hung_limit: Duration,
-}
-
 rove_core::config_types! {
+    /// A validated vehicle configuration.
+    #[derive(Debug, Clone)]
+    pub struct VehicleConfig {
+        common: Common => "Identity and network.",
+        arbiter: ArbiterConfig => "Arbiter settings.",
+        access: Access => "The ids and strengths this vehicle believes.",
+        output: OutputConfig => "Output adapter.",
+        output_deadline: Duration => "`[vehicle] output_deadline_ms`.",
+        output_hung_limit: Duration => "`[vehicle] output_hung_limit_ms`.",
+    }
+
     /// A validated operator configuration.
     #[derive(Debug, Clone)]
     pub struct OperatorConfig {
@@ -682,17 +655,14 @@ impl RawOperator {
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        let own = op
+        for (i, v) in op
             .drive
             .iter()
             .enumerate()
-            .filter(|(_, v)| **v == self.device.id);
-        for (i, v) in own {
-            errors.add(
-                format!("operator.drive[{i}]"),
-                v,
-                "is this operator's own device id",
-            );
+            .filter(|(_, v)| **v == self.device.id)
+        {
+            let rule = "is this operator's own device id";
+            errors.add(format!("operator.drive[{i}]"), v, rule);
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
         let mut device = |settings: &mut rove_inputs::InputSettings, kind| {

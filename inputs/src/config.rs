@@ -7,12 +7,11 @@
 
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
-use rove_core::config::{ABSENT, Int};
+use rove_core::config::{ABSENT, Int, Unique};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -50,8 +49,7 @@ rove_core::config_types! {
     }
 
     /// `[input]` as written.
-    #[serde(deny_unknown_fields)]
-    pub settings InputSettings {
+    pub table InputSettings {
         source: Option<SourceKind> => "What to read.",
         device: Option<PathBuf> => "Joystick/keyboard: device path (by-id links are stable).",
         name: Option<String> => "Joystick/keyboard: name pattern, case-insensitive, `*` wildcard.",
@@ -64,8 +62,7 @@ rove_core::config_types! {
     }
 
     /// `[input.axes]` as written: one optional table per movement axis.
-    #[serde(deny_unknown_fields)]
-    pub settings AxesSettings {
+    pub table AxesSettings {
         throttle: Option<AxisSettings> => "`[input.axes.throttle]`.",
         roll: Option<AxisSettings> => "`[input.axes.roll]` (UGV steering).",
         pitch: Option<AxisSettings> => "`[input.axes.pitch]`.",
@@ -83,8 +80,7 @@ rove_core::config_types! {
 
     /// One `[input.axes.NAME]` table as written: either an absolute axis (`abs` with calibration
     /// keys) or a pair of keys (`negative`/`positive` with ramp keys).
-    #[serde(deny_unknown_fields)]
-    pub settings AxisSettings {
+    pub table AxisSettings {
         abs: Option<String> => "The absolute axis, e.g. `\"ABS_Y\"`, `\"ABS_HAT0X\"`.",
         negative: Option<String> => "Key or button towards −full scale, e.g. `\"KEY_S\"`.",
         positive: Option<String> => "Key or button towards +full scale, e.g. `\"KEY_W\"`.",
@@ -103,8 +99,7 @@ rove_core::config_types! {
 
     /// `[input.buttons]` as written: action → control name (`"BTN_SOUTH"`, `"KEY_SPACE"`,
     /// `"ABS_HAT0Y-"`, `"ABS_Z+"`).
-    #[serde(deny_unknown_fields)]
-    pub settings ButtonSettings {
+    pub table ButtonSettings {
         deadman: Option<String> => "Hold to drive; when set, axes are neutral unless it is held.",
         mode_manual: Option<String> => "Switch to MANUAL.",
         mode_assisted: Option<String> => "Switch to ASSISTED.",
@@ -191,6 +186,14 @@ rove_core::config_types! {
         actions: Vec<(Control, InputAction)> => "Action controls.",
         silence_timeout: Option<Duration> => "No events for this long → lost.",
     }
+
+    /// A validated `[input]`: only this type crosses crate boundaries.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct InputConfig {
+        kind: SourceKind => "The kind of source.",
+        source: SourceConfig => "Device or recording.",
+        mapping: MappingConfig => "The mapping.",
+    }
 }
 
 /// The four axes in the order of [`MappingConfig::axes`].
@@ -206,37 +209,24 @@ pub fn axis_key(axis: Axis) -> &'static str {
     }
 }
 
-/// A validated `[input]`: only this type crosses crate boundaries.
-#[derive(Debug, Clone, PartialEq)]
-pub struct InputConfig {
-    /// The kind of source.
-    pub kind: SourceKind,
-    /// Device or recording.
-    pub source: SourceConfig,
-    /// The mapping.
-    pub mapping: MappingConfig,
-}
-
 impl InputConfig {
     /// The same mapping read from another device (for `rove inputs show DEVICE`): the source
     /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
     /// when the source already was a device.
     pub fn with_device(mut self, selector: DeviceSelector) -> Self {
-        self.source = match self.source {
+        let reopen = Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs());
+        let (grab, reopen_interval) = match self.source {
             SourceConfig::Evdev {
                 grab,
                 reopen_interval,
                 ..
-            } => SourceConfig::Evdev {
-                selector,
-                grab,
-                reopen_interval,
-            },
-            SourceConfig::Replay { .. } => SourceConfig::Evdev {
-                selector,
-                grab: false,
-                reopen_interval: Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs()),
-            },
+            } => (grab, reopen_interval),
+            SourceConfig::Replay { .. } => (false, reopen),
+        };
+        self.source = SourceConfig::Evdev {
+            selector,
+            grab,
+            reopen_interval,
         };
         if self.kind == SourceKind::Replay {
             self.kind = SourceKind::Joystick;
@@ -247,18 +237,14 @@ impl InputConfig {
     /// Makes a relative replay `file` or device path relative to `base` (the directory of the
     /// config file), so a config works wherever the process was started.
     pub fn resolve_relative_to(&mut self, base: &Path) {
-        let fix = |p: &mut PathBuf| {
-            if p.is_relative() {
-                *p = base.join(&*p);
-            }
-        };
-        match &mut self.source {
-            SourceConfig::Replay { file } => fix(file),
-            SourceConfig::Evdev {
-                selector: DeviceSelector::Path(p),
-                ..
-            } => fix(p),
-            SourceConfig::Evdev { .. } => {}
+        if let SourceConfig::Replay { file: p }
+        | SourceConfig::Evdev {
+            selector: DeviceSelector::Path(p),
+            ..
+        } = &mut self.source
+            && p.is_relative()
+        {
+            *p = base.join(&*p);
         }
     }
 }
@@ -270,14 +256,7 @@ impl InputSettings {
     /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate README's
     /// key list, does not apply to the source or axis kind, or uses a control used before.
     pub fn validate(&mut self) -> rove_core::Result<InputConfig> {
-        let mut errors = ConfigErrors::default();
-        let kind = self.source.unwrap_or_else(|| {
-            let rule = "must be one of \"joystick\", \"keyboard\", \"replay\"";
-            errors.absent("source", rule);
-            SourceKind::Joystick
-        });
-        let config = self.validate_inner(kind, &mut errors);
-        errors.into_result(config)
+        self.validate_kind(None)
     }
 
     /// As [`InputSettings::validate`] for a known `kind`, for callers whose own tagged enum
@@ -287,17 +266,25 @@ impl InputSettings {
     /// # Errors
     /// As [`InputSettings::validate`].
     pub fn validate_as(&mut self, kind: SourceKind) -> rove_core::Result<InputConfig> {
-        let mut errors = ConfigErrors::default();
-        let name = |k: SourceKind| format!("{k:?}").to_lowercase();
-        if let Some(s) = self.source.filter(|s| *s != kind) {
-            errors.add("source", name(s), format!("must be {:?}", name(kind)));
-        }
-        let config = self.validate_inner(kind, &mut errors);
-        errors.into_result(config)
+        self.validate_kind(Some(kind))
     }
 
-    fn validate_inner(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> InputConfig {
-        let source = self.validate_source(kind, errors);
+    fn validate_kind(&mut self, expected: Option<SourceKind>) -> rove_core::Result<InputConfig> {
+        let mut errors = ConfigErrors::default();
+        let name = |k: SourceKind| format!("{k:?}").to_lowercase();
+        let kind = match (self.source, expected) {
+            (Some(s), Some(kind)) if s != kind => {
+                errors.add("source", name(s), format!("must be {:?}", name(kind)));
+                kind
+            }
+            (_, Some(kind)) | (Some(kind), None) => kind,
+            (None, None) => {
+                let rule = "must be one of \"joystick\", \"keyboard\", \"replay\"";
+                errors.absent("source", rule);
+                SourceKind::Joystick
+            }
+        };
+        let source = self.validate_source(kind, &mut errors);
         let rule = " ms (leave it out to turn silence detection off)";
         let silence = (self.silence_timeout_ms, SILENCE_TIMEOUT_RANGE_MS);
         let silence_timeout = errors.opt_int("silence_timeout_ms", silence.0, silence.1, rule);
@@ -307,17 +294,15 @@ impl InputSettings {
             ..MappingConfig::default()
         };
         // Who uses which control, for the "used twice" check: control → key path.
-        let mut used: BTreeMap<Control, String> = BTreeMap::new();
+        let mut used = Unique::default();
         let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
-            let Some(first) = used.get(&control) else {
-                used.insert(control, key.to_string());
-                return;
-            };
-            errors.add(
-                key,
-                format!("{value:?}"),
-                format!("is already used by {first}"),
-            );
+            if let Some(first) = used.claim(control, key) {
+                errors.add(
+                    key,
+                    format!("{value:?}"),
+                    format!("is already used by {first}"),
+                );
+            }
         };
         let a = &mut self.axes;
         let raw_axes = [&mut a.throttle, &mut a.roll, &mut a.pitch, &mut a.yaw];
@@ -325,14 +310,14 @@ impl InputSettings {
         for (slot, (axis, raw)) in AXES.iter().zip(raw_axes).enumerate() {
             let Some(raw) = raw else { continue };
             let prefix = format!("axes.{}", axis_key(*axis));
-            let mut axis_errors = ConfigErrors::default();
-            let config = raw.validate(&mut axis_errors);
+            let config = errors.within(&prefix, |errors| raw.validate(errors));
+            // Claimed only by a valid axis (`validate` returns `None` after any problem).
             match config.map(|c| c.input) {
                 Some(AxisInput::Abs { code, .. }) => {
                     // An axis used as a stick cannot also be a button, in either direction.
                     let (key, name) = (format!("{prefix}.abs"), abs_name(code));
                     for c in [Control::AbsPositive(code), Control::AbsNegative(code)] {
-                        claim(&mut axis_errors, c, &key, &name);
+                        claim(&mut errors, c, &key, &name);
                     }
                 }
                 Some(AxisInput::Keys {
@@ -341,18 +326,10 @@ impl InputSettings {
                     for (key, code) in [("negative", negative), ("positive", positive)] {
                         let Some(code) = code else { continue };
                         let (key, name) = (format!("{prefix}.{key}"), crate::codes::key_name(code));
-                        claim(errors, Control::Key(code), &key, &name);
+                        claim(&mut errors, Control::Key(code), &key, &name);
                     }
                 }
                 None => {}
-            }
-            // Abs claims were recorded with the full key; keep errors' keys consistent.
-            for e in axis_errors.0 {
-                errors.push(if e.key.starts_with("axes.") {
-                    e
-                } else {
-                    e.within(&prefix)
-                });
             }
             mapping.axes[slot] = config;
         }
@@ -386,17 +363,17 @@ impl InputSettings {
                 errors.add(key, format!("{value:?}"), rule);
                 continue;
             };
-            claim(errors, control, &key, value);
+            claim(&mut errors, control, &key, value);
             match action {
                 None => mapping.deadman = Some(control),
                 Some(a) => mapping.actions.push((control, a)),
             }
         }
-        InputConfig {
+        errors.into_result(InputConfig {
             kind,
             source,
             mapping,
-        }
+        })
     }
 
     fn validate_source(&mut self, kind: SourceKind, errors: &mut ConfigErrors) -> SourceConfig {

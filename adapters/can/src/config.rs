@@ -16,7 +16,7 @@ use crate::dronecan::{
 };
 use crate::raw::{Endian, FieldLayout, Width};
 use crate::scale::{Scale, Source, UnitScale, axis_name};
-use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{Int, Unique, UnknownKeys};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::Axis;
 use serde::de::{self, MapAccess, Visitor};
@@ -46,8 +46,7 @@ pub const INTERFACE_NAME_MAX: usize = 15;
 
 rove_core::config_types! {
     /// `[output]` for `adapter = "can"`, as written (the gateway consumes `adapter`).
-    #[serde(deny_unknown_fields)]
-    pub settings CanSettings {
+    pub table CanSettings {
         interface: Option<String> => "SocketCAN interface name.",
         fd: Option<bool> => "CAN FD mode.",
         rate_hz: Option<i64> => "Send rate of every frame and command, Hz.",
@@ -56,8 +55,7 @@ rove_core::config_types! {
     }
 
     /// One raw frame (`[[output.frames]]`), as written.
-    #[serde(deny_unknown_fields)]
-    pub settings FrameSettings {
+    pub table FrameSettings {
         id: Option<i64> => "CAN identifier.",
         extended: Option<bool> => "29-bit identifier.",
         length: Option<i64> => "Data length, bytes.",
@@ -79,8 +77,7 @@ rove_core::config_types! {
 
     /// `min`/`centre`/`max`/`failsafe` of a CAN output, as written.
     #[derive(Copy)]
-    #[serde(deny_unknown_fields)]
-    pub settings ScaleSettings<T> {
+    pub table ScaleSettings<T> {
         min: Option<T> => "Value at −full scale.",
         centre: Option<T> => "Value at centre.",
         max: Option<T> => "Value at +full scale.",
@@ -88,8 +85,7 @@ rove_core::config_types! {
     }
 
     /// `[output.dronecan]`, as written.
-    #[serde(deny_unknown_fields)]
-    pub settings DroneCanSettings {
+    pub table DroneCanSettings {
         node_id: Option<i64> => "Our node id.",
         priority: Option<i64> => "Priority of the commands.",
         rate_hz: Option<i64> => "Command rate, Hz.",
@@ -347,11 +343,6 @@ fn int_scale(
     Some((Scale { min, centre, max }, failsafe))
 }
 
-/// The name of an output, or its key path when it has none.
-fn output_name(name: &Option<String>, default_name: &str) -> String {
-    name.clone().unwrap_or_else(|| default_name.to_string())
-}
-
 impl CanSettings {
     /// Validates every key, filling defaults into `self` (which then serializes as the
     /// effective config).
@@ -374,7 +365,7 @@ impl CanSettings {
             errors.add("interface", format!("{interface:?}"), rule);
         }
         let rate = check_rate(&mut self.rate_hz, DEFAULT_RATE_HZ, &mut errors);
-        let (mut frames, mut ids, mut our_ids) = (Vec::new(), Unique::default(), Vec::new());
+        let (mut frames, mut ids) = (Vec::new(), Unique::default());
         for (i, f) in self.frames.iter_mut().enumerate() {
             let owner = format!("frames[{i}]");
             let frame = errors.within(&owner, |fe| {
@@ -384,7 +375,6 @@ impl CanSettings {
                     .and_then(|id| CanId::new(id, f.extended.unwrap_or(false)).ok());
                 if let Some(id) = id {
                     ids.check(fe, id, &owner, ("id", id), "has the same identifier");
-                    our_ids.push((id, i));
                 }
                 frame
             });
@@ -393,7 +383,7 @@ impl CanSettings {
         let dronecan = (self.dronecan.as_mut())
             .and_then(|d| errors.within("dronecan", |de| d.validate(rate, &mut names, de)));
         if let Some(dc) = &dronecan {
-            // Our own DroneCAN identifiers must not be reused by a raw frame.
+            // Our own DroneCAN identifiers must not be reused by a raw frame (the first is named).
             let ours = [
                 (ARRAY_COMMAND, dc.priority),
                 (RAW_COMMAND, dc.priority),
@@ -401,9 +391,9 @@ impl CanSettings {
             ];
             for (t, priority) in ours {
                 let id = CanId::Extended(dronecan::message_id(priority, t.id, dc.node_id));
-                for (_, i) in our_ids.iter().filter(|(other, _)| *other == id).take(1) {
+                if let Some(frame) = ids.claim(id, "dronecan") {
                     let rule = format!("must differ from our DroneCAN {} identifier", t.name);
-                    errors.add(format!("frames[{i}].id"), id, rule);
+                    errors.add(format!("{frame}.id"), id, rule);
                 }
             }
         }
@@ -516,8 +506,8 @@ fn validate_field(
     earlier: &[RawOutputConfig],
     errors: &mut ConfigErrors,
 ) -> Option<RawOutputConfig> {
-    (o.unknown).check(errors, &[FIELD_KEYS, keys_of::<ScaleSettings<Int>>()]);
-    let name = output_name(&o.name, default_name);
+    (o.unknown).check(errors, FieldSettings::KNOWN);
+    let name = (o.name.clone()).unwrap_or_else(|| default_name.into());
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
         errors.add("name", "\"\"", "must not be empty");
     }
@@ -575,9 +565,6 @@ fn validate_field(
     })
 }
 
-/// The keys of an output table that are not in [`ScaleSettings`].
-const FIELD_KEYS: &[&str] = &["name", "source", "offset", "width", "endian", "signed"];
-
 impl DroneCanSettings {
     fn validate(
         &mut self,
@@ -601,57 +588,60 @@ impl DroneCanSettings {
             );
             errors.add("servos", format!("{shown} entries"), rule);
         }
-        let mut ok = true;
-        let mut claim = |errors: &mut ConfigErrors, name: &str, key: String| {
-            let (owner, shown) = (format!("dronecan.{key}"), format!("{name:?}"));
-            let shown = (key.as_str(), shown);
-            names.check(errors, name.to_string(), owner, shown, "has the same name");
-        };
-        let (mut servos, mut actuator_ids) = (Vec::new(), Unique::default());
-        for (i, s) in self.servos.iter_mut().enumerate() {
-            let (mut se, owner) = (ConfigErrors::default(), format!("servos[{i}]"));
-            let servo = s.validate(&format!("dronecan.{owner}"), &mut se);
-            if let Some(servo) = &servo {
-                claim(errors, &servo.name, format!("{owner}.name"));
-                let (id, key) = (servo.actuator_id, ("actuator_id", servo.actuator_id));
-                actuator_ids.check(&mut se, id, &owner, key, "has the same");
-            }
-            ok &= servo.is_some() && se.0.is_empty();
-            errors.extend_within(&owner, se);
-            servos.extend(servo);
-        }
-        let (mut escs, mut indices) = (Vec::new(), Unique::default());
-        for (i, e) in self.escs.iter_mut().enumerate() {
-            let (mut ee, owner) = (ConfigErrors::default(), format!("escs[{i}]"));
-            let esc = e.validate(&format!("dronecan.{owner}"), &mut ee);
-            if let Some(esc) = &esc {
-                claim(errors, &esc.name, format!("{owner}.name"));
-                let key = ("index", esc.index);
-                indices.check(&mut ee, esc.index, &owner, key, "has the same");
-            }
-            ok &= esc.is_some() && ee.0.is_empty();
-            errors.extend_within(&owner, ee);
-            escs.extend(esc);
-        }
-        let (node_id, priority) = (node_id?, priority?);
-        ok.then_some(DroneCanConfig {
-            node_id,
-            priority,
-            period: period_of(rate),
+        let (servos, escs) = (&mut self.servos, &mut self.escs);
+        let servo = |s: &ServoConfig| (s.name.clone(), "actuator_id", s.actuator_id);
+        let servos = actuators(
+            "servos",
             servos,
-            escs,
+            ServoSettings::validate,
+            servo,
+            names,
+            errors,
+        );
+        let esc = |e: &EscConfig| (e.name.clone(), "index", e.index);
+        let escs = actuators("escs", escs, EscSettings::validate, esc, names, errors);
+        Some(DroneCanConfig {
+            node_id: node_id?,
+            priority: priority?,
+            period: period_of(rate),
+            servos: servos?,
+            escs: escs?,
         })
     }
 }
 
-/// The keys of a servo or ESC table that are not in [`ScaleSettings`].
-const SERVO_KEYS: &[&str] = &["name", "actuator_id", "source"];
-const ESC_KEYS: &[&str] = &["name", "index", "source"];
+/// Validates DroneCAN `servos` or `escs` (`list`) with `validate`: each named uniquely among
+/// every output and at a `place` (its name, and the key and number of its actuator id or
+/// index) of its own; `None` if any has a problem.
+fn actuators<S, C>(
+    list: &str,
+    settings: &mut [S],
+    validate: fn(&mut S, &str, &mut ConfigErrors) -> Option<C>,
+    place: fn(&C) -> (String, &'static str, u8),
+    names: &mut Unique<String>,
+    errors: &mut ConfigErrors,
+) -> Option<Vec<C>> {
+    let (mut out, mut places, mut ok) = (Vec::new(), Unique::default(), true);
+    for (i, s) in settings.iter_mut().enumerate() {
+        let (mut se, owner) = (ConfigErrors::default(), format!("{list}[{i}]"));
+        let actuator = validate(s, &format!("dronecan.{owner}"), &mut se);
+        if let Some((name, key, number)) = actuator.as_ref().map(place) {
+            let (name_key, shown) = (format!("{owner}.name"), format!("{name:?}"));
+            let (first, what) = (format!("dronecan.{name_key}"), "has the same name");
+            names.check(errors, name, first, (name_key.as_str(), shown), what);
+            places.check(&mut se, number, &owner, (key, number), "has the same");
+        }
+        ok &= actuator.is_some() && se.0.is_empty();
+        errors.extend_within(&owner, se);
+        out.extend(actuator);
+    }
+    ok.then_some(out)
+}
 
 impl ServoSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<ServoConfig> {
-        (self.unknown).check(errors, &[SERVO_KEYS, keys_of::<ScaleSettings<f64>>()]);
-        let name = output_name(&self.name, default_name);
+        (self.unknown).check(errors, Self::KNOWN);
+        let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let actuator_id = errors.req_int("actuator_id", self.actuator_id, 0..=255, "");
         let source = errors
             .required("source", &self.source)
@@ -673,8 +663,8 @@ impl ServoSettings {
 
 impl EscSettings {
     fn validate(&mut self, default_name: &str, errors: &mut ConfigErrors) -> Option<EscConfig> {
-        (self.unknown).check(errors, &[ESC_KEYS, keys_of::<ScaleSettings<Int>>()]);
-        let name = output_name(&self.name, default_name);
+        (self.unknown).check(errors, Self::KNOWN);
+        let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let unit = format!(" (RawCommand has {MAX_ESCS} channels)");
         let index = errors.req_int("index", self.index, 0..=(MAX_ESCS as Int - 1), &unit);
         let source = errors

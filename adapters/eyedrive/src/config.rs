@@ -2,9 +2,9 @@
 //! PWM vehicle config. Errors name the Eyedrive keys (`steering.max_us`), not the generic
 //! channel list.
 
-use rove_core::config::{UnknownKeys, keys_of};
+use rove_core::config::UnknownKeys;
 use rove_core::error::ConfigErrors;
-use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
+use rove_pwm::config::{finish_preset, preset_tables, rename_channels};
 use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
 
 rove_core::config_types! {
@@ -50,11 +50,10 @@ impl EyedriveSettings {
     /// (`steering.pin`, `throttle.max_us`, `backend`…).
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [keys_of::<PwmBackendSettings>(), &["steering", "throttle"]];
-        self.unknown.check(&mut errors, &keys);
+        self.unknown.check(&mut errors, Self::KNOWN);
         let tables = [&self.steering, &self.throttle].map(|t| t.as_ref().map(|t| &t.unknown));
         let names = CHANNELS.map(|c| c.0);
-        preset_tables(&mut errors, &names, &tables, &servo_keys());
+        preset_tables(&mut errors, &names, &tables, EyedriveChannelSettings::KNOWN);
         let mut generic = self.to_generic();
         let config = generic.validate();
         self.pwm = generic.pwm;

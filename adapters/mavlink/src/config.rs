@@ -9,7 +9,7 @@
 //! connection = "tcpout:127.0.0.1:5760"
 //! ```
 
-use rove_core::config::{Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{Int, Unique, UnknownKeys};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, AxisMap, AxisMapSettings};
 use rove_core::msg::Mode;
@@ -21,8 +21,7 @@ rove_core::config_types! {
     /// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which
     /// the gateway's tagged enum consumes). Every key is optional; docs/mavlink.md lists the
     /// defaults.
-    #[serde(deny_unknown_fields)]
-    pub settings MavlinkSettings {
+    pub table MavlinkSettings {
         connection: Option<String> => "`udpin:`, `udpout:`, `tcpout:HOST:PORT` (also `udp:` = \
             udpin and `tcp:` = tcpout), or `serial:DEVICE:BAUD`.",
         mavlink_version: Option<Int> => "2 or 1.",
@@ -93,8 +92,7 @@ rove_core::config_types! {
     }
 
     /// `[output.manual_control]`: which axis feeds each MANUAL_CONTROL field.
-    #[serde(deny_unknown_fields)]
-    pub settings ManualControlSettings {
+    pub table ManualControlSettings {
         x: Option<AxisOrNone> => "`x` (forward; absent: pitch).",
         y: Option<AxisOrNone> => "`y` (right; Rover steering; absent: roll).",
         z: Option<AxisOrNone> => "`z` (thrust; Rover throttle; absent: throttle).",
@@ -147,28 +145,23 @@ rove_core::config_types! {
     }
 
     /// `[output.modes]`: a mode name from the autopilot's table or a raw `custom_mode` number.
-    #[serde(deny_unknown_fields)]
-    pub settings ModeSettings {
+    pub table ModeSettings {
         manual: Option<AutopilotModeName> => "For rove's MANUAL.",
         assisted: Option<AutopilotModeName> => "For rove's ASSISTED.",
         auto: Option<AutopilotModeName> => "For rove's AUTO.",
         safe: Option<AutopilotModeName> => "Entered when rove stops driving (failsafe).",
         set_mode: Option<bool> => "`false`: never send mode commands (the radio owns the mode).",
     }
-}
 
-/// An autopilot mode as written: a name (`"HOLD"`, `"AUTO.LOITER"`) or a raw custom_mode
-/// (resolved into an [`AutopilotMode`]).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum AutopilotModeName {
-    /// A name from the autopilot's table.
-    Name(String),
-    /// A raw `custom_mode` (PX4: `main << 16 | sub << 24`), 0..=4294967295.
-    Number(Int),
-}
+    /// An autopilot mode as written: a name (`"HOLD"`, `"AUTO.LOITER"`) or a raw custom_mode
+    /// (resolved into an [`AutopilotMode`]).
+    #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(untagged)]
+    pub enum AutopilotModeName {
+        Name => "A name from the autopilot's table." (String),
+        Number => "A raw `custom_mode` (PX4: `main << 16 | sub << 24`), 0..=4294967295." (Int),
+    }
 
-rove_core::config_types! {
     /// Where the autopilot is.
     #[derive(Debug, Clone, PartialEq, Eq)]
     pub enum Endpoint {
@@ -310,71 +303,49 @@ rove_core::config_types! {
     }
 }
 
-/// ArduPilot Rover's modes as `NAME=custom_mode`, from its Mode enum.
-const ARDUPILOT_ROVER_MODES: &str = "MANUAL=0 ACRO=1 STEERING=3 HOLD=4 LOITER=5 FOLLOW=6 SIMPLE=7 \
-                                     DOCK=8 CIRCLE=9 AUTO=10 RTL=11 SMART_RTL=12 GUIDED=15";
-
-/// ArduPilot Copter's modes.
-const ARDUPILOT_COPTER_MODES: &str = "STABILIZE=0 ACRO=1 ALT_HOLD=2 AUTO=3 GUIDED=4 LOITER=5 \
-                                      RTL=6 CIRCLE=7 LAND=9 DRIFT=11 SPORT=13 POSHOLD=16 BRAKE=17 \
-                                      SMART_RTL=21";
-
-/// PX4's modes as `NAME=main.sub`; custom_mode = main << 16 | sub << 24.
-const PX4_MODES: &str = "MANUAL=1.0 ALTCTL=2.0 POSCTL=3.0 AUTO.READY=4.1 AUTO.TAKEOFF=4.2 \
-                         AUTO.LOITER=4.3 AUTO.MISSION=4.4 AUTO.RTL=4.5 AUTO.LAND=4.6 ACRO=5.0 \
-                         OFFBOARD=6.0 STABILIZED=7.0";
+/// A firmware and vehicle kind's name for messages, its modes as `NAME=custom_mode` (from its
+/// Mode enum; PX4's as `NAME=main.sub`, see [`px4_custom_mode`]) and its default manual,
+/// assisted, auto and safe modes.
+fn firmware(
+    autopilot: AutopilotKind,
+    vehicle: VehicleKind,
+) -> (&'static str, &'static str, [&'static str; 4]) {
+    match (autopilot, vehicle) {
+        (AutopilotKind::Ardupilot, VehicleKind::Rover) => (
+            "ArduPilot Rover",
+            "MANUAL=0 ACRO=1 STEERING=3 HOLD=4 LOITER=5 FOLLOW=6 SIMPLE=7 DOCK=8 CIRCLE=9 AUTO=10 \
+             RTL=11 SMART_RTL=12 GUIDED=15",
+            ["MANUAL", "STEERING", "AUTO", "HOLD"],
+        ),
+        (AutopilotKind::Ardupilot, VehicleKind::Copter) => (
+            "ArduPilot Copter",
+            "STABILIZE=0 ACRO=1 ALT_HOLD=2 AUTO=3 GUIDED=4 LOITER=5 RTL=6 CIRCLE=7 LAND=9 DRIFT=11 \
+             SPORT=13 POSHOLD=16 BRAKE=17 SMART_RTL=21",
+            ["STABILIZE", "ALT_HOLD", "LOITER", "BRAKE"],
+        ),
+        (AutopilotKind::Px4, _) => (
+            "PX4",
+            "MANUAL=1.0 ALTCTL=2.0 POSCTL=3.0 AUTO.READY=4.1 AUTO.TAKEOFF=4.2 AUTO.LOITER=4.3 \
+             AUTO.MISSION=4.4 AUTO.RTL=4.5 AUTO.LAND=4.6 ACRO=5.0 OFFBOARD=6.0 STABILIZED=7.0",
+            ["MANUAL", "ALTCTL", "AUTO.LOITER", "AUTO.LOITER"],
+        ),
+    }
+}
 
 /// PX4's custom_mode for a main and sub mode.
 pub const fn px4_custom_mode(main: u8, sub: u8) -> u32 {
     ((main as u32) << 16) | ((sub as u32) << 24)
 }
 
-/// "ArduPilot Rover", "PX4"…, for messages.
-pub fn firmware_name(autopilot: AutopilotKind, vehicle: VehicleKind) -> &'static str {
-    match (autopilot, vehicle) {
-        (AutopilotKind::Ardupilot, VehicleKind::Rover) => "ArduPilot Rover",
-        (AutopilotKind::Ardupilot, VehicleKind::Copter) => "ArduPilot Copter",
-        (AutopilotKind::Px4, _) => "PX4",
-    }
-}
-
 /// The mode table of a firmware and vehicle kind: (name, custom_mode).
 pub fn mode_table(autopilot: AutopilotKind, vehicle: VehicleKind) -> Vec<(&'static str, u32)> {
-    let table = match (autopilot, vehicle) {
-        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ARDUPILOT_ROVER_MODES,
-        (AutopilotKind::Ardupilot, VehicleKind::Copter) => ARDUPILOT_COPTER_MODES,
-        (AutopilotKind::Px4, _) => PX4_MODES,
-    };
     let mode = |(name, number): (&'static str, &str)| match number.split_once('.') {
         Some((main, sub)) => Some((name, px4_custom_mode(main.parse().ok()?, sub.parse().ok()?))),
         None => Some((name, number.parse().ok()?)),
     };
-    let entries = table
-        .split_whitespace()
+    let entries = (firmware(autopilot, vehicle).1.split_whitespace())
         .filter_map(|entry| entry.split_once('='));
     entries.filter_map(mode).collect()
-}
-
-/// Default (manual, assisted, auto, safe) mode names.
-fn default_modes(autopilot: AutopilotKind, vehicle: VehicleKind) -> [&'static str; 4] {
-    match (autopilot, vehicle) {
-        (AutopilotKind::Ardupilot, VehicleKind::Rover) => ["MANUAL", "STEERING", "AUTO", "HOLD"],
-        (AutopilotKind::Ardupilot, VehicleKind::Copter) => {
-            ["STABILIZE", "ALT_HOLD", "LOITER", "BRAKE"]
-        }
-        (AutopilotKind::Px4, _) => ["MANUAL", "ALTCTL", "AUTO.LOITER", "AUTO.LOITER"],
-    }
-}
-
-/// The autopilot's default RCMAP for rc_override.
-fn default_channels(vehicle: VehicleKind) -> Vec<(u8, Axis)> {
-    match vehicle {
-        VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
-        VehicleKind::Copter => {
-            let axes = [Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw];
-            (1..=4).zip(axes).collect()
-        }
-    }
 }
 
 impl MavlinkSettings {
@@ -472,7 +443,14 @@ impl MavlinkSettings {
             return Vec::new();
         }
         if self.channels.is_empty() {
-            self.channels = (default_channels(vehicle).into_iter())
+            // The autopilot's default RCMAP.
+            let rcmap: Vec<(u8, Axis)> = match vehicle {
+                VehicleKind::Rover => vec![(1, Axis::Roll), (3, Axis::Throttle)],
+                VehicleKind::Copter => (1..=4)
+                    .zip([Axis::Roll, Axis::Pitch, Axis::Throttle, Axis::Yaw])
+                    .collect(),
+            };
+            self.channels = (rcmap.into_iter())
                 .map(|(channel, axis)| ChannelSettings {
                     channel: Some(channel.into()),
                     axis: Some(axis),
@@ -489,8 +467,7 @@ impl MavlinkSettings {
         for (i, c) in self.channels.iter().enumerate() {
             let owner = format!("channels[{i}]");
             let (channel, map) = errors.within(&owner, |ce| {
-                let keys = [&["channel", "axis"], keys_of::<AxisMapSettings>()];
-                c.unknown.check(ce, &keys);
+                c.unknown.check(ce, ChannelSettings::KNOWN);
                 let channel = ce.req_int::<u8>("channel", c.channel, 1..=max_channel, rule);
                 if let Some(first) = channel.and_then(|ch| used.claim(ch, &owner)) {
                     let rule = format!("is already used by {first}");
@@ -554,7 +531,7 @@ impl MavlinkSettings {
     ) -> ModesConfig {
         let s = self.modes.get_or_insert_default();
         let table = mode_table(autopilot, vehicle);
-        let defaults = default_modes(autopilot, vehicle);
+        let (firmware, _, defaults) = firmware(autopilot, vehicle);
         let mut resolve = |key: &str, written: &mut Option<AutopilotModeName>, default: &str| {
             let custom_mode = table.iter().find(|(n, _)| *n == default).map_or(0, |m| m.1);
             let name = default.to_string();
@@ -576,7 +553,7 @@ impl MavlinkSettings {
                     let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
                     let rule = format!(
                         "is not a mode of {}: use one of {} or a custom_mode number",
-                        firmware_name(autopilot, vehicle),
+                        firmware,
                         names.join(", ")
                     );
                     errors.add(key, format!("\"{name}\""), rule);

@@ -2,11 +2,11 @@
 //! [`NazaConfig`] (a generic PWM vehicle plus the Naza's own policies). Errors name the Naza
 //! keys (`mode.atti_us`, `throttle.max_us`), not the generic channel list.
 
-use rove_core::config::{Int, UnknownKeys, keys_of};
+use rove_core::config::{Int, UnknownKeys};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{ModeLevels, ModeLevelsSettings};
 use rove_core::msg::{Mode, MovementCommand};
-use rove_pwm::config::{finish_preset, preset_tables, rename_channels, servo_keys};
+use rove_pwm::config::{finish_preset, preset_tables, rename_channels};
 use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
     PwmVehicleConfig, PwmVehicleSettings,
@@ -127,10 +127,6 @@ rove_core::config_types! {
     }
 }
 
-/// The keys of `[output]` for the Naza-M besides the backend keys.
-const NAZA_KEYS: &str = "aileron elevator throttle rudder mode failsafe_mode failsafe_policy \
-                         land_throttle_us land_ramp_ms csc csc_hold_ms";
-
 rove_core::config_types! {
     /// The throttle in failsafe, validated.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -154,15 +150,9 @@ rove_core::config_types! {
 }
 
 impl NazaConfig {
-    /// Index of each channel in the generic config.
-    pub const AILERON: usize = 0;
-    /// Elevator channel index.
-    pub const ELEVATOR: usize = 1;
-    /// Throttle channel index.
+    /// Index of the throttle channel in the generic config.
     pub const THROTTLE: usize = 2;
-    /// Rudder channel index.
-    pub const RUDDER: usize = 3;
-    /// Mode (U) channel index.
+    /// Index of the mode (U) channel in the generic config.
     pub const MODE: usize = 4;
 }
 
@@ -226,19 +216,13 @@ impl NazaSettings {
     /// (`aileron.pin`, `mode.atti_us`, `land_throttle_us`…).
     pub fn validate(&mut self) -> rove_core::Result<NazaConfig> {
         let mut errors = ConfigErrors::default();
-        let naza_keys: Vec<&str> = NAZA_KEYS.split_whitespace().collect();
-        let keys = [keys_of::<PwmBackendSettings>(), &naza_keys];
-        self.unknown.check(&mut errors, &keys);
+        self.unknown.check(&mut errors, Self::KNOWN);
         let names = CHANNELS.map(|c| c.0);
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
         let sticks = sticks.map(|t| t.as_ref().map(|t| &t.unknown));
-        preset_tables(&mut errors, &names[..4], &sticks, &servo_keys());
-        let mode_keys = [
-            keys_of::<PwmAddressSettings>(),
-            &["manual_us", "atti_us", "gps_us"],
-        ];
+        preset_tables(&mut errors, &names[..4], &sticks, StickSettings::KNOWN);
         let mode = [self.mode.as_ref().map(|m| &m.unknown)];
-        preset_tables(&mut errors, &names[4..], &mode, &mode_keys);
+        preset_tables(&mut errors, &names[4..], &mode, ModeChannelSettings::KNOWN);
         let hold_ms = *self.csc_hold_ms.get_or_insert(DEFAULT_CSC_HOLD_MS);
         let hold = errors.millis("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
         let policy = *self.failsafe_policy.get_or_insert(FailsafePolicy::Hover);

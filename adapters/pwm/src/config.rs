@@ -6,7 +6,7 @@
 //! Keys of errors are relative to the `[output]` table, e.g. `channels[2].max_us`; the gateway
 //! puts `output.` in front.
 
-use rove_core::config::{ABSENT, Int, Unique, UnknownKeys, keys_of};
+use rove_core::config::{ABSENT, Int, Unique, UnknownKeys};
 use rove_core::error::{ConfigError, ConfigErrors};
 use rove_core::mapping::{
     Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US, pulse,
@@ -82,8 +82,7 @@ impl Polarity {
 rove_core::config_types! {
     /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
     /// `"eyedrive"` and `"naza"` (flattened into each).
-    #[serde(deny_unknown_fields)]
-    pub settings PwmBackendSettings {
+    pub table PwmBackendSettings {
         backend: Option<BackendKind> => "Which device drives the channels.",
         period_us: Option<Int> => "PWM period, µs.",
         sysfs_root: Option<PathBuf> => "sysfs: the PWM class directory.",
@@ -92,8 +91,7 @@ rove_core::config_types! {
 
     /// Where a channel is wired, as written: the one definition of the address keys, shared by
     /// generic channels and the preset tables (flattened into each).
-    #[serde(deny_unknown_fields)]
-    pub settings PwmAddressSettings {
+    pub table PwmAddressSettings {
         chip: Option<Int> => "sysfs: the `pwmchipN`.",
         channel: Option<Int> => "sysfs: the channel within the chip (`pwmchipN/pwmM`).",
         pin: Option<Int> => "rppal: software PWM on this BCM GPIO pin.",
@@ -146,9 +144,6 @@ rove_core::config_types! {
         #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 }
-
-/// The keys of a `[[output.channels]]` table that are not in a flattened piece.
-const CHANNEL_KEYS: &[&str] = &["name", "source", "value_us", "failsafe_us"];
 
 rove_core::config_types! {
     /// Where a channel is wired.
@@ -255,8 +250,7 @@ impl PwmVehicleSettings {
     /// key table, does not apply to its backend or source, or repeats a name or an address.
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
-        let keys = [keys_of::<PwmBackendSettings>(), &["channels"]];
-        self.unknown.check(&mut errors, &keys);
+        self.unknown.check(&mut errors, Self::KNOWN);
         let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
         if self.channels.is_empty() {
             let rule = "must list at least one channel ([[output.channels]])";
@@ -325,66 +319,59 @@ impl PwmAddressSettings {
             errors.add("pin", shown, rule);
             return None;
         }
+        // The one address key given (checked above), the channel's before the chip's.
+        let keys = [("pin", self.pin), ("pwm_channel", self.pwm_channel)];
+        let keys = keys
+            .into_iter()
+            .chain([("channel", self.channel), ("chip", self.chip)]);
+        let given = keys.filter_map(|(key, v)| v.map(|v| (key, v))).next();
         let u32_range = 0..=Int::from(u32::MAX);
-        let sysfs = |errors: &mut ConfigErrors| -> Option<ChannelAddress> {
-            let chip = match self.chip {
-                Some(c) => errors.int("chip", c, u32_range.clone(), "")?,
-                None => default_chip,
-            };
-            let Some(channel) = self.channel else {
-                let rule =
-                    "must name the channel within the chip (pwmchipN/pwmM) for backend = \"sysfs\"";
-                errors.absent("channel", rule);
-                return None;
-            };
-            let channel = errors.int("channel", channel, u32_range.clone(), "")?;
-            Some(ChannelAddress::Sysfs { chip, channel })
-        };
-        match backend {
-            BackendKind::Sysfs if pin.is_some() || hw.is_some() => {
-                let key = if pin.is_some() { "pin" } else { "pwm_channel" };
-                let value = self.pin.or(self.pwm_channel).unwrap_or_default();
+        match (backend, given) {
+            (BackendKind::Sysfs, Some((key @ ("pin" | "pwm_channel"), v))) => {
                 let rule =
                     "only applies to backend = \"rppal\"; sysfs channels take `chip` and `channel`";
-                errors.add(key, value, rule);
+                errors.add(key, v, rule);
                 None
             }
-            BackendKind::Sysfs => sysfs(errors),
-            BackendKind::Rppal if sysfs_given => {
-                let key = if self.channel.is_some() {
-                    "channel"
-                } else {
-                    "chip"
-                };
-                let value = self.channel.or(self.chip).unwrap_or_default();
+            (BackendKind::Rppal, Some((key @ ("channel" | "chip"), v))) => {
                 let rule = "only applies to backend = \"sysfs\"; rppal channels take `pin` or \
                             `pwm_channel`";
-                errors.add(key, value, rule);
+                errors.add(key, v, rule);
                 None
             }
-            BackendKind::Rppal => match (pin, hw) {
-                (Some(pin), None) => {
+            (_, Some(("pin", _))) => {
+                if backend == BackendKind::Rppal {
                     let rule = "software PWM on a GPIO pin has no polarity setting; use a \
                                 hardware `pwm_channel` or invert externally";
                     errors.not_for("polarity", self.polarity.map(Polarity::as_sysfs), rule);
-                    pin.map(ChannelAddress::GpioPin)
                 }
-                (None, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
-                _ => {
-                    let rule = "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) \
-                                for backend = \"rppal\"";
-                    errors.absent("pin", rule);
-                    None
-                }
-            },
+                pin.flatten().map(ChannelAddress::GpioPin)
+            }
+            (_, Some(("pwm_channel", _))) => hw.flatten().map(ChannelAddress::HardwarePwm),
+            (BackendKind::Rppal, None) => {
+                let rule = "must give `pin` (software PWM) or `pwm_channel` (hardware PWM) for \
+                            backend = \"rppal\"";
+                errors.absent("pin", rule);
+                None
+            }
             // Sim takes any one address form (so that a Pi config runs on a laptop by changing
             // only `backend`), or none.
-            BackendKind::Sim => match (pin, hw) {
-                (Some(pin), _) => pin.map(ChannelAddress::GpioPin),
-                (_, Some(hw)) => hw.map(ChannelAddress::HardwarePwm),
-                _ if sysfs_given => sysfs(errors),
-                _ => Some(ChannelAddress::Unaddressed),
-            },
+            (BackendKind::Sim, None) => Some(ChannelAddress::Unaddressed),
+            // `chip`/`channel`, given or (sysfs) required.
+            _ => {
+                let chip = match self.chip {
+                    Some(c) => errors.int("chip", c, u32_range.clone(), "")?,
+                    None => default_chip,
+                };
+                let Some(channel) = self.channel else {
+                    let rule = "must name the channel within the chip (pwmchipN/pwmM) for \
+                                backend = \"sysfs\"";
+                    errors.absent("channel", rule);
+                    return None;
+                };
+                let channel = errors.int("channel", channel, u32_range, "")?;
+                Some(ChannelAddress::Sysfs { chip, channel })
+            }
         }
     }
 }
@@ -397,13 +384,7 @@ impl ChannelSettings {
         period_us: Int,
         errors: &mut ConfigErrors,
     ) -> Option<ChannelConfig> {
-        let pieces = [
-            CHANNEL_KEYS,
-            keys_of::<PwmAddressSettings>(),
-            keys_of::<AxisMapSettings>(),
-            keys_of::<ModeLevelsSettings>(),
-        ];
-        self.unknown.check(errors, &pieces);
+        self.unknown.check(errors, Self::KNOWN);
         let name = match self.name.as_deref() {
             Some(n) if !n.trim().is_empty() => Some(n.to_string()),
             other => {
@@ -428,20 +409,16 @@ impl ChannelSettings {
         }
         let levels = self.levels.given().into_iter();
         let levels = levels.map(|(k, v)| (k, v.to_string()));
-        // (source, lowest and highest pulse it can output, default failsafe)
-        let (source, lo, hi, default_failsafe) = match kind {
+        // (source, the failsafe's range, highest pulse it can output, default failsafe)
+        let (source, range, hi, default_failsafe) = match kind {
             ChannelSourceKind::Mode => {
                 not_for(errors, self.map.given());
                 let levels = errors.section("", self.levels.validate(DEFAULT_MODE_LEVELS))?;
-                let all = Mode::ALL.map(|m| levels.level(m));
-                let (lo, hi) = (all.iter().min().copied(), all.iter().max().copied());
-                let assisted = levels.level(Mode::Assisted);
-                (
-                    ChannelSource::Mode(levels),
-                    lo.unwrap_or(0),
-                    hi.unwrap_or(0),
-                    assisted,
-                )
+                let hi = Mode::ALL.map(|m| levels.level(m)).into_iter().max();
+                let (source, assisted) =
+                    (ChannelSource::Mode(levels), levels.level(Mode::Assisted));
+                // A mode channel may fail safe to any level the device understands.
+                (source, PULSE_RANGE_US, hi.unwrap_or(0), assisted)
             }
             ChannelSourceKind::Constant => {
                 not_for(errors, self.map.given().into_iter().chain(levels).collect());
@@ -450,7 +427,7 @@ impl ChannelSettings {
                     return None;
                 };
                 let v = pulse(errors, "value_us", v)?;
-                (ChannelSource::Constant(v), v, v, v)
+                (ChannelSource::Constant(v), v.into()..=v.into(), v, v)
             }
             axis => {
                 not_for(errors, levels.collect());
@@ -462,18 +439,15 @@ impl ChannelSettings {
                 };
                 let map = errors.section("", self.map.validate())?;
                 let source = ChannelSource::Axis(axis, map);
-                (source, map.min_us(), map.max_us(), map.centre_us())
+                let range = map.min_us().into()..=map.max_us().into();
+                (source, range, map.max_us(), map.centre_us())
             }
         };
         let given_failsafe = self.failsafe_us.is_some();
         let failsafe_us = *self.failsafe_us.get_or_insert(default_failsafe.into());
-        let (flo, fhi) = match source {
-            // A mode channel may fail safe to any level the device understands.
-            ChannelSource::Mode(_) => (*PULSE_RANGE_US.start(), *PULSE_RANGE_US.end()),
-            _ => (lo.into(), hi.into()),
-        };
-        if !(flo..=fhi).contains(&failsafe_us) {
-            let rule = format!("must be within the channel's range {flo}..={fhi} µs");
+        if !range.contains(&failsafe_us) {
+            let (lo, hi) = (range.start(), range.end());
+            let rule = format!("must be within the channel's range {lo}..={hi} µs");
             errors.add("failsafe_us", failsafe_us, rule);
         }
         let highest = Int::from(hi).max(failsafe_us);
@@ -514,12 +488,6 @@ pub fn preset_tables(
             Some(unknown) => errors.within(name, |e| unknown.check(e, known)),
         }
     }
-}
-
-/// The keys of a preset's servo channel table.
-pub fn servo_keys() -> [&'static [&'static str]; 2] {
-    let address = keys_of::<PwmAddressSettings>();
-    [address, keys_of::<AxisMapSettings>()]
 }
 
 /// Rewrites `channels[i]` in a generic error's key and rule to a preset's table name
