@@ -267,8 +267,8 @@ impl Sec {
     }
 }
 
-/// Backup ranks, weakest first: (level, class, strength).
-const RANKS: [(&str, &str); 12] = [
+/// Backup ranks, weakest first: (level, class), each cell of the hierarchy (docs/design.md §3).
+pub(crate) const RANKS: [(&str, &str); 12] = [
     ("remote", "desktop"),
     ("remote", "laptop"),
     ("remote", "tablet"),

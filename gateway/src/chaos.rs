@@ -47,21 +47,9 @@ pub const GRACE_US: u64 = 300_000;
 /// second; discovery already knows the peer, so its next sample takes over).
 pub const HEAL_US: u64 = 1_000_000;
 
-/// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3).
-const LADDER: [(&str, &str); 12] = [
-    ("remote", "desktop"),
-    ("remote", "laptop"),
-    ("remote", "tablet"),
-    ("remote", "phone"),
-    ("stationary", "desktop"),
-    ("stationary", "laptop"),
-    ("stationary", "tablet"),
-    ("stationary", "phone"),
-    ("mobile", "desktop"),
-    ("mobile", "laptop"),
-    ("mobile", "tablet"),
-    ("mobile", "phone"),
-];
+/// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3),
+/// the handover bench's ranks.
+const LADDER: [(&str, &str); 12] = crate::bench::RANKS;
 
 /// What the bench did, when (wall clock, µs). Operators are named by device id, ranked by
 /// strength (a higher rank is stronger).
