@@ -33,9 +33,12 @@ pub mod mavlink;
 pub mod replay;
 pub mod session;
 
+/// A target's body: any bytes in; a panic is a finding.
+pub type Target = fn(&[u8]);
+
 /// The fuzz targets by name: the name is the cargo-fuzz target's and the corpus directory's
 /// (`fuzz/libfuzzer/corpus/<name>/`).
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, Target)] = &[
     ("cdr", cdr::cdr),
     ("arbiter", arbiter::arbiter),
     ("session", session::session),
