@@ -3,8 +3,10 @@
 //! read is followed by draining the decoder, as the link's reader thread does.
 //!
 //! Checked, besides "no panic": the decoder never counts more bytes skipped than it was given;
-//! every frame it yields re-encodes to one frame that decodes to the same message.
+//! every frame it yields re-encodes (as MAVLink 2) to one frame that decodes to the same
+//! message.
 
+use mavlink::MavlinkVersion;
 use rove_mavlink::frame::{Decoder, encode};
 
 /// Feeds `data` to a decoder.
@@ -19,7 +21,11 @@ pub fn mavlink(data: &[u8]) {
         decoder.push(chunk);
         pushed += chunk.len() as u64;
         while let Some(frame) = decoder.next_frame() {
-            let again = encode(frame.version, frame.header, &frame.message)
+            // As MAVLink 2 whatever the frame was: MAVLink 1 does not serialize extension
+            // fields, yet a MAVLink 1 payload that carries their bytes decodes them (the
+            // mavlink crate's reading, and pymavlink's), so a MAVLink 1 re-encoding would drop
+            // them. Seen by this target; no message rove acts on depends on it.
+            let again = encode(MavlinkVersion::V2, frame.header, &frame.message)
                 .unwrap_or_else(|e| panic!("{frame:?} decoded but does not encode: {e}"));
             let mut fresh = Decoder::new();
             fresh.push(&again);
