@@ -331,4 +331,38 @@ mod tests {
         assert!(encode(MavlinkVersion::V1, header(0), &msg).is_err());
         assert!(encode(MavlinkVersion::V2, header(0), &msg).is_ok());
     }
+
+    /// A MAVLink 1 frame longer than its message's base fields (a sender that appends the
+    /// extension fields) decodes with those fields and is not skipped; re-encoded as MAVLink 1
+    /// they are gone (MAVLink 1 does not serialize extensions), as MAVLink 2 they stay. Seen
+    /// by the `mavlink` fuzz target (fuzz/README.md), whose round-trip check assumed otherwise.
+    #[test]
+    fn decoder_reads_extension_bytes_of_a_mavlink1_frame() {
+        // COMMAND_ACK (id 77): command u16 (176, DO_SET_MODE), result u8, then the extensions
+        // progress u8, result_param2 i32, target_system u8, target_component u8.
+        let payload = [176, 0, 0, 50, 1, 0, 0, 0, 255, 190];
+        let mut frame = vec![MAV_STX, 10, 7, 1, 1, 77];
+        frame.extend_from_slice(&payload);
+        let crc = calculate_crc(&frame[1..], MavMessage::extra_crc(77));
+        frame.extend_from_slice(&crc.to_le_bytes());
+        let mut d = Decoder::new();
+        d.push(&frame);
+        let f = d.next_frame().expect("a frame");
+        assert_eq!(d.skipped(), 0);
+        assert_eq!(f.version, MavlinkVersion::V1);
+        let MavMessage::COMMAND_ACK(ack) = &f.message else {
+            panic!("not a COMMAND_ACK: {:?}", f.message);
+        };
+        assert_eq!(ack.command, MavCmd::MAV_CMD_DO_SET_MODE);
+        assert_eq!((ack.progress, ack.target_component), (50, 190));
+        let mut v1 = Decoder::new();
+        v1.push(&bytes(MavlinkVersion::V1, &f.message));
+        let MavMessage::COMMAND_ACK(again) = v1.next_frame().expect("v1 frame").message else {
+            panic!("not a COMMAND_ACK");
+        };
+        assert_eq!((again.progress, again.target_component), (0, 0));
+        let mut v2 = Decoder::new();
+        v2.push(&bytes(MavlinkVersion::V2, &f.message));
+        assert_eq!(v2.next_frame().expect("v2 frame").message, f.message);
+    }
 }
