@@ -276,6 +276,17 @@ pub struct Grant {
     pub device_class: DeviceClass,
 }
 
+impl Grant {
+    /// Operator `id` may claim up to `level` and `device_class`.
+    pub const fn new(id: DeviceId, level: Level, device_class: DeviceClass) -> Grant {
+        Grant {
+            id,
+            level,
+            device_class,
+        }
+    }
+}
+
 /// The strengths a vehicle believes; see the module docs.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Access {

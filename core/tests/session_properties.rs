@@ -163,11 +163,7 @@ fn policy() -> impl Strategy<Value = AutoAccept> {
 
 /// The vehicle's access list: each operator up to its own rank.
 fn access() -> Access {
-    let grant = |id, level, device_class| Grant {
-        id,
-        level,
-        device_class,
-    };
+    let grant = Grant::new;
     Access::listed(
         Hierarchy::STANDARD,
         &[

@@ -58,11 +58,7 @@ pub fn arbiter(data: &[u8]) {
 
 /// The access list operators 1 to 3 are granted by (4 and the stranger are not listed).
 pub(crate) fn access() -> Access {
-    let grant = |id, level, device_class| Grant {
-        id,
-        level,
-        device_class,
-    };
+    let grant = Grant::new;
     Access::listed(
         Hierarchy::STANDARD,
         &[

@@ -1,6 +1,6 @@
 //! DroneCAN transfers through rove-can's transport ([`transfer_frames`]) and back through a
-//! receiver's reassembly (pydronecan's `Transfer.from_frames`, written out here: rove-can
-//! only transmits, so the receiver is the fuzz crate's model of the nodes on the bus).
+//! receiver's reassembly ([`reassemble`], pydronecan's `Transfer.from_frames`: rove-can only
+//! transmits, so the receiver is the model of the nodes on the bus its own tests use too).
 //!
 //! The payload is one of rove's own messages built from the input by its encoders
 //! (ArrayCommand from any `(actuator, f32)` pairs, RawCommand from any `i16`s, NodeStatus from
@@ -14,16 +14,10 @@
 //! their DSDL lengths.
 
 use crate::bytes::Bytes;
-use rove_can::bus::CanFrameData;
 use rove_can::dronecan::{
     ARRAY_COMMAND, DataType, MAX_ESCS, MAX_SERVOS, NODE_STATUS, NodeHealth, RAW_COMMAND,
-    array_command, node_status, raw_command, transfer_crc, transfer_frames,
+    array_command, node_status, raw_command, reassemble, transfer_frames,
 };
-
-const SOT: u8 = 0x80;
-const EOT: u8 = 0x40;
-const TOGGLE: u8 = 0x20;
-const TRANSFER_ID_MASK: u8 = 0x1F;
 
 /// Frames `data`'s transfer and reassembles it.
 pub fn dronecan(data: &[u8]) {
@@ -90,28 +84,4 @@ pub fn dronecan(data: &[u8]) {
         "{} frames",
         frames.len()
     );
-}
-
-/// A receiver's reassembly of one transfer: the tail bits of every frame, then for several
-/// frames the CRC; the payload, or `None` if the frames are not one valid transfer.
-fn reassemble(data_type: &DataType, frames: &[CanFrameData]) -> Option<Vec<u8>> {
-    let mut body = Vec::new();
-    let tid = frames.first()?.data().last()? & TRANSFER_ID_MASK;
-    for (i, f) in frames.iter().enumerate() {
-        let (tail, data) = f.data().split_last()?;
-        let ok = (tail & TRANSFER_ID_MASK) == tid
-            && ((tail & SOT) != 0) == (i == 0)
-            && ((tail & EOT) != 0) == (i == frames.len() - 1)
-            && ((tail & TOGGLE) != 0) == (i % 2 == 1);
-        if !ok {
-            return None;
-        }
-        body.extend_from_slice(data);
-    }
-    if frames.len() == 1 {
-        return Some(body);
-    }
-    let crc = u16::from_le_bytes([*body.first()?, *body.get(1)?]);
-    let payload = body.split_off(2);
-    (crc == transfer_crc(data_type, &payload)).then_some(payload)
 }

@@ -304,6 +304,32 @@ pub fn node_status(uptime_sec: u32, health: NodeHealth, vendor_status: u16) -> V
     w.finish()
 }
 
+/// Reassembles one transfer as a receiver does (pydronecan `Transfer.from_frames`): checks
+/// the tail bits and, for several frames, the CRC; returns the payload, or `None` if the frames
+/// are not one valid transfer. rove only transmits; this is the receiver its tests and the
+/// fuzz target check [`transfer_frames`] against.
+pub fn reassemble(data_type: &DataType, frames: &[CanFrameData]) -> Option<Vec<u8>> {
+    let mut body = Vec::new();
+    let tid = frames.first()?.data().last()? & TRANSFER_ID_MASK;
+    for (i, f) in frames.iter().enumerate() {
+        let (tail, data) = f.data().split_last()?;
+        let ok = (tail & TRANSFER_ID_MASK) == tid
+            && ((tail & SOT) != 0) == (i == 0)
+            && ((tail & EOT) != 0) == (i == frames.len() - 1)
+            && ((tail & TOGGLE) != 0) == (i % 2 == 1);
+        if !ok {
+            return None;
+        }
+        body.extend_from_slice(data);
+    }
+    if frames.len() == 1 {
+        return Some(body);
+    }
+    let crc = u16::from_le_bytes([*body.first()?, *body.get(1)?]);
+    let payload = body.split_off(2);
+    (crc == transfer_crc(data_type, &payload)).then_some(payload)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -453,30 +479,6 @@ mod tests {
         assert_eq!(ids.next(&ARRAY_COMMAND), 31);
         assert_eq!(ids.next(&ARRAY_COMMAND), 0);
         assert_eq!(ids.next(&RAW_COMMAND), 0);
-    }
-
-    /// Reassembles a transfer as a receiver does (pydronecan `Transfer.from_frames`): checks
-    /// the tail bits and, for several frames, the CRC; returns the payload.
-    fn reassemble(data_type: &DataType, frames: &[CanFrameData]) -> Option<Vec<u8>> {
-        let mut body = Vec::new();
-        let tid = frames.first()?.data().last()? & TRANSFER_ID_MASK;
-        for (i, f) in frames.iter().enumerate() {
-            let (tail, data) = f.data().split_last()?;
-            let ok = (tail & TRANSFER_ID_MASK) == tid
-                && ((tail & SOT) != 0) == (i == 0)
-                && ((tail & EOT) != 0) == (i == frames.len() - 1)
-                && ((tail & TOGGLE) != 0) == (i % 2 == 1);
-            if !ok {
-                return None;
-            }
-            body.extend_from_slice(data);
-        }
-        if frames.len() == 1 {
-            return Some(body);
-        }
-        let crc = u16::from_le_bytes([*body.first()?, *body.get(1)?]);
-        let payload = body.split_off(2);
-        (crc == transfer_crc(data_type, &payload)).then_some(payload)
     }
 
     proptest! {
