@@ -17,6 +17,11 @@ use std::time::Duration;
 /// for an operator that runs for weeks. Older entries are dropped first.
 pub const LOG_CAPACITY: usize = 200;
 
+/// Most devices the console remembers. A fleet has tens; beyond this a new device takes the
+/// place of the one offline longest (never the selected one or one we stream to), or, with
+/// none offline, is not shown: a flood of invented ids cannot grow the table.
+pub const MAX_DEVICES: usize = 1024;
+
 /// How long a confirmation prompt stays open: long enough to read it, short enough that a
 /// forgotten prompt cannot be confirmed by a stray key much later, when the situation on
 /// screen has changed.
@@ -387,6 +392,23 @@ pub struct ConsoleState {
 }
 
 impl ConsoleState {
+    /// Whether the device table may hold `id` at `now` (see [`MAX_DEVICES`]), making room if
+    /// it must.
+    fn has_room_for(&mut self, id: DeviceId, now: MonoTime) -> bool {
+        if self.devices.len() < MAX_DEVICES || self.devices.contains_key(&id) {
+            return true;
+        }
+        let offline = |d: &&Device| {
+            (!d.online || now.saturating_since(d.last_seen) >= self.offline_after)
+                && self.selected != Some(d.id)
+                && !self.mine.contains_key(&d.id)
+        };
+        let oldest = (self.devices.values().filter(offline))
+            .min_by_key(|d| d.last_seen)
+            .map(|d| d.id);
+        oldest.is_some_and(|old| self.devices.remove(&old).is_some())
+    }
+
     /// An empty console for `identity`.
     pub fn new(identity: Identity, offline_after: Duration) -> Self {
         ConsoleState {
@@ -410,6 +432,7 @@ impl ConsoleState {
         self.now = self.now.max(now);
         match event {
             Event::Identity(identity) => self.identity = identity,
+            Event::DeviceSeen { id, .. } if !self.has_room_for(id, now) => {}
             Event::DeviceSeen {
                 id,
                 name,
@@ -742,6 +765,35 @@ pub(crate) mod tests {
             kind,
             owner,
         }
+    }
+
+    #[test]
+    fn the_device_table_stays_bounded_and_makes_room_only_from_offline_devices() {
+        let mut s = ConsoleState::new(me(), Duration::from_secs(3));
+        s.apply(ms(0), seen(100, "rover-1", DeviceKind::Vehicle, 100));
+        let flood = |s: &mut ConsoleState, t: u64, first: DeviceId| {
+            for id in first..first + MAX_DEVICES as DeviceId {
+                s.apply(ms(t), seen(id, "x", DeviceKind::Controller, id));
+            }
+        };
+        // All online: the table fills and the rest are not remembered.
+        flood(&mut s, 10, 10_000);
+        assert_eq!(s.devices.len(), MAX_DEVICES);
+        assert!(
+            !s.devices
+                .contains_key(&(10_000 + MAX_DEVICES as DeviceId - 1))
+        );
+        // Once they are offline, newcomers take their places; the selected vehicle stays.
+        flood(&mut s, 5_000, 20_000);
+        assert_eq!(s.devices.len(), MAX_DEVICES);
+        assert!(
+            s.devices
+                .contains_key(&(20_000 + MAX_DEVICES as DeviceId - 2))
+        );
+        assert!(
+            s.devices.contains_key(&100),
+            "the selected vehicle was forgotten"
+        );
     }
 
     #[test]

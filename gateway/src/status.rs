@@ -75,7 +75,29 @@ struct Seen {
     withdrawn: bool,
     /// The participant the row's info comes from (the id's pin).
     believed: ParticipantId,
+    /// Every participant that claimed the id (at most [`MAX_CLAIMANTS`]).
     participants: BTreeSet<ParticipantId>,
+}
+
+/// Most devices `rove status` remembers: a fleet has tens. Beyond it, a new id takes the place of
+/// the device withdrawn or silent longest, or, with none such, is not listed (a flood of
+/// invented ids cannot grow the table).
+pub const MAX_DEVICES: usize = 1024;
+
+/// Most participants remembered as claiming one id (the report of a duplicate names them).
+pub const MAX_CLAIMANTS: usize = 8;
+
+/// Whether `seen` may hold `id`, making room if it must by forgetting the device that has been
+/// withdrawn or silent for `offline_after` the longest.
+fn has_room(seen: &mut BTreeMap<DeviceId, Seen>, id: DeviceId, offline_after: Duration) -> bool {
+    if seen.len() < MAX_DEVICES || seen.contains_key(&id) {
+        return true;
+    }
+    let oldest = (seen.iter())
+        .filter(|(_, s)| s.withdrawn || s.at.elapsed() >= offline_after)
+        .min_by_key(|(_, s)| s.at)
+        .map(|(id, _)| *id);
+    oldest.is_some_and(|old| seen.remove(&old).is_some())
 }
 
 /// Options of `rove status`.
@@ -130,11 +152,16 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                     match s.into_value() {
                         Sample::Value(KeyedDeviceInfo(info)) => {
                             let believed = ids.claim(clock.now(), info.device_id, from).is_ok();
+                            if !has_room(&mut seen, info.device_id, options.heartbeat * 3) {
+                                continue;
+                            }
                             let entry = seen.entry(info.device_id).or_insert_with(|| Seen {
                                 info: info.clone(), at: Instant::now(), withdrawn: false,
                                 believed: from, participants: BTreeSet::new(),
                             });
-                            entry.participants.insert(from);
+                            if entry.participants.len() < MAX_CLAIMANTS {
+                                entry.participants.insert(from);
+                            }
                             if !believed {
                                 continue;
                             }
@@ -293,5 +320,48 @@ pub fn output_text(status: &VehicleStatus) -> String {
     match status.output {
         OutputState::Hung => format!("hung: {}", status.detail),
         _ => status.detail.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seen(id: DeviceId, silent_for: Duration) -> Seen {
+        Seen {
+            info: DeviceInfo {
+                device_id: id,
+                name: format!("d{id}"),
+                device_type: DeviceType::Controller,
+                controller_id: id,
+            },
+            at: Instant::now()
+                .checked_sub(silent_for)
+                .unwrap_or_else(Instant::now),
+            withdrawn: false,
+            believed: ParticipantId(1),
+            participants: BTreeSet::new(),
+        }
+    }
+
+    #[test]
+    fn the_device_table_is_bounded_and_only_silent_devices_make_room() {
+        let offline_after = Duration::from_secs(3);
+        let mut table: BTreeMap<DeviceId, Seen> = (0..MAX_DEVICES as DeviceId)
+            .map(|id| (id, seen(id, Duration::ZERO)))
+            .collect();
+        // Full of live devices: a newcomer is not listed, a known device still is.
+        assert!(!has_room(&mut table, 5_000, offline_after));
+        assert!(has_room(&mut table, 7, offline_after));
+        // One falls silent (and one is withdrawn): each makes room once, the silent one first.
+        table.insert(3, seen(3, Duration::from_secs(10)));
+        table.entry(4).and_modify(|s| s.withdrawn = true);
+        for (newcomer, forgotten) in [(5_000, 3), (5_001, 4)] {
+            assert!(has_room(&mut table, newcomer, offline_after));
+            assert!(!table.contains_key(&forgotten), "{forgotten} kept");
+            table.insert(newcomer, seen(newcomer, Duration::ZERO));
+        }
+        assert!(!has_room(&mut table, 5_002, offline_after));
+        assert_eq!(table.len(), MAX_DEVICES);
     }
 }
