@@ -17,15 +17,6 @@ fn status_kib(pid: u32, field: &str) -> u64 {
         .unwrap_or_else(|| panic!("no {field} in /proc/{pid}/status (the process died?)"))
 }
 
-/// Sends `signal` to `pid` (a rig's child: `ip netns exec` execs rove, so it is rove itself).
-fn kill(signal: &str, pid: u32) {
-    let status = Command::new("kill")
-        .args([signal, &pid.to_string()])
-        .status()
-        .expect("kill");
-    assert!(status.success(), "kill {signal} {pid}");
-}
-
 /// DATA_FRAG submessages, each from an invented participant and claiming a sample of almost
 /// 4 GiB, sent to the SPDP reader every participant has (it takes fragments from anyone). Stock
 /// rustdds 0.15.1 allocates and zero-fills the claimed size per datagram; patched, a reader
@@ -85,14 +76,14 @@ fn a_vehicle_stopped_and_continued_applies_no_backlog_and_hears_its_owner_again(
     let record = rig.vehicle(V);
     rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
-    let pid = rig.procs[0].pid();
+    let vehicle = &rig.procs[0];
 
     for round in 0..3 {
         let stopped = wall_us();
-        kill("-STOP", pid);
+        assert!(vehicle.signal("-STOP"), "kill -STOP");
         // The stimulus is a 500 ms stop; nothing is awaited here.
         std::thread::sleep(Duration::from_millis(500));
-        kill("-CONT", pid);
+        assert!(vehicle.signal("-CONT"), "kill -CONT");
         let resumed = wall_us();
         let back = wait_for_output(&record, Some(11), resumed)
             .unwrap_or_else(|e| panic!("round {round}: the laptop never drove again: {e}"));

@@ -213,7 +213,7 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
         }
         let t = out.wall_us;
         // Operators that must win now: running, not stopped, drove, and settled.
-        let live = |_: &i64, s: &OpState| s.running && !s.stopped && s.drove && t > s.settles_at;
+        let live = |s: &OpState| s.running && !s.stopped && s.drove && t > s.settles_at;
         let vehicle_settled = t > vehicle_changed_at + GRACE_US;
         match (out.action.as_str(), out.owner) {
             ("apply", Some(x)) => {
@@ -233,7 +233,7 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
                 if vehicle_settled
                     && loss == 0
                     && let Some((y, _)) = (ops.iter())
-                        .find(|(y, s)| ranks.get(y).copied().unwrap_or(0) > rank && live(y, s))
+                        .find(|(y, s)| ranks.get(y).copied().unwrap_or(0) > rank && live(s))
                 {
                     counts.wrong_owner += 1;
                     let why = silent(&last_applied, *y, t);
@@ -250,7 +250,7 @@ pub fn analyse(log: &[Logged], outputs: &[Out], ranks: &BTreeMap<i64, usize>) ->
                 last_applied.insert(x, t);
             }
             ("safe", _) => {
-                if vehicle_settled && let Some((y, _)) = ops.iter().find(|(y, s)| live(y, s)) {
+                if vehicle_settled && let Some((y, _)) = ops.iter().find(|(_, s)| live(s)) {
                     counts.failsafe_while_live += 1;
                     let why = silent(&last_applied, *y, t);
                     example(&mut counts, format!("failsafe at {t} while {y} ran, {why}"));
@@ -372,8 +372,7 @@ impl Fleet {
     fn signal(&mut self, id: i64, signal: &str, fault: Fault) {
         let at = wall_us();
         if let Some(&proc) = self.running.get(&id) {
-            let pid = self.rig.procs[proc].pid().to_string();
-            let _ = Command::new("kill").args([signal, &pid]).status();
+            self.rig.procs[proc].signal(signal);
         }
         self.note(at, fault);
     }
@@ -450,31 +449,14 @@ fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
     let far = Rig::new(rove, "bench-chaos-far")?;
     let tag = std::process::id() % 100_000;
     let (a, b) = (format!("rc{tag}a"), format!("rc{tag}b"));
-    let steps: [&[&str]; 8] = [
+    let (near_addr, far_addr) = (format!("{VETH_NEAR}/24"), format!("{VETH_FAR}/24"));
+    let steps: [&[&str]; 6] = [
         &[
             "ip", "link", "add", &a, "netns", &near.ns, "type", "veth", "peer", "name", &b,
             "netns", &far.ns,
         ],
-        &[
-            "ip",
-            "-n",
-            &near.ns,
-            "addr",
-            "add",
-            &format!("{VETH_NEAR}/24"),
-            "dev",
-            &a,
-        ],
-        &[
-            "ip",
-            "-n",
-            &far.ns,
-            "addr",
-            "add",
-            &format!("{VETH_FAR}/24"),
-            "dev",
-            &b,
-        ],
+        &["ip", "-n", &near.ns, "addr", "add", &near_addr, "dev", &a],
+        &["ip", "-n", &far.ns, "addr", "add", &far_addr, "dev", &b],
         &[
             "ip",
             "-n",
@@ -497,6 +479,7 @@ fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
             "multicast",
             "on",
         ],
+        // The far host's multicast goes over the veth, not its own loopback.
         &[
             "ip",
             "-n",
@@ -507,16 +490,9 @@ fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
             "dev",
             &b,
         ],
-        &["ip", "-n", &far.ns, "link", "set", "lo", "up"],
-        &["ip", "-n", &far.ns, "route", "show"],
     ];
     for step in steps {
-        let out = Command::new(step[0]).args(&step[1..]).output()?;
-        anyhow::ensure!(
-            out.status.success(),
-            "{step:?}: {}",
-            String::from_utf8_lossy(&out.stderr).trim()
-        );
+        crate::harness::run(step).map_err(anyhow::Error::msg)?;
     }
     Ok(far)
 }
@@ -524,21 +500,25 @@ fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
 /// nftables in the rig's namespace: drops `pct` % of UDP packets (0 removes the rule).
 fn set_loss(rig: &Rig, pct: u8) -> anyhow::Result<()> {
     let rule = format!("meta l4proto udp numgen random mod 100 < {pct} drop");
-    nft(rig, (pct > 0).then_some(&rule), "input")
+    nft(rig, (pct > 0).then_some(&rule), &["input"])
 }
 
 /// The far operator's veth cut (both ways, silently: nothing is refused) or restored.
 fn set_cut(rig: &Rig, cut: bool) -> anyhow::Result<()> {
-    nft(rig, cut.then_some("meta l4proto udp drop"), "input, output")
+    nft(
+        rig,
+        cut.then_some("meta l4proto udp drop"),
+        &["input", "output"],
+    )
 }
 
 /// Replaces rove's nftables table in `rig`'s namespace with one holding `rule` in a filter
 /// chain on each of `hooks`; `None` removes the table.
-fn nft(rig: &Rig, rule: Option<&str>, hooks: &str) -> anyhow::Result<()> {
+fn nft(rig: &Rig, rule: Option<&str>, hooks: &[&str]) -> anyhow::Result<()> {
     let mut script = "table inet rove_chaos\ndelete table inet rove_chaos\n".to_string();
     if let Some(rule) = rule {
         script.push_str("table inet rove_chaos {\n");
-        for hook in hooks.split(", ") {
+        for hook in hooks {
             script.push_str(&format!(
                 "chain {hook} {{ type filter hook {hook} priority 0; {rule}; }}\n"
             ));

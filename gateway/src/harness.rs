@@ -15,7 +15,8 @@ static NEXT: AtomicUsize = AtomicUsize::new(0);
 /// Generous: a loaded 2-core CI machine starting several DDS processes at once.
 pub const PATIENCE: Duration = Duration::from_secs(15);
 
-fn run(args: &[&str]) -> Result<(), String> {
+/// Runs `args` (program first); its stderr in the error when it fails.
+pub(crate) fn run(args: &[&str]) -> Result<(), String> {
     let out = Command::new(args[0])
         .args(&args[1..])
         .output()
@@ -53,9 +54,15 @@ impl Proc {
 
     /// SIGTERM: a graceful stop.
     pub fn terminate(&mut self) {
-        let _ = Command::new("kill")
-            .args(["-TERM", &self.pid().to_string()])
-            .status();
+        self.signal("-TERM");
+    }
+
+    /// Sends `signal` (`kill`'s spelling: `-STOP`, `-CONT`, …); whether it was delivered.
+    pub fn signal(&self, signal: &str) -> bool {
+        Command::new("kill")
+            .args([signal, &self.pid().to_string()])
+            .status()
+            .is_ok_and(|s| s.success())
     }
 
     /// SIGKILL: a crash.
