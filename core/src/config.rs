@@ -40,10 +40,23 @@ use std::time::Duration;
 /// `pub table Name` is one with the same derives that rejects unknown keys instead
 /// (`deny_unknown_fields`: every table that flattens nothing, see the module docs) and lists
 /// them in `Name::KEYS`.
+/// `pub keyword Name` is an enum of the words a key takes, written in lower case in TOML
+/// (`Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize`, `rename_all =
+/// "lowercase"`; a variant of several words takes `#[serde(rename = "snake_case")]`).
 /// Attributes (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    ($(#[$attr:meta])* pub keyword $name:ident { $($body:tt)* } $($rest:tt)*) => {
+        $crate::config_types! {
+            #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+            #[derive(::serde::Serialize, ::serde::Deserialize)]
+            #[serde(rename_all = "lowercase")]
+            $(#[$attr])*
+            pub enum $name { $($body)* }
+            $($rest)*
+        }
+    };
     (@known [$($known:expr,)*]) => { &[$($known),*] };
     (@known [$($known:expr,)*] #[serde(flatten)] $field:ident: $ty:ty => $doc:literal,
         $($rest:tt)*) => {

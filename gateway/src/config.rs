@@ -250,9 +250,7 @@ rove_core::config_types! {
     }
 
     /// Mode names in config.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum ModeName {
+    pub keyword ModeName {
         Manual => "MANUAL.",
         Assisted => "ASSISTED.",
         Auto => "AUTO.",

@@ -11,7 +11,6 @@ use rove_core::config::{ABSENT, Int, Unique};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, DEADBAND_RANGE_PCT, EXPO_RANGE};
 use rove_core::msg::Mode;
-use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -40,9 +39,7 @@ pub const MAX_RAMP_MS: Int = 10_000;
 
 rove_core::config_types! {
     /// Which kind of input `[input] source` selects.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum SourceKind {
+    pub keyword SourceKind {
         Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first).",
         Keyboard => "An evdev keyboard (absent `device`/`name`: the first).",
         Replay => "A recorded event stream played from `file`.",
@@ -70,9 +67,8 @@ rove_core::config_types! {
     }
 
     /// Where an axis must rest before driving starts or resumes (the no-jump rule).
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum Rest {
+    #[derive(Default)]
+    pub keyword Rest {
         #[default] Centre => "Within 5 % of centre (self-centring sticks, key axes).",
         Low => "Within 5 % of −full scale (a throttle lever at idle).",
         High => "Within 5 % of +full scale.",

@@ -44,41 +44,31 @@ rove_core::config_types! {
     }
 
     /// Which autopilot firmware.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum AutopilotKind {
+    pub keyword AutopilotKind {
         Ardupilot => "ArduPilot (Rover, Copter).",
         Px4 => "PX4.",
     }
 
     /// Which kind of vehicle the autopilot flies or drives.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum VehicleKind {
+    pub keyword VehicleKind {
         Rover => "A ground vehicle.",
         Copter => "A multirotor.",
     }
 
     /// How sticks reach the autopilot.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "snake_case")]
-    pub enum Method {
-        RcOverride => "RC_CHANNELS_OVERRIDE (ArduPilot).",
-        ManualControl => "MANUAL_CONTROL (PX4, ArduPilot).",
+    pub keyword Method {
+        #[serde(rename = "rc_override")] RcOverride => "RC_CHANNELS_OVERRIDE (ArduPilot).",
+        #[serde(rename = "manual_control")] ManualControl => "MANUAL_CONTROL (PX4, ArduPilot).",
     }
 
     /// What the control message carries in failsafe.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum FailsafeAction {
+    pub keyword FailsafeAction {
         Release => "Release the overridden channels (rc_override only).",
         Neutral => "Centred sticks, resent at rate.",
     }
 
     /// What to do when the autopilot refuses a driven mode.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum OnModeRefused {
+    pub keyword OnModeRefused {
         Hold => "Stop driving (failsafe content, safe mode) until the operator's mode changes.",
         Continue => "Keep driving in whatever mode the autopilot is in.",
     }
@@ -102,9 +92,7 @@ rove_core::config_types! {
     }
 
     /// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum AxisOrNone {
+    pub keyword AxisOrNone {
         Throttle => "`MovementCommand::throttle`.",
         Roll => "`MovementCommand::roll`.",
         Pitch => "`MovementCommand::pitch`.",
@@ -127,9 +115,7 @@ impl AxisOrNone {
 
 rove_core::config_types! {
     /// A MANUAL_CONTROL stick field.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum ManualField {
+    pub keyword ManualField {
         X => "x.",
         Y => "y.",
         Z => "z.",
@@ -137,9 +123,7 @@ rove_core::config_types! {
     }
 
     /// The range of MANUAL_CONTROL's z.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum ZRange {
+    pub keyword ZRange {
         Signed => "−1000..1000, 0 at stick centre.",
         Positive => "0..1000, 500 at stick centre.",
     }

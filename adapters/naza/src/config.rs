@@ -11,7 +11,6 @@ use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
     PwmVehicleConfig, PwmVehicleSettings,
 };
-use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
 /// Default U levels, µs: Manual low, ATTI middle, GPS high — what a Naza-M calibrated on a
@@ -48,26 +47,20 @@ pub const DEFAULT_LAND_FRACTION: f64 = 0.4;
 
 rove_core::config_types! {
     /// Mode the U channel is put in by the failsafe.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum FailsafeMode {
+    pub keyword FailsafeMode {
         Atti => "ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.",
         Gps => "GPS: also holds position; needs a GPS lock.",
     }
 
     /// What the failsafe does with the throttle.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum FailsafePolicy {
+    pub keyword FailsafePolicy {
         Hover => "Throttle centred: hold altitude.",
         Land => "Throttle ramps from centre down to `land_throttle_us` over `land_ramp_ms`.",
     }
 
     /// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
     /// pitch/roll; both always at the bottom).
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum CscPattern {
+    pub keyword CscPattern {
         Outer => "Left stick bottom-left, right stick bottom-right.",
         Inner => "Left stick bottom-right, right stick bottom-left.",
         Left => "Both sticks bottom-left.",

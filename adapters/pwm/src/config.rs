@@ -12,7 +12,6 @@ use rove_core::mapping::{
     Axis, AxisMap, AxisMapSettings, ModeLevels, ModeLevelsSettings, PULSE_RANGE_US, pulse,
 };
 use rove_core::msg::Mode;
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -40,18 +39,14 @@ pub const DEFAULT_MODE_LEVELS: ModeLevels = ModeLevels::new(1000, 1500, 2000);
 
 rove_core::config_types! {
     /// Which PWM device drives the channels.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum BackendKind {
+    pub keyword BackendKind {
         Sysfs => "Linux `/sys/class/pwm` (any board with a kernel PWM driver, RaMstix included).",
         Rppal => "Raspberry Pi hardware PWM and software PWM on GPIO, via rppal.",
         Sim => "Records pulses in memory.",
     }
 
     /// What a channel outputs, as written in `source = …`.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum ChannelSourceKind {
+    pub keyword ChannelSourceKind {
         Throttle => "The throttle axis.",
         Roll => "The roll axis (UGV steering).",
         Pitch => "The pitch axis.",
@@ -61,9 +56,7 @@ rove_core::config_types! {
     }
 
     /// Output polarity, as the kernel's sysfs `polarity` file spells it.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-    #[serde(rename_all = "lowercase")]
-    pub enum Polarity {
+    pub keyword Polarity {
         Normal => "Active high (the pulse is high).",
         Inversed => "Active low, for an inverting level shifter.",
     }
