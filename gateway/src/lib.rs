@@ -29,6 +29,7 @@ pub mod keys;
 pub mod operator;
 pub mod output;
 pub mod runtime;
+pub mod scale;
 pub mod sdnotify;
 pub mod status;
 pub mod vehicle;

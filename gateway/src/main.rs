@@ -3,7 +3,7 @@
 
 use clap::{Parser, Subcommand};
 use rove_gateway::{
-    bench, chaos, config, demo, doctor, harness, operator, runtime, status, vehicle,
+    bench, chaos, config, demo, doctor, harness, operator, runtime, scale, status, vehicle,
 };
 use std::process::ExitCode;
 
@@ -229,6 +229,32 @@ enum BenchCommand {
         #[arg(long)]
         json: Option<std::path::PathBuf>,
     },
+    /// A fleet of real processes, each operator driving its own vehicle: CPU and memory per
+    /// process and in total, handover latency and late-joiner time while the fleet streams,
+    /// wrong owners and stale outputs (needs root).
+    Scale {
+        /// Vehicles.
+        #[arg(long, default_value_t = 16)]
+        vehicles: usize,
+        /// Operators (operator i drives vehicle i mod V).
+        #[arg(long, default_value_t = 16)]
+        operators: usize,
+        /// Operators drive nothing: the fixed cost of the fleet's participants.
+        #[arg(long)]
+        idle: bool,
+        /// CPU window, s.
+        #[arg(long, default_value_t = 10)]
+        window_s: u64,
+        /// Handovers measured on the first vehicle while the fleet streams.
+        #[arg(long, default_value_t = 20)]
+        handover_runs: usize,
+        /// Late joiners measured.
+        #[arg(long, default_value_t = 10)]
+        latejoin_runs: usize,
+        /// Write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
@@ -439,6 +465,28 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 partition: std::time::Duration::from_secs(partition_s),
             };
             chaos::cli(&std::env::current_exe()?, &options, json.as_deref())
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Scale {
+                    vehicles,
+                    operators,
+                    idle,
+                    window_s,
+                    handover_runs,
+                    latejoin_runs,
+                    json,
+                },
+        } => {
+            let options = scale::Options {
+                vehicles,
+                operators,
+                idle,
+                window: std::time::Duration::from_secs(window_s),
+                handover_runs: if idle { 0 } else { handover_runs },
+                latejoin_runs,
+            };
+            scale::cli(&std::env::current_exe()?, &options, json.as_deref())
         }
         Command::Bench {
             what:

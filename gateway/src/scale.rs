@@ -1,0 +1,454 @@
+//! `rove bench scale`: a fleet of real processes in a namespace the bench creates, each operator
+//! driving its own vehicle, measured for what one node and the whole fleet cost (docs/design.md,
+//! "Fleet scale").
+//!
+//! Phases, in order:
+//! 1. **Fleet.** `V` sim vehicles (ids 100…) and `O` operators (ids 1000…); operator `i` drives
+//!    vehicle `100 + i % V` at its default stream rate (50 Hz). `--idle`: operators drive
+//!    nothing, which shows the fixed cost of a participant and its threads.
+//! 2. **Steady.** Once every vehicle applies its operator's commands (idle: once an observer
+//!    lists every device), the bench waits 2 s, then reads every process's CPU time
+//!    (`/proc/PID/stat`) over the window and its resident memory at the end.
+//! 3. **Handover.** While the fleet streams, a mobile phone takes vehicle 100 and quits
+//!    (SIGTERM), `--handover-runs` times: from the SIGTERM to the first command of vehicle
+//!    100's own operator applied again.
+//! 4. **Late joiner.** `rove status --events` starts `--latejoin-runs` times: from its start to
+//!    the moment it has listed every device of the fleet.
+//!
+//! Throughout, [`count`] reads every vehicle's record: an apply from anyone but the vehicle's
+//! operator (or the phone, on vehicle 100) is a wrong owner; a failsafe entry while its operator
+//! lives is stale (its stream fell silent past the command timeout).
+
+use crate::bench::Stats;
+use crate::harness::{self, Follow, Out, Rig, wall_us};
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// The first vehicle's id; vehicle `k` is `FIRST_VEHICLE + k`.
+pub const FIRST_VEHICLE: i64 = 100;
+/// The first operator's id.
+pub const FIRST_OPERATOR: i64 = 1000;
+/// The phone that takes vehicle 100 in the handover phase.
+pub const PHONE: i64 = 9000;
+
+/// Options of `rove bench scale`.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Vehicles.
+    pub vehicles: usize,
+    /// Operators (operator `i` drives vehicle `i % vehicles`).
+    pub operators: usize,
+    /// Operators drive nothing: the fleet's fixed cost.
+    pub idle: bool,
+    /// The CPU window.
+    pub window: Duration,
+    /// Handovers measured on vehicle 100 (not with `idle`).
+    pub handover_runs: usize,
+    /// Late joiners measured.
+    pub latejoin_runs: usize,
+}
+
+/// CPU and memory of one role's processes.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Usage {
+    /// Processes.
+    pub processes: usize,
+    /// Mean CPU, percent of one core.
+    pub cpu_mean_pct: f64,
+    /// Busiest process's CPU, percent of one core.
+    pub cpu_max_pct: f64,
+    /// Mean resident memory at the end of the window, KiB.
+    pub rss_mean_kb: u64,
+}
+
+/// p50 and p99 of a measurement, ms.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Percentiles {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile (nearest rank).
+    pub p99: f64,
+    /// Samples.
+    pub n: usize,
+}
+
+impl Percentiles {
+    fn of(samples: &[f64]) -> Option<Percentiles> {
+        Stats::of(samples).map(|s| Percentiles {
+            p50: s.p50,
+            p99: s.p99,
+            n: samples.len(),
+        })
+    }
+}
+
+/// What one `rove bench scale` run measured (`--json`).
+#[derive(Debug, Serialize)]
+pub struct Report {
+    /// Vehicles.
+    pub vehicles: usize,
+    /// Operators.
+    pub operators: usize,
+    /// Operators drove nothing.
+    pub idle: bool,
+    /// The CPU window, s.
+    pub window_s: f64,
+    /// CPU of every process together, percent of one core.
+    pub cpu_total_pct: f64,
+    /// Largest resident memory of any process, KiB.
+    pub rss_max_kb: u64,
+    /// Resident memory of all processes together, KiB.
+    pub rss_total_kb: u64,
+    /// The vehicles.
+    pub vehicle: Usage,
+    /// The operators.
+    pub operator: Usage,
+    /// Late joiner: start → every device listed, ms.
+    pub latejoin_ms: Option<Percentiles>,
+    /// Vehicle 100: the phone's SIGTERM → its own operator's command applied again, ms.
+    pub handover_ms: Option<Percentiles>,
+    /// Applies from anyone but the vehicle's operator (or the phone, on vehicle 100).
+    pub wrong_owner: usize,
+    /// Failsafe entries of a vehicle whose operator was alive.
+    pub stale: usize,
+    /// Outputs recorded by all vehicles after the fleet was steady.
+    pub outputs: usize,
+}
+
+/// CPU ticks (user + system) and resident memory (KiB) of process `pid`.
+fn sample(pid: u32) -> Option<(u64, u64)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces): state is field 3, utime 14.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let rss = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())?;
+    Some((ticks, rss))
+}
+
+/// Clock ticks per second of `/proc/PID/stat` (`getconf CLK_TCK`, 100 on Linux).
+fn clock_ticks() -> f64 {
+    std::process::Command::new("getconf")
+        .arg("CLK_TCK")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok()?.trim().parse().ok())
+        .unwrap_or(100.0)
+}
+
+/// The usage of one role from (CPU %, RSS KiB) per process.
+fn usage(samples: &[(f64, u64)]) -> Usage {
+    let n = samples.len().max(1);
+    Usage {
+        processes: samples.len(),
+        cpu_mean_pct: samples.iter().map(|s| s.0).sum::<f64>() / n as f64,
+        cpu_max_pct: samples.iter().map(|s| s.0).fold(0.0, f64::max),
+        rss_mean_kb: samples.iter().map(|s| s.1).sum::<u64>() / n as u64,
+    }
+}
+
+/// Wrong owners and stale failsafe entries in `outputs` (one vehicle's record) from `since_us`
+/// on: `allowed` may drive; the vehicle's operator lives throughout.
+pub fn count(outputs: &[Out], since_us: u64, allowed: &[i64]) -> (usize, usize) {
+    let (mut wrong, mut stale, mut safe) = (0, 0, false);
+    for o in outputs.iter().filter(|o| o.wall_us >= since_us) {
+        match (o.action.as_str(), o.owner) {
+            ("apply", Some(owner)) => {
+                safe = false;
+                if !allowed.contains(&owner) {
+                    wrong += 1;
+                }
+            }
+            ("safe", _) => {
+                if !safe {
+                    stale += 1;
+                }
+                safe = true;
+            }
+            _ => {}
+        }
+    }
+    (wrong, stale)
+}
+
+/// The ids of the fleet.
+fn fleet_ids(options: &Options) -> (Vec<i64>, Vec<i64>) {
+    let vehicles = (0..options.vehicles as i64).map(|k| FIRST_VEHICLE + k);
+    let operators = (0..options.operators as i64).map(|i| FIRST_OPERATOR + i);
+    (vehicles.collect(), operators.collect())
+}
+
+/// Starts `rove status --events` as `name`; its log is the event stream.
+fn observer(rig: &mut Rig, name: &str) -> PathBuf {
+    let p = rig.spawn(name, &["status", "--events"]);
+    rig.procs[p].log.clone()
+}
+
+/// Waits until the events at `path` have listed every id of `ids`; the wall time of the event
+/// that completed the list.
+fn wait_listed(path: &Path, ids: &BTreeSet<i64>) -> anyhow::Result<u64> {
+    let deadline = Instant::now() + harness::PATIENCE * 4;
+    let mut follow = Follow::new(path);
+    let mut seen = BTreeSet::new();
+    let mut read = 0;
+    loop {
+        follow.poll();
+        for e in &follow.lines[read..] {
+            let id = e["id"].as_i64().unwrap_or_default();
+            if e["kind"] == "device"
+                && ids.contains(&id)
+                && seen.insert(id)
+                && seen.len() == ids.len()
+            {
+                return Ok(e["wall_us"].as_u64().unwrap_or_default());
+            }
+        }
+        read = follow.lines.len();
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "{} listed only {} of {} devices",
+            path.display(),
+            seen.len(),
+            ids.len()
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Runs the bench.
+///
+/// # Errors
+/// The namespace or a process cannot be started, or the fleet never becomes steady.
+pub fn run(
+    rove: &Path,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    anyhow::ensure!(options.vehicles >= 1, "needs at least one vehicle");
+    let mut rig = Rig::new(rove, "scale")?;
+    let (vehicles, operators) = fleet_ids(options);
+    let records: Vec<PathBuf> = vehicles.iter().map(|&v| rig.vehicle(v)).collect();
+    let mut drives = BTreeMap::new();
+    for (i, &id) in operators.iter().enumerate() {
+        let vehicle = vehicles[i % vehicles.len()];
+        let drive: &[i64] = if options.idle { &[] } else { &[vehicle] };
+        rig.operator(id, "stationary", "laptop", drive, 1000, "", &[]);
+        drives.entry(vehicle).or_insert(id);
+    }
+    let fleet: Vec<usize> = (0..rig.procs.len()).collect();
+    progress(&format!(
+        "{} vehicles, {} operators started",
+        vehicles.len(),
+        operators.len()
+    ));
+    let everyone: BTreeSet<i64> = vehicles.iter().chain(&operators).copied().collect();
+    if options.idle {
+        let path = observer(&mut rig, "observer");
+        wait_listed(&path, &everyone)?;
+        let last = rig.procs.len() - 1;
+        rig.procs[last].crash();
+    } else {
+        for (&vehicle, record) in vehicles.iter().zip(&records) {
+            if let Some(&op) = drives.get(&vehicle) {
+                harness::wait_for_output(record, Some(op), 0).map_err(anyhow::Error::msg)?;
+            }
+        }
+    }
+    let steady = wall_us();
+    progress("fleet steady; measuring CPU");
+    std::thread::sleep(Duration::from_secs(2));
+    let before: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
+    let started = Instant::now();
+    std::thread::sleep(options.window);
+    let elapsed = started.elapsed().as_secs_f64();
+    let after: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
+    let hz = clock_ticks();
+    let measured: Vec<(f64, u64)> = before
+        .iter()
+        .zip(&after)
+        .map(|(b, a)| match (b, a) {
+            (Some(b), Some(a)) => (a.0.saturating_sub(b.0) as f64 / hz / elapsed * 100.0, a.1),
+            _ => (0.0, 0),
+        })
+        .collect();
+    anyhow::ensure!(
+        after.iter().all(Option::is_some),
+        "a process of the fleet exited during the window"
+    );
+    let (v_usage, o_usage) = measured.split_at(vehicles.len());
+    let mut handover = Vec::new();
+    if !options.idle {
+        let (record, owner) = (&records[0], drives[&vehicles[0]]);
+        for run in 0..options.handover_runs {
+            let phone = rig.operator(PHONE, "mobile", "phone", &[vehicles[0]], 2000, "", &[]);
+            harness::wait_for_output(record, Some(PHONE), wall_us()).map_err(anyhow::Error::msg)?;
+            let t0 = wall_us();
+            rig.procs[phone].terminate();
+            let out =
+                harness::wait_for_output(record, Some(owner), t0).map_err(anyhow::Error::msg)?;
+            rig.procs[phone].wait_exit(harness::PATIENCE);
+            handover.push(out.wall_us.saturating_sub(t0) as f64 / 1000.0);
+            progress(&format!(
+                "handover {}/{}: {:.2} ms",
+                run + 1,
+                options.handover_runs,
+                handover[run]
+            ));
+        }
+    }
+    let mut latejoin = Vec::new();
+    for run in 0..options.latejoin_runs {
+        let t0 = wall_us();
+        let path = observer(&mut rig, &format!("joiner-{run}"));
+        let done = wait_listed(&path, &everyone)?;
+        let last = rig.procs.len() - 1;
+        rig.procs[last].crash();
+        latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
+        progress(&format!(
+            "late joiner {}/{}: {} devices listed after {:.1} ms",
+            run + 1,
+            options.latejoin_runs,
+            everyone.len(),
+            latejoin[run]
+        ));
+    }
+    let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
+    for (&vehicle, record) in vehicles.iter().zip(&records) {
+        let outs = harness::records(record);
+        let mut allowed: Vec<i64> = drives.get(&vehicle).copied().into_iter().collect();
+        if vehicle == vehicles[0] {
+            allowed.push(PHONE);
+        }
+        let (w, s) = count(&outs, steady, &allowed);
+        wrong_owner += w;
+        stale += s;
+        outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
+    }
+    Ok(Report {
+        vehicles: vehicles.len(),
+        operators: operators.len(),
+        idle: options.idle,
+        window_s: elapsed,
+        cpu_total_pct: measured.iter().map(|m| m.0).sum(),
+        rss_max_kb: measured.iter().map(|m| m.1).max().unwrap_or(0),
+        rss_total_kb: measured.iter().map(|m| m.1).sum(),
+        vehicle: usage(v_usage),
+        operator: usage(o_usage),
+        latejoin_ms: Percentiles::of(&latejoin),
+        handover_ms: Percentiles::of(&handover),
+        wrong_owner,
+        stale,
+        outputs,
+    })
+}
+
+/// `rove bench scale`: runs, prints a summary and optionally writes the JSON report.
+///
+/// # Errors
+/// As [`run`], or the JSON file cannot be written.
+pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Result<()> {
+    let r = run(rove, options, &mut |line| eprintln!("{line}"))?;
+    let p = |p: Option<Percentiles>| {
+        p.map_or("-".into(), |p| {
+            format!("p50 {:.2} / p99 {:.2} ms (n={})", p.p50, p.p99, p.n)
+        })
+    };
+    println!(
+        "scale {}×{}{}: CPU {:.1} % of a core in all ({:.1} s window)\n  vehicle: mean {:.2} %, \
+         max {:.2} %, {} KiB\n  operator: mean {:.2} %, max {:.2} %, {} KiB\n  RSS max {} KiB, \
+         total {} KiB\n  handover {}\n  late joiner {}\n  wrong owner {}, stale {}, {} outputs",
+        r.vehicles,
+        r.operators,
+        if r.idle { " idle" } else { "" },
+        r.cpu_total_pct,
+        r.window_s,
+        r.vehicle.cpu_mean_pct,
+        r.vehicle.cpu_max_pct,
+        r.vehicle.rss_mean_kb,
+        r.operator.cpu_mean_pct,
+        r.operator.cpu_max_pct,
+        r.operator.rss_mean_kb,
+        r.rss_max_kb,
+        r.rss_total_kb,
+        p(r.handover_ms),
+        p(r.latejoin_ms),
+        r.wrong_owner,
+        r.stale,
+        r.outputs
+    );
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&r)? + "\n")?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn out(t: u64, action: &str, owner: Option<i64>) -> Out {
+        Out {
+            wall_us: t,
+            action: action.into(),
+            owner,
+            throttle: None,
+        }
+    }
+
+    #[test]
+    fn counts_strangers_and_each_failsafe_entry_after_the_start() {
+        let outs = [
+            out(1, "apply", Some(7)),
+            out(1, "safe", None),
+            out(10, "apply", Some(1000)),
+            out(11, "apply", Some(7)),
+            out(12, "safe", None),
+            out(13, "safe", None),
+            out(14, "apply", Some(9000)),
+            out(15, "safe", None),
+            out(16, "apply", Some(1000)),
+        ];
+        assert_eq!(count(&outs, 10, &[1000, 9000]), (1, 2));
+        assert_eq!(count(&outs, 10, &[1000]), (2, 2));
+        assert_eq!(count(&outs, 0, &[1000, 9000]), (2, 3));
+        assert_eq!(count(&outs, 17, &[1000]), (0, 0));
+    }
+
+    #[test]
+    fn usage_is_mean_and_max_per_role() {
+        let u = usage(&[(2.0, 100), (4.0, 300)]);
+        assert_eq!(
+            (u.processes, u.cpu_mean_pct, u.cpu_max_pct, u.rss_mean_kb),
+            (2, 3.0, 4.0, 200)
+        );
+        assert_eq!(usage(&[]).processes, 0);
+    }
+
+    #[test]
+    fn operators_are_dealt_round_the_vehicles() {
+        let options = Options {
+            vehicles: 2,
+            operators: 3,
+            idle: false,
+            window: Duration::ZERO,
+            handover_runs: 0,
+            latejoin_runs: 0,
+        };
+        assert_eq!(
+            fleet_ids(&options),
+            (vec![100, 101], vec![1000, 1001, 1002])
+        );
+    }
+
+    #[test]
+    fn samples_this_process() {
+        let (_, rss) = sample(std::process::id()).expect("own /proc entry");
+        assert!(rss > 0);
+    }
+}
