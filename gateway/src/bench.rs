@@ -469,7 +469,10 @@ fn latejoin(
             );
             std::thread::sleep(Duration::from_millis(5));
         };
-        rig.procs[p].crash();
+        // Stopped gracefully, as in `rove bench scale`: a killed joiner stays matched for
+        // rustdds's 50 s lease and loads every later run.
+        rig.procs[p].terminate();
+        rig.procs[p].wait_exit(harness::PATIENCE);
         listed.push(ms(done.saturating_sub(t0)));
         progress(&format!(
             "run {}/{}: all {devices} listed after {:.1} ms",

@@ -21,12 +21,14 @@ use rove_console::model::{DeviceKind, InputStatus as UiInput};
 use rove_console::{CommandRequest, ConsoleState, Event, Identity, Stamped};
 use rove_core::adapter::{InputAction, InputEvent, InputSource};
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, RequestControl};
+use rove_core::msg::{Ack, DeviceId, DeviceInfo, DeviceType, RequestControl};
 use rove_core::session::{
     Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
 use rustdds::with_key::Sample;
 use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::path::PathBuf;
 use std::sync::Arc;
 use tracing::{info, warn};
@@ -122,11 +124,17 @@ pub async fn run(
     let security = config.common.security.as_deref();
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
     let mut writers = Writers {
-        regular: domain.command_writer(config.strength)?,
-        priority: domain.command_writer(Strength::PRIORITY)?,
+        strength: config.strength,
+        commands: HashMap::new(),
+        routes: dds::Routes::default(),
         requests: domain.request_writer()?,
         failed: RateLimited::new("ControlCommand write failed"),
     };
+    // The vehicles to drive from the start: their writers now, so that discovery has matched
+    // them by the first command.
+    for &vehicle in &config.drive {
+        writers.command_writer(&domain, Writer::Regular, vehicle);
+    }
     let info_writer = domain.device_info_writer()?;
     let infos = domain.device_info_reader()?;
     // The vehicles' output health for the console; optional (a secured fleet's permissions
@@ -328,10 +336,14 @@ pub async fn run(
                                 },
                                 owner: info.controller_id,
                             };
+                            let (id, vehicle) = (info.device_id, info.device_type == DeviceType::Vehicle);
                             let effects = step(&mut session, SessionEvent::DeviceInfo { info, from });
                             // Shown only if believed; the session reports it otherwise.
                             if !effects.iter().any(|e| matches!(e, Effect::Report(Report::Untrusted(_)))) {
                                 ui.emit(seen);
+                                if vehicle {
+                                    writers.routes.vehicle_seen(id, from);
+                                }
                             }
                             effects
                         }
@@ -373,14 +385,19 @@ pub async fn run(
                 Some(Err(e)) => { malformed.warn(&e); Vec::new() }
                 None => anyhow::bail!("RequestControl stream ended"),
             },
-            ev = status.next() => match ev.and_then(discovery_event) {
-                Some(event) => step(&mut session, event),
-                None => Vec::new(),
-            },
+            ev = status.next() => {
+                if let Some(ev) = &ev {
+                    writers.routes_learn(ev);
+                }
+                match ev.and_then(discovery_event) {
+                    Some(event) => step(&mut session, event),
+                    None => Vec::new(),
+                }
+            }
             _ = sleep_until(deadline) => step(&mut session, SessionEvent::Tick),
         };
         let changed = heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
-        let refused = writers.carry_out(effects, &clock, record.as_mut(), &ui);
+        let refused = writers.carry_out(&domain, effects, &clock, record.as_mut(), &ui);
         if let Some(reply) = reply {
             if let Some(why) = &refused {
                 ui.emit(Event::Notice { text: why.clone() });
@@ -406,7 +423,7 @@ pub async fn run(
     info!("operator stopping: finishing grants and releasing vehicles");
     notify.stopping("stopping: finishing grants, releasing vehicles");
     let effects = session.stop(clock.stamp());
-    writers.carry_out(effects, &clock, record.as_mut(), &ui);
+    writers.carry_out(&domain, effects, &clock, record.as_mut(), &ui);
     // Leave the device lists at once rather than after missed heartbeats.
     if let Err(e) = info_writer.dispose(&me, None) {
         warn!(cause = ?e, "cannot withdraw DeviceInfo");
@@ -418,24 +435,20 @@ pub async fn run(
     // answered, is quiet; a timeout means some matched reader (maybe one that has itself left)
     // did not answer in time, and those peers fall back to the command timeout.
     let wait = SHUTDOWN_ACK_WAIT;
-    let acked = [
+    let mut acked = vec![
         (
             "RequestControl (FINISH)",
             writers.requests.wait_for_acknowledgments(wait),
-        ),
-        (
-            "ControlCommand (release)",
-            writers.regular.wait_for_acknowledgments(wait),
-        ),
-        (
-            "priority ControlCommand (release)",
-            writers.priority.wait_for_acknowledgments(wait),
         ),
         (
             "DeviceInfo (withdrawal)",
             info_writer.wait_for_acknowledgments(wait),
         ),
     ];
+    for writer in writers.commands.values() {
+        let result = writer.wait_for_acknowledgments(wait);
+        acked.push(("ControlCommand (release)", result));
+    }
     for (writer, result) in acked {
         match result {
             Ok(true) => {}
@@ -483,23 +496,67 @@ fn poll_input(
 
 /// The operator's DDS writers.
 struct Writers {
-    regular: CommandWriter,
-    priority: CommandWriter,
+    /// The regular writers' strength.
+    strength: Strength,
+    /// ControlCommand writers, one per session writer and route, made when first needed: for a
+    /// vehicle driven, requested or to drive from the start. Bounded by what this operator
+    /// drives or asks for, never by what others send.
+    commands: HashMap<(Writer, dds::Route), CommandWriter>,
+    routes: dds::Routes,
     requests: rustdds::no_key::DataWriterCdr<RequestControl>,
     failed: RateLimited,
 }
 
 impl Writers {
-    fn command_writer(&self, writer: Writer) -> &CommandWriter {
-        match writer {
-            Writer::Regular => &self.regular,
-            Writer::Priority => &self.priority,
+    /// The session's `writer` for `vehicle`'s route, made if needed (`None` if rustdds
+    /// refuses, which is logged).
+    fn command_writer(
+        &mut self,
+        domain: &Domain,
+        writer: Writer,
+        vehicle: DeviceId,
+    ) -> Option<&CommandWriter> {
+        let route = self.routes.route(vehicle);
+        match self.commands.entry((writer, route)) {
+            Entry::Occupied(e) => Some(e.into_mut()),
+            Entry::Vacant(e) => {
+                let strength = match writer {
+                    Writer::Regular => self.strength,
+                    Writer::Priority => Strength::PRIORITY,
+                };
+                match domain.command_writer(strength, route) {
+                    Ok(w) => Some(e.insert(w)),
+                    Err(err) => {
+                        self.failed.warn(&err);
+                        None
+                    }
+                }
+            }
+        }
+    }
+
+    /// Learns routes from discovery: a ControlCommand reader found, a participant gone.
+    fn routes_learn(&mut self, event: &DomainParticipantStatusEvent) {
+        match event {
+            DomainParticipantStatusEvent::ReaderDetected { reader }
+                if reader.topic_name == rove_core::msg::topic_names::CONTROL_COMMAND =>
+            {
+                let participant = dds::writer_id(reader.guid).participant;
+                self.routes
+                    .reader_found(participant, reader.qos.partition().as_ref());
+            }
+            DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+                self.routes
+                    .participant_gone(dds::participant_id(id.as_ref()));
+            }
+            _ => {}
         }
     }
 
     /// Carries out the session's effects; returns why a command was refused, if one was.
     fn carry_out(
         &mut self,
+        domain: &Domain,
         effects: Vec<Effect>,
         clock: &Clock,
         mut record: Option<&mut JsonLines>,
@@ -509,29 +566,37 @@ impl Writers {
         for effect in effects {
             match effect {
                 Effect::Write { writer, command } => {
-                    if let Err(e) = self
-                        .command_writer(writer)
-                        // The source timestamp lets the vehicle tell a sample that queued up
-                        // from a fresh one (rove_core::freshness).
-                        .write(
-                            KeyedControlCommand(command),
-                            Some(rustdds::Timestamp::now()),
-                        )
-                    {
+                    let Some(w) = self.command_writer(domain, writer, command.dest_id) else {
+                        continue;
+                    };
+                    // The source timestamp lets the vehicle tell a sample that queued up from a
+                    // fresh one (rove_core::freshness).
+                    let stamp = Some(rustdds::Timestamp::now());
+                    if let Err(e) = w.write(KeyedControlCommand(command), stamp) {
                         self.failed.warn(&e);
                     }
                 }
                 Effect::Release { writer, vehicle } => {
                     // Vehicles read commands best effort (dds::Domain::command_reader): a lost
                     // dispose would leave them waiting a command timeout, so it is repeated.
+                    let Some(w) = self.command_writer(domain, writer, vehicle) else {
+                        continue;
+                    };
                     for _ in 0..RELEASE_REPEATS {
-                        if let Err(e) = self.command_writer(writer).dispose(&vehicle, None) {
+                        if let Err(e) = w.dispose(&vehicle, None) {
                             warn!(vehicle, cause = ?e, "release (dispose) failed");
                             break;
                         }
                     }
                 }
                 Effect::Send(msg) => {
+                    // Asking for a vehicle: both writers for it now, so that the vehicle has
+                    // discovered them by the time the owner accepts.
+                    if msg.ack == Ack::Request && msg.src_id != msg.current_controller_id {
+                        for writer in [Writer::Regular, Writer::Priority] {
+                            self.command_writer(domain, writer, msg.dest_id);
+                        }
+                    }
                     if let Some(record) = record.as_deref_mut() {
                         record.write(&crate::runtime::request_json(clock, &msg));
                     }

@@ -307,8 +307,11 @@ pub fn run(
         let t0 = wall_us();
         let path = observer(&mut rig, &format!("joiner-{run}"));
         let done = wait_listed(&path, &everyone)?;
+        // Stopped gracefully: a killed participant stays matched (and heartbeated) by every
+        // peer for rustdds's 50 s lease, loading each later run more.
         let last = rig.procs.len() - 1;
-        rig.procs[last].crash();
+        rig.procs[last].terminate();
+        rig.procs[last].wait_exit(harness::PATIENCE);
         latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
         progress(&format!(
             "late joiner {}/{}: {} devices listed after {:.1} ms",

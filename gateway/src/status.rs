@@ -144,8 +144,13 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         ..TrustConfig::default()
     });
     let mut next_print = tokio::time::Instant::now() + options.listen;
+    // SIGTERM or SIGINT ends the watch with the participant dropped, which tells every peer it
+    // left (a killed one stays matched, and heartbeated, for rustdds's 50 s lease).
+    let shutdown = crate::runtime::shutdown_signal()?;
+    tokio::pin!(shutdown);
     loop {
         tokio::select! {
+            () = &mut shutdown => return Ok(()),
             sample = samples.next() => match sample {
                 Some(Ok(s)) => {
                     let from = dds::writer_id(s.sample_info().writer_guid()).participant;

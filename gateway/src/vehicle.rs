@@ -86,7 +86,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
     let info_writer = domain.device_info_writer()?;
     let mut status_writer = StatusWriter::new(me, &domain);
-    let commands = domain.command_reader()?;
+    let commands = domain.command_reader(config.common.id)?;
     let requests = domain.request_reader()?;
     let infos = domain.device_info_reader()?;
     let listener = domain.participant.status_listener();

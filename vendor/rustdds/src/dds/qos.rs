@@ -210,6 +210,7 @@ impl QosPolicyBuilder {
       // (drop glue) which is incompatible with `const fn`, and the built-in QoS
       // policies never need it. Set it via `QosPolicies::with_data_representation`.
       data_representation: None,
+      partition: None,
       #[cfg(feature = "security")]
       property: None,
     }
@@ -235,6 +236,7 @@ pub struct QosPolicies {
   pub(crate) resource_limits: Option<policy::ResourceLimits>,
   pub(crate) lifespan: Option<policy::Lifespan>,
   pub(crate) data_representation: Option<policy::DataRepresentation>,
+  pub(crate) partition: Option<policy::Partition>,
   #[cfg(feature = "security")]
   pub(crate) property: Option<policy::Property>,
 }
@@ -333,6 +335,21 @@ impl QosPolicies {
     self
   }
 
+  pub fn partition(&self) -> Option<policy::Partition> {
+    self.partition.clone()
+  }
+
+  /// Set the PARTITION QoS policy (DDS spec v1.4 Section 2.2.3.13). In DDS it
+  /// belongs to the Publisher or Subscriber; here, as for the other policies,
+  /// a DataWriter or DataReader may carry its own, and discovery announces it
+  /// for that endpoint. Not part of [`QosPolicyBuilder`] because it holds a
+  /// `Vec`.
+  #[must_use]
+  pub fn with_partition(mut self, partition: policy::Partition) -> Self {
+    self.partition = Some(partition);
+    self
+  }
+
   #[cfg(feature = "security")]
   pub fn property(&self) -> Option<policy::Property> {
     self.property.clone()
@@ -362,6 +379,7 @@ impl QosPolicies {
         .data_representation
         .clone()
         .or(self.data_representation.clone()),
+      partition: other.partition.clone().or(self.partition.clone()),
       #[cfg(feature = "security")]
       property: other.property.clone().or(self.property.clone()),
     }
@@ -566,6 +584,7 @@ impl QosPolicies {
       resource_limits,
       lifespan,
       data_representation,
+      partition,
       #[cfg(feature = "security")]
         property: _, // TODO: properties to parameter list?
     } = self;
@@ -652,6 +671,7 @@ impl QosPolicies {
       data_representation,
       policy::DataRepresentation
     );
+    emit_option!(PID_PARTITION, partition, policy::Partition);
 
     Ok(pl)
   }
@@ -718,6 +738,7 @@ impl QosPolicies {
     let lifespan: Option<policy::Lifespan> = get_option!(PID_LIFESPAN);
     let data_representation: Option<policy::DataRepresentation> =
       get_option!(PID_DATA_REPRESENTATION);
+    let partition: Option<policy::Partition> = get_option!(PID_PARTITION);
 
     #[cfg(feature = "security")]
     let property: Option<policy::Property> = None; // TODO: Should also properties be read?
@@ -738,6 +759,7 @@ impl QosPolicies {
       resource_limits,
       lifespan,
       data_representation,
+      partition,
       #[cfg(feature = "security")]
       property,
     })
@@ -1022,11 +1044,118 @@ pub mod policy {
     pub minimum_separation: Duration,
   }
 
-  /*
+  /// DDS 2.2.3.13 PARTITION: the names a writer publishes in or a reader
+  /// subscribes to. An absent policy or an empty list is the default partition,
+  /// whose name is the empty string. A writer and a reader match only if they
+  /// share a partition; a name with `*` or `?` is a pattern (fnmatch) matching
+  /// plain names of the other side.
+  ///
+  /// On the wire `PID_PARTITION` (0x0029), a CDR `sequence<string>`.
+  #[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
   pub struct Partition {
-    pub name: Vec<Vec<u8>>,
+    pub names: Vec<String>,
   }
-  */
+
+  /// At most this many names are read from a peer's PARTITION (a bound, so a
+  /// crafted count cannot make the reader allocate without limit).
+  pub const PARTITION_NAMES_MAX: u32 = 256;
+
+  impl Partition {
+    /// The names, the default partition `[""]` for an absent or empty policy.
+    fn effective(maybe: Option<&Partition>) -> Vec<&str> {
+      match maybe {
+        Some(p) if !p.names.is_empty() => p.names.iter().map(String::as_str).collect(),
+        _ => vec![""],
+      }
+    }
+
+    /// Whether a writer with `offered` and a reader with `requested` share a
+    /// partition (DDS 2.2.3.13: equal names, or a pattern of one side matching
+    /// a plain name of the other; two patterns never match each other).
+    pub fn is_match(offered: Option<&Partition>, requested: Option<&Partition>) -> bool {
+      let (w, r) = (Self::effective(offered), Self::effective(requested));
+      let pattern = |s: &str| s.contains(['*', '?']);
+      w.iter().any(|wn| {
+        r.iter().any(|rn| match (pattern(wn), pattern(rn)) {
+          (false, false) => wn == rn,
+          (true, false) => fnmatch(wn.as_bytes(), rn.as_bytes()),
+          (false, true) => fnmatch(rn.as_bytes(), wn.as_bytes()),
+          (true, true) => false,
+        })
+      })
+    }
+  }
+
+  /// `*` (any run) and `?` (any one byte) glob match of `name` against
+  /// `pattern`, iterative (no recursion on peer input).
+  fn fnmatch(pattern: &[u8], name: &[u8]) -> bool {
+    let (mut p, mut n) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while n < name.len() {
+      if p < pattern.len() && (pattern[p] == b'?' || pattern[p] == name[n]) {
+        p += 1;
+        n += 1;
+      } else if p < pattern.len() && pattern[p] == b'*' {
+        star = Some((p, n));
+        p += 1;
+      } else if let Some((sp, sn)) = star {
+        p = sp + 1;
+        n = sn + 1;
+        star = Some((sp, sn + 1));
+      } else {
+        return false;
+      }
+    }
+    pattern[p..].iter().all(|&c| c == b'*')
+  }
+
+  impl<C: Context> Writable<C> for Partition {
+    fn write_to<T: ?Sized + Writer<C>>(&self, writer: &mut T) -> Result<(), C::Error> {
+      writer.write_u32(self.names.len() as u32)?;
+      let mut at = 4usize;
+      for name in &self.names {
+        while at % 4 != 0 {
+          writer.write_u8(0)?;
+          at += 1;
+        }
+        writer.write_u32(name.len() as u32 + 1)?;
+        writer.write_slice(name.as_bytes())?;
+        writer.write_u8(0)?;
+        at += 4 + name.len() + 1;
+      }
+      Ok(())
+    }
+  }
+
+  impl<'a, C: Context> Readable<'a, C> for Partition {
+    fn read_from<R: Reader<'a, C>>(reader: &mut R) -> Result<Self, C::Error> {
+      let count = reader.read_u32()?;
+      if count > PARTITION_NAMES_MAX {
+        return Err(speedy::Error::custom(format!("PARTITION with {count} names")).into());
+      }
+      let mut names = Vec::with_capacity(count as usize);
+      let mut at = 4usize;
+      for _ in 0..count {
+        if at % 4 != 0 {
+          reader.skip_bytes(4 - at % 4)?;
+          at += 4 - at % 4;
+        }
+        let len = reader.read_u32()? as usize;
+        // Bytes are read one at a time: a crafted length cannot allocate more
+        // than the parameter holds.
+        let mut bytes = Vec::new();
+        for _ in 0..len {
+          bytes.push(reader.read_u8()?);
+        }
+        if bytes.pop() != Some(0) {
+          return Err(speedy::Error::custom("PARTITION name without NUL").into());
+        }
+        names.push(String::from_utf8_lossy(&bytes).into_owned());
+        at += 4 + len;
+      }
+      Ok(Partition { names })
+    }
+  }
 
   /// DDS 2.2.3.14 RELIABILITY
   #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -398,6 +398,17 @@ impl Reader {
     debug!("update_writer_proxy topic={:?}", self.topic_name);
     let writer = proxy.remote_writer_guid;
 
+    // Endpoints in no common partition do not match (DDS 2.2.3.13); this is not
+    // an incompatible QoS. A writer that moved out of our partitions is lost.
+    if !policy::Partition::is_match(
+      offered_qos.partition.as_ref(),
+      self.qos_policy.partition.as_ref(),
+    ) {
+      if self.matched_writers.contains_key(&writer) {
+        self.remove_writer_proxy(writer);
+      }
+      return;
+    }
     match offered_qos.compliance_failure_wrt(&self.qos_policy) {
       None => {
         // success, update or insert

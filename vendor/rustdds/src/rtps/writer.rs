@@ -1977,6 +1977,15 @@ impl Writer {
       "update_reader_proxy topic={:?} reader_proxy={reader_proxy:?}",
       self.my_topic_name
     );
+    // Endpoints in no common partition do not match (DDS 2.2.3.13); this is not
+    // an incompatible QoS. A reader that moved out of our partitions is lost.
+    if !policy::Partition::is_match(
+      self.qos_policies.partition.as_ref(),
+      requested_qos.partition.as_ref(),
+    ) {
+      self.reader_lost(reader_proxy.remote_reader_guid);
+      return;
+    }
     match self.qos_policies.compliance_failure_wrt(requested_qos) {
       // matched QoS
       None => {
