@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""A rogue DDS peer for rove's trust tests: a foreign participant (Cyclone DDS) on the same
-domain that speaks rove's wire model (the three topics, their type names, XCDR1) and tries to
+"""A foreign DDS peer for rove's tests, mostly a rogue one for the trust tests: a foreign
+participant (Cyclone DDS) on the same domain that speaks rove's wire model (the three topics,
+their type names, XCDR1) and tries to
 take or disturb a vehicle.
 
     rogue.py ATTACK [--options]   (run inside the test's network namespace)
@@ -13,6 +14,10 @@ Attacks:
   request-finish  REQUEST --dest from --owner claiming --priority, then FINISH it
   device-info     publish DeviceInfo for --id (a vehicle's) naming --controller as its owner
   flood           --writers ControlCommand writers, ids from --id upward, all streaming
+  listen          not an attack: a foreign *vehicle* built on the seed IDL alone. Reads
+                  ControlCommand (reliable, exclusive) in --partition (absent: none, the
+                  default partition) and, with --vehicle-info, publishes DeviceInfo for --id as
+                  a vehicle. Prints how many samples it got for --id and for other vehicles.
 
 Every command the rogue streams carries throttle --throttle (default 31111), so a test can tell
 from the vehicle's record whether any rogue sample was applied. Runs for --seconds, then prints
@@ -39,6 +44,7 @@ from cyclonedds.idl import IdlStruct  # noqa: E402
 from cyclonedds.idl.annotations import key  # noqa: E402
 from cyclonedds.idl.types import int16, int32, int64, uint64  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
+from cyclonedds.sub import DataReader, Subscriber  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 from cyclonedds.util import duration  # noqa: E402
 
@@ -164,6 +170,8 @@ def main():
     p.add_argument("--throttle", type=int, default=31111)
     p.add_argument("--writers", type=int, default=300)
     p.add_argument("--seconds", type=float, default=2.0)
+    p.add_argument("--partition", default=None)
+    p.add_argument("--vehicle-info", action="store_true")
     a = p.parse_args()
 
     dp = DomainParticipant(a.domain)
@@ -227,6 +235,37 @@ def main():
         matched = wait_matched(ws[-1])
         ids = [a.id + i for i in range(a.writers)]
         samples = stream(ws, ids, a.dest, a.throttle, a.seconds, hz=20)
+    elif a.attack == "listen":
+        sub_qos = Qos(Policy.Partition([a.partition])) if a.partition is not None else None
+        sub = Subscriber(dp, qos=sub_qos)
+        reader = DataReader(sub, commands, qos=Qos(
+            *reliable(), Policy.History.KeepLast(1), Policy.Ownership.Exclusive))
+        info_qos = Qos(
+            *reliable(),
+            Policy.Durability.TransientLocal,
+            Policy.History.KeepLast(1),
+            Policy.Liveliness.Automatic(lease_duration=duration(seconds=1)),
+        )
+        info = DataWriter(dp, infos, qos=info_qos) if a.vehicle_info else None
+        others, next_info = 0, 0.0
+        end = time.monotonic() + a.seconds
+        while time.monotonic() < end:
+            if info is not None and time.monotonic() >= next_info:
+                info.write(DeviceInfo(device_id=a.id, name="seed", device_type=VEHICLE,
+                                      controller_id=a.id))
+                next_info = time.monotonic() + 0.5
+            for s in reader.take(N=64):
+                if not isinstance(s, ControlCommand):
+                    continue  # an invalid sample (dispose)
+                if s.dest_id == a.id:
+                    samples += 1
+                else:
+                    others += 1
+            matched = matched or bool(reader.get_matched_publications())
+            time.sleep(0.01)
+        print(json.dumps({"attack": a.attack, "samples": samples, "others": others,
+                          "matched": matched}), flush=True)
+        return 0
     else:
         p.error(f"unknown attack {a.attack!r}")
     print(json.dumps({"attack": a.attack, "samples": samples, "matched": matched}), flush=True)

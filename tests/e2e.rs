@@ -9,6 +9,7 @@ mod util;
 
 mod boards;
 mod console_api;
+mod fleet;
 mod hierarchy;
 mod inputs;
 mod mavlink;

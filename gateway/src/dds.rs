@@ -141,7 +141,10 @@ impl Routes {
     /// A ControlCommand reader of `participant` with `partition` was discovered.
     pub fn reader_found(&mut self, participant: ParticipantId, partition: Option<&Partition>) {
         let names = partition.map_or(&[][..], |p| &p.names[..]);
-        if names.iter().any(|n| n.starts_with(VEHICLE_PARTITION_PREFIX)) {
+        if names
+            .iter()
+            .any(|n| n.starts_with(VEHICLE_PARTITION_PREFIX))
+        {
             self.foreign.remove(&participant);
         } else if self.foreign.len() < Self::MAX {
             self.foreign.insert(participant);
@@ -624,14 +627,32 @@ mod tests {
         let (v7, v8) = (p(&["rove/vehicle/7"]), p(&["rove/vehicle/8"]));
         let vehicle7 = p(&["rove/vehicle/7", ""]);
         assert!(m(Some(&v7), Some(&vehicle7)));
-        assert!(!m(Some(&v8), Some(&vehicle7)), "another vehicle's partition");
-        assert!(m(None, Some(&vehicle7)), "a writer in no partition reaches the vehicle");
-        assert!(!m(Some(&v7), None), "a reader in no partition misses partitioned writers");
+        assert!(
+            !m(Some(&v8), Some(&vehicle7)),
+            "another vehicle's partition"
+        );
+        assert!(
+            m(None, Some(&vehicle7)),
+            "a writer in no partition reaches the vehicle"
+        );
+        assert!(
+            !m(Some(&v7), None),
+            "a reader in no partition misses partitioned writers"
+        );
         assert!(m(None, None));
-        assert!(m(Some(&p(&[])), Some(&p(&[""]))), "empty list = default partition");
-        assert!(m(Some(&v7), Some(&p(&["rove/vehicle/*"]))), "a pattern matches names");
+        assert!(
+            m(Some(&p(&[])), Some(&p(&[""]))),
+            "empty list = default partition"
+        );
+        assert!(
+            m(Some(&v7), Some(&p(&["rove/vehicle/*"]))),
+            "a pattern matches names"
+        );
         assert!(m(Some(&p(&["rove/?ehicle/7"])), Some(&vehicle7)));
-        assert!(!m(Some(&p(&["rove/*"])), Some(&p(&["rove/vehicle/*"]))), "never two patterns");
+        assert!(
+            !m(Some(&p(&["rove/*"])), Some(&p(&["rove/vehicle/*"]))),
+            "never two patterns"
+        );
         assert!(!m(Some(&v7), Some(&p(&["rove/vehicle/7?"]))));
     }
 

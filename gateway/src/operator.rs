@@ -525,7 +525,10 @@ impl Writers {
                     Writer::Priority => Strength::PRIORITY,
                 };
                 match domain.command_writer(strength, route) {
-                    Ok(w) => Some(e.insert(w)),
+                    Ok(w) => {
+                        info!(vehicle, ?route, ?writer, "ControlCommand writer made");
+                        Some(e.insert(w))
+                    }
                     Err(err) => {
                         self.failed.warn(&err);
                         None

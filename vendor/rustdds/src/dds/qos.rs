@@ -703,10 +703,11 @@ impl QosPolicies {
       (Some(OwnershipKind::Exclusive), Some(strength)) => {
         Some(policy::Ownership::Exclusive { strength })
       }
-      (Some(OwnershipKind::Exclusive), None) => {
-        warn!("QosPolicies deserializer: Received OwnershipKind::Exclusive but no strength value.");
-        None
-      }
+      // A reader announces no strength (OWNERSHIP_STRENGTH is a writer policy), nor must a
+      // writer whose strength is the default 0 (Cyclone and OpenDDS omit both): read as
+      // EXCLUSIVE with strength 0, not as absent (SHARED), which made every exclusive writer
+      // incompatible with such readers.
+      (Some(OwnershipKind::Exclusive), None) => Some(policy::Ownership::Exclusive { strength: 0 }),
       (None, Some(_strength)) => {
         warn!(
           "QosPolicies deserializer: Received ownership strength value, but no kind parameter."

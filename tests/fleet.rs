@@ -1,0 +1,89 @@
+//! Routing by vehicle (docs/design.md, "Fleet scale"): each vehicle's commands travel in its own
+//! DDS partition, and peers that know no partitions still interoperate. Checked against a
+//! foreign DDS implementation (Cyclone DDS, `testkit/rogue.py listen`), not against rove itself.
+
+use crate::util::{Rig, wait_for_output};
+use std::process::{Command, Stdio};
+
+const OPERATOR: i64 = 11;
+/// A foreign vehicle built on the seed IDL alone: no partition, publishes its DeviceInfo.
+const SEED_VEHICLE: i64 = 300;
+
+/// Starts a Cyclone DDS listener in the rig's namespace for `seconds`.
+fn listen(rig: &Rig, args: &[&str]) -> std::process::Child {
+    rove_testkit::require_python_peers();
+    Command::new("ip")
+        .args(["netns", "exec", &rig.ns])
+        .arg(rove_testkit::python())
+        .arg(rove_testkit::rogue_script())
+        .arg("listen")
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start the listener")
+}
+
+/// The listener's summary: samples for its id, samples for other vehicles.
+fn heard(child: std::process::Child) -> (i64, i64) {
+    let out = child.wait_with_output().expect("the listener ends");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "listener failed: {text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(text.trim()).expect("summary JSON");
+    assert_eq!(v["matched"], true, "the listener matched no writer: {v}");
+    (
+        v["samples"].as_i64().unwrap_or(-1),
+        v["others"].as_i64().unwrap_or(-1),
+    )
+}
+
+#[test]
+fn each_vehicle_hears_only_its_own_commands_and_a_seed_vehicle_is_still_driven() {
+    let mut rig = Rig::new("fleet-partitions");
+    let records = [rig.vehicle(100), rig.vehicle(101)];
+    // A foreign vehicle in no partition, announcing itself as a seed vehicle would; and a
+    // foreign reader in vehicle 100's partition.
+    let seed = listen(&rig, &["--id", "300", "--vehicle-info", "--seconds", "8"]);
+    let in_100 = listen(
+        &rig,
+        &[
+            "--id",
+            "100",
+            "--partition",
+            "rove/vehicle/100",
+            "--seconds",
+            "8",
+        ],
+    );
+    rig.operator(
+        OPERATOR,
+        "stationary",
+        "laptop",
+        &[100, 101, SEED_VEHICLE],
+        1000,
+        "",
+        &[],
+    );
+    for record in &records {
+        wait_for_output(record, Some(OPERATOR), 0).expect("the operator drives both rove vehicles");
+    }
+    let (seed_own, seed_others) = heard(seed);
+    let (own_100, others_100) = heard(in_100);
+    assert!(
+        seed_own > 0,
+        "the seed vehicle (no partition) got no command of its own"
+    );
+    assert_eq!(
+        seed_others, 0,
+        "a reader in no partition got rove vehicles' commands"
+    );
+    assert!(own_100 > 0, "a reader in rove/vehicle/100 got nothing");
+    assert_eq!(
+        others_100, 0,
+        "a reader in rove/vehicle/100 got other vehicles' commands"
+    );
+}
