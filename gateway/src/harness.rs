@@ -101,6 +101,8 @@ pub struct Rig {
     pub dir: PathBuf,
     /// Started processes, in order.
     pub procs: Vec<Proc>,
+    /// A command vehicles run under, program first (e.g. `chrt -f 20`); empty: none.
+    pub vehicle_wrapper: Vec<String>,
 }
 
 impl Rig {
@@ -119,6 +121,7 @@ impl Rig {
             ns: ns.clone(),
             dir,
             procs: Vec::new(),
+            vehicle_wrapper: Vec::new(),
         };
         // Constructed first, so that a failure half-way still deletes the namespace on drop.
         let setup = [
@@ -142,12 +145,18 @@ impl Rig {
 
     /// Starts `rove ARGS` in the namespace, logging to `DIR/N-NAME.log`; returns its index.
     pub fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
+        self.spawn_wrapped(name, &[], args)
+    }
+
+    /// [`Rig::spawn`] under `wrapper` (a command and its arguments that runs `rove ARGS`).
+    fn spawn_wrapped(&mut self, name: &str, wrapper: &[String], args: &[&str]) -> usize {
         let log = self.dir.join(format!("{}-{name}.log", self.procs.len()));
         let file = std::fs::File::create(&log).expect("log file");
         let child = Command::new("ip")
             .arg("netns")
             .arg("exec")
             .arg(&self.ns)
+            .args(wrapper)
             .arg(&self.rove)
             .args(args)
             .env(
@@ -212,7 +221,8 @@ impl Rig {
             "--record",
             record.to_str().expect("utf-8 path"),
         ];
-        self.spawn(&format!("vehicle-{id}"), &args);
+        let wrapper = self.vehicle_wrapper.clone();
+        self.spawn_wrapped(&format!("vehicle-{id}"), &wrapper, &args);
         record
     }
 

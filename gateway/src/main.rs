@@ -251,6 +251,13 @@ enum BenchCommand {
         /// Late joiners measured.
         #[arg(long, default_value_t = 10)]
         latejoin_runs: usize,
+        /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
+        #[arg(long)]
+        heartbeat_ms: Option<u64>,
+        /// Run vehicle 100 (whose handovers are measured) under SCHED_FIFO at this priority
+        /// (`chrt -f`), as the vehicle unit's real-time option does.
+        #[arg(long)]
+        vehicle_rt: Option<u8>,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -475,6 +482,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     window_s,
                     handover_runs,
                     latejoin_runs,
+                    heartbeat_ms,
+                    vehicle_rt,
                     json,
                 },
         } => {
@@ -485,6 +494,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 window: std::time::Duration::from_secs(window_s),
                 handover_runs: if idle { 0 } else { handover_runs },
                 latejoin_runs,
+                heartbeat_ms,
+                vehicle_rt,
             };
             scale::cli(&std::env::current_exe()?, &options, json.as_deref())
         }

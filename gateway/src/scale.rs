@@ -48,6 +48,12 @@ pub struct Options {
     pub handover_runs: usize,
     /// Late joiners measured.
     pub latejoin_runs: usize,
+    /// The fleet's presence heartbeat (`[network] heartbeat_ms`), `None`: the default.
+    pub heartbeat_ms: Option<u64>,
+    /// Vehicle 100 (the one whose handovers are measured) runs under SCHED_FIFO at this
+    /// priority (`chrt -f`), as the vehicle unit's real-time option does; `None`: the normal
+    /// scheduler.
+    pub vehicle_rt: Option<u8>,
 }
 
 /// CPU and memory of one role's processes.
@@ -93,6 +99,10 @@ pub struct Report {
     pub operators: usize,
     /// Operators drove nothing.
     pub idle: bool,
+    /// The fleet's presence heartbeat, ms.
+    pub heartbeat_ms: u64,
+    /// Vehicle 100's SCHED_FIFO priority, if it ran real-time.
+    pub vehicle_rt: Option<u8>,
     /// The CPU window, s.
     pub window_s: f64,
     /// CPU of every process together, percent of one core.
@@ -190,6 +200,16 @@ fn observer(rig: &mut Rig, name: &str) -> PathBuf {
     rig.procs[p].log.clone()
 }
 
+/// Stops the process started last (an observer) gracefully: a killed participant stays
+/// matched by every peer for rustdds's 50 s lease, and what it no longer acknowledges costs
+/// every writer repairs, so later measurements would pay for it.
+fn stop_last(rig: &mut Rig) {
+    if let Some(p) = rig.procs.last_mut() {
+        p.terminate();
+        p.wait_exit(harness::PATIENCE);
+    }
+}
+
 /// Waits until the events at `path` have listed every id of `ids`; the wall time of the event
 /// that completed the list.
 fn wait_listed(path: &Path, ids: &BTreeSet<i64>) -> anyhow::Result<u64> {
@@ -233,12 +253,29 @@ pub fn run(
     anyhow::ensure!(options.vehicles >= 1, "needs at least one vehicle");
     let mut rig = Rig::new(rove, "scale")?;
     let (vehicles, operators) = fleet_ids(options);
-    let records: Vec<PathBuf> = vehicles.iter().map(|&v| rig.vehicle(v)).collect();
+    let network = options.heartbeat_ms.map_or(String::new(), |ms| {
+        format!("[network]\nheartbeat_ms = {ms}\n")
+    });
+    let output = format!("{network}[output]\nadapter = \"sim\"\n");
+    // Only the measured vehicle runs real-time: on a real board each vehicle has its own
+    // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
+    // real-time on these two cores starves the operators: measured, stale outputs everywhere.)
+    let mut records = Vec::new();
+    for &v in &vehicles {
+        rig.vehicle_wrapper = match options.vehicle_rt {
+            Some(priority) if v == FIRST_VEHICLE => {
+                vec!["chrt".into(), "-f".into(), priority.to_string()]
+            }
+            _ => Vec::new(),
+        };
+        records.push(rig.vehicle_with_output(v, &output));
+    }
+    rig.vehicle_wrapper.clear();
     let mut drives = BTreeMap::new();
     for (i, &id) in operators.iter().enumerate() {
         let vehicle = vehicles[i % vehicles.len()];
         let drive: &[i64] = if options.idle { &[] } else { &[vehicle] };
-        rig.operator(id, "stationary", "laptop", drive, 1000, "", &[]);
+        rig.operator(id, "stationary", "laptop", drive, 1000, &network, &[]);
         drives.entry(vehicle).or_insert(id);
     }
     let fleet: Vec<usize> = (0..rig.procs.len()).collect();
@@ -251,8 +288,7 @@ pub fn run(
     if options.idle {
         let path = observer(&mut rig, "observer");
         wait_listed(&path, &everyone)?;
-        let last = rig.procs.len() - 1;
-        rig.procs[last].crash();
+        stop_last(&mut rig);
     } else {
         for (&vehicle, record) in vehicles.iter().zip(&records) {
             if let Some(&op) = drives.get(&vehicle) {
@@ -307,11 +343,7 @@ pub fn run(
         let t0 = wall_us();
         let path = observer(&mut rig, &format!("joiner-{run}"));
         let done = wait_listed(&path, &everyone)?;
-        // Stopped gracefully: a killed participant stays matched (and heartbeated) by every
-        // peer for rustdds's 50 s lease, loading each later run more.
-        let last = rig.procs.len() - 1;
-        rig.procs[last].terminate();
-        rig.procs[last].wait_exit(harness::PATIENCE);
+        stop_last(&mut rig);
         latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
         progress(&format!(
             "late joiner {}/{}: {} devices listed after {:.1} ms",
@@ -337,6 +369,8 @@ pub fn run(
         vehicles: vehicles.len(),
         operators: operators.len(),
         idle: options.idle,
+        heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
+        vehicle_rt: options.vehicle_rt,
         window_s: elapsed,
         cpu_total_pct: measured.iter().map(|m| m.0).sum(),
         rss_max_kb: measured.iter().map(|m| m.1).max().unwrap_or(0),
@@ -363,12 +397,14 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         })
     };
     println!(
-        "scale {}×{}{}: CPU {:.1} % of a core in all ({:.1} s window)\n  vehicle: mean {:.2} %, \
+        "scale {}×{}{}{}: CPU {:.1} % of a core in all ({:.1} s window)\n  vehicle: mean {:.2} %, \
          max {:.2} %, {} KiB\n  operator: mean {:.2} %, max {:.2} %, {} KiB\n  RSS max {} KiB, \
          total {} KiB\n  handover {}\n  late joiner {}\n  wrong owner {}, stale {}, {} outputs",
         r.vehicles,
         r.operators,
         if r.idle { " idle" } else { "" },
+        r.vehicle_rt
+            .map_or(String::new(), |p| format!(" (vehicle 100 SCHED_FIFO {p})")),
         r.cpu_total_pct,
         r.window_s,
         r.vehicle.cpu_mean_pct,
@@ -442,6 +478,8 @@ mod tests {
             window: Duration::ZERO,
             handover_runs: 0,
             latejoin_runs: 0,
+            heartbeat_ms: None,
+            vehicle_rt: None,
         };
         assert_eq!(
             fleet_ids(&options),

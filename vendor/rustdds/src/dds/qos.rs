@@ -236,6 +236,7 @@ pub struct QosPolicies {
   pub(crate) resource_limits: Option<policy::ResourceLimits>,
   pub(crate) lifespan: Option<policy::Lifespan>,
   pub(crate) data_representation: Option<policy::DataRepresentation>,
+  // rove patch: PARTITION (ROVE-PATCH.md §3).
   pub(crate) partition: Option<policy::Partition>,
   #[cfg(feature = "security")]
   pub(crate) property: Option<policy::Property>,
@@ -335,6 +336,7 @@ impl QosPolicies {
     self
   }
 
+  // rove patch: PARTITION (ROVE-PATCH.md §3).
   pub fn partition(&self) -> Option<policy::Partition> {
     self.partition.clone()
   }
@@ -671,6 +673,7 @@ impl QosPolicies {
       data_representation,
       policy::DataRepresentation
     );
+    // rove patch: PARTITION (ROVE-PATCH.md §3).
     emit_option!(PID_PARTITION, partition, policy::Partition);
 
     Ok(pl)
@@ -703,7 +706,7 @@ impl QosPolicies {
       (Some(OwnershipKind::Exclusive), Some(strength)) => {
         Some(policy::Ownership::Exclusive { strength })
       }
-      // A reader announces no strength (OWNERSHIP_STRENGTH is a writer policy), nor must a
+      // rove patch (ROVE-PATCH.md §4): a reader announces no strength (OWNERSHIP_STRENGTH is a writer policy), nor must a
       // writer whose strength is the default 0 (Cyclone and OpenDDS omit both): read as
       // EXCLUSIVE with strength 0, not as absent (SHARED), which made every exclusive writer
       // incompatible with such readers.
@@ -739,6 +742,7 @@ impl QosPolicies {
     let lifespan: Option<policy::Lifespan> = get_option!(PID_LIFESPAN);
     let data_representation: Option<policy::DataRepresentation> =
       get_option!(PID_DATA_REPRESENTATION);
+    // rove patch: PARTITION (ROVE-PATCH.md §3).
     let partition: Option<policy::Partition> = get_option!(PID_PARTITION);
 
     #[cfg(feature = "security")]
@@ -1045,6 +1049,7 @@ pub mod policy {
     pub minimum_separation: Duration,
   }
 
+  // rove patch: PARTITION (ROVE-PATCH.md §3).
   /// DDS 2.2.3.13 PARTITION: the names a writer publishes in or a reader
   /// subscribes to. An absent policy or an empty list is the default partition,
   /// whose name is the empty string. A writer and a reader match only if they

@@ -180,7 +180,7 @@ pub struct SubscriptionBuiltinTopicData {
   // pub durability_service: Option<DurabilityService>,
   lifespan: Option<Lifespan>,
   data_representation: Option<DataRepresentation>,
-  partition: Option<Partition>,
+  partition: Option<Partition>, // rove patch (ROVE-PATCH.md §3)
 
   // From spec Remote Procedure Call over DDS:
   service_instance_name: Option<String>,
@@ -650,7 +650,7 @@ pub struct PublicationBuiltinTopicData {
   pub destination_order: Option<DestinationOrder>,
   pub presentation: Option<Presentation>,
   pub data_representation: Option<DataRepresentation>,
-  pub partition: Option<Partition>,
+  pub partition: Option<Partition>, // rove patch (ROVE-PATCH.md §3)
 
   // From Remote Procedure Call over DDS:
   pub service_instance_name: Option<String>,

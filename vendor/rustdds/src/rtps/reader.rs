@@ -398,7 +398,7 @@ impl Reader {
     debug!("update_writer_proxy topic={:?}", self.topic_name);
     let writer = proxy.remote_writer_guid;
 
-    // Endpoints in no common partition do not match (DDS 2.2.3.13); this is not
+    // rove patch (ROVE-PATCH.md §3): endpoints in no common partition do not match (DDS 2.2.3.13); this is not
     // an incompatible QoS. A writer that moved out of our partitions is lost.
     if !policy::Partition::is_match(
       offered_qos.partition.as_ref(),

@@ -1119,11 +1119,18 @@ impl Writer {
           }
         }
       } else {
-        // Normal case
+        // rove patch (ROVE-PATCH.md §5). Normal case, to the readers still missing something only: one that has
+        // acknowledged everything needs no prompt, and its ACKNACK answer would be
+        // waste. (A reader of a crashed peer stays matched until its 50 s lease
+        // ends; heartbeating every matched reader at the fast period for it made
+        // every reader of every writer answer ten times a second.)
         self.send_control_to_readers(
           DeliveryMode::Multicast,
           hb_message,
-          &mut self.readers.values(),
+          &mut self
+            .readers
+            .values()
+            .filter(|rp| last_change >= rp.all_acked_before),
         );
       }
       true
@@ -1977,7 +1984,7 @@ impl Writer {
       "update_reader_proxy topic={:?} reader_proxy={reader_proxy:?}",
       self.my_topic_name
     );
-    // Endpoints in no common partition do not match (DDS 2.2.3.13); this is not
+    // rove patch (ROVE-PATCH.md §3): endpoints in no common partition do not match (DDS 2.2.3.13); this is not
     // an incompatible QoS. A reader that moved out of our partitions is lost.
     if !policy::Partition::is_match(
       self.qos_policies.partition.as_ref(),
