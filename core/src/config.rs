@@ -43,10 +43,25 @@ use std::time::Duration;
 /// `pub keyword Name` is an enum of the words a key takes, written in lower case in TOML
 /// (`Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize`, `rename_all =
 /// "lowercase"`; a variant of several words takes `#[serde(rename = "snake_case")]`).
+/// `pub keyword Name -> Type` also maps each word to the value written after its doc,
+/// `Word => "doc" = value,`, as `impl From<Name> for Type`.
 /// Attributes (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    ($(#[$attr:meta])* pub keyword $name:ident -> $target:ty {
+        $($(#[$va:meta])* $variant:ident => $doc:literal = $value:expr,)*
+    } $($rest:tt)*) => {
+        impl From<$name> for $target {
+            fn from(word: $name) -> $target {
+                match word { $($name::$variant => $value,)* }
+            }
+        }
+        $crate::config_types! {
+            $(#[$attr])* pub keyword $name { $($(#[$va])* $variant => $doc,)* }
+            $($rest)*
+        }
+    };
     ($(#[$attr:meta])* pub keyword $name:ident { $($body:tt)* } $($rest:tt)*) => {
         $crate::config_types! {
             #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

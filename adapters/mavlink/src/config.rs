@@ -92,28 +92,14 @@ rove_core::config_types! {
     }
 
     /// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
-    pub keyword AxisOrNone {
-        Throttle => "`MovementCommand::throttle`.",
-        Roll => "`MovementCommand::roll`.",
-        Pitch => "`MovementCommand::pitch`.",
-        Yaw => "`MovementCommand::yaw`.",
-        None => "Not sent (INT16_MAX: invalid axis per the MAVLink spec).",
+    pub keyword AxisOrNone -> Option<Axis> {
+        Throttle => "`MovementCommand::throttle`." = Some(Axis::Throttle),
+        Roll => "`MovementCommand::roll`." = Some(Axis::Roll),
+        Pitch => "`MovementCommand::pitch`." = Some(Axis::Pitch),
+        Yaw => "`MovementCommand::yaw`." = Some(Axis::Yaw),
+        None => "Not sent (INT16_MAX: invalid axis per the MAVLink spec)." = None,
     }
-}
 
-impl AxisOrNone {
-    fn axis(self) -> Option<Axis> {
-        match self {
-            AxisOrNone::Throttle => Some(Axis::Throttle),
-            AxisOrNone::Roll => Some(Axis::Roll),
-            AxisOrNone::Pitch => Some(Axis::Pitch),
-            AxisOrNone::Yaw => Some(Axis::Yaw),
-            AxisOrNone::None => None,
-        }
-    }
-}
-
-rove_core::config_types! {
     /// A MANUAL_CONTROL stick field.
     pub keyword ManualField {
         X => "x.",
@@ -254,11 +240,8 @@ rove_core::config_types! {
 impl ModesConfig {
     /// The autopilot mode for rove's `mode`.
     pub fn for_mode(&self, mode: Mode) -> &AutopilotMode {
-        match mode {
-            Mode::Manual => &self.driven[0],
-            Mode::Assisted => &self.driven[1],
-            Mode::Auto => &self.driven[2],
-        }
+        let i = Mode::ALL.iter().position(|m| *m == mode);
+        &self.driven[i.unwrap_or_default()]
     }
 }
 
@@ -484,7 +467,7 @@ impl MavlinkSettings {
             errors.add("manual_control", "(table)", rule);
         }
         let mut s = self.manual_control.clone().unwrap_or_default();
-        let pick = |v: &mut Option<AxisOrNone>, d: AxisOrNone| v.get_or_insert(d).axis();
+        let pick = |v: &mut Option<AxisOrNone>, d| Option::from(*v.get_or_insert(d));
         let fields = [
             pick(&mut s.x, AxisOrNone::Pitch),
             pick(&mut s.y, AxisOrNone::Roll),
