@@ -28,7 +28,6 @@ use std::collections::HashMap;
 use std::fmt;
 use std::hash::Hash;
 use std::ops::RangeInclusive;
-use std::time::Duration;
 
 /// Config types written one documented field or variant a line: in a struct,
 /// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum,
@@ -182,17 +181,6 @@ impl ConfigErrors {
     ) -> Option<T> {
         self.required(key, &value)
             .and_then(|v| self.int(key, v, range, unit))
-    }
-
-    /// [`ConfigErrors::int`] of a key in milliseconds, as a [`Duration`].
-    pub fn millis(
-        &mut self,
-        key: &str,
-        value: Int,
-        range: RangeInclusive<Int>,
-        unit: &str,
-    ) -> Option<Duration> {
-        self.int(key, value, range, unit).map(Duration::from_millis)
     }
 
     /// Runs `check` on a list of its own and files what it records under `prefix`.

@@ -513,7 +513,7 @@ fn validate_common(
     errors: &mut ConfigErrors,
 ) -> Common {
     let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
-    let heartbeat = errors.millis("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
+    let heartbeat = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
@@ -544,7 +544,7 @@ fn validate_common(
         name: name.clone(),
         domain_id: domain_id.unwrap_or(0),
         interfaces: interfaces.clone(),
-        heartbeat: heartbeat.unwrap_or(Duration::from_millis(500)),
+        heartbeat: Duration::from_millis(heartbeat.unwrap_or(500)),
         log_filter: log.level.as_ref().map(log_filter),
         security: None,
     }
@@ -581,9 +581,9 @@ impl RawVehicle<OutputSection> {
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
         let v = &mut self.vehicle;
         let deadline = *v.output_deadline_ms.get_or_insert(50);
-        let deadline = errors.millis("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
+        let deadline = errors.int("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
         let limit = *v.output_hung_limit_ms.get_or_insert(2000);
-        let limit = errors.millis("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
+        let limit = errors.int("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let access = match &self.access {
@@ -610,8 +610,8 @@ impl RawVehicle<OutputSection> {
             common,
             access,
             output,
-            output_deadline: deadline.unwrap_or_default(),
-            output_hung_limit: limit.unwrap_or_default(),
+            output_deadline: Duration::from_millis(deadline.unwrap_or_default()),
+            output_hung_limit: Duration::from_millis(limit.unwrap_or_default()),
         })
     }
 }
@@ -648,11 +648,8 @@ impl RawOperator {
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
         let mut device = |settings: &mut rove_inputs::InputSettings, kind| {
-            let input = settings
-                .validate_as(kind)
-                .map(Box::new)
-                .map(InputChoice::Device);
-            errors.section("input", input).unwrap_or(constant.clone())
+            let input = errors.section("input", settings.validate_as(kind));
+            input.map_or(constant.clone(), |c| InputChoice::Device(Box::new(c)))
         };
         let centred = || InputSection::Constant(ConstantInput::default());
         let input = match self.input.get_or_insert_with(centred) {

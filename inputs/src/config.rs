@@ -397,14 +397,12 @@ impl InputSettings {
         let reopen = self
             .reopen_interval_ms
             .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
-        let reopen_interval = errors
-            .millis(key, *reopen, range, " ms")
-            .unwrap_or_default();
+        let reopen = errors.int(key, *reopen, range, " ms").unwrap_or_default();
         let grab = *self.grab.get_or_insert(false);
         SourceConfig::Evdev {
             selector,
             grab,
-            reopen_interval,
+            reopen_interval: Duration::from_millis(reopen),
         }
     }
 }
@@ -509,9 +507,8 @@ impl AxisSettings {
         }
         let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
             let v = *value.get_or_insert(default);
-            errors
-                .millis(field, v, 0..=MAX_RAMP_MS, " ms")
-                .unwrap_or_default()
+            let ms = errors.int(field, v, 0..=MAX_RAMP_MS, " ms");
+            Duration::from_millis(ms.unwrap_or_default())
         };
         let ramp_up = ms("ramp_up_ms", &mut self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
         let back = (&mut self.spring_back_ms, DEFAULT_SPRING_BACK_MS);

@@ -633,15 +633,14 @@ impl ServoSettings {
         let source = SourceSettings::validate(&self.source, errors);
         let range = (-1.0..=1.0, "must be -1..=1 (a unitless actuator command)");
         let mid = |a, b| (a + b) / 2.0;
-        let [min, centre, max, failsafe] =
-            self.scale.check((-1.0, 1.0), mid, None, range, errors)?;
-        let (min, centre, max) = (min as f32, centre as f32, max as f32);
+        let checked = self.scale.check((-1.0, 1.0), mid, None, range, errors)?;
+        let [min, centre, max, failsafe] = checked.map(|v| v as f32);
         Some(ServoConfig {
             name,
             actuator_id: actuator_id?,
             source: source?,
             scale: UnitScale { min, centre, max },
-            failsafe: failsafe as f32,
+            failsafe,
         })
     }
 }

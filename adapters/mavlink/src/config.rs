@@ -354,9 +354,9 @@ impl MavlinkSettings {
         errors.float("rate_hz", rate_hz, 1.0..=200.0, rule);
         let link_timeout = *self.link_timeout_ms.get_or_insert(3000);
         let rule = " (the autopilot sends HEARTBEAT at 1 Hz)";
-        let link_timeout = errors.millis("link_timeout_ms", link_timeout, 500..=60_000, rule);
+        let link_timeout = errors.int("link_timeout_ms", link_timeout, 500..=60_000, rule);
         let command_timeout = *self.command_timeout_ms.get_or_insert(300);
-        let command_timeout = errors.millis("command_timeout_ms", command_timeout, 20..=10_000, "");
+        let command_timeout = errors.int("command_timeout_ms", command_timeout, 20..=10_000, "");
         let retries = *self.command_retries.get_or_insert(3);
         let command_retries = errors.int("command_retries", retries, 0..=20, "");
         let failsafe = *self.failsafe.get_or_insert(match method {
@@ -383,8 +383,8 @@ impl MavlinkSettings {
             method,
             // A NaN rate was reported above; the placeholder keeps `from_secs_f64` from panicking.
             period: Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 200.0).max(1.0)),
-            link_timeout: link_timeout.unwrap_or_default(),
-            command_timeout: command_timeout.unwrap_or_default(),
+            link_timeout: Duration::from_millis(link_timeout.unwrap_or_default()),
+            command_timeout: Duration::from_millis(command_timeout.unwrap_or_default()),
             command_retries: command_retries.unwrap_or_default(),
             failsafe,
             on_mode_refused: *self.on_mode_refused.get_or_insert(OnModeRefused::Hold),
@@ -518,10 +518,9 @@ impl MavlinkSettings {
                         return AutopilotMode { name, custom_mode };
                     }
                     let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
+                    let names = names.join(", ");
                     let rule = format!(
-                        "is not a mode of {}: use one of {} or a custom_mode number",
-                        firmware,
-                        names.join(", ")
+                        "is not a mode of {firmware}: use one of {names} or a custom_mode number"
                     );
                     errors.add(key, format!("\"{name}\""), rule);
                     fallback

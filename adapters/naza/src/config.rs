@@ -204,7 +204,7 @@ impl NazaSettings {
         let mode = [self.mode.as_ref().map(|m| &m.unknown)];
         preset_tables(&mut errors, &names[4..], &mode, ModeChannelSettings::KNOWN);
         let hold_ms = *self.csc_hold_ms.get_or_insert(DEFAULT_CSC_HOLD_MS);
-        let hold = errors.millis("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
+        let hold = errors.int("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
         let policy = *self.failsafe_policy.get_or_insert(FailsafePolicy::Hover);
         self.failsafe_mode.get_or_insert(FailsafeMode::Atti);
         self.csc.get_or_insert(CscPattern::Outer);
@@ -214,7 +214,7 @@ impl NazaSettings {
             errors.not_for("land_ramp_ms", self.land_ramp_ms, rule);
         }
         let ramp_ms = self.land_ramp_ms.unwrap_or(DEFAULT_LAND_RAMP_MS);
-        let ramp = errors.millis("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
+        let ramp = errors.int("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
         let mut channels = self.channels();
         let pwm = self.pwm.vehicle(&mut channels, ConfigErrors::default());
         let failsafe_throttle = match (policy, &pwm) {
@@ -237,7 +237,7 @@ impl NazaSettings {
                     errors.add("land_throttle_us", floor_us, rule);
                 }
                 let floor_us = u16::try_from(floor_us).unwrap_or(min);
-                let ramp = ramp.unwrap_or_default();
+                let ramp = Duration::from_millis(ramp.unwrap_or_default());
                 FailsafeThrottle::Land { floor_us, ramp }
             }
         };
@@ -246,7 +246,7 @@ impl NazaSettings {
             failsafe_mode: self.safe_mode(),
             failsafe_throttle,
             csc: self.csc.unwrap_or(CscPattern::Outer),
-            csc_hold: hold.unwrap_or_default(),
+            csc_hold: Duration::from_millis(hold.unwrap_or_default()),
         });
         finish_preset(errors, config, |e| rename(e, &names))
     }
