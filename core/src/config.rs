@@ -28,7 +28,6 @@ use std::collections::HashMap;
 use std::fmt;
 use std::hash::Hash;
 use std::ops::RangeInclusive;
-use std::time::Duration;
 
 /// Config types written one documented field or variant a line: in a struct,
 /// `name: Type => "doc",` stands for `#[doc = "doc"] pub name: Type,`; in an enum,
@@ -43,10 +42,25 @@ use std::time::Duration;
 /// `pub keyword Name` is an enum of the words a key takes, written in lower case in TOML
 /// (`Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize`, `rename_all =
 /// "lowercase"`; a variant of several words takes `#[serde(rename = "snake_case")]`).
+/// `pub keyword Name -> Type` also maps each word to the value written after its doc,
+/// `Word => "doc" = value,`, as `impl From<Name> for Type`.
 /// Attributes (docs, derives, serde's) before an item, a field or a variant are kept.
 #[macro_export]
 macro_rules! config_types {
     () => {};
+    ($(#[$attr:meta])* pub keyword $name:ident -> $target:ty {
+        $($(#[$va:meta])* $variant:ident => $doc:literal = $value:expr,)*
+    } $($rest:tt)*) => {
+        impl From<$name> for $target {
+            fn from(word: $name) -> $target {
+                match word { $($name::$variant => $value,)* }
+            }
+        }
+        $crate::config_types! {
+            $(#[$attr])* pub keyword $name { $($(#[$va])* $variant => $doc,)* }
+            $($rest)*
+        }
+    };
     ($(#[$attr:meta])* pub keyword $name:ident { $($body:tt)* } $($rest:tt)*) => {
         $crate::config_types! {
             #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -167,17 +181,6 @@ impl ConfigErrors {
     ) -> Option<T> {
         self.required(key, &value)
             .and_then(|v| self.int(key, v, range, unit))
-    }
-
-    /// [`ConfigErrors::int`] of a key in milliseconds, as a [`Duration`].
-    pub fn millis(
-        &mut self,
-        key: &str,
-        value: Int,
-        range: RangeInclusive<Int>,
-        unit: &str,
-    ) -> Option<Duration> {
-        self.int(key, value, range, unit).map(Duration::from_millis)
     }
 
     /// Runs `check` on a list of its own and files what it records under `prefix`.

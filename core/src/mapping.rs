@@ -51,6 +51,16 @@ impl Axis {
             Axis::Yaw => movement.yaw,
         }
     }
+
+    /// The axis's name in config files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Axis::Throttle => "throttle",
+            Axis::Roll => "roll",
+            Axis::Pitch => "pitch",
+            Axis::Yaw => "yaw",
+        }
+    }
 }
 
 crate::config_types! {

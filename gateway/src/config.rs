@@ -250,20 +250,10 @@ rove_core::config_types! {
     }
 
     /// Mode names in config.
-    pub keyword ModeName {
-        Manual => "MANUAL.",
-        Assisted => "ASSISTED.",
-        Auto => "AUTO.",
-    }
-}
-
-impl From<ModeName> for Mode {
-    fn from(m: ModeName) -> Mode {
-        match m {
-            ModeName::Manual => Mode::Manual,
-            ModeName::Assisted => Mode::Assisted,
-            ModeName::Auto => Mode::Auto,
-        }
+    pub keyword ModeName -> Mode {
+        Manual => "MANUAL." = Mode::Manual,
+        Assisted => "ASSISTED." = Mode::Assisted,
+        Auto => "AUTO." = Mode::Auto,
     }
 }
 
@@ -308,9 +298,8 @@ impl Common {
     /// Makes a relative `[security] dir` relative to the config file's directory.
     pub fn resolve_paths(&mut self, config_path: &Path) {
         let dir = config_path.parent().unwrap_or(Path::new("."));
-        if let Some(security) = &mut self.security
-            && security.is_relative()
-        {
+        // Joined to an absolute path, `dir` is dropped.
+        if let Some(security) = &mut self.security {
             *security = dir.join(&*security);
         }
     }
@@ -387,9 +376,7 @@ impl OperatorConfig {
         if let InputChoice::Device(input) = &mut self.input {
             input.resolve_relative_to(dir);
         }
-        if let Some(socket) = &mut self.api_socket
-            && socket.is_relative()
-        {
+        if let Some(socket) = &mut self.api_socket {
             *socket = dir.join(&*socket);
         }
     }
@@ -526,7 +513,7 @@ fn validate_common(
     errors: &mut ConfigErrors,
 ) -> Common {
     let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
-    let heartbeat = errors.millis("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
+    let heartbeat = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
@@ -547,22 +534,18 @@ fn validate_common(
         errors.add("network.interfaces", "[]", rule);
     }
     let id = device.id;
+    let name = device.name.get_or_insert_with(|| format!("rove-{id}"));
+    let log_filter = |level: &String| match level.contains("rustdds") {
+        true => level.clone(),
+        false => format!("{level},rustdds=warn"),
+    };
     Common {
         id,
-        name: device
-            .name
-            .get_or_insert_with(|| format!("rove-{id}"))
-            .clone(),
+        name: name.clone(),
         domain_id: domain_id.unwrap_or(0),
         interfaces: interfaces.clone(),
-        heartbeat: heartbeat.unwrap_or(Duration::from_millis(500)),
-        log_filter: log.level.as_ref().map(|level| {
-            if level.contains("rustdds") {
-                level.clone()
-            } else {
-                format!("{level},rustdds=warn")
-            }
-        }),
+        heartbeat: Duration::from_millis(heartbeat.unwrap_or(500)),
+        log_filter: log.level.as_ref().map(log_filter),
         security: None,
     }
 }
@@ -598,9 +581,9 @@ impl RawVehicle<OutputSection> {
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));
         let v = &mut self.vehicle;
         let deadline = *v.output_deadline_ms.get_or_insert(50);
-        let deadline = errors.millis("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
+        let deadline = errors.int("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
         let limit = *v.output_hung_limit_ms.get_or_insert(2000);
-        let limit = errors.millis("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
+        let limit = errors.int("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let access = match &self.access {
@@ -627,8 +610,8 @@ impl RawVehicle<OutputSection> {
             common,
             access,
             output,
-            output_deadline: deadline.unwrap_or_default(),
-            output_hung_limit: limit.unwrap_or_default(),
+            output_deadline: Duration::from_millis(deadline.unwrap_or_default()),
+            output_hung_limit: Duration::from_millis(limit.unwrap_or_default()),
         })
     }
 }
@@ -657,37 +640,27 @@ impl RawOperator {
         let stream_hz = errors.int::<u32>("operator.stream_hz", stream_hz, 1..=1000, rule);
         let handover = errors.section("handover", self.handover.validate());
         let handover = handover.unwrap_or_default();
-        for (i, v) in op
-            .drive
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| **v == self.device.id)
-        {
-            let rule = "is this operator's own device id";
-            errors.add(format!("operator.drive[{i}]"), v, rule);
+        for (i, v) in op.drive.iter().enumerate() {
+            if *v == self.device.id {
+                let rule = "is this operator's own device id";
+                errors.add(format!("operator.drive[{i}]"), v, rule);
+            }
         }
         let constant = InputChoice::Constant(MovementCommand::CENTRED, Mode::Manual);
         let mut device = |settings: &mut rove_inputs::InputSettings, kind| {
-            let input = settings
-                .validate_as(kind)
-                .map(Box::new)
-                .map(InputChoice::Device);
-            errors.section("input", input).unwrap_or(constant.clone())
+            let input = errors.section("input", settings.validate_as(kind));
+            input.map_or(constant.clone(), |c| InputChoice::Device(Box::new(c)))
         };
         let centred = || InputSection::Constant(ConstantInput::default());
         let input = match self.input.get_or_insert_with(centred) {
             InputSection::Constant(c) => {
-                let (t, r, p, y) = (c.throttle, c.roll, c.pitch, c.yaw);
-                let sticks = [("throttle", t), ("roll", r), ("pitch", p), ("yaw", y)];
-                let [throttle, roll, pitch, yaw] = sticks.map(|(key, v)| {
-                    let range = i16::MIN.into()..=i16::MAX.into();
-                    (errors.int(&format!("input.{key}"), v, range, "")).unwrap_or(0)
-                });
+                let range = || i16::MIN.into()..=i16::MAX.into();
+                let mut stick = |key, v| errors.int(key, v, range(), "").unwrap_or(0);
                 let movement = MovementCommand {
-                    throttle,
-                    roll,
-                    pitch,
-                    yaw,
+                    throttle: stick("input.throttle", c.throttle),
+                    roll: stick("input.roll", c.roll),
+                    pitch: stick("input.pitch", c.pitch),
+                    yaw: stick("input.yaw", c.yaw),
                 };
                 InputChoice::Constant(movement, (*c.mode.get_or_insert(ModeName::Manual)).into())
             }

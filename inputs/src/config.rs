@@ -195,50 +195,34 @@ rove_core::config_types! {
 /// The four axes in the order of [`MappingConfig::axes`].
 pub const AXES: [Axis; 4] = [Axis::Throttle, Axis::Roll, Axis::Pitch, Axis::Yaw];
 
-/// The config name of an axis.
-pub fn axis_key(axis: Axis) -> &'static str {
-    match axis {
-        Axis::Throttle => "throttle",
-        Axis::Roll => "roll",
-        Axis::Pitch => "pitch",
-        Axis::Yaw => "yaw",
-    }
-}
-
 impl InputConfig {
     /// The same mapping read from another device (for `rove inputs show DEVICE`): the source
     /// becomes an evdev device chosen by `selector`, keeping `grab` and the reopen interval
     /// when the source already was a device.
     pub fn with_device(mut self, selector: DeviceSelector) -> Self {
-        let reopen = Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs());
-        let (grab, reopen_interval) = match self.source {
-            SourceConfig::Evdev {
-                grab,
-                reopen_interval,
-                ..
-            } => (grab, reopen_interval),
-            SourceConfig::Replay { .. } => (false, reopen),
-        };
-        self.source = SourceConfig::Evdev {
-            selector,
-            grab,
-            reopen_interval,
-        };
-        if self.kind == SourceKind::Replay {
-            self.kind = SourceKind::Joystick;
+        match &mut self.source {
+            SourceConfig::Evdev { selector: s, .. } => *s = selector,
+            SourceConfig::Replay { .. } => {
+                let reopen = Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs());
+                self.kind = SourceKind::Joystick;
+                self.source = SourceConfig::Evdev {
+                    selector,
+                    grab: false,
+                    reopen_interval: reopen,
+                };
+            }
         }
         self
     }
 
     /// Makes a relative replay `file` or device path relative to `base` (the directory of the
-    /// config file), so a config works wherever the process was started.
+    /// config file; `join` leaves an absolute one as it is), so a config works from anywhere.
     pub fn resolve_relative_to(&mut self, base: &Path) {
         if let SourceConfig::Replay { file: p }
         | SourceConfig::Evdev {
             selector: DeviceSelector::Path(p),
             ..
         } = &mut self.source
-            && p.is_relative()
         {
             *p = base.join(&*p);
         }
@@ -293,11 +277,8 @@ impl InputSettings {
         let mut used = Unique::default();
         let mut claim = |errors: &mut ConfigErrors, control: Control, key: &str, value: &str| {
             if let Some(first) = used.claim(control, key) {
-                errors.add(
-                    key,
-                    format!("{value:?}"),
-                    format!("is already used by {first}"),
-                );
+                let rule = format!("is already used by {first}");
+                errors.add(key, format!("{value:?}"), rule);
             }
         };
         let a = &mut self.axes;
@@ -305,7 +286,7 @@ impl InputSettings {
         let none_mapped = raw_axes.iter().all(|a| a.is_none());
         for (slot, (axis, raw)) in AXES.iter().zip(raw_axes).enumerate() {
             let Some(raw) = raw else { continue };
-            let prefix = format!("axes.{}", axis_key(*axis));
+            let prefix = format!("axes.{}", axis.name());
             let config = errors.within(&prefix, |errors| raw.validate(errors));
             // Claimed only by a valid axis (`validate` returns `None` after any problem).
             match config.map(|c| c.input) {
@@ -416,14 +397,12 @@ impl InputSettings {
         let reopen = self
             .reopen_interval_ms
             .get_or_insert(DEFAULT_REOPEN_INTERVAL_MS);
-        let reopen_interval = errors
-            .millis(key, *reopen, range, " ms")
-            .unwrap_or_default();
+        let reopen = errors.int(key, *reopen, range, " ms").unwrap_or_default();
         let grab = *self.grab.get_or_insert(false);
         SourceConfig::Evdev {
             selector,
             grab,
-            reopen_interval,
+            reopen_interval: Duration::from_millis(reopen),
         }
     }
 }
@@ -528,9 +507,8 @@ impl AxisSettings {
         }
         let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
             let v = *value.get_or_insert(default);
-            errors
-                .millis(field, v, 0..=MAX_RAMP_MS, " ms")
-                .unwrap_or_default()
+            let ms = errors.int(field, v, 0..=MAX_RAMP_MS, " ms");
+            Duration::from_millis(ms.unwrap_or_default())
         };
         let ramp_up = ms("ramp_up_ms", &mut self.ramp_up_ms, DEFAULT_RAMP_UP_MS);
         let back = (&mut self.spring_back_ms, DEFAULT_SPRING_BACK_MS);

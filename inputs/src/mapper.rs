@@ -37,7 +37,7 @@
 use crate::codes::{
     Control, EV_ABS, EV_KEY, RawEvent, SYN_DROPPED, SYN_REPORT, abs_name, key_name,
 };
-use crate::config::{AXES, AxisConfig, AxisInput, MappingConfig, Rest, axis_key};
+use crate::config::{AXES, AxisConfig, AxisInput, MappingConfig, Rest};
 use crate::curve::{AbsState, Calibration, Ramp, Shaping, to_axis};
 use rove_core::adapter::InputEvent;
 use rove_core::mapping::Axis;
@@ -163,7 +163,7 @@ impl fmt::Display for InputStatus {
         match &self.link {
             LinkState::Live => f.write_str(" live")?,
             LinkState::AwaitingRest { axes } => {
-                let names: Vec<_> = axes.iter().map(|a| axis_key(*a)).collect();
+                let names: Vec<_> = axes.iter().map(|a| a.name()).collect();
                 write!(f, " centre: {}", names.join(","))?;
             }
             LinkState::Lost { reason } => write!(f, " LOST: {reason}")?,

@@ -15,7 +15,7 @@ use crate::dronecan::{
     PRIORITY_RANGE, RAW_COMMAND, RAW_COMMAND_RANGE,
 };
 use crate::raw::{Endian, FieldLayout, Width};
-use crate::scale::{Scale, Source, UnitScale, axis_name};
+use crate::scale::{Scale, Source, UnitScale};
 use rove_core::config::{Int, Unique, UnknownKeys};
 use rove_core::error::ConfigErrors;
 use rove_core::mapping::Axis;
@@ -153,10 +153,10 @@ impl<'de> Deserialize<'de> for SourceSettings {
 impl fmt::Display for SourceSettings {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            SourceSettings::Axis(a) => f.write_str(axis_name(*a)),
+            SourceSettings::Axis(a) => f.write_str(a.name()),
             SourceSettings::Mix { mix } => {
                 let terms: Vec<String> = (mix.iter())
-                    .map(|(a, w)| format!("[\"{}\", {w}]", axis_name(*a)))
+                    .map(|(a, w)| format!("[\"{}\", {w}]", a.name()))
                     .collect();
                 write!(f, "{{ mix = [{}] }}", terms.join(", "))
             }
@@ -172,27 +172,29 @@ pub const MIX_TERMS_MAX: usize = 4;
 pub const MIX_WEIGHT_MAX: f64 = 4.0;
 
 impl SourceSettings {
-    fn validate(&self, errors: &mut ConfigErrors) -> Source {
-        let mix = match self {
-            SourceSettings::Axis(a) => return Source::Axis(*a),
+    /// The required `source` key, validated.
+    fn validate(source: &Option<Self>, errors: &mut ConfigErrors) -> Option<Source> {
+        let this = errors.required("source", source)?;
+        let mix = match &this {
+            SourceSettings::Axis(a) => return Some(Source::Axis(*a)),
             SourceSettings::Mix { mix } => mix,
         };
         if mix.is_empty() || mix.len() > MIX_TERMS_MAX {
             let rule = format!("a mix needs 1..={MIX_TERMS_MAX} terms");
-            errors.add("source", self, rule);
+            errors.add("source", &this, rule);
         }
         for (i, (axis, weight)) in mix.iter().enumerate() {
-            let name = axis_name(*axis);
+            let name = axis.name();
             if !weight.is_finite() || weight.abs() > MIX_WEIGHT_MAX || *weight == 0.0 {
                 let rule =
                     format!("weight of {name} must be non-zero and within ±{MIX_WEIGHT_MAX}");
-                errors.add("source", self, rule);
+                errors.add("source", &this, rule);
             }
             if mix[..i].iter().any(|(other, _)| other == axis) {
-                errors.add("source", self, format!("{name} appears twice in the mix"));
+                errors.add("source", &this, format!("{name} appears twice in the mix"));
             }
         }
-        Source::Mix(mix.clone())
+        Some(Source::Mix(mix.clone()))
     }
 }
 
@@ -367,16 +369,8 @@ impl CanSettings {
         let rate = check_rate(&mut self.rate_hz, DEFAULT_RATE_HZ, &mut errors);
         let (mut frames, mut ids) = (Vec::new(), Unique::default());
         for (i, f) in self.frames.iter_mut().enumerate() {
-            let owner = format!("frames[{i}]");
-            let frame = errors.within(&owner, |fe| {
-                let frame = validate_frame(f, i, fd, rate, &mut names, fe);
-                // Checked on the id as written, so a frame with other errors still counts.
-                let id = (f.id.and_then(|id| u32::try_from(id).ok()))
-                    .and_then(|id| CanId::new(id, f.extended.unwrap_or(false)).ok());
-                if let Some(id) = id {
-                    ids.check(fe, id, &owner, ("id", id), "has the same identifier");
-                }
-                frame
+            let frame = errors.within(&format!("frames[{i}]"), |fe| {
+                validate_frame(f, i, fd, rate, (&mut names, &mut ids), fe)
             });
             frames.extend(frame);
         }
@@ -416,7 +410,7 @@ fn validate_frame(
     i: usize,
     fd: bool,
     section_rate: i64,
-    names: &mut Unique<String>,
+    (names, ids): (&mut Unique<String>, &mut Unique<CanId>),
     errors: &mut ConfigErrors,
 ) -> Option<RawFrameConfig> {
     let extended = *f.extended.get_or_insert(false);
@@ -430,11 +424,7 @@ fn validate_frame(
             };
             let hint = (!extended && (0..=i64::from(EXTENDED_ID_MAX)).contains(&id))
                 .then_some(" (set extended = true for a 29-bit identifier)");
-            let shown = if id < 0 {
-                id.to_string()
-            } else {
-                format!("0x{id:X}")
-            };
+            let shown = u64::try_from(id).map_or(id.to_string(), |id| format!("0x{id:X}"));
             let rule = format!("must be 0..=0x{limit:X}{}", hint.unwrap_or_default());
             errors.add("id", shown, rule);
         }
@@ -466,16 +456,18 @@ fn validate_frame(
         let default_name = format!("frames[{i}].outputs[{j}]");
         let output = validate_field(o, &default_name, limit, &outputs, &mut oe);
         if let Some(output) = &output {
-            let (owner, key) = (format!("{default_name}.name"), format!("outputs[{j}].name"));
-            let (name, shown) = (
-                output.name.clone(),
-                (key.as_str(), format!("{:?}", output.name)),
-            );
-            names.check(errors, name, owner, shown, "has the same name");
+            let (key, shown) = (format!("outputs[{j}].name"), format!("{:?}", output.name));
+            let (name, owner) = (output.name.clone(), format!("{default_name}.name"));
+            names.check(errors, name, owner, (&key, shown), "has the same name");
         }
         all_ok &= output.is_some();
         errors.extend_within(&format!("outputs[{j}]"), oe);
         outputs.extend(output);
+    }
+    // Checked on the id as written, so a frame with other errors still counts.
+    if let Some(id) = id {
+        let owner = format!("frames[{i}]");
+        ids.check(errors, id, owner, ("id", id), "has the same identifier");
     }
     let id = id?;
     if !all_ok {
@@ -511,9 +503,7 @@ fn validate_field(
     if o.name.as_deref().is_some_and(|n| n.trim().is_empty()) {
         errors.add("name", "\"\"", "must not be empty");
     }
-    let source = errors
-        .required("source", &o.source)
-        .map(|s| s.validate(errors));
+    let source = SourceSettings::validate(&o.source, errors);
     let bits = *o.width.get_or_insert(16);
     let width = Width::from_bits(bits);
     if width.is_none() {
@@ -582,11 +572,8 @@ impl DroneCanSettings {
             errors.add("servos", "[]", rule);
         }
         if self.servos.len() > MAX_SERVOS {
-            let (shown, rule) = (
-                self.servos.len(),
-                format!("at most {MAX_SERVOS} (one ArrayCommand)"),
-            );
-            errors.add("servos", format!("{shown} entries"), rule);
+            let rule = format!("at most {MAX_SERVOS} (one ArrayCommand)");
+            errors.add("servos", format!("{} entries", self.servos.len()), rule);
         }
         let (servos, escs) = (&mut self.servos, &mut self.escs);
         let servo = |s: &ServoConfig| (s.name.clone(), "actuator_id", s.actuator_id);
@@ -643,20 +630,17 @@ impl ServoSettings {
         (self.unknown).check(errors, Self::KNOWN);
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let actuator_id = errors.req_int("actuator_id", self.actuator_id, 0..=255, "");
-        let source = errors
-            .required("source", &self.source)
-            .map(|s| s.validate(errors));
+        let source = SourceSettings::validate(&self.source, errors);
         let range = (-1.0..=1.0, "must be -1..=1 (a unitless actuator command)");
         let mid = |a, b| (a + b) / 2.0;
-        let [min, centre, max, failsafe] =
-            self.scale.check((-1.0, 1.0), mid, None, range, errors)?;
-        let (min, centre, max) = (min as f32, centre as f32, max as f32);
+        let checked = self.scale.check((-1.0, 1.0), mid, None, range, errors)?;
+        let [min, centre, max, failsafe] = checked.map(|v| v as f32);
         Some(ServoConfig {
             name,
             actuator_id: actuator_id?,
             source: source?,
             scale: UnitScale { min, centre, max },
-            failsafe: failsafe as f32,
+            failsafe,
         })
     }
 }
@@ -667,9 +651,7 @@ impl EscSettings {
         let name = (self.name.clone()).unwrap_or_else(|| default_name.into());
         let unit = format!(" (RawCommand has {MAX_ESCS} channels)");
         let index = errors.req_int("index", self.index, 0..=(MAX_ESCS as Int - 1), &unit);
-        let source = errors
-            .required("source", &self.source)
-            .map(|s| s.validate(errors));
+        let source = SourceSettings::validate(&self.source, errors);
         let range = (*RAW_COMMAND_RANGE.start(), *RAW_COMMAND_RANGE.end());
         let (scale, failsafe) = int_scale(&mut self.scale, (0, range.1), Some(0), range, errors)?;
         Some(EscConfig {

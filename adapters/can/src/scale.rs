@@ -49,7 +49,7 @@ impl Source {
 impl fmt::Display for Source {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Source::Axis(axis) => write!(f, "{}", axis_name(*axis)),
+            Source::Axis(axis) => write!(f, "{}", axis.name()),
             Source::Mix(terms) => {
                 for (i, (axis, weight)) in terms.iter().enumerate() {
                     match (i, *weight < 0.0) {
@@ -62,21 +62,11 @@ impl fmt::Display for Source {
                     if magnitude != 1.0 {
                         write!(f, "{magnitude}×")?;
                     }
-                    f.write_str(axis_name(*axis))?;
+                    f.write_str(axis.name())?;
                 }
                 Ok(())
             }
         }
-    }
-}
-
-/// The TOML spelling of `axis`.
-pub fn axis_name(axis: Axis) -> &'static str {
-    match axis {
-        Axis::Throttle => "throttle",
-        Axis::Roll => "roll",
-        Axis::Pitch => "pitch",
-        Axis::Yaw => "yaw",
     }
 }
 

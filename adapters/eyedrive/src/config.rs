@@ -5,7 +5,7 @@
 use rove_core::config::UnknownKeys;
 use rove_core::error::ConfigErrors;
 use rove_pwm::config::{finish_preset, preset_tables, rename_channels};
-use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig, PwmVehicleSettings};
+use rove_pwm::{ChannelSourceKind, PwmBackendSettings, PwmVehicleConfig};
 
 rove_core::config_types! {
     /// `[output]` for the Eyedrive, as written.
@@ -28,22 +28,9 @@ const CHANNELS: [(&str, ChannelSourceKind); 2] = [
 ];
 
 impl EyedriveSettings {
-    /// The equivalent generic `adapter = "pwm"` settings (missing tables count as empty, so
-    /// that their address errors are reported too).
-    pub fn to_generic(&self) -> PwmVehicleSettings {
-        let tables = [&self.steering, &self.throttle];
-        let channels = (CHANNELS.iter().zip(tables))
-            .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source));
-        PwmVehicleSettings {
-            pwm: self.pwm.clone(),
-            channels: channels.collect(),
-            unknown: UnknownKeys::default(),
-        }
-    }
-
     /// Validates into the generic PWM vehicle config: steering from roll, throttle from
-    /// throttle, both failing safe to neutral. The backend keys' defaults are filled into
-    /// `self`.
+    /// throttle, both failing safe to neutral (a missing table counts as empty, so that its
+    /// address errors are reported too). The backend keys' defaults are filled into `self`.
     ///
     /// # Errors
     /// [`rove_core::Error::Config`] listing every problem, keyed as written in `[output]`
@@ -51,12 +38,19 @@ impl EyedriveSettings {
     pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
         let mut errors = ConfigErrors::default();
         self.unknown.check(&mut errors, Self::KNOWN);
-        let tables = [&self.steering, &self.throttle].map(|t| t.as_ref().map(|t| &t.unknown));
+        let tables = [&self.steering, &self.throttle];
+        let unknown = tables.map(|t| t.as_ref().map(|t| &t.unknown));
         let names = CHANNELS.map(|c| c.0);
-        preset_tables(&mut errors, &names, &tables, EyedriveChannelSettings::KNOWN);
-        let mut generic = self.to_generic();
-        let config = generic.validate();
-        self.pwm = generic.pwm;
+        preset_tables(
+            &mut errors,
+            &names,
+            &unknown,
+            EyedriveChannelSettings::KNOWN,
+        );
+        let mut channels: Vec<_> = (CHANNELS.iter().zip(tables))
+            .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
+            .collect();
+        let config = self.pwm.vehicle(&mut channels, ConfigErrors::default());
         finish_preset(errors, config, |e| rename_channels(e, &names))
     }
 }

@@ -92,28 +92,14 @@ rove_core::config_types! {
     }
 
     /// An axis, or `"none"` for a MANUAL_CONTROL field sent as "invalid" (INT16_MAX).
-    pub keyword AxisOrNone {
-        Throttle => "`MovementCommand::throttle`.",
-        Roll => "`MovementCommand::roll`.",
-        Pitch => "`MovementCommand::pitch`.",
-        Yaw => "`MovementCommand::yaw`.",
-        None => "Not sent (INT16_MAX: invalid axis per the MAVLink spec).",
+    pub keyword AxisOrNone -> Option<Axis> {
+        Throttle => "`MovementCommand::throttle`." = Some(Axis::Throttle),
+        Roll => "`MovementCommand::roll`." = Some(Axis::Roll),
+        Pitch => "`MovementCommand::pitch`." = Some(Axis::Pitch),
+        Yaw => "`MovementCommand::yaw`." = Some(Axis::Yaw),
+        None => "Not sent (INT16_MAX: invalid axis per the MAVLink spec)." = None,
     }
-}
 
-impl AxisOrNone {
-    fn axis(self) -> Option<Axis> {
-        match self {
-            AxisOrNone::Throttle => Some(Axis::Throttle),
-            AxisOrNone::Roll => Some(Axis::Roll),
-            AxisOrNone::Pitch => Some(Axis::Pitch),
-            AxisOrNone::Yaw => Some(Axis::Yaw),
-            AxisOrNone::None => None,
-        }
-    }
-}
-
-rove_core::config_types! {
     /// A MANUAL_CONTROL stick field.
     pub keyword ManualField {
         X => "x.",
@@ -254,11 +240,8 @@ rove_core::config_types! {
 impl ModesConfig {
     /// The autopilot mode for rove's `mode`.
     pub fn for_mode(&self, mode: Mode) -> &AutopilotMode {
-        match mode {
-            Mode::Manual => &self.driven[0],
-            Mode::Assisted => &self.driven[1],
-            Mode::Auto => &self.driven[2],
-        }
+        let i = Mode::ALL.iter().position(|m| *m == mode);
+        &self.driven[i.unwrap_or_default()]
     }
 }
 
@@ -371,9 +354,9 @@ impl MavlinkSettings {
         errors.float("rate_hz", rate_hz, 1.0..=200.0, rule);
         let link_timeout = *self.link_timeout_ms.get_or_insert(3000);
         let rule = " (the autopilot sends HEARTBEAT at 1 Hz)";
-        let link_timeout = errors.millis("link_timeout_ms", link_timeout, 500..=60_000, rule);
+        let link_timeout = errors.int("link_timeout_ms", link_timeout, 500..=60_000, rule);
         let command_timeout = *self.command_timeout_ms.get_or_insert(300);
-        let command_timeout = errors.millis("command_timeout_ms", command_timeout, 20..=10_000, "");
+        let command_timeout = errors.int("command_timeout_ms", command_timeout, 20..=10_000, "");
         let retries = *self.command_retries.get_or_insert(3);
         let command_retries = errors.int("command_retries", retries, 0..=20, "");
         let failsafe = *self.failsafe.get_or_insert(match method {
@@ -400,8 +383,8 @@ impl MavlinkSettings {
             method,
             // A NaN rate was reported above; the placeholder keeps `from_secs_f64` from panicking.
             period: Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 200.0).max(1.0)),
-            link_timeout: link_timeout.unwrap_or_default(),
-            command_timeout: command_timeout.unwrap_or_default(),
+            link_timeout: Duration::from_millis(link_timeout.unwrap_or_default()),
+            command_timeout: Duration::from_millis(command_timeout.unwrap_or_default()),
             command_retries: command_retries.unwrap_or_default(),
             failsafe,
             on_mode_refused: *self.on_mode_refused.get_or_insert(OnModeRefused::Hold),
@@ -484,7 +467,7 @@ impl MavlinkSettings {
             errors.add("manual_control", "(table)", rule);
         }
         let mut s = self.manual_control.clone().unwrap_or_default();
-        let pick = |v: &mut Option<AxisOrNone>, d: AxisOrNone| v.get_or_insert(d).axis();
+        let pick = |v: &mut Option<AxisOrNone>, d| Option::from(*v.get_or_insert(d));
         let fields = [
             pick(&mut s.x, AxisOrNone::Pitch),
             pick(&mut s.y, AxisOrNone::Roll),
@@ -535,10 +518,9 @@ impl MavlinkSettings {
                         return AutopilotMode { name, custom_mode };
                     }
                     let names: Vec<&str> = table.iter().map(|(n, _)| *n).collect();
+                    let names = names.join(", ");
                     let rule = format!(
-                        "is not a mode of {}: use one of {} or a custom_mode number",
-                        firmware,
-                        names.join(", ")
+                        "is not a mode of {firmware}: use one of {names} or a custom_mode number"
                     );
                     errors.add(key, format!("\"{name}\""), rule);
                     fallback

@@ -9,7 +9,7 @@ use rove_core::msg::{Mode, MovementCommand};
 use rove_pwm::config::{finish_preset, preset_tables, rename_channels};
 use rove_pwm::{
     ChannelSettings, ChannelSource, ChannelSourceKind, PwmAddressSettings, PwmBackendSettings,
-    PwmVehicleConfig, PwmVehicleSettings,
+    PwmVehicleConfig,
 };
 use std::time::Duration;
 
@@ -47,9 +47,10 @@ pub const DEFAULT_LAND_FRACTION: f64 = 0.4;
 
 rove_core::config_types! {
     /// Mode the U channel is put in by the failsafe.
-    pub keyword FailsafeMode {
-        Atti => "ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock.",
-        Gps => "GPS: also holds position; needs a GPS lock.",
+    pub keyword FailsafeMode -> Mode {
+        Atti => "ATTI: holds attitude and altitude; drifts with wind. Works without GPS lock."
+            = Mode::Assisted,
+        Gps => "GPS: also holds position; needs a GPS lock." = Mode::Auto,
     }
 
     /// What the failsafe does with the throttle.
@@ -59,31 +60,24 @@ rove_core::config_types! {
     }
 
     /// Which corners the sticks go to for the CSC (mode-2 sticks: left = throttle/yaw, right =
-    /// pitch/roll; both always at the bottom).
-    pub keyword CscPattern {
-        Outer => "Left stick bottom-left, right stick bottom-right.",
-        Inner => "Left stick bottom-right, right stick bottom-left.",
-        Left => "Both sticks bottom-left.",
-        Right => "Both sticks bottom-right.",
+    /// pitch/roll; both always at the bottom), and the sticks' positions there.
+    pub keyword CscPattern -> MovementCommand {
+        Outer => "Left stick bottom-left, right stick bottom-right." = csc(-FULL, FULL),
+        Inner => "Left stick bottom-right, right stick bottom-left." = csc(FULL, -FULL),
+        Left => "Both sticks bottom-left." = csc(-FULL, -FULL),
+        Right => "Both sticks bottom-right." = csc(FULL, FULL),
     }
 }
 
-impl CscPattern {
-    /// The stick positions of the pattern.
-    pub fn movement(self) -> MovementCommand {
-        const FULL: i16 = i16::MAX;
-        let (yaw, roll) = match self {
-            CscPattern::Outer => (-FULL, FULL),
-            CscPattern::Inner => (FULL, -FULL),
-            CscPattern::Left => (-FULL, -FULL),
-            CscPattern::Right => (FULL, FULL),
-        };
-        MovementCommand {
-            throttle: -FULL,
-            roll,
-            pitch: -FULL,
-            yaw,
-        }
+const FULL: i16 = i16::MAX;
+
+/// The CSC's stick positions: yaw and roll as given, throttle and pitch at the bottom.
+const fn csc(yaw: i16, roll: i16) -> MovementCommand {
+    MovementCommand {
+        throttle: -FULL,
+        roll,
+        pitch: -FULL,
+        yaw,
     }
 }
 
@@ -160,16 +154,13 @@ const CHANNELS: [(&str, ChannelSourceKind); 5] = [
 
 impl NazaSettings {
     fn safe_mode(&self) -> Mode {
-        match self.failsafe_mode.unwrap_or(FailsafeMode::Atti) {
-            FailsafeMode::Atti => Mode::Assisted,
-            FailsafeMode::Gps => Mode::Auto,
-        }
+        self.failsafe_mode.unwrap_or(FailsafeMode::Atti).into()
     }
 
-    /// The equivalent generic `adapter = "pwm"` settings (A, E, T, R, U; missing tables count
-    /// as empty so their address errors are reported too). The throttle gets a slew limit
-    /// unless one is set, so that it never jumps when control changes hands.
-    pub fn to_generic(&self) -> PwmVehicleSettings {
+    /// The equivalent generic channels (A, E, T, R, U; missing tables count as empty so their
+    /// address errors are reported too). The throttle gets a slew limit unless one is set, so
+    /// that it never jumps when control changes hands.
+    fn channels(&self) -> Vec<ChannelSettings> {
         let sticks = [&self.aileron, &self.elevator, &self.throttle, &self.rudder];
         let mut channels: Vec<ChannelSettings> = (CHANNELS[..4].iter().zip(sticks))
             .map(|((name, source), t)| t.clone().unwrap_or_default().to_channel(name, *source))
@@ -195,11 +186,7 @@ impl NazaSettings {
             failsafe_us: Some(level(failsafe, self.safe_mode())),
             ..ChannelSettings::default()
         });
-        PwmVehicleSettings {
-            pwm: self.pwm.clone(),
-            channels,
-            unknown: UnknownKeys::default(),
-        }
+        channels
     }
 
     /// Validates into a [`NazaConfig`], filling the section's defaults into `self`.
@@ -217,7 +204,7 @@ impl NazaSettings {
         let mode = [self.mode.as_ref().map(|m| &m.unknown)];
         preset_tables(&mut errors, &names[4..], &mode, ModeChannelSettings::KNOWN);
         let hold_ms = *self.csc_hold_ms.get_or_insert(DEFAULT_CSC_HOLD_MS);
-        let hold = errors.millis("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
+        let hold = errors.int("csc_hold_ms", hold_ms, CSC_HOLD_RANGE_MS, " ms");
         let policy = *self.failsafe_policy.get_or_insert(FailsafePolicy::Hover);
         self.failsafe_mode.get_or_insert(FailsafeMode::Atti);
         self.csc.get_or_insert(CscPattern::Outer);
@@ -227,10 +214,9 @@ impl NazaSettings {
             errors.not_for("land_ramp_ms", self.land_ramp_ms, rule);
         }
         let ramp_ms = self.land_ramp_ms.unwrap_or(DEFAULT_LAND_RAMP_MS);
-        let ramp = errors.millis("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
-        let mut generic = self.to_generic();
-        let pwm = generic.validate();
-        self.pwm = generic.pwm;
+        let ramp = errors.int("land_ramp_ms", ramp_ms, LAND_RAMP_RANGE_MS, " ms");
+        let mut channels = self.channels();
+        let pwm = self.pwm.vehicle(&mut channels, ConfigErrors::default());
         let failsafe_throttle = match (policy, &pwm) {
             (FailsafePolicy::Hover, _) | (_, Err(_)) => FailsafeThrottle::Hover,
             (FailsafePolicy::Land, Ok(pwm)) => {
@@ -251,7 +237,7 @@ impl NazaSettings {
                     errors.add("land_throttle_us", floor_us, rule);
                 }
                 let floor_us = u16::try_from(floor_us).unwrap_or(min);
-                let ramp = ramp.unwrap_or_default();
+                let ramp = Duration::from_millis(ramp.unwrap_or_default());
                 FailsafeThrottle::Land { floor_us, ramp }
             }
         };
@@ -260,7 +246,7 @@ impl NazaSettings {
             failsafe_mode: self.safe_mode(),
             failsafe_throttle,
             csc: self.csc.unwrap_or(CscPattern::Outer),
-            csc_hold: hold.unwrap_or_default(),
+            csc_hold: Duration::from_millis(hold.unwrap_or_default()),
         });
         finish_preset(errors, config, |e| rename(e, &names))
     }
@@ -382,14 +368,14 @@ mod tests {
             CscPattern::Left,
             CscPattern::Right,
         ] {
-            let m = p.movement();
+            let m = MovementCommand::from(p);
             assert_eq!((m.throttle, m.pitch), (-i16::MAX, -i16::MAX), "{p:?}");
             assert_eq!(m.roll.abs(), i16::MAX);
             assert_eq!(m.yaw.abs(), i16::MAX);
         }
-        assert_eq!(CscPattern::Outer.movement().yaw, -i16::MAX);
-        assert_eq!(CscPattern::Outer.movement().roll, i16::MAX);
-        assert_eq!(CscPattern::Inner.movement().yaw, i16::MAX);
-        assert_eq!(CscPattern::Inner.movement().roll, -i16::MAX);
+        assert_eq!(MovementCommand::from(CscPattern::Outer).yaw, -i16::MAX);
+        assert_eq!(MovementCommand::from(CscPattern::Outer).roll, i16::MAX);
+        assert_eq!(MovementCommand::from(CscPattern::Inner).yaw, i16::MAX);
+        assert_eq!(MovementCommand::from(CscPattern::Inner).roll, -i16::MAX);
     }
 }

@@ -141,7 +141,7 @@ impl<B: PwmBackend> NazaVehicle<B> {
             NazaState::Failsafe { .. } => Resume::Failsafe,
         };
         let pulses = self.pwm.target_pulses(&Setpoint {
-            movement: self.config.csc.movement(),
+            movement: self.config.csc.into(),
             mode: self.mode,
         });
         self.pwm.write_unlimited(now, &pulses)?;
@@ -219,7 +219,7 @@ impl<B: PwmBackend> OutputAdapter for NazaVehicle<B> {
             NazaState::Csc { until, .. } if now < until => {
                 // The CSC is being held: the setpoint waits. Keep the U level current.
                 let pulses = self.pwm.target_pulses(&Setpoint {
-                    movement: self.config.csc.movement(),
+                    movement: self.config.csc.into(),
                     mode: self.mode,
                 });
                 self.pwm.write_unlimited(now, &pulses)

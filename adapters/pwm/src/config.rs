@@ -45,34 +45,22 @@ rove_core::config_types! {
         Sim => "Records pulses in memory.",
     }
 
-    /// What a channel outputs, as written in `source = …`.
-    pub keyword ChannelSourceKind {
-        Throttle => "The throttle axis.",
-        Roll => "The roll axis (UGV steering).",
-        Pitch => "The pitch axis.",
-        Yaw => "The yaw axis.",
-        Mode => "The mode, as one of three levels.",
-        Constant => "A fixed pulse (`value_us`).",
+    /// What a channel outputs, as written in `source = …`; the axis it outputs, if any.
+    pub keyword ChannelSourceKind -> Option<Axis> {
+        Throttle => "The throttle axis." = Some(Axis::Throttle),
+        Roll => "The roll axis (UGV steering)." = Some(Axis::Roll),
+        Pitch => "The pitch axis." = Some(Axis::Pitch),
+        Yaw => "The yaw axis." = Some(Axis::Yaw),
+        Mode => "The mode, as one of three levels." = None,
+        Constant => "A fixed pulse (`value_us`)." = None,
     }
 
-    /// Output polarity, as the kernel's sysfs `polarity` file spells it.
-    pub keyword Polarity {
-        Normal => "Active high (the pulse is high).",
-        Inversed => "Active low, for an inverting level shifter.",
+    /// Output polarity, as the kernel's sysfs `polarity` file spells it (the word written there).
+    pub keyword Polarity -> &'static str {
+        Normal => "Active high (the pulse is high)." = "normal",
+        Inversed => "Active low, for an inverting level shifter." = "inversed",
     }
-}
 
-impl Polarity {
-    /// The word written to sysfs.
-    pub fn as_sysfs(self) -> &'static str {
-        match self {
-            Polarity::Normal => "normal",
-            Polarity::Inversed => "inversed",
-        }
-    }
-}
-
-rove_core::config_types! {
     /// The backend keys of `[output]`, as written: the one definition shared by `adapter = "pwm"`,
     /// `"eyedrive"` and `"naza"` (flattened into each).
     pub table PwmBackendSettings {
@@ -210,18 +198,39 @@ impl PwmVehicleConfig {
 
 const ONLY_SYSFS: &str = "only applies to backend = \"sysfs\"";
 
+impl PwmVehicleSettings {
+    /// Validates, filling defaults into `self`; keys in errors are relative to `[output]`.
+    ///
+    /// # Errors
+    /// As [`PwmBackendSettings::vehicle`].
+    pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
+        let mut errors = ConfigErrors::default();
+        self.unknown.check(&mut errors, Self::KNOWN);
+        self.pwm.vehicle(&mut self.channels, errors)
+    }
+}
+
 impl PwmBackendSettings {
-    /// The backend (a placeholder after recording a missing one), period and default chip,
-    /// filling defaults.
-    fn validate(&mut self, errors: &mut ConfigErrors) -> (BackendKind, Int, u32) {
-        let backend = self.backend.unwrap_or_else(|| {
+    /// The vehicle these backend keys drive through `channels` (`[[output.channels]]`, or a
+    /// preset's tables as generic channels), filling defaults into both; `errors` holds the
+    /// problems the caller found first.
+    ///
+    /// # Errors
+    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
+    /// key table, does not apply to its backend or source, or repeats a name or an address.
+    pub fn vehicle(
+        &mut self,
+        channels: &mut [ChannelSettings],
+        mut errors: ConfigErrors,
+    ) -> rove_core::Result<PwmVehicleConfig> {
+        let backend_kind = self.backend.unwrap_or_else(|| {
             errors.absent("backend", "must be one of \"sysfs\", \"rppal\", \"sim\"");
             BackendKind::Sim
         });
         let period_us = *self.period_us.get_or_insert(DEFAULT_PERIOD_US.into());
         let rule = " µs (400 Hz to 10 Hz)";
         errors.int::<u32>("period_us", period_us, PERIOD_RANGE_US, rule);
-        if backend == BackendKind::Sysfs {
+        if backend_kind == BackendKind::Sysfs {
             self.sysfs_root
                 .get_or_insert_with(|| DEFAULT_SYSFS_ROOT.into());
             self.chip.get_or_insert(0);
@@ -231,27 +240,14 @@ impl PwmBackendSettings {
             errors.not_for("chip", self.chip, ONLY_SYSFS);
         }
         let chip = errors.opt_int("chip", self.chip, 0..=u32::MAX.into(), "");
-        (backend, period_us, chip.unwrap_or(0))
-    }
-}
-
-impl PwmVehicleSettings {
-    /// Validates, filling defaults into `self`; keys in errors are relative to `[output]`.
-    ///
-    /// # Errors
-    /// [`rove_core::Error::Config`] listing every key that breaks a rule of the crate docs'
-    /// key table, does not apply to its backend or source, or repeats a name or an address.
-    pub fn validate(&mut self) -> rove_core::Result<PwmVehicleConfig> {
-        let mut errors = ConfigErrors::default();
-        self.unknown.check(&mut errors, Self::KNOWN);
-        let (backend_kind, period_us, default_chip) = self.pwm.validate(&mut errors);
-        if self.channels.is_empty() {
+        let default_chip = chip.unwrap_or(0);
+        if channels.is_empty() {
             let rule = "must list at least one channel ([[output.channels]])";
             errors.add("channels", "[]", rule);
         }
-        let (mut channels, mut names, mut addresses) =
+        let (mut validated, mut names, mut addresses) =
             (Vec::new(), Unique::default(), Unique::default());
-        for (i, raw) in self.channels.iter_mut().enumerate() {
+        for (i, raw) in channels.iter_mut().enumerate() {
             let owner = format!("channels[{i}]");
             let channel = errors.within(&owner, |errors| {
                 let channel = raw.validate(backend_kind, default_chip, period_us, errors);
@@ -266,11 +262,11 @@ impl PwmVehicleSettings {
                 }
                 channel
             });
-            channels.extend(channel);
+            validated.extend(channel);
         }
         let backend = match backend_kind {
             BackendKind::Sysfs => BackendConfig::Sysfs {
-                root: (self.pwm.sysfs_root.clone()).unwrap_or_else(|| DEFAULT_SYSFS_ROOT.into()),
+                root: self.sysfs_root.clone().unwrap_or_default(),
             },
             BackendKind::Rppal => BackendConfig::Rppal,
             BackendKind::Sim => BackendConfig::Sim,
@@ -278,7 +274,7 @@ impl PwmVehicleSettings {
         errors.into_result(PwmVehicleConfig {
             backend,
             period: Duration::from_micros(period_us.unsigned_abs()),
-            channels,
+            channels: validated,
         })
     }
 }
@@ -336,7 +332,7 @@ impl PwmAddressSettings {
                 if backend == BackendKind::Rppal {
                     let rule = "software PWM on a GPIO pin has no polarity setting; use a \
                                 hardware `pwm_channel` or invert externally";
-                    errors.not_for("polarity", self.polarity.map(Polarity::as_sysfs), rule);
+                    errors.not_for("polarity", self.polarity.map(<&str>::from), rule);
                 }
                 pin.flatten().map(ChannelAddress::GpioPin)
             }
@@ -424,12 +420,7 @@ impl ChannelSettings {
             }
             axis => {
                 not_for(errors, levels.collect());
-                let axis = match axis {
-                    ChannelSourceKind::Throttle => Axis::Throttle,
-                    ChannelSourceKind::Roll => Axis::Roll,
-                    ChannelSourceKind::Pitch => Axis::Pitch,
-                    _ => Axis::Yaw,
-                };
+                let axis = Option::from(axis).unwrap_or(Axis::Yaw);
                 let map = errors.section("", self.map.validate())?;
                 let source = ChannelSource::Axis(axis, map);
                 let range = map.min_us().into()..=map.max_us().into();

@@ -157,7 +157,7 @@ impl SysfsBackend {
         self.write_attr(&pwm_dir.join("duty_cycle"), &duty_ns.to_string())?;
         if let Some(p) = polarity {
             // Before enable: several drivers refuse a polarity change on a running channel.
-            self.write_attr(&pwm_dir.join("polarity"), p.as_sysfs())?;
+            self.write_attr(&pwm_dir.join("polarity"), p.into())?;
         }
         self.write_attr(&pwm_dir.join("enable"), "1")
     }
