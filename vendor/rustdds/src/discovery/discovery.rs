@@ -226,6 +226,9 @@ pub(crate) struct Discovery {
 
   liveliness_state: LivelinessState,
 
+  // rove patch (ROVE-PATCH.md §6): a quick SPDP response is scheduled and not sent yet.
+  spdp_reply_pending: bool,
+
   participant_status_sender: StatusChannelSender<DomainParticipantStatusEvent>,
 
   // DDS Subscriber and Publisher for Discovery
@@ -616,8 +619,12 @@ impl Discovery {
     let discovery_timer = new_shared_timer::<DiscoveryTimerEvent>();
     {
       let mut t = discovery_timer.borrow_mut();
+      // rove patch (ROVE-PATCH.md §6): the first announcement at once, not after
+      // 100 ms. Our built-in endpoints exist by now; endpoints made later are
+      // announced by SEDP when they are made. A late joiner lists the fleet 0.1 s
+      // sooner.
       t.set_timeout(
-        StdDuration::from_millis(100),
+        StdDuration::from_millis(1),
         DiscoveryTimerEvent::SendParticipantInfo { reschedule: true },
       );
       t.set_timeout(
@@ -667,6 +674,7 @@ impl Discovery {
       participant_status_sender,
 
       liveliness_state: LivelinessState::new(),
+      spdp_reply_pending: false,
 
       // discovery_subscriber,
       // discovery_publisher,
@@ -862,6 +870,9 @@ impl Discovery {
                   };
                   // Only the periodic announce reschedules itself; the one-shot
                   // quick response does not.
+                  if !reschedule {
+                    self.spdp_reply_pending = false; // rove patch (ROVE-PATCH.md §6)
+                  }
                   if reschedule {
                     self.discovery_timer.borrow_mut().set_timeout(
                       Self::SPDP_PUBLISH_PERIOD,
@@ -1079,7 +1090,11 @@ impl Discovery {
       //
       // But not to reply to self, because we know that we exist.
       // TODO: Maybe add some rate-limiting to this to avoid packet storms.
-      if guid_prefix != self.domain_participant.guid().prefix {
+      // rove patch (ROVE-PATCH.md §6): one response covers every participant
+      // discovered before it leaves; before, each scheduled its own, and a node
+      // joining N peers multicast its announcement N times, each to all of them.
+      if guid_prefix != self.domain_participant.guid().prefix && !self.spdp_reply_pending {
+        self.spdp_reply_pending = true;
         // One-shot quick SPDP response on the shared timer (does not reschedule).
         self.discovery_timer.borrow_mut().set_timeout(
           StdDuration::from_millis(10),
