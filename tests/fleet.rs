@@ -2,43 +2,30 @@
 //! DDS partition, and peers that know no partitions still interoperate. Checked against a
 //! foreign DDS implementation (Cyclone DDS, `testkit/rogue.py listen`), not against rove itself.
 
-use crate::util::{Rig, wait_for_output};
-use std::process::{Command, Stdio};
+use crate::util::{Rig, foreign_summary, wait_for_output};
+use std::process::Stdio;
 
 const OPERATOR: i64 = 11;
 /// A foreign vehicle built on the seed IDL alone: no partition, publishes its DeviceInfo.
 const SEED_VEHICLE: i64 = 300;
 
-/// Starts a Cyclone DDS listener in the rig's namespace for `seconds`.
+/// Starts a Cyclone DDS listener (`rogue.py listen ARGS`) in the rig's namespace.
 fn listen(rig: &Rig, args: &[&str]) -> std::process::Child {
-    rove_testkit::require_python_peers();
-    Command::new("ip")
-        .args(["netns", "exec", &rig.ns])
-        .arg(rove_testkit::python())
-        .arg(rove_testkit::rogue_script())
-        .arg("listen")
-        .args(args)
+    let mut all = vec!["listen"];
+    all.extend_from_slice(args);
+    (rig.foreign_peer(&all)
         .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start the listener")
+        .stderr(Stdio::piped()))
+    .spawn()
+    .expect("start the listener")
 }
 
-/// The listener's summary: samples for its id, samples for other vehicles.
+/// The listener's counts once it ends: samples for its id, samples for other vehicles.
 fn heard(child: std::process::Child) -> (i64, i64) {
     let out = child.wait_with_output().expect("the listener ends");
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "listener failed: {text}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_str(text.trim()).expect("summary JSON");
-    assert_eq!(v["matched"], true, "the listener matched no writer: {v}");
-    (
-        v["samples"].as_i64().unwrap_or(-1),
-        v["others"].as_i64().unwrap_or(-1),
-    )
+    let v = foreign_summary(out, &["listen"]);
+    let count = |key: &str| v[key].as_i64().unwrap_or(-1);
+    (count("samples"), count("others"))
 }
 
 #[test]

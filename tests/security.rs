@@ -62,22 +62,16 @@ fn a_secured_fleet_drives_and_an_unauthenticated_peer_matches_nothing() {
     let status = rig.status();
     assert_eq!(status["devices"], serde_json::json!([]), "{status}");
     // A Cyclone DDS peer without keys matches no reader and moves nothing.
-    rove_testkit::require_python_peers();
-    let out = Command::new("ip")
-        .args(["netns", "exec", &rig.ns])
-        .arg(rove_testkit::python())
-        .arg(rove_testkit::rogue_script())
-        .args([
-            "inflate",
-            "--id",
-            "13",
-            "--strength",
-            "340",
-            "--seconds",
-            "1",
-        ])
-        .output()
-        .expect("run the rogue");
+    let args = [
+        "inflate",
+        "--id",
+        "13",
+        "--strength",
+        "340",
+        "--seconds",
+        "1",
+    ];
+    let out = rig.foreign_peer(&args).output().expect("run the rogue");
     let summary = String::from_utf8_lossy(&out.stdout);
     assert!(summary.contains("\"matched\": false"), "{summary}");
     let after = wall_us();

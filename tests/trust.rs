@@ -6,38 +6,19 @@
 //! - no honest operator writes to a vehicle it did not drive;
 //! - the attempt is reported (the vehicle's or the operator's log names it).
 
-use crate::util::{Rig, records, wait_for_output, wall_us};
+use crate::util::{Rig, foreign_summary, records, wait_for_output, wall_us};
 use std::path::Path;
-use std::process::Command;
 
 const V: i64 = 100;
 const LAPTOP: i64 = 11;
 const LAPTOP_THROTTLE: i16 = 1000;
 const ROGUE_THROTTLE: i64 = 31111;
 
-/// Runs one attack of the rogue in the rig's namespace, to its end (bounded by `--seconds`
-/// plus its discovery wait); returns its summary line.
+/// Runs one attack of the rogue in the rig's namespace, to its end (bounded by `--seconds`);
+/// its summary.
 fn rogue(rig: &Rig, args: &[&str]) -> serde_json::Value {
-    rove_testkit::require_python_peers();
-    let out = Command::new("ip")
-        .args(["netns", "exec", &rig.ns])
-        .arg(rove_testkit::python())
-        .arg(rove_testkit::rogue_script())
-        .args(args)
-        .output()
-        .expect("run the rogue");
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "rogue {args:?} failed: {text}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let summary: serde_json::Value = serde_json::from_str(text.trim()).expect("summary JSON");
-    assert_eq!(
-        summary["matched"], true,
-        "the rogue never matched a reader: {summary}"
-    );
-    summary
+    let out = rig.foreign_peer(args).output().expect("run the rogue");
+    foreign_summary(out, args)
 }
 
 /// The laptop drives `V` (sim output recorded); returns the record path. `access` is put in

@@ -86,6 +86,18 @@ impl Rig {
             .cloned()
     }
 
+    /// The foreign DDS peer (Cyclone DDS, `testkit/rogue.py ARGS`) in the rig's namespace, not
+    /// started yet.
+    pub fn foreign_peer(&self, args: &[&str]) -> Command {
+        rove_testkit::require_python_peers();
+        let mut cmd = Command::new("ip");
+        cmd.args(["netns", "exec", &self.ns])
+            .arg(rove_testkit::python())
+            .arg(rove_testkit::rogue_script())
+            .args(args);
+        cmd
+    }
+
     /// The fake autopilot with `args`, in the rig's namespace, recording to
     /// `DIR/autopilot.jsonl`; returns once it is ready.
     pub fn autopilot(&self, args: &[&str]) -> FakeAutopilot {
@@ -104,6 +116,23 @@ impl DerefMut for Rig {
     fn deref_mut(&mut self) -> &mut Self::Target {
         &mut self.0
     }
+}
+
+/// The one-line JSON summary a foreign peer (`Rig::foreign_peer`) printed, once it is known to
+/// have run and matched a rove endpoint.
+pub fn foreign_summary(out: std::process::Output, args: &[&str]) -> Value {
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "foreign peer {args:?} failed: {text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: Value = serde_json::from_str(text.trim()).expect("summary JSON");
+    assert_eq!(
+        summary["matched"], true,
+        "the foreign peer {args:?} never matched: {summary}"
+    );
+    summary
 }
 
 /// A scratch directory of its own for a test that needs no namespace, removed on drop unless
