@@ -226,6 +226,9 @@ pub struct Options {
     pub runs: usize,
     /// Every process joins with DDS Security (a fleet made for the run).
     pub secure: bool,
+    /// The vehicle runs under SCHED_FIFO at this priority (`chrt -f`), as the vehicle unit's
+    /// real-time option does.
+    pub vehicle_rt: Option<u8>,
 }
 
 /// The ids a bench fleet issues certificates for: the vehicle, owner, requester, backups,
@@ -293,6 +296,9 @@ pub fn run(
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let mut rig = Rig::new(rove, "bench")?;
+    if let Some(priority) = options.vehicle_rt {
+        rig.vehicle_wrapper = vec!["chrt".into(), "-f".into(), priority.to_string()];
+    }
     let sec = Sec(match options.secure {
         true => Some(rig.fleet(&bench_ids(options))?),
         false => None,

@@ -282,6 +282,10 @@ enum BenchCommand {
         /// both, back to back for each controller count.
         #[arg(long, value_enum, default_value = "off")]
         security: SecurityMode,
+        /// Run the vehicle under SCHED_FIFO at this priority (`chrt -f`), as the vehicle
+        /// unit's real-time option does.
+        #[arg(long)]
+        vehicle_rt: Option<u8>,
         /// Write one JSON object per scenario run to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -507,6 +511,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     devices,
                     runs,
                     security,
+                    vehicle_rt,
                     json,
                     svg,
                 },
@@ -517,6 +522,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 devices,
                 runs,
                 secure: false,
+                vehicle_rt,
             };
             let outputs = bench::Outputs { json, svg };
             let modes: &[bool] = match security {
