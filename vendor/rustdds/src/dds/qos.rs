@@ -1115,8 +1115,8 @@ pub mod policy {
     pattern[p..].iter().all(|&c| c == b'*')
   }
 
-  impl<C: Context> Writable<C> for Partition {
-    fn write_to<T: ?Sized + Writer<C>>(&self, writer: &mut T) -> Result<(), C::Error> {
+  impl<C: speedy::Context> Writable<C> for Partition {
+    fn write_to<T: ?Sized + speedy::Writer<C>>(&self, writer: &mut T) -> Result<(), C::Error> {
       writer.write_u32(self.names.len() as u32)?;
       let mut at = 4usize;
       for name in &self.names {
@@ -1133,8 +1133,8 @@ pub mod policy {
     }
   }
 
-  impl<'a, C: Context> Readable<'a, C> for Partition {
-    fn read_from<R: Reader<'a, C>>(reader: &mut R) -> Result<Self, C::Error> {
+  impl<'a, C: speedy::Context> Readable<'a, C> for Partition {
+    fn read_from<R: speedy::Reader<'a, C>>(reader: &mut R) -> Result<Self, C::Error> {
       let count = reader.read_u32()?;
       if count > PARTITION_NAMES_MAX {
         return Err(speedy::Error::custom(format!("PARTITION with {count} names")).into());
