@@ -264,9 +264,10 @@ impl Sec {
         rig.spawn(name, &args)
     }
 
-    fn vehicle(&self, rig: &mut Rig) -> PathBuf {
+    /// Starts the vehicle, under SCHED_FIFO at priority `fifo` if given.
+    fn vehicle(&self, rig: &mut Rig, fifo: Option<u8>) -> PathBuf {
         let output = format!("{}[output]\nadapter = \"sim\"\n", self.toml(VEHICLE));
-        rig.vehicle_with_output(VEHICLE, &output)
+        rig.vehicle_scheduled(VEHICLE, &output, fifo)
     }
 }
 
@@ -296,9 +297,6 @@ pub fn run(
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let mut rig = Rig::new(rove, "bench")?;
-    if let Some(priority) = options.vehicle_rt {
-        rig.vehicle_wrapper = vec!["chrt".into(), "-f".into(), priority.to_string()];
-    }
     let sec = Sec(match options.secure {
         true => Some(rig.fleet(&bench_ids(options))?),
         false => None,
@@ -323,7 +321,7 @@ fn passive(
     events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let record = sec.vehicle(rig);
+    let record = sec.vehicle(rig, options.vehicle_rt);
     let backups = options.controllers.saturating_sub(1).min(RANKS.len() - 1);
     let mut successor = None;
     for (i, (level, class)) in RANKS.iter().take(backups).enumerate() {
@@ -374,7 +372,7 @@ fn active(
     events: &mut Follow,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let record = sec.vehicle(rig);
+    let record = sec.vehicle(rig, options.vehicle_rt);
     // The owner accepts every request, as the seed's experiment did.
     // It is the strongest passive controller, so bystanders (all weaker, ranks repeating
     // when there are more bystanders than ranks) never take the vehicle themselves.
@@ -442,43 +440,24 @@ fn latejoin(
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
     let devices = options.devices.max(1);
-    sec.vehicle(rig);
+    sec.vehicle(rig, options.vehicle_rt);
     for i in 1..devices {
         let (level, class) = RANKS[i % RANKS.len()];
         let id = 200 + i as i64;
         rig.operator(id, level, class, &[], 0, &sec.toml(id), &[]);
     }
+    let everyone: std::collections::BTreeSet<i64> = std::iter::once(VEHICLE)
+        .chain((1..devices).map(|i| 200 + i as i64))
+        .collect();
     let mut listed = Vec::new();
     for run in 0..options.runs {
         let t0 = wall_us();
         let p = sec.spawn_status(rig, &format!("joiner-{run}"));
         let path = rig.procs[p].log.clone();
-        let deadline = Instant::now() + harness::PATIENCE;
-        let done = loop {
-            let mut ids = std::collections::BTreeSet::new();
-            let mut at = None;
-            for e in read_events(&path) {
-                if e["kind"] == "device" {
-                    ids.insert(e["id"].as_i64().unwrap_or_default());
-                    if ids.len() == devices && at.is_none() {
-                        at = e["wall_us"].as_u64();
-                    }
-                }
-            }
-            if let Some(at) = at {
-                break at;
-            }
-            anyhow::ensure!(
-                Instant::now() < deadline,
-                "late joiner saw only {} of {devices} devices",
-                ids.len()
-            );
-            std::thread::sleep(Duration::from_millis(5));
-        };
-        // Stopped gracefully, as in `rove bench scale`: a killed joiner stays matched for
-        // rustdds's 50 s lease and loads every later run.
-        rig.procs[p].terminate();
-        rig.procs[p].wait_exit(harness::PATIENCE);
+        let done = harness::wait_listed(&path, &everyone, harness::PATIENCE)
+            .map_err(anyhow::Error::msg)?;
+        // Stopped gracefully: a killed joiner would load every later run.
+        rig.procs[p].stop();
         listed.push(ms(done.saturating_sub(t0)));
         progress(&format!(
             "run {}/{}: all {devices} listed after {:.1} ms",

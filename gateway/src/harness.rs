@@ -65,6 +65,14 @@ impl Proc {
             .is_ok_and(|s| s.success())
     }
 
+    /// SIGTERM, then waits for the exit (at most [`PATIENCE`]). For observers: a killed
+    /// participant stays matched by every peer for rustdds's 50 s lease, and what it no longer
+    /// acknowledges costs every writer repairs, so later measurements would pay for it.
+    pub fn stop(&mut self) {
+        self.terminate();
+        self.wait_exit(PATIENCE);
+    }
+
     /// SIGKILL: a crash.
     pub fn crash(&mut self) {
         let _ = self.child.kill();
@@ -101,8 +109,6 @@ pub struct Rig {
     pub dir: PathBuf,
     /// Started processes, in order.
     pub procs: Vec<Proc>,
-    /// A command vehicles run under, program first (e.g. `chrt -f 20`); empty: none.
-    pub vehicle_wrapper: Vec<String>,
 }
 
 impl Rig {
@@ -121,7 +127,6 @@ impl Rig {
             ns: ns.clone(),
             dir,
             procs: Vec::new(),
-            vehicle_wrapper: Vec::new(),
         };
         // Constructed first, so that a failure half-way still deletes the namespace on drop.
         let setup = [
@@ -145,18 +150,19 @@ impl Rig {
 
     /// Starts `rove ARGS` in the namespace, logging to `DIR/N-NAME.log`; returns its index.
     pub fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
-        self.spawn_wrapped(name, &[], args)
+        self.spawn_scheduled(name, None, args)
     }
 
-    /// [`Rig::spawn`] under `wrapper` (a command and its arguments that runs `rove ARGS`).
-    fn spawn_wrapped(&mut self, name: &str, wrapper: &[String], args: &[&str]) -> usize {
+    /// [`Rig::spawn`], under SCHED_FIFO at priority `fifo` (`chrt -f`) if given.
+    fn spawn_scheduled(&mut self, name: &str, fifo: Option<u8>, args: &[&str]) -> usize {
         let log = self.dir.join(format!("{}-{name}.log", self.procs.len()));
         let file = std::fs::File::create(&log).expect("log file");
+        let chrt = fifo.map(|p| ["chrt".to_string(), "-f".into(), p.to_string()]);
         let child = Command::new("ip")
             .arg("netns")
             .arg("exec")
             .arg(&self.ns)
-            .args(wrapper)
+            .args(chrt.iter().flatten())
             .arg(&self.rove)
             .args(args)
             .env(
@@ -209,6 +215,12 @@ impl Rig {
     /// Starts vehicle `id` with `output_toml` as its `[output]` section, recording its outputs;
     /// returns the record path.
     pub fn vehicle_with_output(&mut self, id: i64, output_toml: &str) -> PathBuf {
+        self.vehicle_scheduled(id, output_toml, None)
+    }
+
+    /// [`Rig::vehicle_with_output`], under SCHED_FIFO at priority `fifo` if given (as the
+    /// vehicle unit's real-time option runs it).
+    pub fn vehicle_scheduled(&mut self, id: i64, output_toml: &str, fifo: Option<u8>) -> PathBuf {
         let config = self.write(
             &format!("vehicle-{id}.toml"),
             &format!("[device]\nid = {id}\nname = \"v{id}\"\n{output_toml}"),
@@ -221,8 +233,7 @@ impl Rig {
             "--record",
             record.to_str().expect("utf-8 path"),
         ];
-        let wrapper = self.vehicle_wrapper.clone();
-        self.spawn_wrapped(&format!("vehicle-{id}"), &wrapper, &args);
+        self.spawn_scheduled(&format!("vehicle-{id}"), fifo, &args);
         record
     }
 
@@ -393,6 +404,42 @@ impl Follow {
             .lines
             .partition_point(|v| v["wall_us"].as_u64().unwrap_or(0) < since_us);
         self.lines[start..].iter().find(|v| matches(v))
+    }
+}
+
+/// Waits until `rove status --events` output at `events` has listed every id of `ids`
+/// (bounded by `patience`); the wall time of the event that completed the list.
+pub fn wait_listed(
+    events: &Path,
+    ids: &std::collections::BTreeSet<i64>,
+    patience: Duration,
+) -> Result<u64, String> {
+    let deadline = Instant::now() + patience;
+    let mut follow = Follow::new(events);
+    let mut seen = std::collections::BTreeSet::new();
+    let mut read = 0;
+    loop {
+        follow.poll();
+        for e in &follow.lines[read..] {
+            let id = e["id"].as_i64().unwrap_or_default();
+            if e["kind"] == "device"
+                && ids.contains(&id)
+                && seen.insert(id)
+                && seen.len() == ids.len()
+            {
+                return Ok(e["wall_us"].as_u64().unwrap_or_default());
+            }
+        }
+        read = follow.lines.len();
+        if Instant::now() > deadline {
+            return Err(format!(
+                "{} listed only {} of {} devices",
+                events.display(),
+                seen.len(),
+                ids.len()
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(5));
     }
 }
 

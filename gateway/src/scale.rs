@@ -20,7 +20,7 @@
 //! lives is stale (its stream fell silent past the command timeout).
 
 use crate::bench::Stats;
-use crate::harness::{self, Follow, Out, Rig, wall_us};
+use crate::harness::{self, Out, Rig, wall_us};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -200,44 +200,14 @@ fn observer(rig: &mut Rig, name: &str) -> PathBuf {
     rig.procs[p].log.clone()
 }
 
-/// Stops the process started last (an observer) gracefully: a killed participant stays
-/// matched by every peer for rustdds's 50 s lease, and what it no longer acknowledges costs
-/// every writer repairs, so later measurements would pay for it.
+/// How long an observer may take to list the whole fleet: generous, 64 processes joining at
+/// once on two cores.
+const LISTING_PATIENCE: Duration = Duration::from_secs(60);
+
+/// Stops the process started last (an observer) gracefully ([`harness::Proc::stop`]).
 fn stop_last(rig: &mut Rig) {
     if let Some(p) = rig.procs.last_mut() {
-        p.terminate();
-        p.wait_exit(harness::PATIENCE);
-    }
-}
-
-/// Waits until the events at `path` have listed every id of `ids`; the wall time of the event
-/// that completed the list.
-fn wait_listed(path: &Path, ids: &BTreeSet<i64>) -> anyhow::Result<u64> {
-    let deadline = Instant::now() + harness::PATIENCE * 4;
-    let mut follow = Follow::new(path);
-    let mut seen = BTreeSet::new();
-    let mut read = 0;
-    loop {
-        follow.poll();
-        for e in &follow.lines[read..] {
-            let id = e["id"].as_i64().unwrap_or_default();
-            if e["kind"] == "device"
-                && ids.contains(&id)
-                && seen.insert(id)
-                && seen.len() == ids.len()
-            {
-                return Ok(e["wall_us"].as_u64().unwrap_or_default());
-            }
-        }
-        read = follow.lines.len();
-        anyhow::ensure!(
-            Instant::now() < deadline,
-            "{} listed only {} of {} devices",
-            path.display(),
-            seen.len(),
-            ids.len()
-        );
-        std::thread::sleep(Duration::from_millis(5));
+        p.stop();
     }
 }
 
@@ -260,17 +230,12 @@ pub fn run(
     // Only the measured vehicle runs real-time: on a real board each vehicle has its own
     // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
     // real-time on these two cores starves the operators: measured, stale outputs everywhere.)
-    let mut records = Vec::new();
-    for &v in &vehicles {
-        rig.vehicle_wrapper = match options.vehicle_rt {
-            Some(priority) if v == FIRST_VEHICLE => {
-                vec!["chrt".into(), "-f".into(), priority.to_string()]
-            }
-            _ => Vec::new(),
-        };
-        records.push(rig.vehicle_with_output(v, &output));
-    }
-    rig.vehicle_wrapper.clear();
+    let records: Vec<PathBuf> = (vehicles.iter())
+        .map(|&v| {
+            let fifo = options.vehicle_rt.filter(|_| v == FIRST_VEHICLE);
+            rig.vehicle_scheduled(v, &output, fifo)
+        })
+        .collect();
     let mut drives = BTreeMap::new();
     for (i, &id) in operators.iter().enumerate() {
         let vehicle = vehicles[i % vehicles.len()];
@@ -287,7 +252,7 @@ pub fn run(
     let everyone: BTreeSet<i64> = vehicles.iter().chain(&operators).copied().collect();
     if options.idle {
         let path = observer(&mut rig, "observer");
-        wait_listed(&path, &everyone)?;
+        harness::wait_listed(&path, &everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
         stop_last(&mut rig);
     } else {
         for (&vehicle, record) in vehicles.iter().zip(&records) {
@@ -342,7 +307,8 @@ pub fn run(
     for run in 0..options.latejoin_runs {
         let t0 = wall_us();
         let path = observer(&mut rig, &format!("joiner-{run}"));
-        let done = wait_listed(&path, &everyone)?;
+        let done =
+            harness::wait_listed(&path, &everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
         stop_last(&mut rig);
         latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
         progress(&format!(
