@@ -38,7 +38,10 @@ async fn run() -> std::io::Result<()> {
     let (_buttons, actions) = mpsc::channel(16);
     if let Some(path) = std::env::args_os().nth(1) {
         let socket = ApiSocket::bind(path.as_ref()).map_err(std::io::Error::other)?;
-        tokio::spawn(socket.serve(state.clone(), events.subscribe(), commands.clone()));
+        tokio::spawn(socket.serve(
+            rove_console::server::Hub::start(state.clone(), events.subscribe()),
+            commands.clone(),
+        ));
     }
     let console = tokio::spawn(rove_console::run_terminal(
         state,

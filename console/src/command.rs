@@ -16,6 +16,8 @@ pub enum Source {
     Console,
     /// An API client; the number counts connections since the server started.
     Api(u64),
+    /// A browser paired through `[web]`, speaking for this device id.
+    Web(rove_core::msg::DeviceId),
 }
 
 /// A command on its way to the operator, with the channel for its answer.

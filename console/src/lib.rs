@@ -19,7 +19,7 @@
 //! - [`keys`]: keys and joystick buttons → commands, with on-screen confirmation.
 //! - [`view`]: drawing; the device table shared with `rove status --watch`.
 //! - [`api`]: the NDJSON wire format: command parsing, replies, event lines.
-//! - [`server`]: the Unix-socket server.
+//! - [`server`]: the event hub every front end joins, and the Unix-socket server.
 //! - [`terminal`]: the interactive terminal loop.
 //! - [`error`]: [`ApiError`], the one error type.
 //!
@@ -43,6 +43,6 @@ pub use command::{Command, CommandRequest, CommandResult, Source};
 pub use error::{ApiError, Result};
 pub use keys::{on_action, on_key};
 pub use model::{ConsoleState, Event, Identity, Stamped};
-pub use server::ApiSocket;
+pub use server::{ApiSocket, Hub, Joined};
 pub use terminal::run_terminal;
 pub use view::{DeviceRow, device_table, render, render_status};

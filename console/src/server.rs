@@ -94,68 +94,122 @@ impl ApiSocket {
         &self.path
     }
 
-    /// Serves clients until `events` closes (the operator dropped its sender). `mirror` is the
-    /// state before the first event received here (usually `ConsoleState::new`).
+    /// Serves clients from `hub` until the hub stops (the operator dropped its events).
+    /// Commands go to `commands`.
     ///
     /// # Errors
     /// None today; the `Result` leaves room for fatal listener errors.
-    pub async fn serve(
-        self,
-        mut mirror: ConsoleState,
-        mut events: broadcast::Receiver<Stamped>,
-        commands: mpsc::Sender<CommandRequest>,
-    ) -> Result<()> {
-        let mut clients: Vec<Client> = Vec::new();
+    pub async fn serve(self, hub: Hub, commands: mpsc::Sender<CommandRequest>) -> Result<()> {
         let mut next_id = 0u64;
-        let offline_after_ms = u64::try_from(mirror.offline_after.as_millis()).unwrap_or(u64::MAX);
         loop {
-            tokio::select! {
-                accepted = self.listener.accept() => match accepted {
-                    Ok((stream, _)) => {
-                        clients.retain(|c| !c.tx.is_closed());
-                        next_id += 1;
-                        if clients.len() >= MAX_CLIENTS {
-                            warn!(clients = clients.len(), "API: too many clients, refusing one");
+            match self.listener.accept().await {
+                Ok((stream, _)) => {
+                    next_id += 1;
+                    match hub.join().await {
+                        Joined::Lines(rx) => {
+                            debug!(client = next_id, "API client connected");
+                            tokio::spawn(client_task(stream, rx, commands.clone(), next_id));
+                        }
+                        Joined::Busy => {
+                            warn!("API: too many clients, refusing one");
                             tokio::spawn(refuse_client(stream));
-                            continue;
                         }
-                        let (tx, rx) = mpsc::channel(CLIENT_QUEUE);
-                        let mut client = Client { tx, missed: 0 };
-                        client.deliver(hello_json(mirror.now, offline_after_ms));
-                        for stamped in mirror.snapshot() {
-                            if let Some(line) = event_json(&stamped) {
-                                client.deliver(line);
-                            }
-                        }
-                        debug!(client = next_id, "API client connected");
-                        tokio::spawn(client_task(stream, rx, commands.clone(), next_id));
-                        clients.push(client);
+                        Joined::Stopped => return Ok(()),
                     }
-                    Err(e) => {
-                        // EMFILE and the like: back off instead of spinning on the error.
-                        warn!(cause = %e, "API: accept failed");
-                        tokio::time::sleep(Duration::from_millis(100)).await;
-                    }
-                },
-                event = events.recv() => match event {
-                    Ok(stamped) => {
-                        let line = event_json(&stamped);
-                        mirror.apply(stamped.at, stamped.event);
-                        if let Some(line) = line {
-                            clients.retain_mut(|c| c.deliver(line.clone()));
-                        }
-                    }
-                    Err(broadcast::error::RecvError::Lagged(n)) => {
-                        // The hub itself fell behind: every client missed these, and the
-                        // mirror may be stale until the next heartbeats.
-                        warn!(missed = n, "API hub lagged behind the operator's events");
-                        for c in &mut clients {
-                            c.missed = c.missed.saturating_add(n);
-                        }
-                    }
-                    Err(broadcast::error::RecvError::Closed) => return Ok(()),
-                },
+                }
+                Err(e) => {
+                    // EMFILE and the like: back off instead of spinning on the error.
+                    warn!(cause = %e, "API: accept failed");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
             }
+        }
+    }
+}
+
+/// What joining the [`Hub`] gives.
+#[derive(Debug)]
+pub enum Joined {
+    /// The client's lines: `hello`, the snapshot, then every event, in order.
+    Lines(mpsc::Receiver<String>),
+    /// [`MAX_CLIENTS`] are connected.
+    Busy,
+    /// The operator stopped.
+    Stopped,
+}
+
+/// The event hub of one operator, whatever the transport of its clients (the local API's Unix
+/// socket, the browser console's WebSocket). Cheap to clone.
+#[derive(Debug, Clone)]
+pub struct Hub {
+    joins: mpsc::Sender<oneshot::Sender<Joined>>,
+}
+
+impl Hub {
+    /// Starts the hub task. `mirror` is the state before the first event received here
+    /// (usually `ConsoleState::new`); the hub stops when `events` closes. Must be called inside
+    /// a tokio runtime.
+    pub fn start(mirror: ConsoleState, events: broadcast::Receiver<Stamped>) -> Hub {
+        let (joins, rx) = mpsc::channel(16);
+        tokio::spawn(hub_task(mirror, events, rx));
+        Hub { joins }
+    }
+
+    /// A new client's lines, or why not.
+    pub async fn join(&self) -> Joined {
+        let (tx, rx) = oneshot::channel();
+        if self.joins.send(tx).await.is_err() {
+            return Joined::Stopped;
+        }
+        rx.await.unwrap_or(Joined::Stopped)
+    }
+}
+
+async fn hub_task(
+    mut mirror: ConsoleState,
+    mut events: broadcast::Receiver<Stamped>,
+    mut joins: mpsc::Receiver<oneshot::Sender<Joined>>,
+) {
+    let mut clients: Vec<Client> = Vec::new();
+    let offline_after_ms = u64::try_from(mirror.offline_after.as_millis()).unwrap_or(u64::MAX);
+    loop {
+        tokio::select! {
+            Some(join) = joins.recv() => {
+                clients.retain(|c| !c.tx.is_closed());
+                if clients.len() >= MAX_CLIENTS {
+                    let _ = join.send(Joined::Busy);
+                    continue;
+                }
+                let (tx, rx) = mpsc::channel(CLIENT_QUEUE);
+                let mut client = Client { tx, missed: 0 };
+                client.deliver(hello_json(mirror.now, offline_after_ms));
+                for stamped in mirror.snapshot() {
+                    if let Some(line) = event_json(&stamped) {
+                        client.deliver(line);
+                    }
+                }
+                if join.send(Joined::Lines(rx)).is_ok() {
+                    clients.push(client);
+                }
+            }
+            event = events.recv() => match event {
+                Ok(stamped) => {
+                    let line = event_json(&stamped);
+                    mirror.apply(stamped.at, stamped.event);
+                    if let Some(line) = line {
+                        clients.retain_mut(|c| c.deliver(line.clone()));
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    // The hub itself fell behind: every client missed these, and the
+                    // mirror may be stale until the next heartbeats.
+                    warn!(missed = n, "API hub lagged behind the operator's events");
+                    for c in &mut clients {
+                        c.missed = c.missed.saturating_add(n);
+                    }
+                }
+                Err(broadcast::error::RecvError::Closed) => return,
+            },
         }
     }
 }
@@ -233,7 +287,7 @@ async fn client_task(
                     if raw.as_ref().is_ok_and(|l| l.trim_ascii().is_empty()) {
                         continue;
                     }
-                    answer(raw, line_no, &commands, id).await.to_json()
+                    answer(raw, line_no, &commands, Source::Api(id)).await.to_json()
                 }
                 Ok(None) => return,
                 Err(e) => {
@@ -250,11 +304,13 @@ async fn client_task(
     }
 }
 
-async fn answer(
+/// The reply to one command line (`raw`, or why it could not be read) from `source`: parsed,
+/// carried out by the operator through `commands`, answered within [`REPLY_TIMEOUT`].
+pub async fn answer(
     raw: std::result::Result<Vec<u8>, ApiError>,
     line: u64,
     commands: &mpsc::Sender<CommandRequest>,
-    id: u64,
+    source: Source,
 ) -> ApiReply {
     let command = match raw.and_then(|raw| parse_command_bytes(&raw)) {
         Ok(c) => c,
@@ -268,7 +324,7 @@ async fn answer(
     let (reply, answer) = oneshot::channel();
     let request = CommandRequest {
         command,
-        source: Source::Api(id),
+        source,
         reply,
     };
     if commands.send(request).await.is_err() {
@@ -412,7 +468,7 @@ mod tests {
         fake_operator(cmd_rx);
         let mut mirror = ConsoleState::new(me(), Duration::from_secs(3));
         mirror.apply(ms(0), seen(100, "rover-1", DeviceKind::Vehicle, 100));
-        let server = tokio::spawn(socket.serve(mirror, events_rx, cmd_tx));
+        let server = tokio::spawn(socket.serve(Hub::start(mirror, events_rx), cmd_tx));
 
         let stream = UnixStream::connect(&path).await.expect("connect");
         let (read, mut write) = stream.into_split();
@@ -490,7 +546,7 @@ mod tests {
         let (events_tx, events_rx) = broadcast::channel(8192);
         let (cmd_tx, _cmd_rx) = mpsc::channel(8);
         let mirror = ConsoleState::new(me(), Duration::from_secs(3));
-        tokio::spawn(socket.serve(mirror, events_rx, cmd_tx));
+        tokio::spawn(socket.serve(Hub::start(mirror, events_rx), cmd_tx));
         let stream = UnixStream::connect(&path).await.expect("connect");
         let (read, _write) = stream.into_split();
         let mut reader = BufReader::new(read).lines();

@@ -17,6 +17,7 @@
 //! - [`arbiter`]: the per-vehicle ownership state machine (docs/design.md §4).
 //! - [`handover`]: REQUEST / ACCEPT / REFUSE / FINISH for requester and replier.
 //! - [`session`]: the operator's decisions (streaming, input liveness, commands, handover).
+//! - [`remote`]: stale-input rules for a remote front end (the browser console).
 //! - [`watchdog`]: the command timeout and liveness watchdog.
 //! - [`mapping`]: axis → µs (min/centre/max, trim, reverse, deadband, expo, slew), mode levels.
 //! - [`adapter`]: output-adapter and input-source traits.
@@ -39,6 +40,7 @@ pub mod handover;
 pub mod hierarchy;
 pub mod mapping;
 pub mod msg;
+pub mod remote;
 pub mod session;
 pub mod sim;
 pub mod time;

@@ -6,6 +6,7 @@
 //! - [`config`]: TOML files → validated configs; errors name file, line and key.
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
+//! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
 //! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover` and `input`;
 //!   [`chaos`]: `rove bench chaos` (random faults and packet loss, counted against the contract).
@@ -33,3 +34,4 @@ pub mod scale;
 pub mod sdnotify;
 pub mod status;
 pub mod vehicle;
+pub mod web;

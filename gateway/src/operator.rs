@@ -102,17 +102,81 @@ async fn next_status(
     }
 }
 
-/// Runs the operator role until `shutdown` completes or the console is closed.
+/// What a front end that is not this process's (the browser console, `crate::web`) hands the
+/// operator loop: its input, its clock, and the channels of its events and commands.
+#[derive(Debug)]
+pub struct Attached {
+    /// The sticks.
+    pub input: crate::web::WebInput,
+    /// Notified when `input` has something new.
+    pub wake: Arc<tokio::sync::Notify>,
+    /// The clock `input`'s times are on.
+    pub clock: Clock,
+    /// Where the loop's events go (the front end's hub subscribes).
+    pub events: tokio::sync::broadcast::Sender<Stamped>,
+    /// The front end's commands.
+    pub commands: tokio::sync::mpsc::Receiver<CommandRequest>,
+}
+
+/// The input the loop reads.
+enum Device {
+    Evdev(rove_inputs::MappedSource),
+    Web(crate::web::WebInput),
+}
+
+impl Device {
+    fn source(&mut self) -> &mut dyn InputSource {
+        match self {
+            Device::Evdev(d) => d,
+            Device::Web(w) => w,
+        }
+    }
+
+    fn next_deadline(&self) -> Option<rove_core::time::MonoTime> {
+        match self {
+            Device::Evdev(d) => d.next_deadline(),
+            Device::Web(w) => w.next_deadline(),
+        }
+    }
+
+    /// Whether the deadman is held, and the link in words, for the console.
+    fn link(&self) -> (Option<bool>, String) {
+        match self {
+            Device::Evdev(d) => {
+                let status = d.status();
+                (status.deadman, status.to_string())
+            }
+            Device::Web(w) => w.status(),
+        }
+    }
+}
+
+/// Runs the operator role until `shutdown` completes or the console is closed; with `[web]`,
+/// the browser console and its devices too.
 ///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, the input cannot be opened,
-/// the API socket cannot be bound, or the record cannot be opened.
+/// the API socket or the web console cannot be bound, or the record cannot be opened.
 pub async fn run(
     config: OperatorConfig,
     options: Options,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let clock = Clock::start();
+    run_attached(config, options, None, shutdown).await
+}
+
+/// [`run`], or with `attached`, one web device's loop (its input and console are a browser's).
+///
+/// # Errors
+/// As [`run`].
+pub async fn run_attached(
+    config: OperatorConfig,
+    options: Options,
+    attached: Option<Attached>,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
+    let clock = attached.as_ref().map_or_else(Clock::start, |a| a.clock);
+    let host = attached.is_none();
     let mut notify = Notifier::from_env();
     let mut record = options
         .record
@@ -163,8 +227,14 @@ pub async fn run(
         "operator started"
     );
 
-    let wake = Arc::new(tokio::sync::Notify::new());
+    let wake = attached
+        .as_ref()
+        .map_or_else(|| Arc::new(tokio::sync::Notify::new()), |a| Arc::clone(&a.wake));
     let (input, mut device) = match &config.input {
+        _ if attached.is_some() => {
+            let web = attached.as_ref().map(|a| a.input.clone());
+            (SessionInput::Device, web.map(Device::Web))
+        }
         InputChoice::Constant(movement, mode) => (SessionInput::Constant(*movement, *mode), None),
         InputChoice::Device(input) => {
             let mut source =
@@ -172,7 +242,7 @@ pub async fn run(
             let waker = Arc::clone(&wake);
             source.set_waker(Arc::new(move || waker.notify_one()));
             info!(input = %source.describe(), "input opened: driving starts when its sticks are live and centred");
-            (SessionInput::Device, Some(source))
+            (SessionInput::Device, Some(Device::Evdev(source)))
         }
     };
     let mut session = OperatorSession::new(
@@ -204,8 +274,11 @@ pub async fn run(
         strength: config.strength,
     };
     let mirror = ConsoleState::new(identity.clone(), config.common.heartbeat * 3);
-    let (events_tx, _) = tokio::sync::broadcast::channel::<Stamped>(1024);
-    let (commands_tx, mut commands) = tokio::sync::mpsc::channel::<CommandRequest>(64);
+    let (commands_tx, own_commands) = tokio::sync::mpsc::channel::<CommandRequest>(64);
+    let (events_tx, mut commands) = match attached {
+        Some(a) => (a.events, a.commands),
+        None => (tokio::sync::broadcast::channel::<Stamped>(1024).0, own_commands),
+    };
     let (actions_tx, actions_rx) = tokio::sync::mpsc::channel::<InputAction>(64);
     let mut ui = Ui {
         tx: events_tx.clone(),
@@ -219,13 +292,26 @@ pub async fn run(
         let socket = rove_console::ApiSocket::bind(path)
             .map_err(|e| anyhow::anyhow!("local API socket: {e}"))?;
         info!(path = %path.display(), "local API listening");
-        let serve = socket.serve(mirror.clone(), events_tx.subscribe(), commands_tx.clone());
+        let hub = rove_console::Hub::start(mirror.clone(), events_tx.subscribe());
+        let serve = socket.serve(hub, commands_tx.clone());
         tokio::spawn(async move {
             if let Err(e) = serve.await {
                 warn!(cause = %e, "local API stopped");
             }
         });
     }
+    // The browser console: its devices are operators of their own (crate::web), stopped with us.
+    let (web_stop, web_stopped) = tokio::sync::oneshot::channel::<()>();
+    let web = match &config.web {
+        Some(web) if host => {
+            let console =
+                crate::web::WebConsole::bind(web, &options, events_tx.clone(), clock).await?;
+            Some(tokio::spawn(console.run(async {
+                let _ = web_stopped.await;
+            })))
+        }
+        _ => None,
+    };
     let terminal = options.console.then(|| {
         rove_console::run_terminal(
             mirror.clone(),
@@ -244,11 +330,8 @@ pub async fn run(
     };
     tokio::pin!(terminal);
     ui.emit(Event::Identity(identity));
-    let input_link = |device: Option<&rove_inputs::MappedSource>| match device {
-        Some(d) => {
-            let status = d.status();
-            (status.deadman, status.to_string())
-        }
+    let input_link = |device: Option<&Device>| match device {
+        Some(d) => d.link(),
         None => (None, "constant sticks (config)".to_string()),
     };
     let mut link = input_link(device.as_ref());
@@ -285,7 +368,7 @@ pub async fn run(
         let deadline = session.next_deadline().map(|d| clock.instant(d));
         let input_deadline = device
             .as_ref()
-            .and_then(InputSource::next_deadline)
+            .and_then(Device::next_deadline)
             .map(|d| clock.instant(d));
         let step =
             |session: &mut OperatorSession, event| session.step(clock.now(), clock.stamp(), event);
@@ -434,6 +517,12 @@ pub async fn run(
         }
     }
 
+    if let Some(web) = web {
+        let _ = web_stop.send(());
+        if let Err(e) = web.await {
+            warn!(cause = %e, "web console failed");
+        }
+    }
     info!("operator stopping: finishing grants and releasing vehicles");
     notify.stopping("stopping: finishing grants, releasing vehicles");
     let effects = session.stop(clock.stamp());
@@ -479,7 +568,7 @@ pub async fn run(
 
 /// Reads every event the input has now and steps the session with each.
 fn poll_input(
-    device: Option<&mut rove_inputs::MappedSource>,
+    device: Option<&mut Device>,
     session: &mut OperatorSession,
     clock: &Clock,
     mut record: Option<&mut JsonLines>,
@@ -487,6 +576,7 @@ fn poll_input(
     let Some(device) = device else {
         return Vec::new();
     };
+    let device = device.source();
     let mut effects = Vec::new();
     for _ in 0..INPUT_EVENTS_PER_TURN {
         let event = match device.poll(clock.now()) {
