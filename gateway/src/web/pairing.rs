@@ -209,7 +209,7 @@ mod tests {
     #[test]
     fn devices_are_taken_free_first_then_the_oldest_unconnected_never_a_connected_one() {
         let mut p = Pairing::new(s(0), 2, SESSION, rnd(1));
-        let mut pair = |p: &mut Pairing, t, connected: fn(usize) -> bool, r| {
+        let pair = |p: &mut Pairing, t, connected: fn(usize) -> bool, r| {
             let code = p.renew(s(t), rnd(r)).to_string();
             p.pair(s(t), &code, connected, rnd(r + 100))
         };

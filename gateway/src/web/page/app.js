@@ -14,7 +14,8 @@ const state = {
   selected: null, prompt: null, offlineAfter: 3000, tOffset: 0,
 };
 // For tests and the curious: the socket's state and when a finger last moved a stick.
-window.rove = { connected: false, frames: 0, touchWallMs: 0, state };
+// `drop()` closes the socket as a radio loss would (tests, diagnostics).
+window.rove = { connected: false, frames: 0, touchWallMs: 0, state, drop: () => ws && ws.close() };
 
 let ws = null;
 let backoff = 250;
@@ -102,7 +103,20 @@ function onEvent(e) {
     case "notice": notice(e.text); break;
     case "lagged": notice(`missed ${e.missed} updates`); break;
   }
+  autoSelect();
   render();
+}
+
+// Nothing selected yet: the vehicle this device streams to (its `drive` list), else the only
+// vehicle there is. Selecting moves nothing.
+let selecting = false;
+function autoSelect() {
+  if (state.selected != null || selecting) return;
+  const s = state.streams;
+  const ours = [...(s.driving || []), ...(s.holding || []), ...(s.standby || []), ...(s.paused || [])];
+  const vehicles = [...state.devices.values()].filter((d) => d.kind === "vehicle").map((d) => d.id);
+  const pick = ours.find((v) => vehicles.includes(v)) ?? (vehicles.length === 1 ? vehicles[0] : null);
+  if (pick != null) { selecting = true; command("select", { vehicle: pick }); setTimeout(() => { selecting = false; }, 1000); }
 }
 
 function label(id) {
@@ -141,7 +155,7 @@ function render() {
       const owner = state.owner.get(id);
       const fs = state.status.get(id);
       text += owner === me ? " · you drive" : owner === id || (fs && fs.failsafe) ? " · failsafe" : ` · ${label(owner)}`;
-      li.addEventListener("click", () => command("select", { vehicle: id }));
+      onTap(li, () => command("select", { vehicle: id }));
     } else if (id === me) {
       text += " · this device";
     }
@@ -179,8 +193,24 @@ setInterval(render, 1000); // online → offline as time passes
 
 // ---- buttons: what moves a vehicle is confirmed with a second tap naming it -------------------
 
+// A tap: pointer down and up on the element. Not `click`: browsers make no click of a tap while
+// another finger is down, and a thumb holds a stick (the deadman) while the other taps Accept.
+// Keyboard activation (a click with no pointer) counts too.
+function onTap(el, action) {
+  let down = null;
+  el.addEventListener("pointerdown", (e) => { down = e.pointerId; });
+  el.addEventListener("pointerup", (e) => {
+    if (e.pointerId !== down) return;
+    down = null;
+    const r = el.getBoundingClientRect();
+    if (e.clientX >= r.left && e.clientX <= r.right && e.clientY >= r.top && e.clientY <= r.bottom) action(e);
+  });
+  el.addEventListener("pointercancel", () => { down = null; });
+  el.addEventListener("click", (e) => { if (e.detail === 0) action(e); });
+}
+
 function armed(button, text, action) {
-  button.addEventListener("click", () => {
+  onTap(button, () => {
     if (button.classList.contains("armed")) {
       button.classList.remove("armed");
       button.textContent = button.dataset.label;
@@ -196,13 +226,13 @@ function armed(button, text, action) {
 
 armed($("drive"), () => `Drive ${label(state.selected)}?`, () => command("drive", { vehicle: state.selected }));
 armed($("request"), () => `Ask for ${label(state.selected)}?`, () => command("request", { vehicle: state.selected }));
-$("finish").addEventListener("click", () => command("finish", { vehicle: state.selected }));
-$("release").addEventListener("click", () => command("release", { vehicle: state.selected }));
+onTap($("finish"), () => command("finish", { vehicle: state.selected }));
+onTap($("release"), () => command("release", { vehicle: state.selected }));
 for (const b of document.querySelectorAll("#modes button")) {
   armed(b, () => `${b.dataset.mode}?`, () => command("mode", { mode: b.dataset.mode }));
 }
-$("accept").addEventListener("click", () => { if (state.prompt) command("accept", { vehicle: state.prompt.vehicle }); });
-$("refuse").addEventListener("click", () => { if (state.prompt) command("refuse", { vehicle: state.prompt.vehicle }); });
+onTap($("accept"), () => { if (state.prompt) command("accept", { vehicle: state.prompt.vehicle }); });
+onTap($("refuse"), () => { if (state.prompt) command("refuse", { vehicle: state.prompt.vehicle }); });
 
 // ---- sticks: each follows one finger from where it touched (so a touch starts centred) --------
 

@@ -1,0 +1,542 @@
+//! The browser operator console (`[web]`, docs/web.md) in a real browser: Debian's chromium,
+//! driven through chromedriver (WebDriver, the `fantoccini` client) with touch emulation, both
+//! inside the test's network namespace. The test reaches chromedriver through a Unix socket
+//! (socat in the namespace), so nothing of the browser ever runs outside it.
+//!
+//! `ROVE_WEB_SHOTS=DIR` saves the phone and tablet screenshots there (docs/web.md's come from
+//! this).
+
+use crate::util::{Rig, eventually, records, wait_for_output, wall_us};
+use rove_testkit::require_tool;
+use fantoccini::{Client, ClientBuilder, Locator};
+use serde_json::{Value, json};
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+const PHONE: i64 = 40;
+const LAPTOP: i64 = 11;
+const VEHICLE: i64 = 100;
+const PORT: u16 = 8443;
+
+/// Connects hyper (under fantoccini) to a Unix socket, whatever the URL says.
+#[derive(Clone, Debug)]
+struct UnixConnector(Arc<PathBuf>);
+
+type Connecting = Pin<
+    Box<
+        dyn Future<Output = std::io::Result<hyper_util::rt::TokioIo<tokio::net::UnixStream>>>
+            + Send,
+    >,
+>;
+
+impl tower_service::Service<hyper::Uri> for UnixConnector {
+    type Response = hyper_util::rt::TokioIo<tokio::net::UnixStream>;
+    type Error = std::io::Error;
+    type Future = Connecting;
+
+    fn poll_ready(&mut self, _: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, _: hyper::Uri) -> Self::Future {
+        let path = Arc::clone(&self.0);
+        Box::pin(async move {
+            let stream = tokio::net::UnixStream::connect(&*path).await?;
+            Ok(hyper_util::rt::TokioIo::new(stream))
+        })
+    }
+}
+
+/// chromedriver's DevTools passthrough (`goog/cdp/execute`) with a command and its parameters.
+#[derive(Debug)]
+struct Cdp(Value);
+
+impl fantoccini::wd::WebDriverCompatibleCommand for Cdp {
+    fn endpoint(&self, base: &url::Url, session: Option<&str>) -> Result<url::Url, url::ParseError> {
+        base.join(&format!("session/{}/goog/cdp/execute", session.unwrap_or_default()))
+    }
+
+    fn method_and_body(&self, _: &url::Url) -> (hyper::Method, Option<String>) {
+        (hyper::Method::POST, Some(self.0.to_string()))
+    }
+}
+
+/// A viewport: CSS pixels and touch.
+#[derive(Clone, Copy, Debug)]
+struct Viewport {
+    width: u32,
+    height: u32,
+}
+
+const PHONE_VIEW: Viewport = Viewport {
+    width: 360,
+    height: 740,
+};
+const TABLET_VIEW: Viewport = Viewport {
+    width: 1024,
+    height: 768,
+};
+
+/// chromedriver and chromium in the rig's namespace, and a WebDriver session.
+struct Browser {
+    /// Where the first finger is down, if it is.
+    finger: std::cell::Cell<Option<(i64, i64)>>,
+    rt: tokio::runtime::Runtime,
+    client: Client,
+    driver: Child,
+    bridge: Child,
+}
+
+impl Browser {
+    fn start(rig: &Rig, view: Viewport, port: u16) -> Browser {
+        require_tool("chromium", "chromium");
+        require_tool("chromedriver", "chromium-driver");
+        require_tool("socat", "socat");
+        let log = std::fs::File::create(rig.dir.join(format!("chromedriver-{port}.log")))
+            .expect("log");
+        let in_ns = |program: &str| {
+            let mut c = Command::new("ip");
+            c.args(["netns", "exec", &rig.ns, program]);
+            c
+        };
+        let driver = in_ns("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(log.try_clone().expect("log"))
+            .stderr(log)
+            .spawn()
+            .expect("chromedriver");
+        let socket = rig.dir.join(format!("webdriver-{port}.sock"));
+        let bridge = in_ns("socat")
+            .arg(format!("UNIX-LISTEN:{},fork", socket.display()))
+            .arg(format!("TCP:127.0.0.1:{port}"))
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("socat");
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("runtime");
+        let caps = json!({
+            "browserName": "chrome",
+            // The console's certificate is self-signed (made at start).
+            "acceptInsecureCerts": true,
+            "goog:chromeOptions": {
+                "binary": "/usr/bin/chromium",
+                "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                         "--disable-dev-shm-usage", "--no-first-run"],
+                "mobileEmulation": {
+                    "deviceMetrics": {
+                        "width": view.width, "height": view.height,
+                        "pixelRatio": 2, "touch": true,
+                    },
+                },
+            },
+        });
+        let Value::Object(caps) = caps else {
+            unreachable!("a JSON object")
+        };
+        let connector = UnixConnector(Arc::new(socket));
+        let client = eventually("chromedriver takes a session", || {
+            rt.block_on(
+                ClientBuilder::new(connector.clone())
+                    .capabilities(caps.clone())
+                    .connect("http://localhost"),
+            )
+        });
+        Browser {
+            finger: std::cell::Cell::new(None),
+            rt,
+            client,
+            driver,
+            bridge,
+        }
+    }
+
+    fn run<T>(&self, f: impl Future<Output = T>) -> T {
+        self.rt.block_on(f)
+    }
+
+    fn js(&self, script: &str) -> Value {
+        self.run(self.client.execute(script, vec![]))
+            .unwrap_or_else(|e| panic!("{script}: {e}"))
+    }
+
+    fn text(&self, css: &str) -> String {
+        let script = format!("return document.querySelector({css:?}).textContent");
+        self.js(&script).as_str().unwrap_or_default().to_string()
+    }
+
+    fn click(&self, css: &str) {
+        let el = self
+            .run(self.client.find(Locator::Css(css)))
+            .unwrap_or_else(|e| panic!("{css}: {e}"));
+        self.run(el.click()).unwrap_or_else(|e| panic!("click {css}: {e}"));
+    }
+
+    fn goto(&self, url: &str) {
+        self.run(self.client.goto(url))
+            .unwrap_or_else(|e| panic!("{url}: {e}"));
+    }
+
+    /// The centre of an element, in viewport CSS pixels.
+    fn centre(&self, css: &str) -> (i64, i64) {
+        let script = format!(
+            "const r = document.querySelector({css:?}).getBoundingClientRect(); \
+             return [Math.round(r.x + r.width / 2), Math.round(r.y + r.height / 2)]"
+        );
+        let v = self.js(&script);
+        (v[0].as_i64().unwrap_or(0), v[1].as_i64().unwrap_or(0))
+    }
+
+    /// A touch event through the DevTools protocol (`Input.dispatchTouchEvent`): the
+    /// browser's own input path, with one finger's state kept between calls, as a person's.
+    fn touch(&self, kind: &str, points: &[((i64, i64), u32)]) {
+        let points: Vec<Value> = (points.iter())
+            .map(|((x, y), id)| json!({ "x": x, "y": y, "id": id }))
+            .collect();
+        let cmd = Cdp(json!({
+            "cmd": "Input.dispatchTouchEvent",
+            "params": { "type": kind, "touchPoints": points },
+        }));
+        self.run(self.client.issue_cmd(cmd))
+            .unwrap_or_else(|e| panic!("{kind}: {e}"));
+    }
+
+    fn finger_down(&self, at: (i64, i64)) {
+        self.touch("touchStart", &[(at, 1)]);
+        self.finger.set(Some(at));
+    }
+
+    /// Moves the finger through `path`, one touch event per point.
+    fn finger_moves(&self, path: &[(i64, i64)]) {
+        for &p in path {
+            self.touch("touchMove", &[(p, 1)]);
+            self.finger.set(Some(p));
+        }
+    }
+
+    fn finger_up(&self) {
+        self.touch("touchEnd", &[]);
+        self.finger.set(None);
+    }
+
+    /// Taps `css` with a second finger while the first stays where it is (a thumb on a stick).
+    fn tap_with_second_finger(&self, css: &str) {
+        let held = self.finger.get().expect("a first finger down");
+        let button = self.centre(css);
+        self.touch("touchStart", &[(held, 1), (button, 2)]);
+        // touchEnd lists the points that lift.
+        self.touch("touchEnd", &[(button, 2)]);
+    }
+
+    fn screenshot(&self, name: &str) {
+        let Some(dir) = std::env::var_os("ROVE_WEB_SHOTS") else {
+            return;
+        };
+        let png = self.run(self.client.screenshot()).expect("screenshot");
+        std::fs::write(Path::new(&dir).join(name), png).expect("write screenshot");
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let client = self.client.clone();
+        let _ = self.rt.block_on(client.close());
+        let _ = self.driver.kill();
+        let _ = self.bridge.kill();
+        let _ = self.driver.wait();
+        let _ = self.bridge.wait();
+    }
+}
+
+/// The web host: operator 20 (a desktop with no input of its own) serving phone 40, which
+/// drives vehicle 100 while a finger is on a stick.
+fn web_host(rig: &mut Rig, extra: &str) -> usize {
+    let config = rig.write(
+        "web-host.toml",
+        &format!(
+            "[device]\nid = 20\nname = \"web-host\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"desktop\"\n[web]\nlisten = \"127.0.0.1:{PORT}\"\n{extra}\n\
+             [[web.device]]\nid = {PHONE}\nname = \"phone-web\"\ndrive = [{VEHICLE}]\n"
+        ),
+    );
+    rig.spawn("operator-20", &["operator", "-c", config.to_str().expect("utf-8")])
+}
+
+/// The pairing code the host logged last.
+fn pairing_code(rig: &Rig) -> String {
+    eventually("the host logs a pairing code", || {
+        let log = rig.log_of("operator-20");
+        log.rsplit("code=")
+            .next()
+            .filter(|_| log.contains("code="))
+            .map(|s| s.chars().take(6).collect::<String>())
+            .filter(|c| c.len() == 6 && c.chars().all(|d| d.is_ascii_digit()))
+            .ok_or("no code yet")
+    })
+}
+
+fn pair(browser: &Browser, rig: &Rig) {
+    browser.goto(&format!("https://127.0.0.1:{PORT}/"));
+    let code = pairing_code(rig);
+    let script = format!("document.getElementById('code').value = {code:?}; return 1");
+    browser.js(&script);
+    browser.click("#pair-button");
+    eventually("the page is paired and connected", || {
+        let me = browser.text("#me");
+        if me.contains(&format!("phone-web ({PHONE})")) {
+            Ok(())
+        } else {
+            Err(format!("#me is {me:?}, #pair-error {:?}", browser.text("#pair-error")))
+        }
+    });
+}
+
+/// Outputs between two wall times, as (owner, action).
+fn outputs_between(record: &Path, from_us: u64, to_us: u64) -> Vec<(Option<i64>, String)> {
+    records(record)
+        .into_iter()
+        .filter(|o| o.wall_us >= from_us && o.wall_us <= to_us)
+        .map(|o| (o.owner, o.action))
+        .collect()
+}
+
+/// The first output after `since_us` where `owner` applies a throttle satisfying `want`.
+fn wait_throttle(record: &Path, owner: i64, since_us: u64, want: impl Fn(i64) -> bool) -> u64 {
+    eventually(&format!("{owner} applies the wanted throttle"), || {
+        records(record)
+            .into_iter()
+            .find(|o| {
+                o.wall_us >= since_us
+                    && o.owner == Some(owner)
+                    && o.action == "apply"
+                    && o.throttle.is_some_and(&want)
+            })
+            .map(|o| o.wall_us)
+            .ok_or_else(|| format!("last: {:?}", records(record).last()))
+    })
+}
+
+/// A handover from `from` to `to` happened with no failsafe output between `from`'s last and
+/// `to`'s first output after `since_us`.
+fn no_failsafe_gap(record: &Path, since_us: u64, to: i64) {
+    let first = wait_for_output(record, Some(to), since_us).expect("handover");
+    let between = outputs_between(record, since_us, first.wall_us);
+    assert!(
+        between.iter().all(|(owner, action)| owner.is_some() && action == "apply"),
+        "a failsafe output during the handover to {to}: {between:?}"
+    );
+}
+
+#[test]
+fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jumps() {
+    let mut rig = Rig::new("web");
+    let record = rig.vehicle(VEHICLE);
+    // The laptop: the next operator, driving the whole time below the phone.
+    rig.operator(LAPTOP, "stationary", "laptop", &[VEHICLE], 3000, "", &[]);
+    web_host(&mut rig, "");
+    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives first");
+
+    let browser = Browser::start(&rig, PHONE_VIEW, 9515);
+    pair(&browser, &rig);
+    eventually("the page lists the vehicle, driven by the laptop", || {
+        let banner = browser.text("#banner");
+        if banner.contains("STANDING BY") && banner.contains(&format!("({VEHICLE})")) {
+            Ok(())
+        } else {
+            Err(banner)
+        }
+    });
+    // One-handed on a 360 px phone: nothing scrolls sideways, the sticks sit in the lower half
+    // (the thumb's reach), every button is at least 44 px tall.
+    let layout = browser.js(
+        "const s = document.getElementById('left').getBoundingClientRect(); \
+         const small = [...document.querySelectorAll('button')].filter(b => b.offsetParent && \
+           b.getBoundingClientRect().height < 44).length; \
+         return [document.documentElement.scrollWidth, innerWidth, s.bottom, innerHeight, \
+           s.top > innerHeight / 3, small]",
+    );
+    assert_eq!(layout[0], layout[1], "horizontal scroll on a phone: {layout}");
+    assert!(layout[2].as_f64() <= layout[3].as_f64(), "sticks below the screen: {layout}");
+    assert_eq!(layout[4], true, "sticks out of the thumb's reach: {layout}");
+    assert_eq!(layout[5], 0, "buttons under 44 px: {layout}");
+    browser.screenshot("web-phone-standby.png");
+
+    // Drive: a finger on the left stick (it starts centred where it lands), then forward.
+    let (x, y) = browser.centre("#left");
+    let since = wall_us();
+    browser.finger_down((x, y));
+    wait_for_output(&record, Some(PHONE), since).expect("a finger on a stick drives");
+    // Touch → vehicle output: one move at a time, forward then back, each stamped by the page
+    // (the event's time, so WebDriver's own dispatch is not in it) and matched with the first
+    // output that reflects it.
+    let mut latencies = Vec::new();
+    for i in 0..20 {
+        let (target, want): (i64, fn(i64) -> bool) = if i % 2 == 0 {
+            (y - 90, |t| t > 10_000)
+        } else {
+            (y, |t| t.abs() < 2_000)
+        };
+        let before = wall_us();
+        browser.finger_moves(&[(x, target)]);
+        let applied = wait_throttle(&record, PHONE, before, want);
+        let touched = browser.js("return window.rove.touchWallMs").as_f64().unwrap_or(0.0);
+        latencies.push(applied as f64 / 1000.0 - touched);
+    }
+    latencies.sort_by(f64::total_cmp);
+    eprintln!(
+        "touch → vehicle output over {} moves: min {:.1} ms, p50 {:.1} ms, max {:.1} ms",
+        latencies.len(),
+        latencies[0],
+        latencies[latencies.len() / 2],
+        latencies[latencies.len() - 1]
+    );
+    assert!(latencies[0] > 0.0, "an output before its touch: {latencies:?}");
+    browser.finger_moves(&[(x, y - 90)]);
+    eventually("the banner says the phone drives", || {
+        let banner = browser.text("#banner");
+        banner.contains("YOU DRIVE").then_some(()).ok_or(banner)
+    });
+    browser.screenshot("web-phone-driving.png");
+
+    // The finger lifts: released at once, the laptop drives with no failsafe between.
+    let lifted = wall_us();
+    browser.finger_up();
+    no_failsafe_gap(&record, lifted, LAPTOP);
+
+    // A request: another laptop asks; the page shows the consent prompt; accepted on the page.
+    browser.finger_down((x, y));
+    wait_for_output(&record, Some(PHONE), wall_us()).expect("the phone drives again");
+    let asker = rig.operator(12, "remote", "desktop", &[], 1500, "", &["--request", "100"]);
+    eventually("the consent prompt shows, counting down", || {
+        let shown = browser.js("return !document.getElementById('prompt').hidden");
+        let text = browser.text("#prompt-text");
+        let count = browser.text("#countdown");
+        (shown == true && text.contains("(12)") && count.ends_with(" s)"))
+            .then_some(())
+            .ok_or(format!("{text:?} {count:?}"))
+    });
+    browser.screenshot("web-phone-request.png");
+    let accepted = wall_us();
+    browser.tap_with_second_finger("#accept");
+    wait_for_output(&record, Some(12), accepted).expect("the asker drives after the accept");
+    rig.procs[asker].stop();
+    let back = wall_us();
+    wait_for_output(&record, Some(PHONE), back).expect("the grant ends: the phone drives again");
+
+    // Hidden (a locked screen, another app): released at once; the laptop takes over.
+    let hidden = wall_us();
+    browser.run(browser.client.minimize_window()).expect("minimize");
+    assert_eq!(browser.js("return document.visibilityState"), "hidden");
+    no_failsafe_gap(&record, hidden, LAPTOP);
+    let log = rig.log_of("operator-20");
+    assert!(log.contains("page hidden"), "the release names why");
+
+    // Shown again: a new touch (centred) drives.
+    browser
+        .run(browser.client.set_window_size(PHONE_VIEW.width, PHONE_VIEW.height))
+        .expect("restore");
+    eventually("the page is visible again", || {
+        let v = browser.js("return document.visibilityState");
+        (v == "visible").then_some(()).ok_or(v)
+    });
+    // The finger that was on the glass when the page hid has lifted (the page let go of it
+    // already); then a new touch.
+    browser.finger_up();
+    let shown = wall_us();
+    browser.finger_down((x, y));
+    wait_for_output(&record, Some(PHONE), shown).expect("visible and touched: drives");
+
+    // The link drops while the finger is forward: released at once; after reconnecting, the
+    // pushed stick moves nothing until it comes back through centre.
+    browser.finger_moves(&[(x, y - 45), (x, y - 90)]);
+    wait_throttle(&record, PHONE, wall_us(), |t| t > 10_000);
+    let dropped = wall_us();
+    browser.js("window.rove.drop(); return 1");
+    no_failsafe_gap(&record, dropped, LAPTOP);
+    eventually("the page reconnects", || {
+        let connected = browser.js("return window.rove.connected");
+        (connected == true).then_some(()).ok_or("not yet")
+    });
+    let reconnected = wall_us();
+    let frames = browser.js("return window.rove.frames").as_i64().unwrap_or(0);
+    eventually("frames of the pushed stick reach the gateway", || {
+        let now = browser.js("return window.rove.frames").as_i64().unwrap_or(0);
+        (now >= frames + 25).then_some(()).ok_or(now)
+    });
+    let jumped: Vec<_> = records(&record)
+        .into_iter()
+        .filter(|o| o.wall_us >= reconnected && o.owner == Some(PHONE))
+        .collect();
+    assert!(jumped.is_empty(), "moved from a pushed stick after reconnecting: {jumped:?}");
+    let centred = wall_us();
+    browser.finger_moves(&[(x, y - 45), (x, y)]);
+    let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: drives again");
+    assert!(
+        first.throttle.is_some_and(|t| t.abs() < 2000),
+        "the first output after the reconnect is centred: {first:?}"
+    );
+
+    // Closed: the tab goes; released, the laptop drives.
+    let first_tab = browser.run(browser.client.window()).expect("window");
+    let other = browser.run(browser.client.new_window(true)).expect("new tab");
+    let closed = wall_us();
+    browser.run(browser.client.close_window()).expect("close");
+    no_failsafe_gap(&record, closed, LAPTOP);
+    drop(first_tab);
+    browser
+        .run(browser.client.switch_to_window(other.handle))
+        .expect("switch");
+
+    // A wrong token is refused: the page asks to pair again.
+    browser.goto(&format!("https://127.0.0.1:{PORT}/"));
+    browser.js("localStorage.setItem('rove.token', 'deadbeef'); location.reload(); return 1");
+    eventually("a wrong token is refused", || {
+        let error = browser.text("#pair-error");
+        let shown = browser.js("return !document.getElementById('pair').hidden");
+        (shown == true && error.contains("unknown session token"))
+            .then_some(())
+            .ok_or(error)
+    });
+    assert!(records(&record).iter().all(|o| o.owner != Some(PHONE) || o.wall_us < closed));
+}
+
+#[test]
+fn an_expired_session_is_refused_and_a_tablet_gets_the_side_by_side_layout() {
+    let mut rig = Rig::new("web-tablet");
+    rig.vehicle(VEHICLE);
+    web_host(&mut rig, "session_s = 3");
+    let browser = Browser::start(&rig, TABLET_VIEW, 9516);
+    pair(&browser, &rig);
+    // Landscape tablet: the panel beside the sticks, nothing scrolls.
+    let layout = browser.js(
+        "const p = document.getElementById('panel').getBoundingClientRect(); \
+         const s = document.getElementById('sticks').getBoundingClientRect(); \
+         return [p.right <= s.left, document.documentElement.scrollHeight <= innerHeight, \
+           document.documentElement.scrollWidth <= innerWidth]",
+    );
+    assert_eq!(layout, json!([true, true, true]), "tablet layout");
+    eventually("the page lists the vehicle", || {
+        let banner = browser.text("#banner");
+        banner.contains(&format!("({VEHICLE})")).then_some(()).ok_or(banner)
+    });
+    browser.screenshot("web-tablet.png");
+    // The session lasts 3 s: after it, the same token no longer connects.
+    let paired_at = std::time::Instant::now();
+    let token = browser.js("return localStorage.getItem('rove.token')");
+    assert!(token.as_str().is_some_and(|t| t.len() == 32), "{token}");
+    while paired_at.elapsed() < Duration::from_secs(4) {
+        // The session's end is the thing under test: time must pass.
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    browser.js("location.reload(); return 1");
+    eventually("an expired token is refused", || {
+        let error = browser.text("#pair-error");
+        error.contains("expired").then_some(()).ok_or(error)
+    });
+}
