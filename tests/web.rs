@@ -7,8 +7,8 @@
 //! this).
 
 use crate::util::{Rig, eventually, records, wait_for_output, wall_us};
-use rove_testkit::require_tool;
 use fantoccini::{Client, ClientBuilder, Locator};
+use rove_testkit::require_tool;
 use serde_json::{Value, json};
 use std::future::Future;
 use std::path::{Path, PathBuf};
@@ -57,8 +57,15 @@ impl tower_service::Service<hyper::Uri> for UnixConnector {
 struct Cdp(Value);
 
 impl fantoccini::wd::WebDriverCompatibleCommand for Cdp {
-    fn endpoint(&self, base: &url::Url, session: Option<&str>) -> Result<url::Url, url::ParseError> {
-        base.join(&format!("session/{}/goog/cdp/execute", session.unwrap_or_default()))
+    fn endpoint(
+        &self,
+        base: &url::Url,
+        session: Option<&str>,
+    ) -> Result<url::Url, url::ParseError> {
+        base.join(&format!(
+            "session/{}/goog/cdp/execute",
+            session.unwrap_or_default()
+        ))
     }
 
     fn method_and_body(&self, _: &url::Url) -> (hyper::Method, Option<String>) {
@@ -97,8 +104,8 @@ impl Browser {
         require_tool("chromium", "chromium");
         require_tool("chromedriver", "chromium-driver");
         require_tool("socat", "socat");
-        let log = std::fs::File::create(rig.dir.join(format!("chromedriver-{port}.log")))
-            .expect("log");
+        let log =
+            std::fs::File::create(rig.dir.join(format!("chromedriver-{port}.log"))).expect("log");
         let in_ns = |program: &str| {
             let mut c = Command::new("ip");
             c.args(["netns", "exec", &rig.ns, program]);
@@ -175,7 +182,8 @@ impl Browser {
         let el = self
             .run(self.client.find(Locator::Css(css)))
             .unwrap_or_else(|e| panic!("{css}: {e}"));
-        self.run(el.click()).unwrap_or_else(|e| panic!("click {css}: {e}"));
+        self.run(el.click())
+            .unwrap_or_else(|e| panic!("click {css}: {e}"));
     }
 
     fn goto(&self, url: &str) {
@@ -256,16 +264,19 @@ impl Drop for Browser {
 
 /// The web host: operator 20 (a desktop with no input of its own) serving phone 40, which
 /// drives vehicle 100 while a finger is on a stick.
-fn web_host(rig: &mut Rig, extra: &str) -> usize {
+fn web_host(rig: &mut Rig, extra: &str, device: &str) -> usize {
     let config = rig.write(
         "web-host.toml",
         &format!(
             "[device]\nid = 20\nname = \"web-host\"\n[operator]\nlevel = \"stationary\"\n\
              device_class = \"desktop\"\n[web]\nlisten = \"127.0.0.1:{PORT}\"\n{extra}\n\
-             [[web.device]]\nid = {PHONE}\nname = \"phone-web\"\ndrive = [{VEHICLE}]\n"
+             [[web.device]]\nid = {PHONE}\ndrive = [{VEHICLE}]\n{device}\n"
         ),
     );
-    rig.spawn("operator-20", &["operator", "-c", config.to_str().expect("utf-8")])
+    rig.spawn(
+        "operator-20",
+        &["operator", "-c", config.to_str().expect("utf-8")],
+    )
 }
 
 /// The pairing code the host logged last.
@@ -281,7 +292,7 @@ fn pairing_code(rig: &Rig) -> String {
     })
 }
 
-fn pair(browser: &Browser, rig: &Rig) {
+fn pair(browser: &Browser, rig: &Rig, name: &str) {
     browser.goto(&format!("https://127.0.0.1:{PORT}/"));
     let code = pairing_code(rig);
     let script = format!("document.getElementById('code').value = {code:?}; return 1");
@@ -289,10 +300,13 @@ fn pair(browser: &Browser, rig: &Rig) {
     browser.click("#pair-button");
     eventually("the page is paired and connected", || {
         let me = browser.text("#me");
-        if me.contains(&format!("phone-web ({PHONE})")) {
+        if me.contains(&format!("{name} ({PHONE})")) {
             Ok(())
         } else {
-            Err(format!("#me is {me:?}, #pair-error {:?}", browser.text("#pair-error")))
+            Err(format!(
+                "#me is {me:?}, #pair-error {:?}",
+                browser.text("#pair-error")
+            ))
         }
     });
 }
@@ -328,7 +342,9 @@ fn no_failsafe_gap(record: &Path, since_us: u64, to: i64) {
     let first = wait_for_output(record, Some(to), since_us).expect("handover");
     let between = outputs_between(record, since_us, first.wall_us);
     assert!(
-        between.iter().all(|(owner, action)| owner.is_some() && action == "apply"),
+        between
+            .iter()
+            .all(|(owner, action)| owner.is_some() && action == "apply"),
         "a failsafe output during the handover to {to}: {between:?}"
     );
 }
@@ -339,11 +355,11 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     let record = rig.vehicle(VEHICLE);
     // The laptop: the next operator, driving the whole time below the phone.
     rig.operator(LAPTOP, "stationary", "laptop", &[VEHICLE], 3000, "", &[]);
-    web_host(&mut rig, "");
+    web_host(&mut rig, "", "name = \"phone-web\"");
     wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives first");
 
     let browser = Browser::start(&rig, PHONE_VIEW, 9515);
-    pair(&browser, &rig);
+    pair(&browser, &rig, "phone-web");
     eventually("the page lists the vehicle, driven by the laptop", || {
         let banner = browser.text("#banner");
         if banner.contains("STANDING BY") && banner.contains(&format!("({VEHICLE})")) {
@@ -361,8 +377,14 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
          return [document.documentElement.scrollWidth, innerWidth, s.bottom, innerHeight, \
            s.top > innerHeight / 3, small]",
     );
-    assert_eq!(layout[0], layout[1], "horizontal scroll on a phone: {layout}");
-    assert!(layout[2].as_f64() <= layout[3].as_f64(), "sticks below the screen: {layout}");
+    assert_eq!(
+        layout[0], layout[1],
+        "horizontal scroll on a phone: {layout}"
+    );
+    assert!(
+        layout[2].as_f64() <= layout[3].as_f64(),
+        "sticks below the screen: {layout}"
+    );
     assert_eq!(layout[4], true, "sticks out of the thumb's reach: {layout}");
     assert_eq!(layout[5], 0, "buttons under 44 px: {layout}");
     browser.screenshot("web-phone-standby.png");
@@ -376,6 +398,7 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     // (the event's time, so WebDriver's own dispatch is not in it) and matched with the first
     // output that reflects it.
     let mut latencies = Vec::new();
+    let mut page_part = Vec::new();
     for i in 0..20 {
         let (target, want): (i64, fn(i64) -> bool) = if i % 2 == 0 {
             (y - 90, |t| t > 10_000)
@@ -385,9 +408,17 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         let before = wall_us();
         browser.finger_moves(&[(x, target)]);
         let applied = wait_throttle(&record, PHONE, before, want);
-        let touched = browser.js("return window.rove.touchWallMs").as_f64().unwrap_or(0.0);
+        let stamps = browser.js("return [window.rove.touchWallMs, window.rove.sentWallMs]");
+        let touched = stamps[0].as_f64().unwrap_or(0.0);
+        let sent = stamps[1].as_f64().unwrap_or(0.0);
         latencies.push(applied as f64 / 1000.0 - touched);
+        page_part.push(sent - touched);
     }
+    page_part.sort_by(f64::total_cmp);
+    eprintln!(
+        "of which in the browser (touch event → its frame sent by the page): p50 {:.1} ms",
+        page_part[page_part.len() / 2]
+    );
     latencies.sort_by(f64::total_cmp);
     eprintln!(
         "touch → vehicle output over {} moves: min {:.1} ms, p50 {:.1} ms, max {:.1} ms",
@@ -396,7 +427,10 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         latencies[latencies.len() / 2],
         latencies[latencies.len() - 1]
     );
-    assert!(latencies[0] > 0.0, "an output before its touch: {latencies:?}");
+    assert!(
+        latencies[0] > 0.0,
+        "an output before its touch: {latencies:?}"
+    );
     browser.finger_moves(&[(x, y - 90)]);
     eventually("the banner says the phone drives", || {
         let banner = browser.text("#banner");
@@ -412,7 +446,15 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     // A request: another laptop asks; the page shows the consent prompt; accepted on the page.
     browser.finger_down((x, y));
     wait_for_output(&record, Some(PHONE), wall_us()).expect("the phone drives again");
-    let asker = rig.operator(12, "remote", "desktop", &[], 1500, "", &["--request", "100"]);
+    let asker = rig.operator(
+        12,
+        "remote",
+        "desktop",
+        &[],
+        1500,
+        "",
+        &["--request", "100"],
+    );
     eventually("the consent prompt shows, counting down", || {
         let shown = browser.js("return !document.getElementById('prompt').hidden");
         let text = browser.text("#prompt-text");
@@ -431,7 +473,9 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
 
     // Hidden (a locked screen, another app): released at once; the laptop takes over.
     let hidden = wall_us();
-    browser.run(browser.client.minimize_window()).expect("minimize");
+    browser
+        .run(browser.client.minimize_window())
+        .expect("minimize");
     assert_eq!(browser.js("return document.visibilityState"), "hidden");
     no_failsafe_gap(&record, hidden, LAPTOP);
     let log = rig.log_of("operator-20");
@@ -439,7 +483,11 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
 
     // Shown again: a new touch (centred) drives.
     browser
-        .run(browser.client.set_window_size(PHONE_VIEW.width, PHONE_VIEW.height))
+        .run(
+            browser
+                .client
+                .set_window_size(PHONE_VIEW.width, PHONE_VIEW.height),
+        )
         .expect("restore");
     eventually("the page is visible again", || {
         let v = browser.js("return document.visibilityState");
@@ -464,16 +512,25 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         (connected == true).then_some(()).ok_or("not yet")
     });
     let reconnected = wall_us();
-    let frames = browser.js("return window.rove.frames").as_i64().unwrap_or(0);
+    let frames = browser
+        .js("return window.rove.frames")
+        .as_i64()
+        .unwrap_or(0);
     eventually("frames of the pushed stick reach the gateway", || {
-        let now = browser.js("return window.rove.frames").as_i64().unwrap_or(0);
+        let now = browser
+            .js("return window.rove.frames")
+            .as_i64()
+            .unwrap_or(0);
         (now >= frames + 25).then_some(()).ok_or(now)
     });
     let jumped: Vec<_> = records(&record)
         .into_iter()
         .filter(|o| o.wall_us >= reconnected && o.owner == Some(PHONE))
         .collect();
-    assert!(jumped.is_empty(), "moved from a pushed stick after reconnecting: {jumped:?}");
+    assert!(
+        jumped.is_empty(),
+        "moved from a pushed stick after reconnecting: {jumped:?}"
+    );
     let centred = wall_us();
     browser.finger_moves(&[(x, y - 45), (x, y)]);
     let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: drives again");
@@ -484,7 +541,9 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
 
     // Closed: the tab goes; released, the laptop drives.
     let first_tab = browser.run(browser.client.window()).expect("window");
-    let other = browser.run(browser.client.new_window(true)).expect("new tab");
+    let other = browser
+        .run(browser.client.new_window(true))
+        .expect("new tab");
     let closed = wall_us();
     browser.run(browser.client.close_window()).expect("close");
     no_failsafe_gap(&record, closed, LAPTOP);
@@ -503,16 +562,41 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
             .then_some(())
             .ok_or(error)
     });
-    assert!(records(&record).iter().all(|o| o.owner != Some(PHONE) || o.wall_us < closed));
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.owner != Some(PHONE) || o.wall_us < closed)
+    );
 }
 
 #[test]
 fn an_expired_session_is_refused_and_a_tablet_gets_the_side_by_side_layout() {
     let mut rig = Rig::new("web-tablet");
     rig.vehicle(VEHICLE);
-    web_host(&mut rig, "session_s = 3");
+    web_host(
+        &mut rig,
+        "session_s = 3",
+        "name = \"tablet-web\"\ndevice_class = \"tablet\"",
+    );
     let browser = Browser::start(&rig, TABLET_VIEW, 9516);
-    pair(&browser, &rig);
+    // A wrong code is refused on the page.
+    browser.goto(&format!("https://127.0.0.1:{PORT}/"));
+    let right = pairing_code(&rig);
+    let wrong: String = (right.chars())
+        .map(|d| char::from(b'0' + (d as u8 - b'0' + 1) % 10))
+        .collect();
+    browser.js(&format!(
+        "document.getElementById('code').value = {wrong:?}; return 1"
+    ));
+    browser.click("#pair-button");
+    eventually("a wrong code is refused", || {
+        let error = browser.text("#pair-error");
+        error
+            .contains("wrong pairing code")
+            .then_some(())
+            .ok_or(error)
+    });
+    pair(&browser, &rig, "tablet-web");
     // Landscape tablet: the panel beside the sticks, nothing scrolls.
     let layout = browser.js(
         "const p = document.getElementById('panel').getBoundingClientRect(); \
@@ -523,7 +607,10 @@ fn an_expired_session_is_refused_and_a_tablet_gets_the_side_by_side_layout() {
     assert_eq!(layout, json!([true, true, true]), "tablet layout");
     eventually("the page lists the vehicle", || {
         let banner = browser.text("#banner");
-        banner.contains(&format!("({VEHICLE})")).then_some(()).ok_or(banner)
+        banner
+            .contains(&format!("({VEHICLE})"))
+            .then_some(())
+            .ok_or(banner)
     });
     browser.screenshot("web-tablet.png");
     // The session lasts 3 s: after it, the same token no longer connects.

@@ -162,7 +162,11 @@ impl RemoteInput {
 
     fn push(&mut self, event: InputEvent) {
         if self.out.len() >= MAX_QUEUED {
-            match self.out.iter().position(|e| matches!(e, InputEvent::Axes(_))) {
+            match self
+                .out
+                .iter()
+                .position(|e| matches!(e, InputEvent::Axes(_)))
+            {
                 Some(i) => {
                     self.out.remove(i);
                 }
@@ -285,7 +289,10 @@ mod tests {
         r.frame(ms(0), frame(0, true));
         for i in 0..500u16 {
             let held = i % 50 != 49;
-            r.frame(ms(1 + u64::from(i)), frame(i16::try_from(i).unwrap_or(0) * 60, held));
+            r.frame(
+                ms(1 + u64::from(i)),
+                frame(i16::try_from(i).unwrap_or(0) * 60, held),
+            );
         }
         let events = drain(&mut r);
         assert!(events.len() <= MAX_QUEUED);

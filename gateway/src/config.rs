@@ -749,7 +749,11 @@ impl WebSection {
         let listen = match self.listen.parse::<std::net::SocketAddr>() {
             Ok(a) => Some(a),
             Err(_) => {
-                errors.add("listen", &self.listen, "must be ADDRESS:PORT, such as 0.0.0.0:8443");
+                errors.add(
+                    "listen",
+                    &self.listen,
+                    "must be ADDRESS:PORT, such as 0.0.0.0:8443",
+                );
                 None
             }
         };
@@ -789,7 +793,10 @@ impl WebSection {
                             participant with its own certificate";
                 errors.add(format!("{at}.security"), ABSENT, rule);
             }
-            let name = d.name.get_or_insert_with(|| format!("web-{}", d.id)).clone();
+            let name = d
+                .name
+                .get_or_insert_with(|| format!("web-{}", d.id))
+                .clone();
             let mut common = host.common.clone();
             (common.id, common.name, common.security) = (d.id, name, d.security.clone());
             devices.push(OperatorConfig {
@@ -908,6 +915,48 @@ mod tests {
             load_vehicle(&write("typo.toml", &typo)).expect_err("typo")
         );
         assert!(e.contains("levle"), "{e}");
+    }
+
+    #[test]
+    fn web_devices_are_operators_of_their_own_and_their_errors_name_lines() {
+        let config = load_operator(&shipped("operator-web.toml")).expect("shipped web host");
+        let web = config.web.expect("[web]");
+        assert_eq!(web.listen.port(), 8443);
+        assert_eq!(web.session, Duration::from_secs(43_200));
+        let (cert, _) = web.certificate.expect("files");
+        assert!(cert.is_absolute() || cert.starts_with(".."), "{cert:?}");
+        let phone = &web.devices[0];
+        assert_eq!((phone.common.id, phone.strength), (40, Strength(340)));
+        assert_eq!(phone.drive, vec![100]);
+        assert_eq!(phone.common.domain_id, config.common.domain_id);
+        assert_eq!(web.devices[1].strength, Strength(330), "a mobile tablet");
+        let text = "[device]\nid = 20\n[operator]\nlevel = \"remote\"\ndevice_class = \"desktop\"\n\
+                    [security]\ndir = \"keys\"\n[web]\nlisten = \"8443\"\ncertificate = \"a.pem\"\n\
+                    session_s = 0\n[[web.device]]\nid = 20\n[[web.device]]\nid = 41\noffset = 12\n";
+        let message = format!(
+            "{:#}",
+            load_operator(&write("web.toml", text)).expect_err("bad")
+        );
+        for want in [
+            "web.toml:9: web.listen = 8443: must be ADDRESS:PORT",
+            "web.toml:8: web.key = (absent): is required with `certificate`",
+            "web.toml:11: web.session_s = 0: must be 1..=2592000 s",
+            "web.toml:13: web.device[0].id = 20: is used twice",
+            "web.toml:12: web.device[0].security = (absent): is required",
+            "web.toml:16: web.device[1].offset = 12: must be 0..=9",
+        ] {
+            assert!(message.contains(want), "missing {want:?} in\n{message}");
+        }
+        let none = "[device]\nid = 20\n[operator]\nlevel = \"remote\"\ndevice_class = \"desktop\"\n\
+                    [web]\nlisten = \"127.0.0.1:1\"\n";
+        let message = format!(
+            "{:#}",
+            load_operator(&write("none.toml", none)).expect_err("no device")
+        );
+        assert!(
+            message.contains("web.device = (absent): needs at least one"),
+            "{message}"
+        );
     }
 
     #[test]

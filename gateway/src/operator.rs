@@ -120,14 +120,14 @@ pub struct Attached {
 
 /// The input the loop reads.
 enum Device {
-    Evdev(rove_inputs::MappedSource),
+    Evdev(Box<rove_inputs::MappedSource>),
     Web(crate::web::WebInput),
 }
 
 impl Device {
     fn source(&mut self) -> &mut dyn InputSource {
         match self {
-            Device::Evdev(d) => d,
+            Device::Evdev(d) => d.as_mut(),
             Device::Web(w) => w,
         }
     }
@@ -227,9 +227,10 @@ pub async fn run_attached(
         "operator started"
     );
 
-    let wake = attached
-        .as_ref()
-        .map_or_else(|| Arc::new(tokio::sync::Notify::new()), |a| Arc::clone(&a.wake));
+    let wake = attached.as_ref().map_or_else(
+        || Arc::new(tokio::sync::Notify::new()),
+        |a| Arc::clone(&a.wake),
+    );
     let (input, mut device) = match &config.input {
         _ if attached.is_some() => {
             let web = attached.as_ref().map(|a| a.input.clone());
@@ -242,7 +243,7 @@ pub async fn run_attached(
             let waker = Arc::clone(&wake);
             source.set_waker(Arc::new(move || waker.notify_one()));
             info!(input = %source.describe(), "input opened: driving starts when its sticks are live and centred");
-            (SessionInput::Device, Some(Device::Evdev(source)))
+            (SessionInput::Device, Some(Device::Evdev(Box::new(source))))
         }
     };
     let mut session = OperatorSession::new(
@@ -277,7 +278,10 @@ pub async fn run_attached(
     let (commands_tx, own_commands) = tokio::sync::mpsc::channel::<CommandRequest>(64);
     let (events_tx, mut commands) = match attached {
         Some(a) => (a.events, a.commands),
-        None => (tokio::sync::broadcast::channel::<Stamped>(1024).0, own_commands),
+        None => (
+            tokio::sync::broadcast::channel::<Stamped>(1024).0,
+            own_commands,
+        ),
     };
     let (actions_tx, actions_rx) = tokio::sync::mpsc::channel::<InputAction>(64);
     let mut ui = Ui {

@@ -23,18 +23,20 @@ pub mod tls;
 use crate::config::{OperatorConfig, WebConfig};
 use crate::operator::{self, Attached, Options};
 use crate::runtime::Clock;
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use pairing::Pairing;
-use rove_console::{ApiError, CommandRequest, ConsoleState, Event, Hub, Identity, Joined, Source};
+use rove_console::server::answer;
+use rove_console::{CommandRequest, ConsoleState, Event, Hub, Identity, Joined, Source};
 use rove_core::adapter::{InputEvent, InputSource};
 use rove_core::error::LinkError;
 use rove_core::msg::MovementCommand;
 use rove_core::remote::{Frame, RemoteInput, RemoteLink};
 use rove_core::time::MonoTime;
+use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{Notify, broadcast, mpsc, watch};
@@ -75,7 +77,10 @@ impl WebInput {
     fn with<T>(&self, f: impl FnOnce(&mut RemoteInput) -> T) -> T {
         // A poisoned lock means a panic elsewhere while holding it; the state is still sound
         // (every method leaves it consistent), so keep going rather than stop the operator.
-        let mut guard = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut guard = self
+            .0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         f(&mut guard)
     }
 
@@ -153,7 +158,10 @@ fn random() -> [u8; 16] {
 
 impl Shared {
     fn pairing<T>(&self, f: impl FnOnce(&mut Pairing) -> T) -> T {
-        let mut guard = self.pairing.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut guard = self
+            .pairing
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         f(&mut guard)
     }
 
@@ -231,7 +239,12 @@ impl WebConsole {
             },
         };
         let devices: Vec<String> = (web.devices.iter())
-            .map(|d| format!("{} ({}, strength {})", d.common.id, d.common.name, d.strength.0))
+            .map(|d| {
+                format!(
+                    "{} ({}, strength {})",
+                    d.common.id, d.common.name, d.strength.0
+                )
+            })
             .collect();
         info!(
             listen = %listener.local_addr().unwrap_or(web.listen),
@@ -254,9 +267,18 @@ impl WebConsole {
     /// and leaves) and returns.
     pub async fn run(self, stop: impl std::future::Future<Output = ()>) {
         let router = axum::Router::new()
-            .route("/", get(|| async { page(INDEX, "text/html; charset=utf-8") }))
-            .route("/app.js", get(|| async { page(SCRIPT, "text/javascript; charset=utf-8") }))
-            .route("/style.css", get(|| async { page(STYLE, "text/css; charset=utf-8") }))
+            .route(
+                "/",
+                get(|| async { page(INDEX, "text/html; charset=utf-8") }),
+            )
+            .route(
+                "/app.js",
+                get(|| async { page(SCRIPT, "text/javascript; charset=utf-8") }),
+            )
+            .route(
+                "/style.css",
+                get(|| async { page(STYLE, "text/css; charset=utf-8") }),
+            )
             .route("/pair", post(pair))
             .route("/ws", get(upgrade))
             .with_state(Arc::clone(&self.shared));
@@ -361,21 +383,33 @@ fn json_reply(status: StatusCode, value: &serde_json::Value) -> Response {
 /// `POST /pair` with `{"code":"123456"}`: a token and the device it speaks for.
 async fn pair(State(shared): State<Arc<Shared>>, body: axum::body::Bytes) -> Response {
     let error = |status, text: &str, code: &str| {
-        json_reply(status, &serde_json::json!({ "error": text, "code": code }))
+        json_reply(status, &json!({ "error": text, "code": code }))
     };
     if body.len() > MAX_MESSAGE {
-        return error(StatusCode::PAYLOAD_TOO_LARGE, "request too large", "too_long");
+        return error(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "request too large",
+            "too_long",
+        );
     }
     let code = serde_json::from_slice::<serde_json::Value>(&body)
         .ok()
         .and_then(|v| v.get("code").and_then(|c| c.as_str()).map(str::to_string));
     let Some(code) = code else {
-        return error(StatusCode::BAD_REQUEST, "expected {\"code\":\"123456\"}", "bad_json");
+        return error(
+            StatusCode::BAD_REQUEST,
+            "expected {\"code\":\"123456\"}",
+            "bad_json",
+        );
     };
     let mut connected = Vec::new();
     for slot in &shared.devices {
         let running = slot.running.lock().await;
-        connected.push(running.as_ref().is_some_and(|r| r.connection.borrow().is_some()));
+        connected.push(
+            running
+                .as_ref()
+                .is_some_and(|r| r.connection.borrow().is_some()),
+        );
     }
     let now = shared.clock.now();
     let paired = shared.pairing(|p| p.pair(now, &code, |d| connected[d], random()));
@@ -386,7 +420,7 @@ async fn pair(State(shared): State<Arc<Shared>>, body: axum::body::Bytes) -> Res
             shared.renew_code();
             json_reply(
                 StatusCode::OK,
-                &serde_json::json!({
+                &json!({
                     "token": token, "device": config.common.id, "name": config.common.name,
                 }),
             )
@@ -424,7 +458,10 @@ fn axis(v: i64) -> i16 {
 }
 
 async fn send(socket: &mut WebSocket, value: &serde_json::Value) -> bool {
-    socket.send(Message::Text(value.to_string().into())).await.is_ok()
+    socket
+        .send(Message::Text(value.to_string().into()))
+        .await
+        .is_ok()
 }
 
 /// One browser connection: the token first, then lines out and frames and commands in.
@@ -445,7 +482,7 @@ async fn connection(shared: Arc<Shared>, mut socket: WebSocket) {
         Ok(d) => d,
         Err((why, code)) => {
             debug!(why, "web: a connection was refused");
-            send(&mut socket, &serde_json::json!({ "error": why, "code": code })).await;
+            send(&mut socket, &json!({ "error": why, "code": code })).await;
             let _ = socket.send(Message::Close(None)).await;
             return;
         }
@@ -463,70 +500,45 @@ async fn connection(shared: Arc<Shared>, mut socket: WebSocket) {
         // A newer connection speaks for the device: an older one (another tab) is closed.
         r.connection.send_replace(Some(me));
         r.idle_since = None;
-        (r.input.clone(), Arc::clone(&r.wake), r.clock, r.hub.clone(), r.commands.clone(), r.connection.subscribe())
+        (
+            r.input.clone(),
+            Arc::clone(&r.wake),
+            r.clock,
+            r.hub.clone(),
+            r.commands.clone(),
+            r.connection.subscribe(),
+        )
     };
     let (input, wake, clock, hub, commands, mut current) = attached;
     let id = slot.config.common.id;
     info!(device = id, connection = me, "web: browser connected");
-    let Joined::Lines(mut lines) = hub.join().await else {
-        send(&mut socket, &serde_json::json!({"error": "the device is stopping", "code": "unavailable"})).await;
-        return;
-    };
-    let mut line_no = 0u64;
-    let ended = loop {
-        tokio::select! {
-            line = lines.recv() => match line {
-                Some(line) => {
-                    if socket.send(Message::Text(line.into())).await.is_err() {
-                        break "connection closed";
-                    }
-                }
-                None => break "the device stopped",
-            },
-            changed = current.changed() => {
-                if changed.is_err() || *current.borrow() != Some(me) {
-                    send(&mut socket, &serde_json::json!({"error": "another browser tab took over this device", "code": "replaced"})).await;
-                    let _ = socket.send(Message::Close(None)).await;
-                    // The newer connection speaks for the device now: no loss to tell.
-                    return;
-                }
-            }
-            message = socket.recv() => {
-                let text = match message {
-                    Some(Ok(Message::Text(text))) => text,
-                    Some(Ok(Message::Close(_)) | Err(_)) | None => break "connection closed",
-                    Some(Ok(_)) => continue,
-                };
-                if let Ok(frame) = serde_json::from_str::<FrameMsg>(&text) {
-                    let [throttle, roll, pitch, yaw] = frame.sticks.map(axis);
-                    let sticks = MovementCommand { throttle, roll, pitch, yaw };
-                    input.with(|r| r.frame(clock.now(), Frame { sticks, deadman: frame.dm }));
-                    wake.notify_one();
-                    continue;
-                }
-                let value = serde_json::from_str::<serde_json::Value>(&text).ok();
-                if let Some(why) = value.as_ref().and_then(|v| v.get("lost")).and_then(|v| v.as_str()) {
-                    let why: String = why.chars().take(80).collect();
-                    input.with(|r| r.lost(&format!("browser: {why}")));
-                    wake.notify_one();
-                    continue;
-                }
-                line_no += 1;
-                let raw = Ok(text.as_bytes().to_vec()).and_then(|b: Vec<u8>| {
-                    if b.len() > rove_console::api::MAX_LINE_BYTES {
-                        Err(ApiError::TooLong { max: rove_console::api::MAX_LINE_BYTES })
-                    } else {
-                        Ok(b)
-                    }
-                });
-                let reply = rove_console::server::answer(raw, line_no, &commands, Source::Web(id)).await;
-                if socket.send(Message::Text(reply.to_json().into())).await.is_err() {
-                    break "connection closed";
-                }
+    let ended = match hub.join().await {
+        Joined::Lines(lines) => {
+            let link = Link {
+                input: &input,
+                wake: &wake,
+                clock,
+                commands: &commands,
+                id,
+            };
+            match serve_page(&mut socket, lines, &mut current, me, link).await {
+                Some(why) => why,
+                // Replaced by a newer connection, which speaks for the device now.
+                None => return,
             }
         }
+        Joined::Busy | Joined::Stopped => {
+            let refusal = json!({"error": "the device is stopping", "code": "unavailable"});
+            send(&mut socket, &refusal).await;
+            "the device is stopping"
+        }
     };
-    info!(device = id, connection = me, why = ended, "web: browser disconnected");
+    info!(
+        device = id,
+        connection = me,
+        why = ended,
+        "web: browser disconnected"
+    );
     input.with(|r| r.lost(&format!("browser: {ended}")));
     wake.notify_one();
     let mut running = slot.running.lock().await;
@@ -535,6 +547,81 @@ async fn connection(shared: Arc<Shared>, mut socket: WebSocket) {
     {
         r.connection.send_replace(None);
         r.idle_since = Some(tokio::time::Instant::now());
+    }
+}
+
+/// What a page's connection talks to.
+struct Link<'a> {
+    input: &'a WebInput,
+    wake: &'a Notify,
+    clock: Clock,
+    commands: &'a mpsc::Sender<CommandRequest>,
+    id: rove_core::msg::DeviceId,
+}
+
+/// Serves an authenticated page until it goes (why) or a newer connection replaces it (`None`).
+async fn serve_page(
+    socket: &mut WebSocket,
+    mut lines: mpsc::Receiver<String>,
+    current: &mut watch::Receiver<Option<u64>>,
+    me: u64,
+    link: Link<'_>,
+) -> Option<&'static str> {
+    let mut line_no = 0u64;
+    loop {
+        tokio::select! {
+            line = lines.recv() => match line {
+                Some(line) => {
+                    if socket.send(Message::Text(line.into())).await.is_err() {
+                        return Some("connection closed");
+                    }
+                }
+                None => return Some("the device stopped"),
+            },
+            changed = current.changed() => {
+                if changed.is_err() || *current.borrow() != Some(me) {
+                    let why = "another browser tab took over this device";
+                    send(socket, &json!({"error": why, "code": "replaced"})).await;
+                    let _ = socket.send(Message::Close(None)).await;
+                    // The newer connection speaks for the device now: no loss to tell.
+                    return None;
+                }
+            }
+            message = socket.recv() => {
+                let text = match message {
+                    Some(Ok(Message::Text(text))) => text,
+                    Some(Ok(Message::Close(_)) | Err(_)) | None => {
+                        return Some("connection closed");
+                    }
+                    Some(Ok(_)) => continue,
+                };
+                if let Ok(frame) = serde_json::from_str::<FrameMsg>(&text) {
+                    let [throttle, roll, pitch, yaw] = frame.sticks.map(axis);
+                    let sticks = MovementCommand { throttle, roll, pitch, yaw };
+                    let frame = Frame { sticks, deadman: frame.dm };
+                    link.input.with(|r| r.frame(link.clock.now(), frame));
+                    link.wake.notify_one();
+                    continue;
+                }
+                let value = serde_json::from_str::<serde_json::Value>(&text).ok();
+                let lost = value.as_ref().and_then(|v| v.get("lost")?.as_str());
+                if let Some(why) = lost {
+                    let why: String = why.chars().take(80).collect();
+                    link.input.with(|r| r.lost(&format!("browser: {why}")));
+                    link.wake.notify_one();
+                    continue;
+                }
+                // A command (docs/api.md); messages are bounded by MAX_MESSAGE, far below the
+                // API's line limit. `line` counts commands only, not frames.
+                line_no += 1;
+                let raw = Ok(text.as_bytes().to_vec());
+                let source = Source::Web(link.id);
+                let reply = answer(raw, line_no, link.commands, source).await;
+                if socket.send(Message::Text(reply.to_json().into())).await.is_err() {
+                    return Some("connection closed");
+                }
+            }
+        }
     }
 }
 
@@ -599,7 +686,10 @@ async fn reap(shared: &Shared) {
                 .is_some_and(|t| t.elapsed() >= LINGER)
         };
         if idle {
-            info!(device = slot.config.common.id, "web: no browser for a while, the device leaves");
+            info!(
+                device = slot.config.common.id,
+                "web: no browser for a while, the device leaves"
+            );
             stop_device(slot).await;
         }
     }
@@ -617,7 +707,10 @@ async fn stop_device(slot: &Slot) {
         .await
         .is_err()
     {
-        warn!(device = slot.config.common.id, "web device did not stop within 5 s");
+        warn!(
+            device = slot.config.common.id,
+            "web device did not stop within 5 s"
+        );
         running.task.abort();
     }
 }

@@ -137,7 +137,8 @@ impl Pairing {
             .ok_or(PairError::AllInUse)?;
         self.tokens.retain(|_, p| p.device != device);
         let token = token_from(random);
-        self.tokens.insert(token.clone(), Paired { device, since: now });
+        self.tokens
+            .insert(token.clone(), Paired { device, since: now });
         // Used: the next browser needs the next code.
         self.failures = CODE_ATTEMPTS;
         Ok((token, device))
@@ -179,7 +180,10 @@ mod tests {
         assert_eq!(device, 0);
         assert_eq!(token.len(), 32);
         assert!(p.code_stale(s(1)), "used: a new code is due");
-        assert_eq!(p.pair(s(1), &code, |_| false, rnd(3)), Err(PairError::WrongCode));
+        assert_eq!(
+            p.pair(s(1), &code, |_| false, rnd(3)),
+            Err(PairError::WrongCode)
+        );
         assert_eq!(p.check(s(3600), &token), Ok(0));
         assert_eq!(p.check(s(3601), &token), Err(TokenError::Expired));
         assert_eq!(p.check(s(2), "00ff"), Err(TokenError::Unknown));
@@ -194,7 +198,10 @@ mod tests {
             assert!(p.pair(s(1), "000000x", |_| false, rnd(2)).is_err());
         }
         assert!(p.code_stale(s(1)));
-        assert_eq!(p.pair(s(1), &right, |_| false, rnd(2)), Err(PairError::WrongCode));
+        assert_eq!(
+            p.pair(s(1), &right, |_| false, rnd(2)),
+            Err(PairError::WrongCode)
+        );
         let renewed = p.renew(s(2), rnd(9)).to_string();
         assert!(p.pair(s(2), &renewed, |_| false, rnd(2)).is_ok());
     }

@@ -62,7 +62,11 @@ pub fn identity(
                 let (chain, pem, cert_pem, key_pem) = self_signed(listen)?;
                 write_new(cert, cert_pem.as_bytes(), 0o644)?;
                 write_new(key, key_pem.as_bytes(), 0o600)?;
-                (chain, pem, format!("self-signed, written to {}", cert.display()))
+                (
+                    chain,
+                    pem,
+                    format!("self-signed, written to {}", cert.display()),
+                )
             }
             _ => anyhow::bail!(
                 "[web]: only one of {} and {} exists; remove it to make a new pair, or supply both",
@@ -77,7 +81,9 @@ pub fn identity(
             (chain, pem, origin.to_string())
         }
     };
-    let leaf = chain.first().context("[web] certificate: the file has no certificate")?;
+    let leaf = chain
+        .first()
+        .context("[web] certificate: the file has no certificate")?;
     let fingerprint = ring::digest::digest(&ring::digest::SHA256, leaf.as_ref())
         .as_ref()
         .iter()
@@ -107,7 +113,8 @@ type Made = (
 );
 
 fn self_signed(listen: std::net::SocketAddr) -> anyhow::Result<Made> {
-    let made = rcgen::generate_simple_self_signed(names(listen)).context("self-signed certificate")?;
+    let made =
+        rcgen::generate_simple_self_signed(names(listen)).context("self-signed certificate")?;
     let key_der = made.signing_key.serialize_der();
     let key = PrivateKeyDer::try_from(key_der).map_err(|e| anyhow::anyhow!("key: {e}"))?;
     let cert_pem = made.cert.pem();
@@ -139,7 +146,10 @@ mod tests {
         let made = identity(Some(&files), listen).expect("made");
         assert!(made.origin.starts_with("self-signed, written"));
         let mode = std::fs::metadata(&files.1).expect("key").permissions();
-        assert_eq!(std::os::unix::fs::PermissionsExt::mode(&mode) & 0o777, 0o600);
+        assert_eq!(
+            std::os::unix::fs::PermissionsExt::mode(&mode) & 0o777,
+            0o600
+        );
         let loaded = identity(Some(&files), listen).expect("loaded");
         assert!(loaded.origin.starts_with("loaded"));
         assert_eq!(made.fingerprint, loaded.fingerprint);

@@ -15,7 +15,7 @@ const state = {
 };
 // For tests and the curious: the socket's state and when a finger last moved a stick.
 // `drop()` closes the socket as a radio loss would (tests, diagnostics).
-window.rove = { connected: false, frames: 0, touchWallMs: 0, state, drop: () => ws && ws.close() };
+window.rove = { connected: false, frames: 0, touchWallMs: 0, sentWallMs: 0, state, drop: () => ws && ws.close() };
 
 let ws = null;
 let backoff = 250;
@@ -250,7 +250,10 @@ for (const el of document.querySelectorAll(".stick")) {
     draw(s);
     e.preventDefault();
   });
-  el.addEventListener("pointermove", (e) => {
+  // `pointerrawupdate` where the browser has it (Chrome, in a secure context): delivered as the
+  // input arrives, where `pointermove` waits for the next animation frame (up to 16 ms).
+  const move = "onpointerrawupdate" in window ? "pointerrawupdate" : "pointermove";
+  el.addEventListener(move, (e) => {
     if (e.pointerId !== s.pointer) return;
     const r = el.getBoundingClientRect();
     const reach = Math.max(40, Math.min(r.width, r.height) / 2 - 32);
@@ -259,6 +262,7 @@ for (const el of document.querySelectorAll(".stick")) {
     window.rove.touchWallMs = performance.timeOrigin + e.timeStamp;
     draw(s);
     sendFrame(); // a change leaves at once, not on the next 20 ms tick
+    window.rove.sentWallMs = performance.timeOrigin + performance.now();
   });
   const up = (e) => {
     if (e.pointerId !== s.pointer) return;
@@ -304,6 +308,7 @@ function sendFrame() {
   if (document.visibilityState !== "visible") return;
   send(frame());
   window.rove.frames++;
+
 }
 
 setInterval(sendFrame, FRAME_MS);
