@@ -443,6 +443,34 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     browser.finger_up();
     no_failsafe_gap(&record, lifted, LAPTOP);
 
+    // Silence: the page stops sending (a frozen tab, a dead radio) but the socket stays open.
+    // After 200 ms the gateway releases; when frames come back (finger still centred), it
+    // drives again.
+    browser.finger_down((x, y));
+    wait_for_output(&record, Some(PHONE), wall_us()).expect("the phone drives again");
+    let muted = wall_us();
+    browser.js(
+        "window.realSend = WebSocket.prototype.send; WebSocket.prototype.send = () => {}; return 1",
+    );
+    no_failsafe_gap(&record, muted, LAPTOP);
+    let silent_for = (wait_for_output(&record, Some(LAPTOP), muted)
+        .expect("laptop")
+        .wall_us
+        - muted)
+        / 1000;
+    assert!(
+        silent_for >= 150,
+        "released after {silent_for} ms of silence, before the 200 ms"
+    );
+    assert!(
+        rig.log_of("operator-20")
+            .contains("no input from the browser for 200 ms")
+    );
+    let unmuted = wall_us();
+    browser.js("WebSocket.prototype.send = window.realSend; return 1");
+    wait_for_output(&record, Some(PHONE), unmuted).expect("frames again: the phone drives");
+    browser.finger_up();
+
     // A request: another laptop asks; the page shows the consent prompt; accepted on the page.
     browser.finger_down((x, y));
     wait_for_output(&record, Some(PHONE), wall_us()).expect("the phone drives again");
@@ -570,9 +598,9 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
 }
 
 #[test]
-fn an_expired_session_is_refused_and_a_tablet_gets_the_side_by_side_layout() {
+fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_is_refused() {
     let mut rig = Rig::new("web-tablet");
-    rig.vehicle(VEHICLE);
+    let record = rig.vehicle(VEHICLE);
     web_host(
         &mut rig,
         "session_s = 3",
@@ -613,6 +641,40 @@ fn an_expired_session_is_refused_and_a_tablet_gets_the_side_by_side_layout() {
             .ok_or(banner)
     });
     browser.screenshot("web-tablet.png");
+
+    // A gamepad through the Gamepad API (chromium has no virtual gamepad: the page's
+    // `navigator.getGamepads` is replaced by one whose state the test sets). The shoulder
+    // button is the deadman; a stick pushed when it is pressed moves nothing until centred.
+    browser.js("window.pad = { id: 'test pad', axes: [0, 0, 0, 0], \
+           buttons: Array.from({ length: 8 }, () => ({ pressed: false })) }; \
+         navigator.getGamepads = () => [window.pad]; return 1");
+    let pad = |script: &str| browser.js(&format!("{script}; return window.rove.frames"));
+    let frames = pad("pad.axes[1] = -0.8; pad.buttons[5].pressed = true");
+    let pressed = wall_us();
+    eventually("frames of the pushed, held pad reach the gateway", || {
+        let now = browser.js("return window.rove.frames");
+        (now.as_i64() >= frames.as_i64().map(|f| f + 25))
+            .then_some(())
+            .ok_or(now)
+    });
+    let moved: Vec<_> = records(&record)
+        .into_iter()
+        .filter(|o| o.wall_us >= pressed && o.owner == Some(PHONE))
+        .collect();
+    assert!(
+        moved.is_empty(),
+        "a pushed pad drove when its deadman was pressed: {moved:?}"
+    );
+    let centred = wall_us();
+    pad("pad.axes[1] = 0");
+    let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: the pad drives");
+    assert!(first.throttle.is_some_and(|t| t.abs() < 2000), "{first:?}");
+    let pushed = wall_us();
+    pad("pad.axes[1] = -0.8");
+    wait_throttle(&record, PHONE, pushed, |t| t > 20_000);
+    let let_go = wall_us();
+    pad("pad.buttons[5].pressed = false");
+    wait_for_output(&record, None, let_go).expect("deadman released: the vehicle's failsafe");
     // The session lasts 3 s: after it, the same token no longer connects.
     let paired_at = std::time::Instant::now();
     let token = browser.js("return localStorage.getItem('rove.token')");
