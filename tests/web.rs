@@ -349,6 +349,27 @@ fn no_failsafe_gap(record: &Path, since_us: u64, to: i64) {
     );
 }
 
+/// Asserts that `owner` applied nothing since `since_us` while the page sent 25 more frames
+/// (half a second of its 50 Hz: the gateway has seen them), saying `why` otherwise.
+fn assert_no_output_while_frames_flow(browser: &Browser, record: &Path, since_us: u64, why: &str) {
+    let frames = browser
+        .js("return window.rove.frames")
+        .as_i64()
+        .unwrap_or(0);
+    eventually("the page's frames reach the gateway", || {
+        let now = browser
+            .js("return window.rove.frames")
+            .as_i64()
+            .unwrap_or(0);
+        (now >= frames + 25).then_some(()).ok_or(now)
+    });
+    let moved: Vec<_> = records(record)
+        .into_iter()
+        .filter(|o| o.wall_us >= since_us && o.owner == Some(PHONE))
+        .collect();
+    assert!(moved.is_empty(), "{why}: {moved:?}");
+}
+
 #[test]
 fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jumps() {
     let mut rig = Rig::new("web");
@@ -540,25 +561,8 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         (connected == true).then_some(()).ok_or("not yet")
     });
     let reconnected = wall_us();
-    let frames = browser
-        .js("return window.rove.frames")
-        .as_i64()
-        .unwrap_or(0);
-    eventually("frames of the pushed stick reach the gateway", || {
-        let now = browser
-            .js("return window.rove.frames")
-            .as_i64()
-            .unwrap_or(0);
-        (now >= frames + 25).then_some(()).ok_or(now)
-    });
-    let jumped: Vec<_> = records(&record)
-        .into_iter()
-        .filter(|o| o.wall_us >= reconnected && o.owner == Some(PHONE))
-        .collect();
-    assert!(
-        jumped.is_empty(),
-        "moved from a pushed stick after reconnecting: {jumped:?}"
-    );
+    let why = "moved from a pushed stick after reconnecting";
+    assert_no_output_while_frames_flow(&browser, &record, reconnected, why);
     let centred = wall_us();
     browser.finger_moves(&[(x, y - 45), (x, y)]);
     let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: drives again");
@@ -648,23 +652,11 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
     browser.js("window.pad = { id: 'test pad', axes: [0, 0, 0, 0], \
            buttons: Array.from({ length: 8 }, () => ({ pressed: false })) }; \
          navigator.getGamepads = () => [window.pad]; return 1");
-    let pad = |script: &str| browser.js(&format!("{script}; return window.rove.frames"));
-    let frames = pad("pad.axes[1] = -0.8; pad.buttons[5].pressed = true");
+    let pad = |script: &str| browser.js(&format!("{script}; return 1"));
     let pressed = wall_us();
-    eventually("frames of the pushed, held pad reach the gateway", || {
-        let now = browser.js("return window.rove.frames");
-        (now.as_i64() >= frames.as_i64().map(|f| f + 25))
-            .then_some(())
-            .ok_or(now)
-    });
-    let moved: Vec<_> = records(&record)
-        .into_iter()
-        .filter(|o| o.wall_us >= pressed && o.owner == Some(PHONE))
-        .collect();
-    assert!(
-        moved.is_empty(),
-        "a pushed pad drove when its deadman was pressed: {moved:?}"
-    );
+    pad("pad.axes[1] = -0.8; pad.buttons[5].pressed = true");
+    let why = "a pushed pad drove when its deadman was pressed";
+    assert_no_output_while_frames_flow(&browser, &record, pressed, why);
     let centred = wall_us();
     pad("pad.axes[1] = 0");
     let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: the pad drives");

@@ -308,17 +308,7 @@ fn sign(cert: &X509, key: &PKey<Private>, document: &str) -> anyhow::Result<Vec<
 }
 
 fn write(path: &Path, contents: &[u8], secret: bool) -> anyhow::Result<()> {
-    use std::io::Write;
-    use std::os::unix::fs::OpenOptionsExt;
-    let mode = if secret { 0o600 } else { 0o644 };
-    let mut file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .mode(mode)
-        .open(path)
-        .with_context(|| format!("create {}", path.display()))?;
-    file.write_all(contents)
-        .with_context(|| format!("write {}", path.display()))
+    crate::runtime::create_file(path, contents, if secret { 0o600 } else { 0o644 })
 }
 
 fn governance_xml(domain: u16) -> String {

@@ -177,7 +177,13 @@ pub async fn run_attached(
 ) -> anyhow::Result<()> {
     let clock = attached.as_ref().map_or_else(Clock::start, |a| a.clock);
     let host = attached.is_none();
-    let mut notify = Notifier::from_env();
+    // systemd hears from the host's loop only: a web device starting or stopping is not the
+    // service's.
+    let mut notify = if host {
+        Notifier::from_env()
+    } else {
+        Notifier::disabled()
+    };
     let mut record = options
         .record
         .as_deref()

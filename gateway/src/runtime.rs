@@ -305,6 +305,25 @@ impl JsonLines {
     }
 }
 
+/// Writes a new file (never overwriting one that exists) with `mode`: `rove keys`' files, the
+/// web console's certificate. Errors name the path.
+///
+/// # Errors
+/// The file exists, or cannot be created or written.
+pub fn create_file(path: &std::path::Path, contents: &[u8], mode: u32) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(mode)
+        .open(path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    file.write_all(contents)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// A RequestControl sample as a JSON object, stamped with the wall clock now (µs), as
 /// `rove status --events` prints it and `rove operator --record` records it.
 pub fn request_json(clock: &Clock, rc: &rove_core::msg::RequestControl) -> serde_json::Value {

@@ -2,12 +2,10 @@
 //! self-signed one made here (and written to the configured files when they do not exist yet,
 //! so a browser that accepted it once keeps trusting it across restarts).
 
+use crate::runtime::create_file;
 use anyhow::Context;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer};
-use std::io::Write;
-use std::os::unix::fs::OpenOptionsExt;
-use std::path::Path;
 use std::sync::Arc;
 
 /// A server identity ready for rustls, and what to tell the person about it.
@@ -60,8 +58,8 @@ pub fn identity(
             }
             (false, false) => {
                 let (chain, pem, cert_pem, key_pem) = self_signed(listen)?;
-                write_new(cert, cert_pem.as_bytes(), 0o644)?;
-                write_new(key, key_pem.as_bytes(), 0o600)?;
+                create_file(cert, cert_pem.as_bytes(), 0o644).context("[web] certificate")?;
+                create_file(key, key_pem.as_bytes(), 0o600).context("[web] key")?;
                 (
                     chain,
                     pem,
@@ -120,18 +118,6 @@ fn self_signed(listen: std::net::SocketAddr) -> anyhow::Result<Made> {
     let cert_pem = made.cert.pem();
     let key_pem = made.signing_key.serialize_pem();
     Ok((vec![made.cert.der().clone()], key, cert_pem, key_pem))
-}
-
-/// Writes a new file (never overwriting) with `mode`.
-fn write_new(path: &Path, bytes: &[u8], mode: u32) -> anyhow::Result<()> {
-    let mut file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .mode(mode)
-        .open(path)
-        .with_context(|| format!("[web]: cannot create {}", path.display()))?;
-    file.write_all(bytes)
-        .with_context(|| format!("[web]: cannot write {}", path.display()))
 }
 
 #[cfg(test)]
