@@ -606,7 +606,8 @@ async fn serve_page(
                 let value = serde_json::from_str::<serde_json::Value>(&text).ok();
                 let lost = value.as_ref().and_then(|v| v.get("lost")?.as_str());
                 if let Some(why) = lost {
-                    let why: String = why.chars().take(80).collect();
+                    // Said by the page: bounded and printable before it reaches the log.
+                    let why: String = why.chars().filter(|c| !c.is_control()).take(80).collect();
                     link.input.with(|r| r.lost(&format!("browser: {why}")));
                     link.wake.notify_one();
                     continue;

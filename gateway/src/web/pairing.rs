@@ -2,8 +2,9 @@
 //! time, and randomness comes from the caller.
 //!
 //! - **One code at a time**, six digits, shown in the operator's log and console. It is valid
-//!   for [`CODE_LIFETIME`], for one pairing, and for [`CODE_ATTEMPTS`] wrong guesses; then a new
-//!   one is made (a guesser has 5 tries in a million per code).
+//!   for [`CODE_LIFETIME`], for one pairing, and for [`CODE_ATTEMPTS`] wrong guesses. After
+//!   those, pairing is closed for [`CODE_COOLDOWN`] before a new code is made: a guesser gets
+//!   5 tries in a million per 30 s, about 70 days for even odds, each try logged.
 //! - **A pairing** binds a new token (128 random bits, hex) to one configured device: the first
 //!   one not paired, else the one paired longest ago whose browser is not connected now (its
 //!   old token stops working). A connected device is never taken over.
@@ -20,6 +21,9 @@ pub const CODE_LIFETIME: Duration = Duration::from_secs(600);
 
 /// Wrong codes tried before the code is replaced.
 pub const CODE_ATTEMPTS: u32 = 5;
+
+/// How long pairing stays closed after [`CODE_ATTEMPTS`] wrong codes.
+pub const CODE_COOLDOWN: Duration = Duration::from_secs(30);
 
 /// Why a pairing was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -57,6 +61,10 @@ pub struct Pairing {
     code: String,
     code_made: MonoTime,
     failures: u32,
+    /// When the last wrong code came.
+    last_failure: MonoTime,
+    /// The code paired a browser: the next one needs a new code.
+    used: bool,
     tokens: HashMap<String, Paired>,
 }
 
@@ -79,6 +87,8 @@ impl Pairing {
             code: code_from(random),
             code_made: now,
             failures: 0,
+            last_failure: now,
+            used: false,
             tokens: HashMap::new(),
         }
     }
@@ -88,9 +98,19 @@ impl Pairing {
         &self.code
     }
 
-    /// Whether the code must be replaced (too old, or too many wrong guesses).
+    /// Whether the code must be replaced now: too old, used, or guessed wrong too often and
+    /// the cooldown over.
     pub fn code_stale(&self, now: MonoTime) -> bool {
-        now.saturating_since(self.code_made) >= CODE_LIFETIME || self.failures >= CODE_ATTEMPTS
+        let cooled = now.saturating_since(self.last_failure) >= CODE_COOLDOWN;
+        self.expired(now) || self.used || (self.burnt() && cooled)
+    }
+
+    fn expired(&self, now: MonoTime) -> bool {
+        now.saturating_since(self.code_made) >= CODE_LIFETIME
+    }
+
+    fn burnt(&self) -> bool {
+        self.failures >= CODE_ATTEMPTS
     }
 
     /// Replaces the code; returns the new one.
@@ -98,6 +118,7 @@ impl Pairing {
         self.code = code_from(random);
         self.code_made = now;
         self.failures = 0;
+        self.used = false;
         &self.code
     }
 
@@ -114,8 +135,10 @@ impl Pairing {
         connected: impl Fn(usize) -> bool,
         random: [u8; 16],
     ) -> Result<(String, usize), PairError> {
-        if self.code_stale(now) || code.trim() != self.code {
+        let closed = self.expired(now) || self.used || self.burnt();
+        if closed || code.trim() != self.code {
             self.failures = self.failures.saturating_add(1);
+            self.last_failure = now;
             return Err(PairError::WrongCode);
         }
         self.tokens
@@ -140,7 +163,7 @@ impl Pairing {
         self.tokens
             .insert(token.clone(), Paired { device, since: now });
         // Used: the next browser needs the next code.
-        self.failures = CODE_ATTEMPTS;
+        self.used = true;
         Ok((token, device))
     }
 
@@ -190,20 +213,25 @@ mod tests {
     }
 
     #[test]
-    fn five_wrong_codes_make_the_code_stale() {
+    fn five_wrong_codes_close_pairing_for_the_cooldown_then_a_new_code_works() {
         let mut p = Pairing::new(s(0), 1, SESSION, rnd(1));
         let right = p.code().to_string();
         for _ in 0..CODE_ATTEMPTS {
             assert!(!p.code_stale(s(1)));
             assert!(p.pair(s(1), "000000x", |_| false, rnd(2)).is_err());
         }
-        assert!(p.code_stale(s(1)));
-        assert_eq!(
-            p.pair(s(1), &right, |_| false, rnd(2)),
-            Err(PairError::WrongCode)
+        // Burnt: even the right code fails, and no new code until the cooldown is over.
+        let refused = p.pair(s(1), &right, |_| false, rnd(2));
+        assert_eq!(refused, Err(PairError::WrongCode));
+        assert!(!p.code_stale(s(30)));
+        assert!(p.code_stale(s(31)));
+        let renewed = p.renew(s(31), rnd(9)).to_string();
+        assert!(!p.code_stale(s(31)));
+        assert!(p.pair(s(31), &renewed, |_| false, rnd(2)).is_ok());
+        assert!(
+            p.code_stale(s(31)),
+            "used: the next browser needs a new code at once"
         );
-        let renewed = p.renew(s(2), rnd(9)).to_string();
-        assert!(p.pair(s(2), &renewed, |_| false, rnd(2)).is_ok());
     }
 
     #[test]
