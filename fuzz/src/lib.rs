@@ -16,6 +16,7 @@
 //! - [`dronecan`]: DroneCAN transfers split into frames and reassembled.
 //! - [`replay`]: evdev recordings (text and raw `input_event` records) into rove-inputs.
 //! - [`console_api`]: lines into the console API's command parser.
+//! - [`web_page`]: a browser's messages into the web console's parser and stale-input rules.
 //! - `bytes`: the cursor the structure-aware targets draw their choices from.
 //!
 //! Not here: I/O. Targets never open files, sockets or devices.
@@ -32,6 +33,7 @@ pub mod dronecan;
 pub mod mavlink;
 pub mod replay;
 pub mod session;
+pub mod web_page;
 
 /// A target's body: any bytes in; a panic is a finding.
 pub type Target = fn(&[u8]);
@@ -47,4 +49,5 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("dronecan", dronecan::dronecan),
     ("replay", replay::replay),
     ("console_api", console_api::console_api),
+    ("web_page", web_page::web_page),
 ];

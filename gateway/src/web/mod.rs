@@ -457,6 +457,48 @@ fn axis(v: i64) -> i16 {
     i16::try_from(v.clamp(i64::from(-i16::MAX), i64::from(i16::MAX))).unwrap_or(0)
 }
 
+/// What a page's message is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PageMessage {
+    /// An input frame, axes clamped to ±32767.
+    Frame(Frame),
+    /// The page cannot be trusted now (hidden, closing); why, bounded and printable.
+    Lost(String),
+    /// Anything else: a local-API command line, parsed and answered as the API does.
+    Command,
+}
+
+/// Longest loss reason taken from a page, in characters.
+pub const MAX_REASON: usize = 80;
+
+/// Classifies one text message from a page (docs/web.md, "Protocol").
+pub fn page_message(text: &str) -> PageMessage {
+    if let Ok(frame) = serde_json::from_str::<FrameMsg>(text) {
+        let [throttle, roll, pitch, yaw] = frame.sticks.map(axis);
+        let sticks = MovementCommand {
+            throttle,
+            roll,
+            pitch,
+            yaw,
+        };
+        return PageMessage::Frame(Frame {
+            sticks,
+            deadman: frame.dm,
+        });
+    }
+    let value = serde_json::from_str::<serde_json::Value>(text).ok();
+    match value.as_ref().and_then(|v| v.get("lost")?.as_str()) {
+        // Said by the page: bounded and printable before it reaches the log.
+        Some(why) => PageMessage::Lost(
+            why.chars()
+                .filter(|c| !c.is_control())
+                .take(MAX_REASON)
+                .collect(),
+        ),
+        None => PageMessage::Command,
+    }
+}
+
 async fn send(socket: &mut WebSocket, value: &serde_json::Value) -> bool {
     socket
         .send(Message::Text(value.to_string().into()))
@@ -595,22 +637,18 @@ async fn serve_page(
                     }
                     Some(Ok(_)) => continue,
                 };
-                if let Ok(frame) = serde_json::from_str::<FrameMsg>(&text) {
-                    let [throttle, roll, pitch, yaw] = frame.sticks.map(axis);
-                    let sticks = MovementCommand { throttle, roll, pitch, yaw };
-                    let frame = Frame { sticks, deadman: frame.dm };
-                    link.input.with(|r| r.frame(link.clock.now(), frame));
-                    link.wake.notify_one();
-                    continue;
-                }
-                let value = serde_json::from_str::<serde_json::Value>(&text).ok();
-                let lost = value.as_ref().and_then(|v| v.get("lost")?.as_str());
-                if let Some(why) = lost {
-                    // Said by the page: bounded and printable before it reaches the log.
-                    let why: String = why.chars().filter(|c| !c.is_control()).take(80).collect();
-                    link.input.with(|r| r.lost(&format!("browser: {why}")));
-                    link.wake.notify_one();
-                    continue;
+                match page_message(&text) {
+                    PageMessage::Frame(frame) => {
+                        link.input.with(|r| r.frame(link.clock.now(), frame));
+                        link.wake.notify_one();
+                        continue;
+                    }
+                    PageMessage::Lost(why) => {
+                        link.input.with(|r| r.lost(&format!("browser: {why}")));
+                        link.wake.notify_one();
+                        continue;
+                    }
+                    PageMessage::Command => {}
                 }
                 // A command (docs/api.md); messages are bounded by MAX_MESSAGE, far below the
                 // API's line limit. `line` counts commands only, not frames.
