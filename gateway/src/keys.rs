@@ -109,11 +109,7 @@ pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
     if id <= 0 {
         bail!("device id {id}: must be positive");
     }
-    let read = |name: &str| {
-        let path = dir.join(name);
-        std::fs::read(&path)
-            .with_context(|| format!("read {} (run `rove keys init`)", path.display()))
-    };
+    let read = |name: &str| fleet_file(dir, name);
     let ca = X509::from_pem(&read("ca.cert.pem")?)?;
     let ca_key = PKey::private_key_from_pem(&read("ca.key.pem")?)?;
     let domain: u16 = String::from_utf8_lossy(&read("domain")?)
@@ -151,6 +147,48 @@ pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
     write(&out.join("identity_ca.cert.pem"), &ca_pem, false)?;
     write(&out.join("permissions_ca.cert.pem"), &ca_pem, false)?;
     write(&out.join("governance.p7s"), &read("governance.p7s")?, false)?;
+    Ok(out)
+}
+
+/// Issues the browser console's server certificate (docs/web.md), signed by the fleet CA, for
+/// the names and addresses in `hosts`, in `DIR/web-HOST/` (`cert.pem`, `key.pem`): point
+/// `[web] certificate` and `key` there. Browsers that trust the fleet's `ca.cert.pem` then
+/// accept the page without a warning.
+///
+/// # Errors
+/// `dir` holds no fleet, `hosts` is empty, the files exist, or OpenSSL fails.
+pub fn web(dir: &Path, hosts: &[String]) -> anyhow::Result<PathBuf> {
+    use openssl::x509::extension::{ExtendedKeyUsage, SubjectAlternativeName};
+    let Some(first) = hosts.first() else {
+        bail!("name at least one host (--host NAME or address)");
+    };
+    let read = |name: &str| fleet_file(dir, name);
+    let ca = X509::from_pem(&read("ca.cert.pem")?)?;
+    let ca_key = PKey::private_key_from_pem(&read("ca.key.pem")?)?;
+    let out = dir.join(format!("web-{first}"));
+    if out.join("cert.pem").exists() {
+        bail!("{} exists already", out.join("cert.pem").display());
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
+    let key = new_key()?;
+    let name = subject(&fleet_of(&ca)?, first)?;
+    let mut cert = builder(&name, ca.subject_name(), &key)?;
+    let mut names = SubjectAlternativeName::new();
+    for host in hosts {
+        if host.parse::<std::net::IpAddr>().is_ok() {
+            names.ip(host);
+        } else {
+            names.dns(host);
+        }
+    }
+    let names = names.build(&cert.x509v3_context(Some(&ca), None))?;
+    cert.append_extension(names)?;
+    cert.append_extension(BasicConstraints::new().critical().build()?)?;
+    cert.append_extension(KeyUsage::new().critical().digital_signature().build()?)?;
+    cert.append_extension(ExtendedKeyUsage::new().server_auth().build()?)?;
+    cert.sign(&ca_key, MessageDigest::sha256())?;
+    write(&out.join("cert.pem"), &cert.build().to_pem()?, false)?;
+    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
     Ok(out)
 }
 
@@ -253,6 +291,12 @@ fn guid_start_of(participant: ParticipantId) -> [u8; 6] {
     let mut start = [0u8; 6];
     start.copy_from_slice(&bytes[4..10]);
     start
+}
+
+/// A file of the fleet in `dir`.
+fn fleet_file(dir: &Path, name: &str) -> anyhow::Result<Vec<u8>> {
+    let path = dir.join(name);
+    std::fs::read(&path).with_context(|| format!("read {} (run `rove keys init`)", path.display()))
 }
 
 fn new_key() -> anyhow::Result<PKey<Private>> {
@@ -422,6 +466,33 @@ mod tests {
         assert!(format!("{e:#}").contains("not device 12's"), "{e:#}");
         assert!(init(&dir, "again", 0).is_err(), "a fleet is created once");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_web_certificate_verifies_against_the_fleet_ca_and_serves_tls() {
+        let dir = scratch("web");
+        init(&dir, "test fleet", 0).expect("init");
+        let hosts = ["rover-base.local".to_string(), "192.168.1.20".to_string()];
+        let out = web(&dir, &hosts).expect("issued");
+        let pem = |p: &Path| std::fs::read(p).expect("read");
+        let ca = X509::from_pem(&pem(&dir.join("ca.cert.pem"))).expect("ca");
+        let cert = X509::from_pem(&pem(&out.join("cert.pem"))).expect("cert");
+        assert!(cert.verify(&ca.public_key().expect("key")).expect("verify"));
+        let names: Vec<String> = (cert.subject_alt_names().expect("SAN").iter())
+            .map(|n| {
+                n.dnsname().map(str::to_string).unwrap_or_else(|| {
+                    let ip = n.ipaddress().unwrap_or_default();
+                    ip.iter().map(u8::to_string).collect::<Vec<_>>().join(".")
+                })
+            })
+            .collect();
+        assert_eq!(names, hosts);
+        let files = (out.join("cert.pem"), out.join("key.pem"));
+        let listen = "0.0.0.0:8443".parse().expect("addr");
+        let served = crate::web::tls::identity(Some(&files), listen).expect("rustls takes it");
+        assert!(served.origin.starts_with("loaded"), "{}", served.origin);
+        assert!(web(&dir, &hosts).is_err(), "never overwritten");
+        assert!(web(&dir, &[]).is_err());
     }
 
     #[test]

@@ -163,6 +163,16 @@ enum KeysCommand {
         #[arg(long)]
         id: i64,
     },
+    /// Issue the browser console's HTTPS certificate, signed by the fleet CA, in
+    /// DIR/web-HOST/ (docs/web.md).
+    Web {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// A name or address browsers reach the operator by (repeat for more).
+        #[arg(long = "host", required = true)]
+        hosts: Vec<String>,
+    },
 }
 
 /// `rove bench handover --security`.
@@ -547,6 +557,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 let out = rove_gateway::keys::add(&dir, id)?;
                 println!(
                     "device {id}: certificate, key and permissions in {}",
+                    out.display()
+                );
+                Ok(())
+            }
+            KeysCommand::Web { dir, hosts } => {
+                let out = rove_gateway::keys::web(&dir, &hosts)?;
+                println!(
+                    "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
                     out.display()
                 );
                 Ok(())
