@@ -525,7 +525,10 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     browser
         .run(browser.client.minimize_window())
         .expect("minimize");
-    assert_eq!(browser.js("return document.visibilityState"), "hidden");
+    eventually("the page is hidden", || {
+        let v = browser.js("return document.visibilityState");
+        (v == "hidden").then_some(()).ok_or(v)
+    });
     no_failsafe_gap(&record, hidden, LAPTOP);
     let log = rig.log_of("operator-20");
     assert!(log.contains("page hidden"), "the release names why");

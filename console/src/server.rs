@@ -102,7 +102,11 @@ impl ApiSocket {
     pub async fn serve(self, hub: Hub, commands: mpsc::Sender<CommandRequest>) -> Result<()> {
         let mut next_id = 0u64;
         loop {
-            match self.listener.accept().await {
+            let accepted = tokio::select! {
+                accepted = self.listener.accept() => accepted,
+                () = hub.stopped() => return Ok(()),
+            };
+            match accepted {
                 Ok((stream, _)) => {
                     next_id += 1;
                     match hub.join().await {
@@ -153,6 +157,11 @@ impl Hub {
         let (joins, rx) = mpsc::channel(16);
         tokio::spawn(hub_task(mirror, events, rx));
         Hub { joins }
+    }
+
+    /// Completes when the hub has stopped (the operator's events closed).
+    pub async fn stopped(&self) {
+        self.joins.closed().await;
     }
 
     /// A new client's lines, or why not.

@@ -594,10 +594,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 config::AnyConfig::Vehicle(_) => "vehicle",
                 config::AnyConfig::Operator(_) => "operator",
             };
+            // With --print, stdout is the effective TOML alone (`> file` loads again); the
+            // verdict goes to stderr.
             if print {
                 println!("{effective}");
+                eprintln!("{}: valid {role} config", file.display());
+            } else {
+                println!("{}: valid {role} config", file.display());
             }
-            println!("{}: valid {role} config", file.display());
             Ok(())
         }
     }
