@@ -4,7 +4,7 @@
 //! gateway does.
 //!
 //! Checked, besides "no panic": a loss reason is at most
-//! [`MAX_REASON`](rove_gateway::web::MAX_REASON) characters with no control characters; axes
+//! [`MAX_REASON`] characters with no control characters; axes
 //! come out only from a frame with its deadman held; the first axes after the start, a loss or
 //! a release are centred.
 
