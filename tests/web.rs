@@ -602,6 +602,19 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
             .iter()
             .all(|o| o.owner != Some(PHONE) || o.wall_us < closed)
     );
+
+    // No browser any more: after the linger, the device's participant leaves the fleet.
+    eventually("the web device leaves after its browser", || {
+        let log = rig.log_of("operator-20");
+        log.contains("no browser for a while, the device leaves")
+            .then_some(())
+            .ok_or("not yet")
+    });
+    let row = Rig::device(&rig.status(), PHONE);
+    assert!(
+        row.as_ref().is_none_or(|d| d["online"] == false),
+        "the web device is still listed online: {row:?}"
+    );
 }
 
 #[test]
@@ -683,4 +696,39 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
         let error = browser.text("#pair-error");
         error.contains("expired").then_some(()).ok_or(error)
     });
+}
+
+#[test]
+fn in_a_secured_fleet_a_paired_phone_drives_as_its_own_certified_participant() {
+    let mut rig = Rig::new("web-secure");
+    let fleet = rig.fleet(&[VEHICLE, 20, PHONE]).expect("fleet");
+    let web = rove_gateway::keys::web(&fleet, &["127.0.0.1".to_string()]).expect("web cert");
+    let security = |id| rove_gateway::harness::security_toml(Some(&fleet), id);
+    let output = format!("{}[output]\nadapter = \"sim\"\n", security(VEHICLE));
+    let record = rig.vehicle_with_output(VEHICLE, &output);
+    let device_dir = fleet.join(PHONE.to_string());
+    web_host(
+        &mut rig,
+        &format!(
+            "certificate = {:?}\nkey = {:?}\n{}",
+            web.join("cert.pem"),
+            web.join("key.pem"),
+            security(20)
+        ),
+        &format!("name = \"phone-web\"\nsecurity = {device_dir:?}"),
+    );
+    let browser = Browser::start(&rig, PHONE_VIEW, 9517);
+    pair(&browser, &rig, "phone-web");
+    let log = rig.log_of("operator-20");
+    assert!(
+        log.contains("certificate=loaded from") && log.contains("web-127.0.0.1"),
+        "the page is served with the fleet's certificate"
+    );
+    let at = browser.centre("#left");
+    let touched = wall_us();
+    browser.finger_down(at);
+    wait_for_output(&record, Some(PHONE), touched).expect("the secured phone drives");
+    let lifted = wall_us();
+    browser.finger_up();
+    wait_for_output(&record, None, lifted).expect("lifted: the vehicle's failsafe");
 }

@@ -92,7 +92,7 @@ impl WebInput {
                 RemoteLink::AwaitingCentre => {
                     "browser: put a finger on a stick, centred, to drive".to_string()
                 }
-                RemoteLink::Lost(why) => format!("browser: {why}"),
+                RemoteLink::Lost(why) => why.clone(),
             };
             (Some(r.deadman()), text)
         })
@@ -186,8 +186,8 @@ impl Shared {
     }
 }
 
-/// The browser console of one operator. Dropping the `run` future's caller side is not
-/// enough to stop it: [`WebConsole::run`] ends when `stop` fires, after the devices stopped.
+/// The browser console of one operator: [`WebConsole::bind`], then [`WebConsole::run`] until
+/// its `stop` fires; it returns once every web device has released its vehicles and left.
 pub struct WebConsole {
     shared: Arc<Shared>,
     listener: tokio::net::TcpListener,
@@ -283,19 +283,20 @@ impl WebConsole {
             .route("/ws", get(upgrade))
             .with_state(Arc::clone(&self.shared));
         let permits = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
-        let mut codes = tokio::time::interval(Duration::from_secs(1));
-        let mut reaper = tokio::time::interval(Duration::from_secs(1));
+        // Once a second: a new pairing code when the old one is stale, and devices whose
+        // browsers left are stopped.
+        let mut housekeeping = tokio::time::interval(Duration::from_secs(1));
         tokio::pin!(stop);
         loop {
             tokio::select! {
                 () = &mut stop => break,
-                _ = codes.tick() => {
+                _ = housekeeping.tick() => {
                     let now = self.shared.clock.now();
                     if self.shared.pairing(|p| p.code_stale(now)) {
                         self.shared.renew_code();
                     }
+                    reap(&self.shared).await;
                 }
-                _ = reaper.tick() => reap(&self.shared).await,
                 accepted = self.listener.accept() => {
                     let (tcp, peer) = match accepted {
                         Ok(a) => a,
