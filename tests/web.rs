@@ -566,6 +566,10 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     let reconnected = wall_us();
     let why = "moved from a pushed stick after reconnecting";
     assert_no_output_while_frames_flow(&browser, &record, reconnected, why);
+    eventually("the page says why nothing moves", || {
+        let hint = browser.text("#link");
+        hint.contains("sticks centred").then_some(()).ok_or(hint)
+    });
     let centred = wall_us();
     browser.finger_moves(&[(x, y - 45), (x, y)]);
     let first = wait_for_output(&record, Some(PHONE), centred).expect("centred: drives again");

@@ -88,9 +88,11 @@ impl WebInput {
     pub fn status(&self) -> (Option<bool>, String) {
         self.with(|r| {
             let text = match r.link() {
-                RemoteLink::Live => "browser: live".to_string(),
+                RemoteLink::Live => "live".to_string(),
                 RemoteLink::AwaitingCentre => {
-                    "browser: put a finger on a stick, centred, to drive".to_string()
+                    "put a thumb on a stick (or hold the gamepad's shoulder button), sticks \
+                     centred, to drive"
+                        .to_string()
                 }
                 RemoteLink::Lost(why) => why.clone(),
             };

@@ -87,6 +87,11 @@ function command(cmd, fields) { send({ cmd, ...fields }); }
 // ---- events → state → view -------------------------------------------------------------------
 
 function onEvent(e) {
+  if (e.event === "input") {
+    // At the stream rate while the sticks move: only the input line, no re-render.
+    $("link").textContent = e.live ? "" : e.link;
+    return;
+  }
   switch (e.event) {
     case "hello": state.offlineAfter = e.offline_after_ms; state.tOffset = performance.now() - e.t_ms; break;
     case "identity": state.me = e; $("me").textContent = `${e.name} (${e.id}) · ${e.level} ${e.class} · strength ${e.strength}`; break;
