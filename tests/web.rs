@@ -178,6 +178,22 @@ impl Browser {
         self.js(&script).as_str().unwrap_or_default().to_string()
     }
 
+    /// Waits until the text of `css` satisfies `want`, saying `what` if it never does.
+    fn wait_text(&self, what: &str, css: &str, want: impl Fn(&str) -> bool) {
+        eventually(what, || {
+            let text = self.text(css);
+            want(&text).then_some(()).ok_or(text)
+        });
+    }
+
+    /// Waits until `script` returns `want`, saying `what` if it never does.
+    fn wait_js(&self, what: &str, script: &str, want: Value) {
+        eventually(what, || {
+            let got = self.js(script);
+            (got == want).then_some(()).ok_or(got)
+        });
+    }
+
     fn click(&self, css: &str) {
         let el = self
             .run(self.client.find(Locator::Css(css)))
@@ -381,13 +397,10 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
 
     let browser = Browser::start(&rig, PHONE_VIEW, 9515);
     pair(&browser, &rig, "phone-web");
-    eventually("the page lists the vehicle, driven by the laptop", || {
-        let banner = browser.text("#banner");
-        if banner.contains("STANDING BY") && banner.contains(&format!("({VEHICLE})")) {
-            Ok(())
-        } else {
-            Err(banner)
-        }
+    let vehicle = format!("({VEHICLE})");
+    let what = "the page lists the vehicle, driven by the laptop";
+    browser.wait_text(what, "#banner", |b| {
+        b.contains("STANDING BY") && b.contains(&vehicle)
     });
     // One-handed on a 360 px phone: nothing scrolls sideways, the sticks sit in the lower half
     // (the thumb's reach), every button is at least 44 px tall.
@@ -453,9 +466,8 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         "an output before its touch: {latencies:?}"
     );
     browser.finger_moves(&[(x, y - 90)]);
-    eventually("the banner says the phone drives", || {
-        let banner = browser.text("#banner");
-        banner.contains("YOU DRIVE").then_some(()).ok_or(banner)
+    browser.wait_text("the banner says the phone drives", "#banner", |b| {
+        b.contains("YOU DRIVE")
     });
     browser.screenshot("web-phone-driving.png");
 
@@ -525,10 +537,8 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     browser
         .run(browser.client.minimize_window())
         .expect("minimize");
-    eventually("the page is hidden", || {
-        let v = browser.js("return document.visibilityState");
-        (v == "hidden").then_some(()).ok_or(v)
-    });
+    let visibility = "return document.visibilityState";
+    browser.wait_js("the page is hidden", visibility, json!("hidden"));
     no_failsafe_gap(&record, hidden, LAPTOP);
     let log = rig.log_of("operator-20");
     assert!(log.contains("page hidden"), "the release names why");
@@ -541,10 +551,7 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
                 .set_window_size(PHONE_VIEW.width, PHONE_VIEW.height),
         )
         .expect("restore");
-    eventually("the page is visible again", || {
-        let v = browser.js("return document.visibilityState");
-        (v == "visible").then_some(()).ok_or(v)
-    });
+    browser.wait_js("the page is visible again", visibility, json!("visible"));
     // The finger that was on the glass when the page hid has lifted (the page let go of it
     // already); then a new touch.
     browser.finger_up();
@@ -559,16 +566,16 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     let dropped = wall_us();
     browser.js("window.rove.drop(); return 1");
     no_failsafe_gap(&record, dropped, LAPTOP);
-    eventually("the page reconnects", || {
-        let connected = browser.js("return window.rove.connected");
-        (connected == true).then_some(()).ok_or("not yet")
-    });
+    browser.wait_js(
+        "the page reconnects",
+        "return window.rove.connected",
+        json!(true),
+    );
     let reconnected = wall_us();
     let why = "moved from a pushed stick after reconnecting";
     assert_no_output_while_frames_flow(&browser, &record, reconnected, why);
-    eventually("the page says why nothing moves", || {
-        let hint = browser.text("#link");
-        hint.contains("sticks centred").then_some(()).ok_or(hint)
+    browser.wait_text("the page says why nothing moves", "#link", |t| {
+        t.contains("sticks centred")
     });
     let centred = wall_us();
     browser.finger_moves(&[(x, y - 45), (x, y)]);
@@ -641,14 +648,11 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
         "document.getElementById('code').value = {wrong:?}; return 1"
     ));
     browser.click("#pair-button");
-    eventually("a wrong code is refused", || {
-        let error = browser.text("#pair-error");
-        error
-            .contains("wrong pairing code")
-            .then_some(())
-            .ok_or(error)
+    browser.wait_text("a wrong code is refused", "#pair-error", |e| {
+        e.contains("wrong pairing code")
     });
     pair(&browser, &rig, "tablet-web");
+    let paired_at = std::time::Instant::now();
     // Landscape tablet: the panel beside the sticks, nothing scrolls.
     let layout = browser.js(
         "const p = document.getElementById('panel').getBoundingClientRect(); \
@@ -657,12 +661,9 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
            document.documentElement.scrollWidth <= innerWidth]",
     );
     assert_eq!(layout, json!([true, true, true]), "tablet layout");
-    eventually("the page lists the vehicle", || {
-        let banner = browser.text("#banner");
-        banner
-            .contains(&format!("({VEHICLE})"))
-            .then_some(())
-            .ok_or(banner)
+    let vehicle = format!("({VEHICLE})");
+    browser.wait_text("the page lists the vehicle", "#banner", |b| {
+        b.contains(&vehicle)
     });
     browser.screenshot("web-tablet.png");
 
@@ -688,7 +689,6 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
     pad("pad.buttons[5].pressed = false");
     wait_for_output(&record, None, let_go).expect("deadman released: the vehicle's failsafe");
     // The session lasts 3 s: after it, the same token no longer connects.
-    let paired_at = std::time::Instant::now();
     let token = browser.js("return localStorage.getItem('rove.token')");
     assert!(token.as_str().is_some_and(|t| t.len() == 32), "{token}");
     while paired_at.elapsed() < Duration::from_secs(4) {
@@ -696,9 +696,8 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
         std::thread::sleep(Duration::from_millis(100));
     }
     browser.js("location.reload(); return 1");
-    eventually("an expired token is refused", || {
-        let error = browser.text("#pair-error");
-        error.contains("expired").then_some(()).ok_or(error)
+    browser.wait_text("an expired token is refused", "#pair-error", |e| {
+        e.contains("expired")
     });
 }
 

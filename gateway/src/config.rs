@@ -678,10 +678,15 @@ impl RawOperator {
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let op = &mut self.operator;
         let (level, class, offset) = (op.level, op.device_class, *op.offset.get_or_insert(0));
-        let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
-        let strength = (errors.int("operator.offset", offset, offset_range, ""))
-            .and_then(|o| hierarchy.strength(level, class, o).ok())
-            .unwrap_or(Strength(1));
+        let strength = operator_strength(
+            &hierarchy,
+            level,
+            class,
+            offset,
+            "operator.offset",
+            &mut errors,
+        );
+        let strength = strength.unwrap_or(Strength(1));
         let stream_hz = *op.stream_hz.get_or_insert(DEFAULT_STREAM_HZ);
         let rule = "; at least 10 keeps a vehicle with the default 100 ms command timeout from \
                     timing out between samples";
@@ -735,6 +740,21 @@ impl RawOperator {
     }
 }
 
+/// An operator's strength from its level, class and `offset` (written at `key`): the offset
+/// is checked against 0..=9, the rest is the hierarchy's.
+fn operator_strength(
+    hierarchy: &Hierarchy,
+    level: Level,
+    class: DeviceClass,
+    offset: Int,
+    key: &str,
+    errors: &mut ConfigErrors,
+) -> Option<Strength> {
+    let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
+    (errors.int(key, offset, offset_range, ""))
+        .and_then(|o| hierarchy.strength(level, class, o).ok())
+}
+
 /// How long a pairing lasts without `session_s`: a working day.
 const DEFAULT_WEB_SESSION_S: Int = 43_200;
 
@@ -785,9 +805,8 @@ impl WebSection {
             let level = *d.level.get_or_insert(Level::Mobile);
             let class = *d.device_class.get_or_insert(DeviceClass::Phone);
             let offset = *d.offset.get_or_insert(0);
-            let offset_range = 0..=Int::from(rove_core::hierarchy::MAX_OFFSET);
-            let strength = (errors.int(&format!("{at}.offset"), offset, offset_range, ""))
-                .and_then(|o| hierarchy.strength(level, class, o).ok());
+            let key = format!("{at}.offset");
+            let strength = operator_strength(hierarchy, level, class, offset, &key, errors);
             if host.common.security.is_some() && d.security.is_none() {
                 let rule = "is required: the operator has [security], and each web device is a \
                             participant with its own certificate";

@@ -110,8 +110,7 @@ pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
         bail!("device id {id}: must be positive");
     }
     let read = |name: &str| fleet_file(dir, name);
-    let ca = X509::from_pem(&read("ca.cert.pem")?)?;
-    let ca_key = PKey::private_key_from_pem(&read("ca.key.pem")?)?;
+    let (ca, ca_key) = fleet_ca(dir)?;
     let domain: u16 = String::from_utf8_lossy(&read("domain")?)
         .trim()
         .parse()
@@ -162,9 +161,7 @@ pub fn web(dir: &Path, hosts: &[String]) -> anyhow::Result<PathBuf> {
     let Some(first) = hosts.first() else {
         bail!("name at least one host (--host NAME or address)");
     };
-    let read = |name: &str| fleet_file(dir, name);
-    let ca = X509::from_pem(&read("ca.cert.pem")?)?;
-    let ca_key = PKey::private_key_from_pem(&read("ca.key.pem")?)?;
+    let (ca, ca_key) = fleet_ca(dir)?;
     let out = dir.join(format!("web-{first}"));
     if out.join("cert.pem").exists() {
         bail!("{} exists already", out.join("cert.pem").display());
@@ -275,7 +272,7 @@ impl FleetIdentity {
 
     /// Whether `participant` (authenticated by DDS Security) holds device `id`'s certificate.
     pub fn speaks_for(&self, id: DeviceId, participant: ParticipantId) -> bool {
-        let mut starts = (self.starts.lock()).unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut starts = crate::runtime::lock(&self.starts);
         if starts.len() >= MAX_CACHED_IDS && !starts.contains_key(&id) {
             starts.clear();
         }
@@ -297,6 +294,13 @@ fn guid_start_of(participant: ParticipantId) -> [u8; 6] {
 fn fleet_file(dir: &Path, name: &str) -> anyhow::Result<Vec<u8>> {
     let path = dir.join(name);
     std::fs::read(&path).with_context(|| format!("read {} (run `rove keys init`)", path.display()))
+}
+
+/// The fleet CA in `dir`: its certificate and key.
+fn fleet_ca(dir: &Path) -> anyhow::Result<(X509, PKey<Private>)> {
+    let ca = X509::from_pem(&fleet_file(dir, "ca.cert.pem")?)?;
+    let key = PKey::private_key_from_pem(&fleet_file(dir, "ca.key.pem")?)?;
+    Ok((ca, key))
 }
 
 fn new_key() -> anyhow::Result<PKey<Private>> {

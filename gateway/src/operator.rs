@@ -151,6 +151,20 @@ impl Device {
     }
 }
 
+/// The console's view of an operator before its first event: its identity, and devices offline
+/// after three missed heartbeats. The host's console and API, and each web device's page, start
+/// from it.
+pub fn console_state(config: &OperatorConfig) -> ConsoleState {
+    let identity = Identity {
+        id: config.common.id,
+        name: config.common.name.clone(),
+        level: config.level,
+        class: config.device_class,
+        strength: config.strength,
+    };
+    ConsoleState::new(identity, config.common.heartbeat * 3)
+}
+
 /// Runs the operator role until `shutdown` completes or the console is closed; with `[web]`,
 /// the browser console and its devices too.
 ///
@@ -273,14 +287,8 @@ pub async fn run_attached(
 
     // The console and the local API see the operator through events and act through commands
     // (rove-console); both are optional.
-    let identity = Identity {
-        id: me,
-        name: config.common.name.clone(),
-        level: config.level,
-        class: config.device_class,
-        strength: config.strength,
-    };
-    let mirror = ConsoleState::new(identity.clone(), config.common.heartbeat * 3);
+    let mirror = console_state(&config);
+    let identity = mirror.identity.clone();
     let (commands_tx, own_commands) = tokio::sync::mpsc::channel::<CommandRequest>(64);
     let (events_tx, mut commands) = match attached {
         Some(a) => (a.events, a.commands),

@@ -292,9 +292,7 @@ impl WorkerShared {
     fn lock(&self) -> std::sync::MutexGuard<'_, WorkerState> {
         // The state stays consistent under a panic in the device call (nothing is left half
         // written while holding the lock), so a poisoned lock is used as it is.
-        self.state
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
+        crate::runtime::lock(&self.state)
     }
 
     fn publish(&self, output: &ManagedOutput) {

@@ -305,6 +305,14 @@ impl JsonLines {
     }
 }
 
+/// Locks `mutex`, taking a poisoned one as it is: for state that every holder leaves
+/// consistent, so a panic elsewhere while holding it must not stop the gateway too.
+pub fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// Writes a new file (never overwriting one that exists) with `mode`: `rove keys`' files, the
 /// web console's certificate. Errors name the path.
 ///

@@ -30,7 +30,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use pairing::Pairing;
 use rove_console::server::answer;
-use rove_console::{CommandRequest, ConsoleState, Event, Hub, Identity, Joined, Source};
+use rove_console::{CommandRequest, Event, Hub, Joined, Source};
 use rove_core::adapter::{InputEvent, InputSource};
 use rove_core::error::LinkError;
 use rove_core::msg::MovementCommand;
@@ -75,13 +75,8 @@ pub struct WebInput(Arc<Mutex<RemoteInput>>);
 
 impl WebInput {
     fn with<T>(&self, f: impl FnOnce(&mut RemoteInput) -> T) -> T {
-        // A poisoned lock means a panic elsewhere while holding it; the state is still sound
-        // (every method leaves it consistent), so keep going rather than stop the operator.
-        let mut guard = self
-            .0
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        f(&mut guard)
+        // Every RemoteInput method leaves it consistent: a poisoned lock is used as it is.
+        f(&mut crate::runtime::lock(&self.0))
     }
 
     /// Whether the deadman is held, and the link in words, for the console.
@@ -141,10 +136,10 @@ struct Slot {
 struct Shared {
     devices: Vec<Slot>,
     pairing: Mutex<Pairing>,
+    /// The host operator's clock: pairing times, and the time of its console's notices.
     clock: Clock,
     /// The host operator's events: pairing codes are shown in its console too.
     notices: broadcast::Sender<rove_console::Stamped>,
-    host_clock: Clock,
     connections: std::sync::atomic::AtomicU64,
     options: Options,
 }
@@ -160,11 +155,7 @@ fn random() -> [u8; 16] {
 
 impl Shared {
     fn pairing<T>(&self, f: impl FnOnce(&mut Pairing) -> T) -> T {
-        let mut guard = self
-            .pairing
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        f(&mut guard)
+        f(&mut crate::runtime::lock(&self.pairing))
     }
 
     /// Logs the pairing code and shows it in the host's console.
@@ -172,7 +163,7 @@ impl Shared {
         let code = self.pairing(|p| p.code().to_string());
         info!(code = %code, valid_s = pairing::CODE_LIFETIME.as_secs(), "web: pair a browser with this code");
         let _ = self.notices.send(rove_console::Stamped {
-            at: self.host_clock.now(),
+            at: self.clock.now(),
             event: Event::Notice {
                 text: format!("web: pairing code {code}"),
             },
@@ -211,13 +202,12 @@ impl WebConsole {
         web: &WebConfig,
         options: &Options,
         notices: broadcast::Sender<rove_console::Stamped>,
-        host_clock: Clock,
+        clock: Clock,
     ) -> anyhow::Result<WebConsole> {
         let identity = tls::identity(web.certificate.as_ref(), web.listen)?;
         let listener = tokio::net::TcpListener::bind(web.listen)
             .await
             .map_err(|e| anyhow::anyhow!("[web] listen {}: {e}", web.listen))?;
-        let clock = Clock::start();
         let shared = Shared {
             devices: (web.devices.iter())
                 .map(|config| Slot {
@@ -233,7 +223,6 @@ impl WebConsole {
             )),
             clock,
             notices,
-            host_clock,
             connections: std::sync::atomic::AtomicU64::new(0),
             options: Options {
                 config_path: options.config_path.clone(),
@@ -674,17 +663,7 @@ fn start_device(config: &OperatorConfig, options: &Options) -> Running {
     let wake = Arc::new(Notify::new());
     let (events, _) = broadcast::channel(1024);
     let (commands_tx, commands) = mpsc::channel(64);
-    let identity = Identity {
-        id: config.common.id,
-        name: config.common.name.clone(),
-        level: config.level,
-        class: config.device_class,
-        strength: config.strength,
-    };
-    let hub = Hub::start(
-        ConsoleState::new(identity, config.common.heartbeat * 3),
-        events.subscribe(),
-    );
+    let hub = Hub::start(operator::console_state(config), events.subscribe());
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let attached = Attached {
         input: input.clone(),
