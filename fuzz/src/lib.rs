@@ -16,6 +16,8 @@
 //! - [`dronecan`]: DroneCAN transfers split into frames and reassembled.
 //! - [`replay`]: evdev recordings (text and raw `input_event` records) into rove-inputs.
 //! - [`console_api`]: lines into the console API's command parser.
+//! - [`rtps`]: RTPS datagrams into a participant with a vehicle's endpoints, through
+//!   rustdds's receive path (message receiver, proxies, discovery).
 //! - [`web_page`]: a browser's messages into the web console's parser and stale-input rules.
 //! - `bytes`: the cursor the structure-aware targets draw their choices from.
 //!
@@ -32,6 +34,7 @@ pub mod console_api;
 pub mod dronecan;
 pub mod mavlink;
 pub mod replay;
+pub mod rtps;
 pub mod session;
 pub mod web_page;
 
@@ -50,4 +53,5 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("replay", replay::replay),
     ("console_api", console_api::console_api),
     ("web_page", web_page::web_page),
+    ("rtps", rtps::rtps),
 ];

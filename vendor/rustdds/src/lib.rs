@@ -178,6 +178,10 @@ mod serialization_test;
 #[macro_use]
 mod checked_impl;
 #[doc(hidden)]
+// rove patch (ROVE-PATCH.md §7): the receive path as a fuzz target.
+#[cfg(feature = "fuzzing")]
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod discovery; // to access some Discovered data in e.g. ros2-client crate
 mod messages;
 mod network;

@@ -4,7 +4,7 @@ use std::{
   io,
   net::{IpAddr, SocketAddr, UdpSocket},
 };
-#[cfg(test)]
+#[cfg(any(test, feature = "fuzzing"))]
 use std::net::Ipv4Addr;
 #[cfg(unix)]
 use std::os::unix::io::{AsRawFd, RawFd};
@@ -38,6 +38,10 @@ pub struct UDPSender {
   // sent immediately. Drained on write readiness by `flush_control`.
   // (see src/rtps/nonblocking_transmit_design.md)
   control_queues: RefCell<HashMap<SocketId, ControlQueue>>,
+
+  // rove patch (ROVE-PATCH.md §7): a sender that sends nothing, for the fuzz
+  // harness (`crate::fuzzing`), whose destinations come from fuzzed datagrams.
+  discard: bool,
 }
 
 impl UDPSender {
@@ -160,9 +164,27 @@ impl UDPSender {
       unicast_socket,
       multicast_sockets,
       control_queues: RefCell::new(HashMap::new()),
+      discard: false,
     };
     info!("UDPSender::new() --> {sender:?}");
     Ok(sender)
+  }
+
+  /// rove patch (ROVE-PATCH.md §7): a sender whose every send is discarded
+  /// (reported as sent). Its one socket is bound to 127.0.0.1 and never used.
+  #[cfg(feature = "fuzzing")]
+  pub(crate) fn new_discarding() -> io::Result<Self> {
+    let unicast_socket = UdpSocket::bind(SocketAddr::new(
+      IpAddr::V4(Ipv4Addr::LOCALHOST),
+      0,
+    ))?;
+    unicast_socket.set_nonblocking(true)?;
+    Ok(Self {
+      unicast_socket,
+      multicast_sockets: Vec::new(),
+      control_queues: RefCell::new(HashMap::new()),
+      discard: true,
+    })
   }
 
   #[cfg(test)]
@@ -211,6 +233,9 @@ impl UDPSender {
 
   /// One non-blocking datagram send. Never blocks; classifies the result.
   fn raw_send(&self, id: SocketId, addr: SocketAddr, buffer: &[u8]) -> SendOutcome {
+    if self.discard {
+      return SendOutcome::Sent;
+    }
     let Some(socket) = self.socket_ref(id) else {
       error!("raw_send: no socket for {id:?}");
       return SendOutcome::Dropped;

@@ -1212,6 +1212,54 @@ impl DPEventLoop {
   }
 }
 
+// rove patch (ROVE-PATCH.md §7): what `crate::fuzzing` drives of the event loop,
+// without its poll, sockets or timers.
+#[cfg(feature = "fuzzing")]
+impl DPEventLoop {
+  /// From now on, sends go nowhere (endpoints added later share this sender).
+  pub(crate) fn fuzz_discard_sends(&mut self) -> std::io::Result<()> {
+    self.udp_sender = Rc::new(UDPSender::new_discarding()?);
+    Ok(())
+  }
+
+  pub(crate) fn fuzz_add_reader(&mut self, reader: ReaderIngredients) {
+    self.add_local_reader(reader);
+  }
+
+  pub(crate) fn fuzz_add_writer(&mut self, writer: WriterIngredients) {
+    self.add_local_writer(writer);
+  }
+
+  /// One datagram as the UDP listener hands it over, then what the loop does on
+  /// the same wake: ACKNACKs to writers, discovery's notifications to proxies,
+  /// endpoint commands.
+  pub(crate) fn fuzz_receive(&mut self, datagram: &bytes::Bytes, from: std::net::SocketAddr) {
+    let origin = crate::network::udp_listener::PacketOrigin {
+      source: Some(from),
+      local_if: None,
+    };
+    self.message_receiver.handle_received_packet(datagram, origin);
+    self.fuzz_settle();
+  }
+
+  /// The loop's own queues, drained as one wake would.
+  pub(crate) fn fuzz_settle(&mut self) {
+    let mut readers_to_remove = Vec::new();
+    let mut writers_to_remove = Vec::new();
+    let mut preparing_to_stop = false;
+    self.drain_queues(
+      &mut readers_to_remove,
+      &mut writers_to_remove,
+      &mut preparing_to_stop,
+    );
+  }
+
+  /// Every timer that is due now, as the loop would run it.
+  pub(crate) fn fuzz_timers(&mut self) {
+    self.drain_timers(false);
+  }
+}
+
 #[cfg(feature = "security")]
 fn check_are_endpoints_securities_compatible(
   local_info_opt: Option<EndpointSecurityInfo>,
