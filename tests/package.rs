@@ -256,6 +256,16 @@ fn check_package(deb: &Path) {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+    // A release build cannot be told to skip the certificate's identity check (the test hook
+    // exists in debug builds only): clap refuses the flag before any config is read.
+    let out = run_any_arch(&binary)
+        .args(["operator", "--test-any-certificate", "--headless", "-c"])
+        .arg(root.join("etc/rove/operator.toml"))
+        .output()
+        .expect("run the packaged rove");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("unexpected argument"), "{stderr}");
 }
 
 /// Runs `postinst configure` twice (install, then as an upgrade) with a copy of `/etc` mounted

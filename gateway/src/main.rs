@@ -72,8 +72,10 @@ enum Command {
         /// Where the log goes while the console owns the terminal.
         #[arg(long, value_name = "FILE")]
         log_file: Option<std::path::PathBuf>,
-        /// Test hook, hidden from --help: run with another device's certificate
-        /// (`[security]`), so a test can see the others refuse it.
+        /// Test hook, hidden from --help and only in debug builds (what `cargo test` runs; a
+        /// release build such as the package has no such flag): run with another device's
+        /// certificate (`[security]`), so a test can see the others refuse it.
+        #[cfg(debug_assertions)]
         #[arg(long, hide = true)]
         test_any_certificate: bool,
     },
@@ -370,8 +372,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             record,
             headless,
             log_file,
+            #[cfg(debug_assertions)]
             test_any_certificate,
         } => {
+            #[cfg(not(debug_assertions))]
+            let test_any_certificate = false;
             use std::io::IsTerminal;
             let config = config::load_operator(&path).map_err(bad_config)?;
             let console =
