@@ -5,6 +5,7 @@
 //! # Layout
 //! - [`config`]: TOML files → validated configs; errors name file, line and key.
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
+//! - [`dds_log`]: rustdds's log records, rate-limited per call site.
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
 //! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
@@ -22,6 +23,7 @@ pub mod bench;
 pub mod chaos;
 pub mod config;
 pub mod dds;
+pub mod dds_log;
 pub mod demo;
 pub mod doctor;
 pub mod harness;

@@ -221,19 +221,37 @@ pub fn init_logging(default_filter: Option<&str>) {
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
     match LogStyle::detect() {
-        LogStyle::Terminal => builder.init(),
-        LogStyle::Plain => builder.with_ansi(false).init(),
+        LogStyle::Terminal => install_subscriber(builder.finish()),
+        LogStyle::Plain => install_subscriber(builder.with_ansi(false).finish()),
         LogStyle::Journal => {
             let format = tracing_subscriber::fmt::format()
                 .without_time()
                 .with_ansi(false)
                 .with_level(false);
-            builder
-                .with_ansi(false)
-                .event_format(JournalFormat(format))
-                .init()
+            install_subscriber(
+                builder
+                    .with_ansi(false)
+                    .event_format(JournalFormat(format))
+                    .finish(),
+            )
         }
     }
+}
+
+/// Makes `subscriber` the process's, and routes `log` records (rustdds's) to it through
+/// [`crate::dds_log`], which rate-limits rustdds's per-datagram lines.
+fn install_subscriber<S>(subscriber: S)
+where
+    S: tracing::Subscriber + Send + Sync + 'static,
+{
+    use tracing_log::AsLog;
+    if tracing::subscriber::set_global_default(subscriber).is_err() {
+        // Set up already (a test, or called twice): keep what is there.
+        return;
+    }
+    let max = tracing::level_filters::LevelFilter::current().as_log();
+    // Fails only if a `log` logger was installed already; then that one stays.
+    let _ = crate::dds_log::install(max);
 }
 
 /// Logging into `path` (appended), for when a console owns the terminal.
@@ -253,11 +271,13 @@ pub fn init_logging_to_file(
     let filter = EnvFilter::try_from_default_env()
         .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
         .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_ansi(false)
-        .with_writer(std::sync::Mutex::new(file))
-        .init();
+    install_subscriber(
+        tracing_subscriber::fmt()
+            .with_env_filter(filter)
+            .with_ansi(false)
+            .with_writer(std::sync::Mutex::new(file))
+            .finish(),
+    );
     Ok(())
 }
 
