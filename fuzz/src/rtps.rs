@@ -153,6 +153,22 @@ mod tests {
         assert!(datagrams(&[7]).is_empty());
     }
 
+    /// The seeds are a fleet's discovery and traffic: fed to the participant, its readers
+    /// match the operator's writers (otherwise the fuzzer would start far from the proxies).
+    #[test]
+    fn the_captured_seeds_match_remote_writers() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("libfuzzer/corpus/rtps");
+        let seed = std::fs::read(dir.join("fleet-00")).expect("seed fleet-00");
+        let mut participant = Participant::new(VEHICLE_PREFIX, &vehicle_endpoints());
+        for datagram in datagrams(&seed) {
+            participant.receive(datagram);
+        }
+        assert!(
+            participant.matched_user_writers() > 0,
+            "no remote writer matched"
+        );
+    }
+
     #[test]
     fn framing_stops_at_the_limit() {
         let input = [0u8; 2 * (MAX_DATAGRAMS + 5)];

@@ -2,7 +2,20 @@
 //! target's function, on stable, so that `cargo test --workspace` keeps every input a fuzzer
 //! ever kept (each crash among them) passing. A panic names the target and the file.
 
+use cap::Cap;
+use std::alloc::System;
 use std::path::{Path, PathBuf};
+
+/// The replay's allocator, with a limit: an input that makes a target allocate more than
+/// [`HEADROOM`] beyond what was live before it aborts the replay (the allocation fails), as
+/// libFuzzer's `-malloc_limit_mb` and `-rss_limit_mb` stop a fuzzing run. That is how an
+/// allocation sized by a received field (issue 29) stays a failing test once found.
+#[global_allocator]
+static ALLOCATOR: Cap<System> = Cap::new(System, usize::MAX);
+
+/// Memory one corpus file may take beyond what was live before it. The largest honest input
+/// (a fleet capture through the `rtps` target) needs a few MiB.
+const HEADROOM: usize = 64 * 1024 * 1024;
 
 fn corpus_dir(target: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -24,7 +37,11 @@ fn every_corpus_file_replays() {
         assert!(!files.is_empty(), "{}: no corpus", dir.display());
         for file in &files {
             let data = std::fs::read(file).expect("corpus file readable");
+            ALLOCATOR
+                .set_limit(ALLOCATOR.allocated() + HEADROOM)
+                .expect("the limit is above what is allocated");
             let outcome = std::panic::catch_unwind(|| run(&data));
+            ALLOCATOR.set_limit(usize::MAX).expect("no limit");
             assert!(outcome.is_ok(), "{target}: {} fails", file.display());
         }
         total += files.len();

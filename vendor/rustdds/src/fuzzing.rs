@@ -318,6 +318,11 @@ impl Participant {
     self.event_loop.fuzz_settle();
   }
 
+  /// Remote writers matched to the user readers (discovery worked).
+  pub fn matched_user_writers(&self) -> usize {
+    self.event_loop.fuzz_matched_user_writers()
+  }
+
   /// Runs the event loop's timers that are due (heartbeats, ACKNACK
   /// responses, cache clean-up).
   pub fn timers(&mut self) {

@@ -1254,6 +1254,17 @@ impl DPEventLoop {
     );
   }
 
+  /// Remote writers matched to this participant's user-defined readers.
+  pub(crate) fn fuzz_matched_user_writers(&self) -> usize {
+    self
+      .message_receiver
+      .available_readers
+      .values()
+      .filter(|r| r.guid().entity_id.entity_kind.is_user_defined())
+      .map(Reader::matched_writer_count)
+      .sum()
+  }
+
   /// Every timer that is due now, as the loop would run it.
   pub(crate) fn fuzz_timers(&mut self) {
     self.drain_timers(false);

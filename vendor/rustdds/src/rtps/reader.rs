@@ -513,6 +513,12 @@ impl Reader {
     }
   }
 
+  /// rove patch (ROVE-PATCH.md §7): how many remote writers this reader has matched.
+  #[cfg(feature = "fuzzing")]
+  pub(crate) fn matched_writer_count(&self) -> usize {
+    self.matched_writers.len()
+  }
+
   pub fn contains_writer(&self, entity_id: EntityId) -> bool {
     if !self.like_stateless {
       self

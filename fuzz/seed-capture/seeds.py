@@ -1,0 +1,64 @@
+#!/usr/bin/env python3
+"""Turns a fleet capture (testkit/rtps_spray.py's format) into seeds of the `rtps` fuzz target.
+
+    fuzz/seed-capture/seeds.py CAPTURE OUT_DIR
+
+Keeps what the vehicle (participant 0: ports 7400, 7401 multicast and 7410, 7411 unicast)
+received, finds the vehicle's GUID prefix (the commonest INFO_DESTINATION of its unicast
+datagrams) and replaces it everywhere with the fuzz target's participant's (rtps.rs,
+VEHICLE_PREFIX). Each seed is the capture's first DISCOVERY datagrams (SPDP and SEDP: who is
+there, which writers and readers) followed by one window of the traffic after them, framed as
+the target reads its input (u16 little-endian length, then the datagram), at most 64 in all.
+"""
+import collections
+import struct
+import sys
+from pathlib import Path
+
+VEHICLE_PREFIX = bytes([0x01, 0x0F, 0x52, 0x4F, 0x56, 0x45, 0, 0, 0, 0, 0, 0x64])
+VEHICLE_PORTS = {7400, 7401, 7410, 7411}
+DISCOVERY = 24
+WINDOW = 40
+MAX_SEEDS = 24
+
+
+def records(data):
+    at = 0
+    while at + 8 <= len(data):
+        port, length = struct.unpack_from("<HH", data, at + 4)
+        yield port, data[at + 8 : at + 8 + length]
+        at += 8 + length
+
+
+def info_destinations(datagram):
+    at = 20
+    while at + 4 <= len(datagram):
+        kind, flags = datagram[at], datagram[at + 1]
+        order = "<" if flags & 1 else ">"
+        (length,) = struct.unpack_from(order + "H", datagram, at + 2)
+        if kind == 0x0E and length >= 12:
+            yield bytes(datagram[at + 4 : at + 16])
+        if length == 0:
+            break
+        at += 4 + length
+
+
+def main():
+    capture, out = Path(sys.argv[1]), Path(sys.argv[2])
+    received = [d for port, d in records(capture.read_bytes()) if port in VEHICLE_PORTS]
+    dests = collections.Counter(
+        p for port, d in records(capture.read_bytes()) if port in (7410, 7411) for p in info_destinations(d)
+    )
+    vehicle, _ = dests.most_common(1)[0]
+    fixed = [d.replace(vehicle, VEHICLE_PREFIX) for d in received]
+    head, rest = fixed[:DISCOVERY], fixed[DISCOVERY:]
+    out.mkdir(parents=True, exist_ok=True)
+    step = max(WINDOW, len(rest) // MAX_SEEDS)
+    for n, start in enumerate(range(0, len(rest), step)):
+        seed = b"".join(struct.pack("<H", len(d)) + d for d in head + rest[start : start + WINDOW])
+        (out / f"fleet-{n:02}").write_bytes(seed)
+    print(f"vehicle prefix {vehicle.hex()}; {len(received)} datagrams to it; seeds in {out}")
+
+
+if __name__ == "__main__":
+    main()
