@@ -18,5 +18,6 @@ mod package;
 mod robustness;
 mod security;
 mod service;
+mod spray;
 mod trust;
 mod web;

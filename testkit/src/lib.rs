@@ -135,6 +135,13 @@ pub fn rtps_bomb_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("rtps_bomb.py")
 }
 
+/// The sprayer (`rtps_spray.py`: captures a fleet's own RTPS datagrams on `lo` and sends
+/// mutated copies back to where each went, standard library only; its docstring gives the
+/// capture file's format, the mutations and the JSON it prints).
+pub fn rtps_spray_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("rtps_spray.py")
+}
+
 /// The pymavlink autopilot script (ArduPilot or PX4 as a ground station sees it); its
 /// docstring lists its options and what it records.
 pub fn fake_autopilot_script() -> PathBuf {

@@ -1,0 +1,275 @@
+#!/usr/bin/env python3
+"""A rove fleet's own RTPS datagrams, captured and sprayed back mutated: the live robustness
+test of issue 29 (tests/spray.rs) and the seed capture for the RTPS fuzz target. Standard
+library only. Run it inside the test's network namespace (`ip netns exec NS ...`): it captures
+on and sends to that namespace's `lo`, and nothing leaves it.
+
+    rtps_spray.py capture --seconds S --out FILE [--max-datagrams N] [--max-bytes B]
+    rtps_spray.py spray --capture FILE --rate R --seconds S [--mode MODE] [--seed N]
+                        [--max-datagrams N]
+
+`capture` reads every frame on `lo` through an AF_PACKET socket (needs root) and keeps the
+UDP/IPv4 datagrams whose payload starts with b"RTPS". On `lo` each datagram passes twice, as
+sent (PACKET_OUTGOING) and as received; only the received copy is kept. It prints
+{"listening": true} once the socket is open (start the fleet after that line to capture its
+discovery too), then, after S seconds or N datagrams or B payload bytes, whichever comes first,
+one JSON line {"captured": N, "bytes": B, "seconds": S, "ports": {"PORT": COUNT, ...}}.
+
+The capture file is a sequence of records, one per datagram, in capture order:
+
+    offset 0  4 bytes  destination IPv4 address, network byte order (as in the IP header)
+    offset 4  u16 LE   destination UDP port
+    offset 6  u16 LE   payload length L
+    offset 8  L bytes  the UDP payload (an RTPS message: b"RTPS", version, vendor, GUID prefix, ...)
+
+`spray` sends mutated copies of the captured datagrams, each to the address and port its
+original went to (multicast groups too: the socket sends multicast out of `lo`, TTL 0, looped
+back), at R datagrams a second (R = 0: as fast as it can) for S seconds, and at most N
+datagrams. Pacing is by the clock: datagram n is due at start + n / R, so a slow turn is made
+up by the next ones rather than lost. Mutations, by --mode:
+
+    flip      1 to 8 bytes after the 20-byte RTPS header XORed with random non-zero bytes
+    splice    the head of one datagram (cut after its header) joined to the tail of another
+    extreme   1 to 3 32-bit fields at 4-aligned offsets after the header set to 0xFFFFFFFF,
+              0x80000000, 0 or 0x7FFFFFFF (little-endian, rove's and rustdds's wire order)
+    truncate  a datagram cut short at a random length (sometimes inside the header)
+    mixed     each datagram one of the four above, chosen at random (the default)
+
+Everything random comes from --seed (default 29), so a run can be repeated. At the end it prints
+one JSON line {"sent": N, "errors": E, "seconds": S, "rate": N / S, "mode": MODE, "seed": SEED,
+"datagrams_in_capture": C, "stopped": false}
+(errors: sends the kernel refused, e.g. ENOBUFS at full speed) and exits 0. SIGTERM ends a
+spray early; the line then also says "stopped": true.
+"""
+
+import argparse
+import json
+import random
+import signal
+import socket
+import struct
+import sys
+import time
+
+RTPS_HEADER = 20
+ETH_P_IP = 0x0800
+PACKET_OUTGOING = 4
+# A datagram is at most 64 KiB; a generous receive buffer so that no burst is cut.
+RECV_BUFFER = 1 << 16
+EXTREMES = (0xFFFFFFFF, 0x80000000, 0x00000000, 0x7FFFFFFF)
+MODES = ("flip", "splice", "extreme", "truncate")
+
+
+# ---------------------------------------------------------------------------------------------
+# capture
+
+
+def rtps_datagram(frame: bytes):
+    """(dst address bytes, dst port, payload) of an IPv4/UDP frame carrying RTPS, else None.
+    `frame` starts at the IP header (an AF_PACKET SOCK_DGRAM socket strips the link layer)."""
+    if len(frame) < 20 or frame[0] >> 4 != 4:
+        return None
+    ihl = (frame[0] & 0x0F) * 4
+    total = struct.unpack_from(">H", frame, 2)[0]
+    flags_fragment = struct.unpack_from(">H", frame, 6)[0]
+    # A fragment (more fragments, or an offset) is not a whole datagram: skip it.
+    if frame[9] != socket.IPPROTO_UDP or flags_fragment & 0x3FFF:
+        return None
+    if total > len(frame) or total < ihl + 8:
+        return None
+    dst = frame[16:20]
+    port = struct.unpack_from(">H", frame, ihl + 2)[0]
+    udp_len = struct.unpack_from(">H", frame, ihl + 4)[0]
+    payload = frame[ihl + 8 : min(total, ihl + udp_len)]
+    if not payload.startswith(b"RTPS"):
+        return None
+    return dst, port, payload
+
+
+def capture(args) -> None:
+    sock = socket.socket(socket.AF_PACKET, socket.SOCK_DGRAM, socket.htons(ETH_P_IP))
+    sock.bind(("lo", 0))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+    print(json.dumps({"listening": True}), flush=True)
+    start = time.monotonic()
+    deadline = start + args.seconds
+    captured = 0
+    size = 0
+    ports = {}
+    with open(args.out, "wb") as out:
+        while captured < args.max_datagrams and size < args.max_bytes:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            sock.settimeout(left)
+            try:
+                frame, address = sock.recvfrom(RECV_BUFFER)
+            except socket.timeout:
+                break
+            if address[2] == PACKET_OUTGOING:
+                continue  # the sent copy; the received one follows
+            found = rtps_datagram(frame)
+            if found is None:
+                continue
+            dst, port, payload = found
+            out.write(dst + struct.pack("<HH", port, len(payload)) + payload)
+            captured += 1
+            size += len(payload)
+            ports[str(port)] = ports.get(str(port), 0) + 1
+    summary = {
+        "captured": captured,
+        "bytes": size,
+        "seconds": round(time.monotonic() - start, 3),
+        "ports": dict(sorted(ports.items(), key=lambda kv: int(kv[0]))),
+    }
+    print(json.dumps(summary), flush=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# spray
+
+
+def read_capture(path: str):
+    """The records of a capture file: [((address, port), payload)]."""
+    with open(path, "rb") as f:
+        data = f.read()
+    records = []
+    at = 0
+    while at + 8 <= len(data):
+        dst = socket.inet_ntoa(data[at : at + 4])
+        port, length = struct.unpack_from("<HH", data, at + 4)
+        payload = data[at + 8 : at + 8 + length]
+        if len(payload) < length:
+            raise SystemExit(f"{path}: a record at offset {at} is cut short")
+        records.append(((dst, port), payload))
+        at += 8 + length
+    if at != len(data):
+        raise SystemExit(f"{path}: {len(data) - at} stray bytes at the end")
+    return records
+
+
+def flip(rng: random.Random, payload: bytes, _records) -> bytes:
+    if len(payload) <= RTPS_HEADER:
+        return payload
+    out = bytearray(payload)
+    for _ in range(rng.randint(1, 8)):
+        out[rng.randrange(RTPS_HEADER, len(out))] ^= rng.randint(1, 255)
+    return bytes(out)
+
+
+def splice(rng: random.Random, payload: bytes, records) -> bytes:
+    other = rng.choice(records)[1]
+    head = payload[: rng.randint(min(RTPS_HEADER, len(payload)), len(payload))]
+    tail = other[rng.randint(min(RTPS_HEADER, len(other)), len(other)) :]
+    return head + tail
+
+
+def extreme(rng: random.Random, payload: bytes, _records) -> bytes:
+    fields = (len(payload) - RTPS_HEADER) // 4
+    if fields <= 0:
+        return payload
+    out = bytearray(payload)
+    for _ in range(rng.randint(1, 3)):
+        offset = RTPS_HEADER + 4 * rng.randrange(fields)
+        struct.pack_into("<I", out, offset, rng.choice(EXTREMES))
+    return bytes(out)
+
+
+def truncate(rng: random.Random, payload: bytes, _records) -> bytes:
+    if len(payload) <= 1:
+        return payload
+    return payload[: rng.randrange(1, len(payload))]
+
+
+MUTATIONS = {"flip": flip, "splice": splice, "extreme": extreme, "truncate": truncate}
+
+
+def spray(args) -> None:
+    records = read_capture(args.capture)
+    if not records:
+        raise SystemExit(f"{args.capture}: no datagrams to spray")
+    rng = random.Random(args.seed)
+    kinds = [MUTATIONS[m] for m in (MODES if args.mode == "mixed" else (args.mode,))]
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    # Multicast leaves through lo only (the namespace's only interface), is never routed
+    # (TTL 0) and loops back to the fleet's own multicast sockets.
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+    sock.setblocking(False)
+
+    # SIGTERM ends the spray early but still reports what was sent (a test stops it when a
+    # process under test has died).
+    stopped = []
+    signal.signal(signal.SIGTERM, lambda *_: stopped.append(True))
+
+    sent = 0
+    errors = 0
+    attempts = 0
+    start = time.monotonic()
+    end = start + args.seconds
+    while attempts < args.max_datagrams and not stopped:
+        now = time.monotonic()
+        if now >= end:
+            break
+        if args.rate > 0:
+            due = min(int((now - start) * args.rate) + 1, args.max_datagrams)
+            if attempts >= due:
+                # Until the next datagram is due (never past the end).
+                time.sleep(min(start + attempts / args.rate, end) - now)
+                continue
+            batch = due - attempts
+        else:
+            batch = min(256, args.max_datagrams - attempts)
+        for _ in range(batch):
+            address, payload = rng.choice(records)
+            datagram = rng.choice(kinds)(rng, payload, records)
+            attempts += 1
+            try:
+                sock.sendto(datagram, address)
+                sent += 1
+            except OSError:
+                errors += 1  # ENOBUFS / EAGAIN at full speed: counted, not fatal
+    seconds = time.monotonic() - start
+    summary = {
+        "sent": sent,
+        "errors": errors,
+        "seconds": round(seconds, 3),
+        "rate": round(sent / seconds, 1) if seconds > 0 else 0.0,
+        "mode": args.mode,
+        "seed": args.seed,
+        "datagrams_in_capture": len(records),
+        "stopped": bool(stopped),
+    }
+    print(json.dumps(summary), flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    cap = sub.add_parser("capture", help="capture the fleet's RTPS datagrams on lo")
+    cap.add_argument("--seconds", type=float, required=True)
+    cap.add_argument("--out", required=True)
+    cap.add_argument("--max-datagrams", type=int, default=200_000)
+    cap.add_argument("--max-bytes", type=int, default=64 << 20)
+    spr = sub.add_parser("spray", help="send mutated copies of a capture")
+    spr.add_argument("--capture", required=True)
+    spr.add_argument("--rate", type=float, required=True, help="datagrams a second, 0: full speed")
+    spr.add_argument("--seconds", type=float, required=True)
+    spr.add_argument("--mode", choices=MODES + ("mixed",), default="mixed")
+    spr.add_argument("--seed", type=int, default=29)
+    spr.add_argument("--max-datagrams", type=int, default=50_000_000)
+    args = parser.parse_args()
+    if args.seconds <= 0 or args.seconds > 3600:
+        parser.error("--seconds must be in (0, 3600]")
+    if args.command == "capture":
+        capture(args)
+    else:
+        if args.rate < 0:
+            parser.error("--rate must be >= 0")
+        spray(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
