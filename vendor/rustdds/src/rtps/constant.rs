@@ -76,6 +76,13 @@ pub const MAX_UNSENT_CHANGES_PER_READER: usize = DEFAULT_WRITER_MAX_SAMPLES;
 // bounded.
 pub const MAX_TRACKED_CHANGES_PER_WRITER: usize = DEFAULT_WRITER_MAX_SAMPLES;
 
+// rove patch (ROVE-PATCH.md §8): the span of sequence numbers a reader lists as
+// missing in answer to one HEARTBEAT, counted from the first missing one. 256 is
+// what one ACKNACK's SequenceNumberSet can carry (RTPS 2.5 8.3.5.5); the reader
+// asks for the rest after the writer has repaired these. Before, the whole range
+// the HEARTBEAT claimed (up to 2^63 numbers) was listed in memory.
+pub const MAX_MISSING_LISTED: i64 = 256;
+
 // Most payload bytes a TopicCache retains for samples withheld from Reliable
 // DataReaders while an earlier sample from the same Writer is missing. Beyond
 // this, the oldest missing sample is given up as lost, and the samples after it

@@ -6,7 +6,7 @@ use log::{debug, error, info, trace, warn};
 
 use crate::{
   discovery::sedp_messages::DiscoveredWriterData,
-  rtps::constant::MAX_TRACKED_CHANGES_PER_WRITER,
+  rtps::constant::{MAX_MISSING_LISTED, MAX_TRACKED_CHANGES_PER_WRITER},
   structure::{
     guid::{EntityId, GUID},
     locator::Locator,
@@ -156,6 +156,10 @@ impl RtpsWriterProxy {
     }
 
     let mut missing_seqnums = Vec::with_capacity(32); // out of hat value
+    // rove patch (ROVE-PATCH.md §8): the HEARTBEAT's range is the remote's claim
+    // (last_sn up to 2^63): list the missing ones from the first for at most the
+    // span one ACKNACK can carry, never the whole range.
+    let mut window_end: Option<SequenceNumber> = None;
 
     let relevant_interval = SequenceNumber::range_inclusive(
       max(hb_first_sn, self.ack_base), // ignore those that we already have
@@ -174,8 +178,16 @@ impl RtpsWriterProxy {
     let mut known_iter = known.iter();
     let mut known_head = known_iter.next();
 
-    // Iterate over all SequenceNumbers (indices) in the advertised range.
+    // Iterate over the SequenceNumbers (indices) in the advertised range.
     for s in relevant_interval {
+      if window_end.is_some_and(|end| s >= end) {
+        break;
+      }
+      if window_end.is_none() && known_head != Some(&s) {
+        window_end = Some(SequenceNumber::new(
+          i64::from(s).saturating_add(MAX_MISSING_LISTED),
+        ));
+      }
       match known_head {
         None => missing_seqnums.push(s), // no known changes left => s is missing
         Some(known_sn) => {
