@@ -962,6 +962,22 @@ impl Reader {
         }
         writer_proxy.received_heartbeat_count = heartbeat.count;
 
+        // rove patch (ROVE-PATCH.md §10): the writer says it has written up to
+        // last_sn, yet this proxy counts numbers beyond it as received or
+        // irrelevant: a corrupt or forged GAP or HEARTBEAT moved the base, and
+        // every real sample below it would be dropped as seen. Start again from
+        // what the writer says it has (a stale HEARTBEAT reordered behind a GAP
+        // costs one repair round).
+        if heartbeat.last_sn.plus_1() < writer_proxy.all_ackable_before() {
+          warn!(
+            "HEARTBEAT from {:?} ends at {:?}, but {:?} was taken as received: resetting",
+            writer_guid,
+            heartbeat.last_sn,
+            writer_proxy.all_ackable_before()
+          );
+          writer_proxy.reset_to(heartbeat.first_sn);
+        }
+
         // remove changes until first_sn.
         writer_proxy.irrelevant_changes_up_to(heartbeat.first_sn);
 
@@ -1122,6 +1138,18 @@ impl Reader {
       debug!(
         "GAP from {:?}, but reader is stateless. Ignoring. topic={:?} reader={:?}",
         writer_guid, self.topic_name, self.my_guid
+      );
+      return;
+    }
+    // rove patch (ROVE-PATCH.md §10): a best-effort reader waits for nothing,
+    // so a GAP cannot help it; but it moved the writer proxy's base past the
+    // gap, and every later sample below that base was dropped as seen. One
+    // corrupt or forged GAP (base 2^31) silenced a writer's stream for good.
+    if self.reliability == policy::Reliability::BestEffort {
+      trace!(
+        "GAP from {:?} to best-effort reader {:?}: ignored",
+        writer_guid,
+        self.my_guid
       );
       return;
     }

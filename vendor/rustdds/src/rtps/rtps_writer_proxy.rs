@@ -293,14 +293,35 @@ impl RtpsWriterProxy {
         self.ack_base, remove_from, remove_until_before, self.remote_writer_guid
       );
     } else {
-      // TODO: This potentially generates a very large BTreeMap
+      // rove patch (ROVE-PATCH.md §8): the range is the remote's claim (up to
+      // 2^63 numbers). Only the last MAX_TRACKED_CHANGES_PER_WRITER of it can be
+      // kept (the cap below evicts the oldest and moves the base past them), so
+      // the part below is accounted for at once instead of inserted one by one.
+      let cap = MAX_TRACKED_CHANGES_PER_WRITER as i64;
+      let span = i64::from(remove_until_before).saturating_sub(i64::from(remove_from));
+      let remove_from = if span > cap {
+        let keep_from = SequenceNumber::new(i64::from(remove_until_before) - cap);
+        self.changes = self.changes.split_off(&keep_from);
+        self.ack_base = max(self.ack_base, keep_from);
+        keep_from
+      } else {
+        remove_from
+      };
       for na in
         SequenceNumber::range_inclusive(remove_from, remove_until_before - SequenceNumber::new(1))
       {
         self.changes.insert(na, None);
       }
+      self.advance_ack_base();
       self.enforce_change_map_cap();
     }
+  }
+
+  /// rove patch (ROVE-PATCH.md §10): forgets what was received and starts
+  /// again at `first` (the writer's first available sequence number).
+  pub fn reset_to(&mut self, first: SequenceNumber) {
+    self.changes.clear();
+    self.ack_base = max(first, SequenceNumber::new(1));
   }
 
   // Used to mark messages irrelevant because of a HEARTBEAT message.

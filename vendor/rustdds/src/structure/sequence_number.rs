@@ -124,7 +124,12 @@ impl Iterator for SequenceNumberRange {
       None
     } else {
       let b = self.begin;
-      self.begin = b + SequenceNumber::new(1);
+      // rove patch (ROVE-PATCH.md §9): a range ending at the maximum ends there
+      // instead of overflowing.
+      match b.0.checked_add(1) {
+        Some(next) => self.begin = SequenceNumber(next),
+        None => self.end = SequenceNumber(b.0 - 1),
+      }
       Some(b)
     }
   }
@@ -159,7 +164,14 @@ impl<'a, C: Context> Readable<'a, C> for SequenceNumber {
   fn read_from<R: Reader<'a, C>>(reader: &mut R) -> Result<Self, C::Error> {
     let high: i32 = reader.read_value()?;
     let low: u32 = reader.read_value()?;
-
+    // rove patch (ROVE-PATCH.md §9): a received sequence number is used in
+    // arithmetic (the next one, a set's span, a range's end). Values no writer
+    // reaches (2^63 - 2^32 and above, or below SEQUENCENUMBER_UNKNOWN's high
+    // word -1) made that arithmetic overflow, which panicked the event loop
+    // thread; the datagram carrying one is now unreadable, as any malformed one.
+    if high == i32::MAX || high < -1 {
+      return Err(speedy::Error::custom(format!("SequenceNumber out of range: high={high}")).into());
+    }
     Ok(Self(((i64::from(high)) << 32) + i64::from(low)))
   }
 
@@ -309,6 +321,26 @@ pub type FragmentNumberSet = NumberSet<FragmentNumber>;
 
 // ---------------------------------------------------------------
 
+
+/// rove patch (ROVE-PATCH.md §9): whether a received set base leaves room for
+/// `bits` members above it without overflowing.
+pub trait NumberSetBase {
+  /// `self + bits` is representable.
+  fn has_room_for(&self, bits: u32) -> bool;
+}
+
+impl NumberSetBase for SequenceNumber {
+  fn has_room_for(&self, bits: u32) -> bool {
+    self.0.checked_add(i64::from(bits)).is_some()
+  }
+}
+
+impl NumberSetBase for FragmentNumber {
+  fn has_room_for(&self, bits: u32) -> bool {
+    self.0.checked_add(bits).is_some()
+  }
+}
+
 #[derive(Clone, Debug, Hash, PartialEq, Eq)]
 pub struct NumberSet<N>
 where
@@ -441,14 +473,28 @@ where
 impl<'a, C: Context, N> Readable<'a, C> for NumberSet<N>
 where
   N:
-    Clone + Debug + Hash + PartialEq + Eq + NumOps + From<i64> + Ord + PartialOrd + Readable<'a, C>,
+    Clone
+      + Debug
+      + Hash
+      + PartialEq
+      + Eq
+      + NumOps
+      + From<i64>
+      + Ord
+      + PartialOrd
+      + Readable<'a, C>
+      + NumberSetBase,
   i64: From<N>,
 {
   #[inline]
   fn read_from<R: Reader<'a, C>>(reader: &mut R) -> Result<Self, C::Error> {
     let bitmap_base: N = reader.read_value()?;
     let num_bits: u32 = reader.read_value()?;
-    if num_bits > 256 {
+    if !bitmap_base.has_room_for(num_bits) {
+      // rove patch (ROVE-PATCH.md §9): the set's members (base + bit) must not
+      // overflow when the set is walked.
+      Err(speedy::Error::custom("NumberSet base too close to the maximum").into())
+    } else if num_bits > 256 {
       // Set size check accoring to RTPS spec v2.5 Section "8.3.5.5 SequenceNumberSet"
       // and "8.3.5.7 FragmentNumberSet"
       //
