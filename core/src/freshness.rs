@@ -14,6 +14,13 @@
 //! - A writer whose samples have all been stale for [`REBASE`] (of arrivals) had its clock
 //!   stepped back (NTP): its baseline restarts from its current sample. (Its samples are
 //!   dropped meanwhile, so the vehicle treats it as silent for that long.)
+//! - A sample that claims to have been sent earlier than its writer's fastest delivery allows
+//!   (more than [`EARLY_SLACK`] ahead of the baseline) is fresh, but does not lower the
+//!   baseline: a corrupt or forged source timestamp (a mutated copy of the owner's datagram
+//!   stamped in the future) made every later real sample of that writer look late, and the
+//!   vehicle dropped its owner's stream for a second at a time (issue 29). A writer whose
+//!   samples are all that early for [`REBASE`] had its clock stepped forward: its baseline
+//!   restarts from its current sample.
 //! - A sample without a source timestamp is fresh: there is nothing to judge it by.
 //! - The table is bounded ([`Freshness::new`]'s `max_writers`): a new writer beyond it evicts
 //!   the one heard from longest ago.
@@ -27,8 +34,13 @@ use std::time::Duration;
 /// crystal clocks (typically under 50 ppm), so drift never looks like delay.
 pub const DRIFT_PPM: i128 = 100;
 
-/// How long a writer's samples may all be stale before its baseline restarts.
+/// How long a writer's samples may all be stale (or all early) before its baseline restarts.
 pub const REBASE: Duration = Duration::from_secs(1);
+
+/// How much faster than its fastest so far one sample may arrive and move its writer's baseline:
+/// 10 ms, more than loopback or a radio link's delivery improves from one sample to the next,
+/// far less than the command timeout. Earlier than that, a single sample moves nothing (above).
+pub const EARLY_SLACK: Duration = Duration::from_millis(10);
 
 #[derive(Debug, Clone, Copy)]
 struct Baseline {
@@ -37,6 +49,8 @@ struct Baseline {
     last_arrival: MonoTime,
     /// Since when every sample of this writer has been stale.
     stale_since: Option<MonoTime>,
+    /// Since when every sample of this writer has been early beyond [`EARLY_SLACK`].
+    early_since: Option<MonoTime>,
 }
 
 /// Per-writer delivery baselines; see the module docs.
@@ -80,6 +94,7 @@ impl Freshness {
             offset,
             last_arrival: arrival,
             stale_since: None,
+            early_since: None,
         };
         let base = self.writers.entry(writer).or_insert(fresh);
         let since_last = arrival.saturating_since(base.last_arrival).as_nanos() as i128;
@@ -87,6 +102,18 @@ impl Freshness {
         base.last_arrival = arrival;
         let late = offset - crept;
         let limit = self.limit.as_nanos() as i128;
+        let slack = EARLY_SLACK.as_nanos() as i128;
+        if late < -slack {
+            base.stale_since = None;
+            let since = *base.early_since.get_or_insert(arrival);
+            if arrival.saturating_since(since) >= REBASE {
+                *base = fresh;
+            } else {
+                base.offset = crept;
+            }
+            return None;
+        }
+        base.early_since = None;
         if late <= limit {
             base.offset = crept.min(offset);
             base.stale_since = None;
@@ -200,6 +227,48 @@ mod tests {
                 "sample {i}"
             );
         }
+    }
+
+    /// Issue 29: a mutated copy of the owner's sample, stamped far in the future, among its
+    /// real samples.
+    #[test]
+    fn a_sample_stamped_in_the_future_does_not_make_the_next_ones_stale() {
+        let mut f = Freshness::new(LIMIT, 16);
+        for i in 0..10u64 {
+            assert_eq!(f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)), None);
+        }
+        for forged_ahead_ms in [11i128, 150, 10_000, 1 << 40] {
+            assert_eq!(
+                f.judge(writer(1), Some(ns(200 + forged_ahead_ms)), ms(200)),
+                None,
+                "the forged sample itself is not stale"
+            );
+            for i in 10..20u64 {
+                assert_eq!(
+                    f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)),
+                    None,
+                    "real sample {i} after one {forged_ahead_ms} ms ahead"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_clock_stepped_forward_rebases_after_rebase() {
+        let mut f = Freshness::new(LIMIT, 16);
+        for i in 0..10u64 {
+            assert_eq!(f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)), None);
+        }
+        // The writer's clock steps forward 10 s: every sample is early, and fresh.
+        for i in 10..200u64 {
+            let sent = ns(i128::from(i) * 20 + 10_000);
+            assert_eq!(f.judge(writer(1), Some(sent), ms(i * 20)), None);
+        }
+        // By now the baseline is the new clock's: a sample that queued 150 ms is stale.
+        assert!(
+            f.judge(writer(1), Some(ns(200 * 20 + 10_000 - 150)), ms(200 * 20))
+                .is_some()
+        );
     }
 
     #[test]
