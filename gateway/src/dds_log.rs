@@ -161,7 +161,7 @@ mod tests {
         let t0 = Instant::now();
         assert_eq!(limiter.check(site(1), t0), Verdict::Log { held_back: 0 });
         for i in 1..=999u64 {
-            let t = t0 + INTERVAL * u32::try_from(i).unwrap() / 1000;
+            let t = t0 + INTERVAL.mul_f64(i as f64 / 1000.0);
             assert_eq!(limiter.check(site(1), t), Verdict::Drop);
         }
         assert_eq!(

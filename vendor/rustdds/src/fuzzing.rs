@@ -386,16 +386,14 @@ impl Participant {
               &p.value,
               p.representation_identifier,
             ) {
-              Ok(data) => {
-                let data = self
-                  .discovery_db
-                  .write()
-                  .expect("db")
-                  .update_publication(&data);
-                Some(DiscoveryNotificationType::WriterUpdated {
+              Ok(data) => self
+                .discovery_db
+                .write()
+                .expect("db")
+                .update_publication(&data)
+                .map(|data| DiscoveryNotificationType::WriterUpdated {
                   discovered_writer_data: data,
-                })
-              }
+                }),
               Err(_) => None,
             }
           }
@@ -422,16 +420,14 @@ impl Participant {
               &p.value,
               p.representation_identifier,
             ) {
-              Ok(data) => {
-                let data = self
-                  .discovery_db
-                  .write()
-                  .expect("db")
-                  .update_subscription(&data);
-                Some(DiscoveryNotificationType::ReaderUpdated {
+              Ok(data) => self
+                .discovery_db
+                .write()
+                .expect("db")
+                .update_subscription(&data)
+                .map(|data| DiscoveryNotificationType::ReaderUpdated {
                   discovered_reader_data: data,
-                })
-              }
+                }),
               Err(_) => None,
             }
           }

@@ -1228,14 +1228,16 @@ impl Discovery {
         match d {
           Sample::Value(d) => {
             trace!("sedp_receive_subscription - {d:?}");
-            let drd = discovery_db_write(&self.discovery_db).update_subscription(&d);
-            debug!(
-              "sedp_receive_subscription - send_discovery_notification ReaderUpdated  {:?}",
-              drd
-            );
-            self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
-              discovered_reader_data: drd,
-            });
+            // rove patch (ROVE-PATCH.md §11): None when the table is full.
+            if let Some(drd) = discovery_db_write(&self.discovery_db).update_subscription(&d) {
+              debug!(
+                "sedp_receive_subscription - send_discovery_notification ReaderUpdated  {:?}",
+                drd
+              );
+              self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
+                discovered_reader_data: drd,
+              });
+            }
             if read_history == Some(d.reader_proxy.remote_reader_guid.prefix) {
               info!(
                 "Rediscovered reader {:?} topic={:?}",
@@ -1307,11 +1309,14 @@ impl Discovery {
         match d {
           Sample::Value(dwd) => {
             trace!("sedp_receive_publication discovered {:?}", dwd);
-            let discovered_writer_data =
-              discovery_db_write(&self.discovery_db).update_publication(&dwd);
-            self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
-              discovered_writer_data,
-            });
+            // rove patch (ROVE-PATCH.md §11): None when the table is full.
+            if let Some(discovered_writer_data) =
+              discovery_db_write(&self.discovery_db).update_publication(&dwd)
+            {
+              self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
+                discovered_writer_data,
+              });
+            }
             debug!("Discovered Writer {:?}", dwd);
           }
           Sample::Dispose(writer_key) => {
@@ -1698,10 +1703,13 @@ impl Discovery {
           Sample::Value(sec_sub) => {
             // Currently we use only the DiscoveredReaderData field, no DataTag
             let drd_from_topic = sec_sub.discovered_reader_data;
-            let drd = discovery_db_write(&self.discovery_db).update_subscription(&drd_from_topic);
-            self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
-              discovered_reader_data: drd,
-            });
+            if let Some(drd) =
+              discovery_db_write(&self.discovery_db).update_subscription(&drd_from_topic)
+            {
+              self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
+                discovered_reader_data: drd,
+              });
+            }
           }
           Sample::Dispose(reader_guid) => {
             info!("Secure Dispose Reader {reader_guid:?}");
@@ -1745,10 +1753,13 @@ impl Discovery {
           Sample::Value(se_pub) => {
             // Currently we use only the DiscoveredWriterData field, no DataTag
             let dwd_from_topic = se_pub.discovered_writer_data;
-            let dwd = discovery_db_write(&self.discovery_db).update_publication(&dwd_from_topic);
-            self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
-              discovered_writer_data: dwd,
-            });
+            if let Some(dwd) =
+              discovery_db_write(&self.discovery_db).update_publication(&dwd_from_topic)
+            {
+              self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
+                discovered_writer_data: dwd,
+              });
+            }
           }
           Sample::Dispose(writer_guid) => {
             info!("Secure Dispose Writer {writer_guid:?}");

@@ -1,7 +1,7 @@
 use std::{
   collections::BTreeMap,
   sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard},
-  time::Instant,
+  time::{Duration as StdDuration, Instant},
 };
 
 use chrono::Utc;
@@ -101,6 +101,17 @@ fn move_by_guid_prefix<D>(
   }
 }
 
+// rove patch (ROVE-PATCH.md §11): bounds on what remotes can make this database
+// remember. Far above a rove fleet (tens of participants, a handful of endpoints
+// each; `rove bench scale` runs 64 processes); far below what hurts a 1 GiB board
+// (an entry is about 1 KiB, and each matched endpoint costs a proxy in every
+// local endpoint of its topic).
+const MAX_REMOTE_PARTICIPANTS: usize = 1024;
+const MAX_REMOTE_ENDPOINTS: usize = 8192;
+// The longest participant lease believed, s (rustdds announces 20 s, DDS
+// implementations 10–300 s).
+const MAX_PARTICIPANT_LEASE_S: u64 = 300;
+
 pub(crate) fn discovery_db_read(
   discovery_db: &Arc<RwLock<DiscoveryDB>>,
 ) -> RwLockReadGuard<'_, DiscoveryDB> {
@@ -154,6 +165,31 @@ impl DiscoveryDB {
   pub fn update_participant(&mut self, data: &SpdpDiscoveredParticipantData) -> bool {
     debug!("update_participant: {:?}", data);
     let guid = data.participant_guid;
+
+    // rove patch (ROVE-PATCH.md §11): remote participants are remembered up to
+    // a bound. Every SPDP announcement with a GUID prefix not seen before (one
+    // flipped byte of a real one) made an entry, kept for its lease. A full
+    // table refuses newcomers until leases run out; those it knows stay.
+    if !self.participant_proxies.contains_key(&guid.prefix)
+      && self.participant_proxies.len() >= MAX_REMOTE_PARTICIPANTS
+    {
+      warn!(
+        "{} participants known: not adding {:?} (ROVE-PATCH.md §11)",
+        self.participant_proxies.len(),
+        guid.prefix
+      );
+      return false;
+    }
+    // rove patch (ROVE-PATCH.md §11): a lease is the remote's claim; a corrupt
+    // one (2^31 s) would keep its entry for ever.
+    let mut data = data.clone();
+    if data
+      .lease_duration
+      .is_some_and(|d| d > Duration::from(StdDuration::from_secs(MAX_PARTICIPANT_LEASE_S)))
+    {
+      data.lease_duration = Some(Duration::from(StdDuration::from_secs(MAX_PARTICIPANT_LEASE_S)));
+    }
+    let data = &data;
 
     // sanity check
     if guid.entity_id != EntityId::PARTICIPANT {
@@ -421,7 +457,12 @@ impl DiscoveryDB {
   // them from the remote participant.
   //
   // The topic is updated to the topics table.
-  pub fn update_subscription(&mut self, data: &DiscoveredReaderData) -> DiscoveredReaderData {
+  /// rove patch (ROVE-PATCH.md §11): `None` when the reader is not added (the
+  /// table is full).
+  pub fn update_subscription(
+    &mut self,
+    data: &DiscoveredReaderData,
+  ) -> Option<DiscoveredReaderData> {
     let guid = data.reader_proxy.remote_reader_guid;
 
     // fill in the default locators from participant, in case DRD did not provide
@@ -459,6 +500,20 @@ impl DiscoveryDB {
       ..data.clone()
     };
 
+    if !self.external_topic_readers.contains_key(&guid)
+      && self.external_topic_readers.len() >= MAX_REMOTE_ENDPOINTS
+    {
+      // rove patch (ROVE-PATCH.md §11): make room from endpoints of participants
+      // no longer known (forged ones never had one), else refuse.
+      let known = &self.participant_proxies;
+      self
+        .external_topic_readers
+        .retain(|g, _| known.contains_key(&g.prefix));
+      if self.external_topic_readers.len() >= MAX_REMOTE_ENDPOINTS {
+        warn!("{MAX_REMOTE_ENDPOINTS} remote readers known: not adding {guid:?} (ROVE-PATCH.md §11)");
+        return None;
+      }
+    }
     self.external_topic_readers.insert(guid, enriched.clone());
     debug!("External reader: {enriched:?}");
 
@@ -474,11 +529,16 @@ impl DiscoveryDB {
     // reader update. If there is a DiscoveredVia::Topic record, use QosPolicies
     // from that record and modify by QoS given in the DRD.
 
-    enriched
+    Some(enriched)
   }
 
   // TODO: This is silly. Returns one of the parameters cloned, or None
-  pub fn update_publication(&mut self, data: &DiscoveredWriterData) -> DiscoveredWriterData {
+  /// rove patch (ROVE-PATCH.md §11): `None` when the writer is not added (the
+  /// table is full).
+  pub fn update_publication(
+    &mut self,
+    data: &DiscoveredWriterData,
+  ) -> Option<DiscoveredWriterData> {
     let guid = data.writer_proxy.remote_writer_guid;
 
     // fill in the default locators from participant, in case DRD did not provide
@@ -516,6 +576,19 @@ impl DiscoveryDB {
       ..data.clone()
     };
 
+    if !self.external_topic_writers.contains_key(&guid)
+      && self.external_topic_writers.len() >= MAX_REMOTE_ENDPOINTS
+    {
+      // rove patch (ROVE-PATCH.md §11): as for readers above.
+      let known = &self.participant_proxies;
+      self
+        .external_topic_writers
+        .retain(|g, _| known.contains_key(&g.prefix));
+      if self.external_topic_writers.len() >= MAX_REMOTE_ENDPOINTS {
+        warn!("{MAX_REMOTE_ENDPOINTS} remote writers known: not adding {guid:?} (ROVE-PATCH.md §11)");
+        return None;
+      }
+    }
     self.external_topic_writers.insert(guid, enriched.clone());
     debug!("External writer: {enriched:?}");
 
@@ -527,7 +600,7 @@ impl DiscoveryDB {
       DiscoveredVia::Publication,
     );
 
-    enriched
+    Some(enriched)
   }
 
   // This is for local participant updating the topic table
@@ -835,7 +908,7 @@ impl DiscoveryDB {
 
 #[cfg(test)]
 mod tests {
-  use std::{sync::Mutex, time::Duration as StdDuration};
+  use std::sync::Mutex;
 
   use byteorder::LittleEndian;
 
