@@ -235,7 +235,10 @@ mod tests {
     fn a_sample_stamped_in_the_future_does_not_make_the_next_ones_stale() {
         let mut f = Freshness::new(LIMIT, 16);
         for i in 0..10u64 {
-            assert_eq!(f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)), None);
+            assert_eq!(
+                f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)),
+                None
+            );
         }
         for forged_ahead_ms in [11i128, 150, 10_000, 1 << 40] {
             assert_eq!(
@@ -257,7 +260,10 @@ mod tests {
     fn a_clock_stepped_forward_rebases_after_rebase() {
         let mut f = Freshness::new(LIMIT, 16);
         for i in 0..10u64 {
-            assert_eq!(f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)), None);
+            assert_eq!(
+                f.judge(writer(1), Some(ns(i128::from(i) * 20)), ms(i * 20)),
+                None
+            );
         }
         // The writer's clock steps forward 10 s: every sample is early, and fresh.
         for i in 10..200u64 {
