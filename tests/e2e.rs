@@ -10,6 +10,7 @@ mod util;
 mod boards;
 mod console_api;
 mod fleet;
+mod flood;
 mod hierarchy;
 mod inputs;
 mod mavlink;

@@ -173,12 +173,13 @@ impl Routes {
     }
 }
 
-/// Samples per instance the vehicle's command reader holds until its loop takes them: more
-/// than the writers that can send in one loop turn.
-pub const COMMAND_READER_DEPTH: i32 = 64;
-
-/// Samples a RequestControl reader keeps (the topic itself keeps 16).
-pub const REQUEST_READER_DEPTH: i32 = 256;
+/// Samples of each writer the vehicle's command reader holds until its loop takes them (rove's
+/// rustdds keeps KEEP_LAST per instance *and writer*, `vendor/rustdds/ROVE-PATCH.md` §12). An
+/// honest 50 Hz stream sends 8 in 160 ms, longer than any sample stays fresh (the command
+/// timeout, 100 ms). Small, because a flood that outruns the loop is held back to this many
+/// samples per writer: 100 writers queue at most 800 samples (a few ms of work) ahead of the
+/// owner's newest, where 64 each would be 6 400.
+pub const COMMAND_READER_DEPTH: i32 = 8;
 
 /// RequestControl: the DDS default QoS, made reliable on our side (a writer's default) with a
 /// short history, so handover messages are not lost between rove peers.
@@ -373,12 +374,14 @@ impl Domain {
         &self,
         me: DeviceId,
     ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedControlCommand>> {
-        // Every operator writes the same instance (key = the vehicle's id), and rustdds keeps
-        // one history per instance, not per writer: with the topic's KEEP_LAST 1, a sample from
-        // one writer is overwritten by the next writer's before the loop takes it. Measured:
-        // a new grant holder's first sample was lost to a standing-by owner's PROBE in ~10 %
-        // of handovers (applied 20 ms late, at the next keep-alive). The reader keeps more;
-        // history depth is not a request/offered QoS, so matching is unchanged.
+        // Every operator writes the same instance (key = the vehicle's id). Stock rustdds kept
+        // one history per instance, not per writer: with the topic's KEEP_LAST 1 a sample from
+        // one writer was overwritten by the next writer's before the loop took it (a new grant
+        // holder's first sample lost to a standing-by owner's PROBE in ~10 % of handovers), and
+        // with 64 a flood pushed the owner's samples out whenever the loop fell 64 samples
+        // behind. rove's rustdds keeps the depth per writer (ROVE-PATCH.md §12): a writer's
+        // samples evict only its own. History depth is not a requested/offered QoS, so
+        // matching is unchanged.
         //
         // Best effort, whatever the writers offer (a best-effort reader matches reliable and
         // best-effort writers alike): a reliable reader hands over no sample while an earlier
@@ -422,16 +425,13 @@ impl Domain {
     /// # Errors
     /// rustdds refuses to create it.
     pub fn request_reader(&self) -> anyhow::Result<rustdds::no_key::DataReaderCdr<RequestControl>> {
-        // The topic is keyless: one history for every sender's REQUEST, ACCEPT, REFUSE and
-        // FINISH. With the topic's KEEP_LAST 16 a burst of sixteen (a flood, or many operators
-        // at once) evicted an ACCEPT or a FINISH before the loop took it. The reader keeps
-        // more; as for commands, matching is unchanged.
-        let qos = QosPolicyBuilder::new()
-            .history(History::KeepLast {
-                depth: REQUEST_READER_DEPTH,
-            })
-            .build();
-        let qos = request_control_qos().modify_by(&qos);
+        // The topic is keyless: stock rustdds kept one history for every sender's REQUEST,
+        // ACCEPT, REFUSE and FINISH, and a burst of sixteen (a flood, or many operators at
+        // once) evicted an ACCEPT or a FINISH before the loop took it. rove's rustdds keeps the
+        // topic's KEEP_LAST 16 per writer (ROVE-PATCH.md §12): only a sender's own later
+        // messages can push one of its messages out, and no honest peer sends sixteen before
+        // the loop's next turn.
+        let qos = request_control_qos();
         self.subscriber
             .create_datareader_no_key_cdr(&self.request_control, Some(qos))
             .context("cannot create RequestControl reader")

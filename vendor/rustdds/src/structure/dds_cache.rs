@@ -46,6 +46,14 @@ use super::cache_change::CacheChange;
 /// the actual TopicCaches. For a given topic, the Reader/Writer and
 /// DataReader/DataWriter get a clone of the handle and
 /// interact with the TopicCache through this handle.
+// rove patch (ROVE-PATCH.md §12): a TopicCache keeps its sample count limit (History depth or
+// ResourceLimits max_samples, 64 by default) per remote Writer: every Writer has a room of its
+// own, so that one Writer's samples evict only its own, not another Writer's that a DataReader
+// has not taken yet. This bounds the rooms together: over it, the oldest samples go, whoever
+// wrote them (as the per-topic limit did before). At a few hundred bytes a small sample
+// (with its indexes), 4096 are about 1 MiB.
+pub(crate) const MAX_SAMPLES_PER_TOPIC: usize = 4096;
+
 #[derive(Debug, Default)]
 pub struct DDSCache {
   topic_caches: HashMap<String, Arc<Mutex<TopicCache>>>,
@@ -121,6 +129,8 @@ pub(crate) struct TopicCache {
   topic_qos: QosPolicies,
   min_keep_samples: History,
   max_keep_samples: i32, // from QoS, for quick, repeated access
+  // rove patch (ROVE-PATCH.md §12): samples added since the last garbage collection.
+  added_since_collection: usize,
   // TODO: Change this to Option<u32>, where None means "no limit".
 
   // The main content of the cache is in this map.
@@ -165,6 +175,7 @@ impl TopicCache {
       min_keep_samples: History::KeepLast { depth: 1 }, /* dummy value, next call will overwrite
                                                          * this */
       max_keep_samples: 1, // dummy value, next call will overwrite this
+      added_since_collection: 0,
       changes: BTreeMap::new(),
       changes_reallocated_up_to: Timestamp::ZERO,
       last_added_instant: Timestamp::ZERO,
@@ -276,8 +287,14 @@ impl TopicCache {
   // Over MAX_WITHHELD_BYTES_PER_TOPIC, give up on missing samples, oldest first,
   // and hand over the samples after them. Returns true if anything was given up.
   fn give_up_withheld_over_limit(&mut self) -> bool {
-    // Under the sample count limit nothing is retained just for being withheld.
-    if self.changes.len() <= self.max_keep_samples as usize {
+    // Under the sample count limits nothing is retained just for being withheld.
+    // rove patch (ROVE-PATCH.md §12): the limits are a room per Writer and the topic's total.
+    if self.changes.len() <= self.topic_limit()
+      && self
+        .sequence_numbers
+        .values()
+        .all(|sns| sns.len() <= self.max_keep_samples as usize)
+    {
       return false;
     }
     let mut gave_up = false;
@@ -320,7 +337,10 @@ impl TopicCache {
     // But not at every insert, just to save time and effort.
     // Some heuristic to decide if we should collect now.
     // let payload_size = max(1, cache_change.data_value.payload_size());
-    let semi_random_number = i64::from(cache_change.sequence_number) as usize;
+    // rove patch (ROVE-PATCH.md §12): counted, not taken from the sequence number, which the
+    // remote Writer chooses: one that never sends a multiple of 64 never triggered a
+    // collection, and the cache grew with everything it sent until another Writer's did.
+    self.added_since_collection += 1;
     // Garbage collect more often when samples are large, so the cache does not
     // balloon between collections for big (e.g. fragmented) payloads:
     //   payload <= 1 KiB   : GC every 64 samples (cheap amortization)
@@ -334,8 +354,9 @@ impl TopicCache {
     } else {
       1
     };
-    let gc_triggered = modulus <= 1 || semi_random_number.is_multiple_of(modulus);
+    let gc_triggered = self.added_since_collection >= modulus;
     if gc_triggered {
+      self.added_since_collection = 0;
       debug!("Garbage collecting topic {}", self.topic_name);
       self.remove_changes_before(Timestamp::ZERO);
       // remove limit is so low that it has no effect.
@@ -481,34 +502,26 @@ impl TopicCache {
 
   /// Garbarge collection:
   ///
-  /// Remove changes before given Timestamp, but keep at least
-  /// `self.min_keep_samples`.
+  // rove patch (ROVE-PATCH.md §12): the most samples this topic keeps in all.
+  fn topic_limit(&self) -> usize {
+    max(self.max_keep_samples as usize, MAX_SAMPLES_PER_TOPIC)
+  }
+
+  /// Garbarge collection:
   ///
-  /// If we are over `self.max_keep_samples`, then remove the oldest samples
-  /// until `max_keep_samples` is reached, regardless of `remove_before`.
+  /// rove patch (ROVE-PATCH.md §12): the limits apply per Writer. Remove a Writer's
+  /// changes before given Timestamp, but keep at least `self.min_keep_samples` of
+  /// them.
+  ///
+  /// If a Writer has more than `self.max_keep_samples`, then remove its oldest
+  /// samples until `max_keep_samples` is reached, regardless of `remove_before`.
+  /// Then, if the topic has more than `topic_limit()` in all, remove the oldest
+  /// samples, whoever wrote them, until it has no more.
   pub fn remove_changes_before(&mut self, remove_before: Timestamp) {
     // TODO: Currently, TopicCache does not know about Keys is Samples/CacheChanges,
     // because they are opaque binary blobs at this point. Therefore, we cannot
     // distinguish between instances, so cannot observe max instance counts.
     // We have to do just with min/max sample counts.
-
-    let sample_count = self.changes.len();
-
-    // We must remove at least enough to stay within max limit,
-    // must_remove_count = sample_count - max_keep_samples
-    let must_remove_count = sample_count.saturating_sub(self.max_keep_samples as usize);
-    // Saturating sub takes care that this does not underflow below zero.
-
-    let may_remove_count = match self.min_keep_samples {
-      // We are erquested to KeepAll, so do not remove more than absolutely required.
-      History::KeepAll => must_remove_count,
-
-      // We are requested to keep some depth, so we may remove up to that.
-      History::KeepLast { depth } => max(
-        sample_count.saturating_sub(depth as usize),
-        must_remove_count,
-      ),
-    };
 
     // Samples withheld from a Reliable DataReader have not been delivered yet, so
     // they are kept even beyond `max_keep_samples`. They are released once the
@@ -518,36 +531,73 @@ impl TopicCache {
     // the Reader gets a chance to take them.
     if !self.give_up_withheld_over_limit() {
       let oldest_withheld = self.oldest_withheld_change().map(|(ts, _, _)| ts);
+      let removable = |ts: &Timestamp| oldest_withheld.is_none_or(|w| *ts < w);
 
-      let oldest_timestamp_to_retain_opt: Option<Timestamp> = self
-        .changes
-        .keys()
-        .enumerate()
-        .skip_while(|(i, ts)|
-          // Skip samples to be removed. Force "must" count, and then remove until
-          // either limit timestamp or "may" count stops us
-          oldest_withheld.is_none_or(|w| **ts < w)
-          && (*i < must_remove_count
-          || (**ts < remove_before && *i < may_remove_count)))
-        .map(|(_, ts)| ts) // un-enumerate
-        .next() // the next element would be the first to retain
-        .copied();
+      // Each Writer's room, oldest (lowest SequenceNumber) first.
+      let room = self.max_keep_samples as usize;
+      let mut to_remove: Vec<Timestamp> = Vec::new();
+      for sn_map in self.sequence_numbers.values() {
+        let sample_count = sn_map.len();
+        // We must remove at least enough to stay within max limit,
+        // must_remove_count = sample_count - max_keep_samples
+        let must_remove_count = sample_count.saturating_sub(room);
+        let may_remove_count = match self.min_keep_samples {
+          // We are erquested to KeepAll, so do not remove more than absolutely required.
+          History::KeepAll => must_remove_count,
+          // We are requested to keep some depth, so we may remove up to that.
+          History::KeepLast { depth } => max(
+            sample_count.saturating_sub(depth.max(0) as usize),
+            must_remove_count,
+          ),
+        };
+        if may_remove_count == 0 {
+          continue;
+        }
+        to_remove.extend(
+          sn_map
+            .values()
+            .enumerate()
+            // Force "must" count, and then remove until either limit timestamp
+            // or "may" count stops us
+            .take_while(|(i, ts)| {
+              removable(ts)
+                && (*i < must_remove_count || (**ts < remove_before && *i < may_remove_count))
+            })
+            .map(|(_, ts)| *ts),
+        );
+      }
+      for ts in to_remove {
+        if let Some(cc) = self.changes.remove(&ts) {
+          self.remove_sn(&cc);
+        }
+      }
 
-      // In case `.next()` is `None`, then we just decided to to discard everything,
-      // or, as a special case, the cache was empty to begin with, but the end
-      // result is the same.
+      // Then the topic's total, oldest first, whoever wrote them.
+      let must_remove_count = self.changes.len().saturating_sub(self.topic_limit());
+      if must_remove_count > 0 {
+        let oldest_timestamp_to_retain_opt: Option<Timestamp> = self
+          .changes
+          .keys()
+          .enumerate()
+          .skip_while(|(i, ts)| removable(ts) && *i < must_remove_count)
+          .map(|(_, ts)| ts) // un-enumerate
+          .next() // the next element would be the first to retain
+          .copied();
 
-      let to_retain = if let Some(split_key) = oldest_timestamp_to_retain_opt {
-        // split_off: Returns everything after the given key, including the key.
-        self.changes.split_off(&split_key)
-      } else {
-        BTreeMap::new()
-      };
+        // In case `.next()` is `None`, then we just decided to to discard everything,
+        // but the end result is the same.
+        let to_retain = if let Some(split_key) = oldest_timestamp_to_retain_opt {
+          // split_off: Returns everything after the given key, including the key.
+          self.changes.split_off(&split_key)
+        } else {
+          BTreeMap::new()
+        };
 
-      let to_remove = std::mem::replace(&mut self.changes, to_retain);
+        let to_remove = std::mem::replace(&mut self.changes, to_retain);
 
-      // update also SequenceNumber map
-      to_remove.values().for_each(|r| self.remove_sn(r));
+        // update also SequenceNumber map
+        to_remove.values().for_each(|r| self.remove_sn(r));
+      }
     }
 
     // Now, reallocate old cache changes
@@ -699,14 +749,123 @@ mod tests {
 
   #[test]
   fn sedp_reader_limits_keep_sample_waiting_for_repair() {
+    // rove patch (ROVE-PATCH.md §12): the limits apply per Writer, so 64 other Writers'
+    // samples no longer evict the waiting one even with the default limit of 64.
     assert_eq!(
       read_after_repair(&Discovery::builtin_subscriber_qos()),
-      [SequenceNumber::new(1)]
+      [SequenceNumber::new(1), SequenceNumber::new(2)]
     );
     assert_eq!(
       read_after_repair(&Discovery::builtin_sedp_reader_qos()),
       [SequenceNumber::new(1), SequenceNumber::new(2)]
     );
+  }
+
+  // rove patch (ROVE-PATCH.md §12): every Writer has a room of its own.
+
+  fn keep_last_topic_cache(depth: i32) -> TopicCache {
+    TopicCache::new(
+      "ControlCommand".to_string(),
+      TypeDesc::new("RoVe::ControlCommand".to_string()),
+      &QosPolicyBuilder::new()
+        .history(History::KeepLast { depth })
+        .build(),
+    )
+  }
+
+  fn numbered_writer(n: u32) -> GUID {
+    let mut prefix = [0; 12];
+    prefix[..4].copy_from_slice(&n.to_be_bytes());
+    GUID::new(
+      GuidPrefix::new(&prefix),
+      EntityId::new([0, 0, 1], EntityKind::WRITER_WITH_KEY_USER_DEFINED),
+    )
+  }
+
+  fn add(topic_cache: &mut TopicCache, writer: GUID, sn: i64) {
+    topic_cache.add_change(
+      &Timestamp::now(),
+      CacheChange::new(
+        writer,
+        SequenceNumber::new(sn),
+        WriteOptions::default(),
+        DDSData::new(SerializedPayload::new(
+          RepresentationIdentifier::CDR_LE,
+          vec![0; 40],
+        )),
+      ),
+    );
+  }
+
+  // What a best-effort DataReader that has read nothing yet would get, by Writer.
+  fn unread_by_writer(topic_cache: &TopicCache) -> BTreeMap<GUID, usize> {
+    let mut by_writer = BTreeMap::new();
+    for (_, cc) in topic_cache.get_changes_in_range_best_effort(Timestamp::ZERO, Timestamp::now()) {
+      *by_writer.entry(cc.writer_guid).or_default() += 1;
+    }
+    by_writer
+  }
+
+  #[test]
+  fn a_flood_from_one_writer_evicts_only_its_own_samples() {
+    let mut topic_cache = keep_last_topic_cache(8);
+    let (owner, flood) = (numbered_writer(1), numbered_writer(2));
+    add(&mut topic_cache, owner, 1);
+    for sn in 1..=10_000 {
+      add(&mut topic_cache, flood, sn);
+    }
+    topic_cache.remove_changes_before(Timestamp::ZERO);
+    let unread = unread_by_writer(&topic_cache);
+    assert_eq!(unread.get(&owner), Some(&1));
+    // The room is the larger of History depth and the default max_samples, 64.
+    assert_eq!(unread.get(&flood), Some(&64));
+  }
+
+  #[test]
+  fn a_flood_from_many_writers_evicts_only_their_own_samples() {
+    let mut topic_cache = keep_last_topic_cache(8);
+    let owner = numbered_writer(0);
+    add(&mut topic_cache, owner, 7);
+    for sn in 1..=200 {
+      for w in 1..=50 {
+        add(&mut topic_cache, numbered_writer(w), sn);
+      }
+    }
+    topic_cache.remove_changes_before(Timestamp::ZERO);
+    let unread = unread_by_writer(&topic_cache);
+    assert_eq!(unread.get(&owner), Some(&1));
+    assert!(
+      unread.iter().all(|(w, n)| *w == owner || *n == 64),
+      "{unread:?}"
+    );
+  }
+
+  #[test]
+  fn the_rooms_are_bounded_together() {
+    let mut topic_cache = keep_last_topic_cache(8);
+    for w in 0..20_000 {
+      add(&mut topic_cache, numbered_writer(w), 1);
+    }
+    topic_cache.remove_changes_before(Timestamp::ZERO);
+    assert_eq!(topic_cache.changes.len(), super::MAX_SAMPLES_PER_TOPIC);
+    // The newest stay.
+    assert!(unread_by_writer(&topic_cache).contains_key(&numbered_writer(19_999)));
+  }
+
+  #[test]
+  fn a_writer_choosing_its_sequence_numbers_cannot_dodge_collection() {
+    // Before, a collection ran when a sample's SequenceNumber was a multiple of 64: odd ones
+    // never triggered it.
+    let mut topic_cache = keep_last_topic_cache(8);
+    let flood = numbered_writer(3);
+    for sn in 0..10_000 {
+      add(&mut topic_cache, flood, 2 * sn + 1);
+      assert!(
+        topic_cache.changes.len() <= 2 * 64,
+        "{}",
+        topic_cache.changes.len()
+      );
+    }
   }
 
   fn keep_all_topic_cache() -> TopicCache {

@@ -302,6 +302,7 @@ pub(crate) fn publication_builtin_topic_data() -> Option<PublicationBuiltinTopic
     related_datareader_key: None,
     service_instance_name: None,
     topic_aliases: None,
+    partition: None, // rove patch (ROVE-PATCH.md §3): the crate's own tests build again
     #[cfg(feature = "security")]
     security_info: None,
   };

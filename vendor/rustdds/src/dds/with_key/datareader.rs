@@ -110,8 +110,15 @@ where
     self.simple_data_reader.drain_read_notifications();
   }
 
-  fn select_keys_for_access(&self, read_condition: ReadCondition) -> Vec<(Timestamp, D::K)> {
-    self.datasample_cache.select_keys_for_access(read_condition)
+  // rove patch (ROVE-PATCH.md §12): the selection stops at `max_samples`.
+  fn select_keys_for_access(
+    &self,
+    read_condition: ReadCondition,
+    max_samples: usize,
+  ) -> Vec<(Timestamp, D::K)> {
+    self
+      .datasample_cache
+      .select_keys_for_access(read_condition, max_samples)
   }
 
   fn take_by_keys(&mut self, keys: &[(Timestamp, D::K)]) -> Vec<DataSample<D>> {
@@ -122,14 +129,16 @@ where
     self.datasample_cache.take_bare_by_keys(keys)
   }
 
+  // rove patch (ROVE-PATCH.md §12): the selection stops at `max_samples`.
   fn select_instance_keys_for_access(
     &self,
     instance: &D::K,
     rc: ReadCondition,
+    max_samples: usize,
   ) -> Vec<(Timestamp, D::K)> {
     self
       .datasample_cache
-      .select_instance_keys_for_access(instance, rc)
+      .select_instance_keys_for_access(instance, rc, max_samples)
   }
 
   /// Reads amount of samples found with `max_samples` and `read_condition`
@@ -182,7 +191,7 @@ where
     self.drain_read_notifications();
     self.fill_and_lock_local_datasample_cache()?;
 
-    let mut selected = self.select_keys_for_access(read_condition);
+    let mut selected = self.select_keys_for_access(read_condition, max_samples);
     selected.truncate(max_samples);
 
     let result = self.datasample_cache.read_by_keys(&selected);
@@ -241,7 +250,7 @@ where
     self.drain_read_notifications();
 
     self.fill_and_lock_local_datasample_cache()?;
-    let mut selected = self.select_keys_for_access(read_condition);
+    let mut selected = self.select_keys_for_access(read_condition, max_samples);
     trace!("take selected count = {}", selected.len());
     selected.truncate(max_samples);
 
@@ -339,7 +348,7 @@ where
     self.drain_read_notifications();
     self.fill_and_lock_local_datasample_cache()?;
 
-    let mut selected = self.select_keys_for_access(read_condition);
+    let mut selected = self.select_keys_for_access(read_condition, max_samples);
     selected.truncate(max_samples);
 
     let result = self.datasample_cache.read_bare_by_keys(&selected);
@@ -356,7 +365,7 @@ where
     self.drain_read_notifications();
     self.fill_and_lock_local_datasample_cache()?;
 
-    let mut selected = self.select_keys_for_access(read_condition);
+    let mut selected = self.select_keys_for_access(read_condition, max_samples);
     trace!("take bare selected count = {}", selected.len());
     selected.truncate(max_samples);
 
@@ -629,9 +638,10 @@ where
       None => return Ok(Vec::new()),
     };
 
-    let mut selected = self
-      .datasample_cache
-      .select_instance_keys_for_access(&key, read_condition);
+    let mut selected =
+      self
+        .datasample_cache
+        .select_instance_keys_for_access(&key, read_condition, max_samples);
     selected.truncate(max_samples);
 
     let result = self.datasample_cache.read_by_keys(&selected);
@@ -698,7 +708,7 @@ where
       None => return Ok(Vec::new()),
     };
 
-    let mut selected = self.select_instance_keys_for_access(&key, read_condition);
+    let mut selected = self.select_instance_keys_for_access(&key, read_condition, max_samples);
     selected.truncate(max_samples);
 
     let result = self.take_by_keys(&selected);

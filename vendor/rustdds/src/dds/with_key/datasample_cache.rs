@@ -1,4 +1,5 @@
 use std::{
+  cmp::max,
   collections::{BTreeMap, BTreeSet, HashMap, VecDeque},
   ops::Bound,
 };
@@ -32,11 +33,31 @@ pub struct DataSampleCache<D: Keyed> {
   datasamples: BTreeMap<Timestamp, SampleWithMetaData<D>>, /* ordered storage for deserialized
                                                             * samples */
   pub(crate) instance_map: BTreeMap<D::K, InstanceMetaData>, // ordered storage for instances
+  // rove patch (ROVE-PATCH.md §12): `instance_map`'s size when it was last pruned of instances
+  // holding no sample.
+  instances_after_prune: usize,
 }
+
+// rove patch (ROVE-PATCH.md §12): KEEP_LAST keeps `depth` samples per instance *and writer*, so
+// that a writer's samples evict only its own: every writer of an instance has a room of its
+// own. These two bound what the rooms may hold in all.
+//
+// Samples a KEEP_LAST DataReader holds in all (or its History depth, if greater): over it, the
+// oldest goes, whoever wrote it. Only a reader whose application does not take its samples
+// while thousands of writers fill their rooms gets here. At ~200 bytes a small sample (with
+// its indexes), 4096 are under 1 MiB.
+pub(crate) const MAX_SAMPLES_PER_READER: usize = 4096;
+// Instances remembered while holding no sample, in addition to those holding one: over it,
+// those without a sample are forgotten (their generation counts restart if they come back).
+// Without it, every key ever seen kept an entry: a flood of distinct keys grew the map for
+// ever.
+pub(crate) const MAX_EMPTY_INSTANCES: usize = 1024;
 
 pub(crate) struct InstanceMetaData {
   instance_samples: BTreeSet<Timestamp>, // which samples belong to this instance
-  instance_state: InstanceState,         // latest known alive/not_alive state for this instance
+  // rove patch (ROVE-PATCH.md §12): the same samples by writer, oldest first: the rooms.
+  writer_samples: BTreeMap<GUID, VecDeque<Timestamp>>,
+  instance_state: InstanceState, // latest known alive/not_alive state for this instance
   latest_generation_available: NotAliveGenerationCounts, // in this instance
   last_generation_accessed: NotAliveGenerationCounts, // in this instance
 }
@@ -75,6 +96,46 @@ where
       qos,
       datasamples: BTreeMap::new(),
       instance_map: BTreeMap::new(),
+      instances_after_prune: 0,
+    }
+  }
+
+  // rove patch (ROVE-PATCH.md §12): removes the sample at `ts` from its instance's indexes.
+  fn unindex(
+    instance_map: &mut BTreeMap<D::K, InstanceMetaData>,
+    key: &D::K,
+    writer: GUID,
+    ts: Timestamp,
+  ) {
+    if let Some(imd) = instance_map.get_mut(key) {
+      imd.instance_samples.remove(&ts);
+      if let Some(room) = imd.writer_samples.get_mut(&writer) {
+        if let Some(i) = room.iter().position(|t| *t == ts) {
+          room.remove(i);
+        }
+        if room.is_empty() {
+          imd.writer_samples.remove(&writer);
+        }
+      }
+    }
+  }
+
+  // rove patch (ROVE-PATCH.md §12): removes the sample at `ts`, if present, and its index entries.
+  fn remove_sample(&mut self, ts: Timestamp) {
+    if let Some(dswm) = self.datasamples.remove(&ts) {
+      Self::unindex(&mut self.instance_map, &dswm.key(), dswm.writer_guid, ts);
+    }
+  }
+
+  // rove patch (ROVE-PATCH.md §12): forgets instances holding no sample once there are more than
+  // MAX_EMPTY_INSTANCES beyond those left at the last pruning (amortised: each pruning is paid
+  // for by as many new instances).
+  fn prune_instances(&mut self) {
+    if self.instance_map.len() > self.instances_after_prune + MAX_EMPTY_INSTANCES {
+      self
+        .instance_map
+        .retain(|_, imd| !imd.instance_samples.is_empty());
+      self.instances_after_prune = self.instance_map.len();
     }
   }
 
@@ -124,12 +185,16 @@ where
     };
 
     // find or create metadata record
+    if !self.instance_map.contains_key(&instance_key) {
+      self.prune_instances(); // rove patch (ROVE-PATCH.md §12)
+    }
     let instance_metadata = if let Some(imd) = self.instance_map.get_mut(&instance_key) {
       imd
     } else {
       // not found, create new one.
       let imd = InstanceMetaData {
         instance_samples: BTreeSet::new(),
+        writer_samples: BTreeMap::new(),
         instance_state: new_instance_state,
         latest_generation_available: NotAliveGenerationCounts::zero(), /* this is new instance,
                                                                         * so start from zero */
@@ -145,6 +210,11 @@ where
 
     // update instance metadata
     instance_metadata.instance_samples.insert(receive_timestamp);
+    instance_metadata
+      .writer_samples
+      .entry(writer_guid)
+      .or_default()
+      .push_back(receive_timestamp);
 
     match (instance_metadata.instance_state, new_instance_state) {
       (InstanceState::Alive, _) => (), // was Alive, does not change counts
@@ -199,24 +269,40 @@ where
       );
 
     // garbage collect
-    let sample_keep_history_limit: Option<i32> = match self.qos.history() {
-      Some(policy::History::KeepAll) => None, // no limit
-      Some(policy::History::KeepLast { depth }) => Some(depth),
+    // rove patch (ROVE-PATCH.md §12): KEEP_LAST (the default, depth 1) per instance and writer:
+    // the writer of the new sample loses its own oldest one in this instance, nobody else's.
+    // KEEP_ALL with RESOURCE_LIMITS keeps at most max_samples_per_instance per instance, as
+    // before.
+    let keep_last = match self.qos.history() {
+      Some(policy::History::KeepLast { depth }) => Some(depth.max(0) as usize),
+      Some(policy::History::KeepAll) => None,
       None => Some(1), // default history policy
     };
-    let sample_keep_resource_limit = if let Some(policy::ResourceLimits {
-      max_samples: _,
-      max_instances: _,
+    if let Some(depth) = keep_last {
+      if let Some(room) = instance_metadata.writer_samples.get_mut(&writer_guid) {
+        while room.len() > depth {
+          if let Some(oldest) = room.pop_front() {
+            instance_metadata.instance_samples.remove(&oldest);
+            self.datasamples.remove(&oldest);
+          }
+        }
+        if room.is_empty() {
+          instance_metadata.writer_samples.remove(&writer_guid);
+        }
+      }
+      // And the whole reader stays bounded, however many rooms there are.
+      let limit = max(MAX_SAMPLES_PER_READER, depth);
+      while self.datasamples.len() > limit {
+        if let Some((&oldest, _)) = self.datasamples.first_key_value() {
+          self.remove_sample(oldest);
+        }
+      }
+    } else if let Some(policy::ResourceLimits {
       max_samples_per_instance,
+      ..
     }) = self.qos.resource_limits
     {
-      Some(max_samples_per_instance)
-    } else {
-      None
-    };
-
-    if let Some(instance_keep_count) = sample_keep_history_limit.or(sample_keep_resource_limit) {
-      let remove_count = instance_metadata.instance_samples.len() as i32 - instance_keep_count;
+      let remove_count = instance_metadata.instance_samples.len() as i32 - max_samples_per_instance;
       if remove_count > 0 {
         let keys_to_remove: Vec<_> = instance_metadata
           .instance_samples
@@ -225,8 +311,7 @@ where
           .copied()
           .collect();
         for k in keys_to_remove {
-          instance_metadata.instance_samples.remove(&k);
-          self.datasamples.remove(&k);
+          self.remove_sample(k);
         }
       }
     }
@@ -235,32 +320,23 @@ where
     // sample, i.e.
   }
 
-  // Helper for select_keys and select_instance_keys
+  // rove patch (ROVE-PATCH.md §12): selection is in the order samples were added (DDS's default
+  // DESTINATION_ORDER, by reception), which keeps each writer's samples in SequenceNumber
+  // order (a Reliable reader hands them over so), and stops at `max_samples`. Before, every
+  // selection collected all samples and sorted them by SequenceNumber across writers, so that
+  // taking one sample cost O(n log n) in the samples held: a reader that fell behind a flood
+  // slowed down the more it held, and the order mixed writers by their unrelated counters.
   //
-  // Selection is in timestamp order. If there are samples that have been received
-  // out-of-order, then those need to be sorted. Note that there may be
-  // SequenceNumbers from several writers. We need to keep SequenceNumbers
-  // ordered per writer, but there are no other ordering guarantees. (TODO: What
-  // about Presentation QoS?)
-  //
-  // The sorting is somewhat wasted effort
-  fn sort_by_sequence_number(&self, keys: &mut [(Timestamp, D::K)]) {
-    // We `.unwrap()` below, because this is supposed to be called only from
-    // select_*_for_Access-metohds, who take the timestamp keys from the
-    // same map.
-
-    // Most commonly we gat only 0 or 1 keys, so skip sorting in that scenario.
-    if keys.len() > 1 {
-      keys.sort_by_cached_key(|(ts, _k)| self.datasamples.get(ts).unwrap().sequence_number);
-    }
-  }
-
   // Calling select_(instance)_keys_for access does not constitute access, i.e.
   // it does not change any state of the cache.
   // Samples are marked read or viewed only when "read" or "take" methods (below)
   // are called.
-  pub fn select_keys_for_access(&self, rc: ReadCondition) -> Vec<(Timestamp, D::K)> {
-    let mut keys: Vec<(Timestamp, D::K)> = self
+  pub fn select_keys_for_access(
+    &self,
+    rc: ReadCondition,
+    max_samples: usize,
+  ) -> Vec<(Timestamp, D::K)> {
+    self
       .datasamples
       .iter()
       .filter_map(|(ts, dsm)| {
@@ -273,37 +349,34 @@ where
           None
         }
       })
-      .collect();
-    self.sort_by_sequence_number(&mut keys);
-    keys
+      .take(max_samples)
+      .collect()
   }
 
   pub fn select_instance_keys_for_access(
     &self,
     instance: &D::K,
     rc: ReadCondition,
+    max_samples: usize,
   ) -> Vec<(Timestamp, D::K)> {
     match self.instance_map.get(instance) {
       None => Vec::new(),
-      Some(imd) => {
-        let mut keys: Vec<(Timestamp, D::K)> = imd
-          .instance_samples
-          .iter()
-          .filter_map(|ts| {
-            if let Some(ds) = self.datasamples.get(ts) {
-              if self.sample_selector(&rc, imd, ds) {
-                Some((*ts, instance.clone()))
-              } else {
-                None
-              }
+      Some(imd) => imd
+        .instance_samples
+        .iter()
+        .filter_map(|ts| {
+          if let Some(ds) = self.datasamples.get(ts) {
+            if self.sample_selector(&rc, imd, ds) {
+              Some((*ts, instance.clone()))
             } else {
               None
             }
-          })
-          .collect();
-        self.sort_by_sequence_number(&mut keys);
-        keys
-      }
+          } else {
+            None
+          }
+        })
+        .take(max_samples)
+        .collect(),
     }
   }
 
@@ -506,6 +579,8 @@ where
     // collect result
     for (index, (ts, key)) in keys.iter().enumerate() {
       let dswm = self.datasamples.remove(ts).unwrap();
+      // rove patch (ROVE-PATCH.md §12): a taken sample leaves its instance and its room.
+      Self::unindex(&mut self.instance_map, key, dswm.writer_guid, *ts);
       let imd = self.instance_map.get(key).unwrap();
       let sample_info = Self::make_sample_info(&dswm, imd, len - index - 1, mrs_total, mrsic_total);
       // dwsm.sample_has_been_read = true; // no need to mark read, as the dswm is
@@ -584,6 +659,8 @@ where
 
     for (ts, key) in keys.iter() {
       let dswm = self.datasamples.remove(ts).unwrap();
+      // rove patch (ROVE-PATCH.md §12): a taken sample leaves its instance and its room.
+      Self::unindex(&mut self.instance_map, key, dswm.writer_guid, *ts);
       // dwsm.sample_has_been_read = true; // no need to mark read, as the dswm is
       // about to be destroyed
       Self::record_instance_generation_viewed(
@@ -654,5 +731,133 @@ mod tests {
       _ => (),
     }
     */
+  }
+}
+
+// rove patch (ROVE-PATCH.md §12): KEEP_LAST per instance and writer, and the bounds on the rooms.
+#[cfg(test)]
+mod room_tests {
+  use super::{DataSampleCache, MAX_EMPTY_INSTANCES, MAX_SAMPLES_PER_READER};
+  use crate::{
+    dds::{
+      qos::{policy::History, QosPolicyBuilder},
+      readcondition::ReadCondition,
+      with_key::datasample::Sample,
+    },
+    structure::{
+      guid::{EntityId, EntityKind, GuidPrefix, GUID},
+      sequence_number::SequenceNumber,
+      time::Timestamp,
+    },
+    test::random_data::RandomData,
+    with_key::WriteOptions,
+  };
+
+  fn cache(depth: i32) -> DataSampleCache<RandomData> {
+    DataSampleCache::new(
+      QosPolicyBuilder::new()
+        .history(History::KeepLast { depth })
+        .build(),
+    )
+  }
+
+  fn writer(n: u32) -> GUID {
+    let mut prefix = [0; 12];
+    prefix[..4].copy_from_slice(&n.to_be_bytes());
+    GUID::new(
+      GuidPrefix::new(&prefix),
+      EntityId::new([0, 0, 1], EntityKind::WRITER_WITH_KEY_USER_DEFINED),
+    )
+  }
+
+  // Instance `key`, value `b`, from `writer`.
+  fn add(cache: &mut DataSampleCache<RandomData>, key: i64, b: &str, writer: GUID, sn: i64) {
+    cache.add_sample(
+      Sample::Value(RandomData {
+        a: key,
+        b: b.to_string(),
+      }),
+      writer,
+      SequenceNumber::new(sn),
+      Timestamp::now(),
+      WriteOptions::default(),
+    );
+  }
+
+  fn take_all(cache: &mut DataSampleCache<RandomData>) -> Vec<(GUID, String)> {
+    let keys = cache.select_keys_for_access(ReadCondition::any(), usize::MAX);
+    (cache.take_by_keys(&keys).into_iter())
+      .map(|s| {
+        let writer = s.sample_info().writer_guid();
+        match s.into_value() {
+          Sample::Value(d) => (writer, d.b),
+          Sample::Dispose(_) => (writer, "dispose".to_string()),
+        }
+      })
+      .collect()
+  }
+
+  #[test]
+  fn a_flood_into_an_instance_evicts_only_the_flooding_writers_samples() {
+    let mut cache = cache(4);
+    let (owner, flood) = (writer(1), writer(2));
+    add(&mut cache, 100, "owner", owner, 1);
+    for sn in 1..=1000 {
+      add(&mut cache, 100, "flood", flood, sn);
+    }
+    let taken = take_all(&mut cache);
+    assert_eq!(taken.iter().filter(|(w, _)| *w == owner).count(), 1);
+    // The flood keeps its newest four.
+    assert_eq!(taken.iter().filter(|(w, _)| *w == flood).count(), 4);
+  }
+
+  #[test]
+  fn a_writer_keeps_depth_samples_of_its_own() {
+    let mut cache = cache(4);
+    for sn in 1..=10 {
+      add(&mut cache, 100, &format!("{sn}"), writer(1), sn);
+    }
+    let taken: Vec<String> = take_all(&mut cache).into_iter().map(|(_, b)| b).collect();
+    assert_eq!(taken, ["7", "8", "9", "10"]);
+  }
+
+  #[test]
+  fn a_taken_sample_leaves_its_room() {
+    let mut cache = cache(2);
+    let w = writer(1);
+    add(&mut cache, 100, "1", w, 1);
+    add(&mut cache, 100, "2", w, 2);
+    assert_eq!(take_all(&mut cache).len(), 2);
+    add(&mut cache, 100, "3", w, 3);
+    assert!(cache.instance_map[&100].writer_samples[&w].len() == 1);
+    assert_eq!(cache.instance_map[&100].instance_samples.len(), 1);
+  }
+
+  #[test]
+  fn the_rooms_are_bounded_together() {
+    let mut cache = cache(4);
+    for w in 0..3000 {
+      for sn in 1..=4 {
+        add(&mut cache, 100, "x", writer(w), sn);
+      }
+    }
+    assert_eq!(cache.datasamples.len(), MAX_SAMPLES_PER_READER);
+    let taken = take_all(&mut cache);
+    // The oldest went: the last writer's are all there.
+    assert_eq!(taken.iter().filter(|(w, _)| *w == writer(2999)).count(), 4);
+  }
+
+  #[test]
+  fn instances_without_samples_are_forgotten() {
+    let mut cache = cache(4);
+    for key in 0..10_000 {
+      add(&mut cache, key, "x", writer(1), key + 1);
+      take_all(&mut cache);
+    }
+    assert!(
+      cache.instance_map.len() <= MAX_EMPTY_INSTANCES + 1,
+      "{}",
+      cache.instance_map.len()
+    );
   }
 }
