@@ -1876,7 +1876,13 @@ mod tests {
     // Create the DDS cache and a topic
     let dds_cache = Arc::new(RwLock::new(DDSCache::new()));
     let topic_name = "test_name";
-    let qos_policy = QosPolicies::qos_none();
+    // rove patch (ROVE-PATCH.md §10): a best-effort reader ignores GAP, so the
+    // reader under test is reliable.
+    let qos_policy = QosPolicyBuilder::new()
+      .reliability(Reliability::Reliable {
+        max_blocking_time: Duration::from_millis(100),
+      })
+      .build();
 
     let topic_cache_handle = dds_cache.write().unwrap().add_new_topic(
       topic_name.to_string(),
