@@ -195,6 +195,54 @@ mod tests {
         );
     }
 
+    /// Issue 29: every SPDP announcement with an unseen GUID prefix (one flipped byte of a
+    /// real one) was a participant entry kept for its lease. The database keeps at most 1024.
+    #[test]
+    fn invented_participants_are_remembered_up_to_the_bound() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("libfuzzer/corpus/rtps");
+        // A remote's SPDP announcement from the capture: DATA from the SPDP writer.
+        let spdp = std::fs::read_dir(&dir)
+            .expect("the rtps corpus")
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("fleet-"))
+            })
+            .filter_map(|p| std::fs::read(p).ok())
+            .flat_map(|seed| {
+                datagrams(&seed)
+                    .into_iter()
+                    .map(<[u8]>::to_vec)
+                    .collect::<Vec<_>>()
+            })
+            .find(|d| {
+                d.len() > 20
+                    && d[8..20] != VEHICLE_PREFIX
+                    && d.windows(4).any(|w| w == [0x00, 0x01, 0x00, 0xc2])
+            })
+            .expect("a captured SPDP announcement");
+        let prefix: [u8; 12] = spdp[8..20].try_into().expect("12 bytes");
+        let mut participant = Participant::new(VEHICLE_PREFIX, &vehicle_endpoints());
+        for n in 0u32..3000 {
+            // The same announcement from another participant: its prefix replaced throughout.
+            let mut other = prefix;
+            other[8..12].copy_from_slice(&n.to_be_bytes());
+            let mut datagram = spdp.clone();
+            let mut at = 0;
+            while let Some(i) = datagram[at..].windows(12).position(|w| w == prefix) {
+                datagram[at + i..at + i + 12].copy_from_slice(&other);
+                at += i + 12;
+            }
+            participant.receive(&datagram);
+        }
+        let known = participant.known_participants();
+        assert!(
+            known >= 1000,
+            "the announcements were not read: {known} participants"
+        );
+        assert!(known <= 1024, "{known} participants remembered");
+    }
+
     #[test]
     fn framing_stops_at_the_limit() {
         let input = [0u8; 2 * (MAX_DATAGRAMS + 5)];

@@ -323,6 +323,16 @@ impl Participant {
     self.event_loop.fuzz_matched_user_writers()
   }
 
+  /// Remote participants in the discovery database (this one included, once
+  /// it has heard itself).
+  pub fn known_participants(&self) -> usize {
+    self
+      .discovery_db
+      .read()
+      .map(|db| db.participant_count())
+      .unwrap_or(0)
+  }
+
   /// Runs the event loop's timers that are due (heartbeats, ACKNACK
   /// responses, cache clean-up).
   pub fn timers(&mut self) {

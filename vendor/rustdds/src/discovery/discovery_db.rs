@@ -286,6 +286,12 @@ impl DiscoveryDB {
     }
   }
 
+  /// rove patch (ROVE-PATCH.md §11): participants known (for the bound's test).
+  #[cfg(feature = "fuzzing")]
+  pub fn participant_count(&self) -> usize {
+    self.participant_proxies.len()
+  }
+
   pub fn find_participant_proxy(
     &self,
     guid_prefix: GuidPrefix,
