@@ -861,6 +861,58 @@ mod tests {
         path
     }
 
+    /// Issue 30: docs/mavlink.md's steps drive what they start. In each section of the guide,
+    /// every operator config it names drives every vehicle config it names, and a vehicle's
+    /// MAVLink `connection` is the endpoint the section gives (in backquotes).
+    #[test]
+    fn the_mavlink_guides_steps_drive_the_vehicles_they_start() {
+        let guide = shipped("../docs/mavlink.md");
+        let text = std::fs::read_to_string(&guide).expect("docs/mavlink.md");
+        let named = |section: &str, role: &str| -> Vec<String> {
+            let needle = format!("rove {role} -c configs/");
+            section
+                .match_indices(&needle)
+                .filter_map(|(at, _)| {
+                    let rest = &section[at + needle.len()..];
+                    let end = rest.find(|c: char| c.is_whitespace() || c == '`')?;
+                    Some(rest[..end].to_string())
+                })
+                .collect()
+        };
+        let mut pairs = 0;
+        for section in text.split("\n## ") {
+            let vehicles = named(section, "vehicle");
+            let operators = named(section, "operator");
+            for vehicle in &vehicles {
+                let path = shipped(vehicle);
+                let config = load_vehicle(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                let raw: toml::Table =
+                    toml::from_str(&std::fs::read_to_string(&path).expect("read")).expect("toml");
+                if let Some(connection) = raw
+                    .get("output")
+                    .and_then(|o| o.get("connection"))
+                    .and_then(|c| c.as_str())
+                {
+                    assert!(
+                        section.contains(&format!("`{connection}`")),
+                        "{vehicle}: connection {connection} is not the guide's"
+                    );
+                }
+                for operator in &operators {
+                    let op = load_operator(&shipped(operator)).unwrap_or_else(|e| panic!("{e:#}"));
+                    assert!(
+                        op.drive.contains(&config.common.id),
+                        "{operator} drives {:?}, not {vehicle}'s id {}",
+                        op.drive,
+                        config.common.id
+                    );
+                    pairs += 1;
+                }
+            }
+        }
+        assert!(pairs >= 2, "the guide names {pairs} vehicle/operator pairs");
+    }
+
     #[test]
     fn every_shipped_config_loads() {
         let dir = shipped("");
