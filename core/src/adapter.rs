@@ -77,6 +77,13 @@ pub trait OutputAdapter {
     fn detail(&self) -> Option<String> {
         None
     }
+
+    /// Whether the adapter holds the outputs in their safe state by its own decision while the
+    /// arbiter has an owner: an autopilot refused the operator's mode and the adapter stopped
+    /// (MAVLink `on_mode_refused = "hold"`). Status then says failsafe, as the outputs are.
+    fn held_safe(&self) -> bool {
+        false
+    }
 }
 
 /// Operator actions bound to buttons or keys.

@@ -113,6 +113,12 @@ impl ManagedOutput {
         self.adapter.as_ref().and_then(|a| a.detail())
     }
 
+    /// Whether the adapter holds the outputs safe by its own decision (see
+    /// [`rove_core::adapter::OutputAdapter::held_safe`]).
+    pub fn held_safe(&self) -> bool {
+        self.adapter.as_ref().is_some_and(|a| a.held_safe())
+    }
+
     /// When [`ManagedOutput::tick`] has work: the end of a hold, or the adapter's keep-alive.
     pub fn next_deadline(&self) -> Option<MonoTime> {
         let keepalive = self.adapter.as_ref().and(self.next_keepalive);
@@ -248,6 +254,8 @@ pub struct OutputReport {
     /// Applies not written because they were older than [`WriteLimits::max_age`] when the
     /// device was free again.
     pub stale: u64,
+    /// The adapter holds the outputs safe by its own decision (an autopilot refused a mode).
+    pub held_safe: bool,
 }
 
 impl std::fmt::Display for OutputReport {
@@ -277,6 +285,7 @@ struct WorkerState {
     describe: String,
     health: Health,
     detail: Option<String>,
+    held_safe: bool,
     stop: bool,
     done: bool,
 }
@@ -300,6 +309,7 @@ impl WorkerShared {
         state.describe = output.describe();
         state.health = output.health();
         state.detail = output.detail();
+        state.held_safe = output.held_safe();
     }
 }
 
@@ -347,6 +357,7 @@ impl OutputWorker {
                 describe: format!("{name:?} (opening)"),
                 health: Health::Down("opening".into()),
                 detail: None,
+                held_safe: false,
                 stop: false,
                 done: false,
             }),
@@ -410,6 +421,7 @@ impl OutputWorker {
             detail: state.detail.clone(),
             hung: running.filter(|r| *r > self.limits.deadline),
             stale: state.stale,
+            held_safe: state.held_safe,
         }
     }
 

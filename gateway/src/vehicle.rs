@@ -329,8 +329,9 @@ impl StatusWriter {
     }
 }
 
-/// What VehicleStatus says: the owner, the mode last applied, whether the outputs are safe,
-/// and the output's health.
+/// What VehicleStatus says: the owner, the mode last applied, whether the outputs are safe
+/// (the failsafe owns them, the output is down, or the adapter holds them safe itself: an
+/// autopilot that refused the owner's mode; issue 30), and the output's health.
 fn vehicle_status(
     me: i64,
     arbiter: &Arbiter,
@@ -349,7 +350,9 @@ fn vehicle_status(
         vehicle_id: me,
         controller_id: arbiter.controller_id(),
         mode,
-        failsafe: arbiter.owner() == Owner::Failsafe || output == OutputState::Down,
+        failsafe: arbiter.owner() == Owner::Failsafe
+            || output == OutputState::Down
+            || report.held_safe,
         output,
         // Whole durations only, so that a hung call's growing age does not count as a change.
         detail: match report.hung {
@@ -734,6 +737,7 @@ mod tests {
             detail: None,
             hung: None,
             stale: 0,
+            held_safe: false,
         };
         let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
         let t = MonoTime::ZERO;
@@ -768,6 +772,32 @@ mod tests {
         );
     }
 
+    /// Issue 30: an autopilot that refused the owner's mode, with the adapter holding the
+    /// outputs safe, is reported as failsafe while the owner still owns the vehicle.
+    #[test]
+    fn status_says_failsafe_while_the_adapter_holds_the_outputs_safe() {
+        let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
+        let t = MonoTime::ZERO;
+        let writer = WriterId {
+            participant: ParticipantId(1),
+            entity: 1,
+        };
+        arbiter.step(t, sample(writer, 11, 220, t));
+        let mut report = OutputReport {
+            describe: "mavlink".into(),
+            health: rove_core::adapter::Health::Degraded("AUTO refused".into()),
+            detail: None,
+            hung: None,
+            stale: 0,
+            held_safe: false,
+        };
+        let driving = vehicle_status(100, &arbiter, rove_core::msg::Mode::Auto, &report);
+        assert_eq!((driving.controller_id, driving.failsafe), (11, false));
+        report.held_safe = true;
+        let held = vehicle_status(100, &arbiter, rove_core::msg::Mode::Auto, &report);
+        assert_eq!((held.controller_id, held.failsafe), (11, true));
+    }
+
     #[test]
     fn keepalives_stop_only_once_the_output_is_hung_past_its_limit() {
         let mut watch = HungWatch::new(Duration::from_secs(2));
@@ -777,6 +807,7 @@ mod tests {
             detail: None,
             hung: hung_ms.map(Duration::from_millis),
             stale: 0,
+            held_safe: false,
         };
         assert!(watch.keepalive(&report(None)));
         assert!(watch.keepalive(&report(Some(60))));

@@ -574,6 +574,10 @@ impl OutputAdapter for MavlinkVehicle {
         }
     }
 
+    fn held_safe(&self) -> bool {
+        self.config.on_mode_refused == OnModeRefused::Hold && self.refused.is_some()
+    }
+
     fn detail(&self) -> Option<String> {
         let summary = self.autopilot_summary();
         Some(match &self.refused {

@@ -684,6 +684,8 @@ fn r20_a_refused_mode_is_reported_and_holds_by_default() {
         "{:?}",
         v.detail()
     );
+    // Issue 30: the adapter says it holds the outputs safe, so status reports failsafe.
+    assert!(v.held_safe(), "held safe while AUTO is refused");
     // The operator keeps asking for AUTO: rove holds (release, HOLD) and does not resend AUTO.
     let t_refused = peer.events().last().unwrap()["t"].as_f64().unwrap();
     run(&mut v, &clock, Duration::from_millis(600), Some(auto));
@@ -713,6 +715,7 @@ fn r20_a_refused_mode_is_reported_and_holds_by_default() {
     // Another mode from the operator: driving again.
     drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
     assert_eq!(v.health(), Health::Ok);
+    assert!(!v.held_safe(), "driving again");
 }
 
 #[test]
