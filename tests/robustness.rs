@@ -8,12 +8,9 @@ use std::time::Duration;
 
 const V: i64 = 100;
 
-/// A field of `/proc/PID/status` in KiB (`VmSize`, `VmHWM`).
-fn status_kib(pid: u32, field: &str) -> u64 {
-    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    (text.lines())
-        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+/// A field of `/proc/PID/status` in KiB (`VmSize`, `VmHWM`), the process alive.
+fn status_kib_of_live(pid: u32, field: &str) -> u64 {
+    status_kib(pid, field)
         .unwrap_or_else(|| panic!("no {field} in /proc/{pid}/status (the process died?)"))
 }
 
@@ -31,13 +28,8 @@ fn crafted_fragments_claiming_4_gib_samples_leave_the_vehicle_driving() {
     wait_for_output(&record, Some(11), 0).expect("laptop drives");
 
     let pid = rig.procs[0].pid();
-    let limit_bytes = (status_kib(pid, "VmSize") + 1024 * 1024) * 1024;
-    let limit = Command::new("prlimit")
-        .args(["--pid", &pid.to_string(), &format!("--as={limit_bytes}")])
-        .status()
-        .expect("prlimit (util-linux)");
-    assert!(limit.success(), "prlimit --as on the vehicle");
-    let before_kib = status_kib(pid, "VmHWM");
+    limit_address_space("vehicle", pid, 1024 * 1024);
+    let before_kib = status_kib_of_live(pid, "VmHWM");
 
     let out = Command::new("ip")
         .args(["netns", "exec", &rig.ns])
@@ -57,7 +49,7 @@ fn crafted_fragments_claiming_4_gib_samples_leave_the_vehicle_driving() {
     let after_bombs = wall_us();
     wait_for_output(&record, Some(11), after_bombs).expect("the laptop still drives");
     assert!(rig.procs[0].is_running(), "the vehicle died: {report}");
-    let grown_kib = status_kib(pid, "VmHWM").saturating_sub(before_kib);
+    let grown_kib = status_kib_of_live(pid, "VmHWM").saturating_sub(before_kib);
     eprintln!("{report}: the vehicle's peak RSS grew by {grown_kib} KiB");
     assert!(
         grown_kib < 64 * 1024,

@@ -1,7 +1,7 @@
 //! DDS Security between real processes (docs/security.md): a fleet made by `rove keys`, a
 //! secured vehicle and operators, and what an unauthenticated peer or a wrong certificate gets.
 
-use crate::util::{ROVE, Rig, records, wait_for_output, wall_us};
+use crate::util::{ROVE, Rig, laptop_drives_sim, records, wait_for_output, wall_us};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -37,17 +37,7 @@ fn security(fleet: &Path, id: i64) -> String {
 
 /// The secured vehicle, and the secured laptop (11) driving it; returns the vehicle's record.
 fn secured_laptop_drives(rig: &mut Rig, fleet: &Path) -> PathBuf {
-    let output = format!("{}[output]\nadapter = \"sim\"\n", security(fleet, V));
-    let record = rig.vehicle_with_output(V, &output);
-    rig.operator(
-        11,
-        "stationary",
-        "laptop",
-        &[V],
-        1000,
-        &security(fleet, 11),
-        &[],
-    );
+    let record = laptop_drives_sim(rig, V, &security(fleet, V), &security(fleet, 11));
     let first = wait_for_output(&record, Some(11), 0).expect("the secured laptop drives");
     eprintln!("secured: the laptop drives from {} µs", first.wall_us);
     record

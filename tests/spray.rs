@@ -77,15 +77,6 @@ fn a_secured_fleet_sprayed_with_its_own_datagrams_mutated_keeps_driving() {
     spray_a_driving_fleet("spray-secured", true);
 }
 
-/// A field of `/proc/PID/status` in KiB (`VmSize`, `VmRSS`, `VmHWM`); `None` once the process
-/// is gone.
-fn status_kib(pid: u32, field: &str) -> Option<u64> {
-    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    (text.lines())
-        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-}
-
 /// `rtps_spray.py ARGS` in the rig's namespace, its stdout piped.
 fn sprayer(rig: &Rig, args: &[&str]) -> Child {
     Command::new("ip")
@@ -218,17 +209,6 @@ fn stop_early(sprayer: &mut Child) {
     }
 }
 
-/// Limits `pid`'s address space to what it has mapped now plus [`HEADROOM_KIB`].
-fn limit_address_space(name: &str, pid: u32) {
-    let size = status_kib(pid, "VmSize").unwrap_or_else(|| panic!("{name} is gone"));
-    let limit_bytes = (size + HEADROOM_KIB) * 1024;
-    let limited = Command::new("prlimit")
-        .args(["--pid", &pid.to_string(), &format!("--as={limit_bytes}")])
-        .status()
-        .expect("prlimit (util-linux)");
-    assert!(limited.success(), "prlimit --as on the {name}");
-}
-
 /// What the vehicle's record says about `[from_us, to_us]`: outputs not from the laptop, the
 /// largest gap between consecutive outputs (the window's ends count as outputs' times only
 /// through the outputs around them) and how many outputs.
@@ -279,18 +259,7 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
         "rtps_spray.py capture: {first:?}"
     );
 
-    let output = format!("{}[output]\nadapter = \"sim\"\n", security(V));
-    let record = rig.vehicle_with_output(V, &output);
-    rig.operator(
-        LAPTOP,
-        "stationary",
-        "laptop",
-        &[V],
-        1000,
-        &security(LAPTOP),
-        &[],
-    );
-    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+    let record = laptop_drives_sim(&mut rig, V, &security(V), &security(LAPTOP));
     let captured = summary(capturing, capture_out);
     assert!(
         captured["captured"].as_u64().unwrap_or(0) > 0,
@@ -298,8 +267,8 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
     );
 
     let (vehicle_pid, laptop_pid) = (rig.procs[0].pid(), rig.procs[1].pid());
-    limit_address_space("vehicle", vehicle_pid);
-    limit_address_space("laptop", laptop_pid);
+    limit_address_space("vehicle", vehicle_pid, HEADROOM_KIB);
+    limit_address_space("laptop", laptop_pid, HEADROOM_KIB);
     let mut memory = [
         Memory::new("vehicle", vehicle_pid),
         Memory::new("laptop", laptop_pid),

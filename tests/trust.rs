@@ -6,12 +6,11 @@
 //! - no honest operator writes to a vehicle it did not drive;
 //! - the attempt is reported (the vehicle's or the operator's log names it).
 
-use crate::util::{Rig, foreign_summary, records, wait_for_output, wall_us};
+use crate::util::{Rig, foreign_summary, laptop_drives_sim, records, wait_for_output, wall_us};
 use std::path::Path;
 
 const V: i64 = 100;
 const LAPTOP: i64 = 11;
-const LAPTOP_THROTTLE: i16 = 1000;
 const ROGUE_THROTTLE: i64 = 31111;
 
 /// Runs one attack of the rogue in the rig's namespace, to its end (bounded by `--seconds`);
@@ -19,24 +18,6 @@ const ROGUE_THROTTLE: i64 = 31111;
 fn rogue(rig: &Rig, args: &[&str]) -> serde_json::Value {
     let out = rig.foreign_peer(args).output().expect("run the rogue");
     foreign_summary(out, args)
-}
-
-/// The laptop drives `V` (sim output recorded); returns the record path. `access` is put in
-/// the vehicle's config before `[output]`, `laptop_toml` at the end of the laptop's.
-fn honest_rig(rig: &mut Rig, access: &str, laptop_toml: &str) -> std::path::PathBuf {
-    let output = format!("{access}[output]\nadapter = \"sim\"\n");
-    let record = rig.vehicle_with_output(V, &output);
-    rig.operator(
-        LAPTOP,
-        "stationary",
-        "laptop",
-        &[V],
-        LAPTOP_THROTTLE,
-        laptop_toml,
-        &[],
-    );
-    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
-    record
 }
 
 /// No rogue sample was applied, and after the attack the laptop still drives.
@@ -70,7 +51,7 @@ fn assert_reported(rig: &Rig, name: &str, needle: &str) {
 /// throttle) applied, the laptop kept, and the vehicle's log says `reported`.
 fn vehicle_attack(test: &str, access: &str, args: &[&str], rogue_ids: &[i64], reported: &str) {
     let mut rig = Rig::new(test);
-    let record = honest_rig(&mut rig, access, "");
+    let record = laptop_drives_sim(&mut rig, V, access, "");
     let s = rogue(&rig, args);
     eprintln!("{}: {s}", args[0]);
     assert_vehicle_kept(&record, rogue_ids);
@@ -104,7 +85,7 @@ fn the_owners_id_from_another_participant_drives_nothing() {
 #[test]
 fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle() {
     let mut rig = Rig::new("rogue-request");
-    let record = honest_rig(&mut rig, "", "");
+    let record = laptop_drives_sim(&mut rig, V, "", "");
     // Vehicle 101 exists, but the laptop does not drive it.
     let other = rig.vehicle(101);
     wait_for_output(&other, None, 0).expect("vehicle 101 safe at start");
@@ -148,7 +129,7 @@ fn a_request_then_finish_cannot_turn_an_honest_operator_against_another_vehicle(
 #[test]
 fn a_false_device_info_for_the_vehicle_is_not_believed() {
     let mut rig = Rig::new("rogue-info");
-    let record = honest_rig(&mut rig, "", "");
+    let record = laptop_drives_sim(&mut rig, V, "", "");
     let s = rogue(&rig, &["device-info", "--id", "100", "--controller", "13"]);
     eprintln!("device-info: {s}");
     assert_vehicle_kept(&record, &[13]);
@@ -186,7 +167,7 @@ fn three_hundred_rogue_writers_move_nothing_past_an_access_list() {
 fn a_forged_finish_in_the_holders_name_ends_no_grant() {
     let mut rig = Rig::new("rogue-finish");
     let always = "[handover]\nauto_accept = \"always\"\n";
-    let record = honest_rig(&mut rig, "", always);
+    let record = laptop_drives_sim(&mut rig, V, "", always);
     let asked = wall_us();
     rig.operator(13, "remote", "tablet", &[], 3000, "", &["--request", "100"]);
     let granted = wait_for_output(&record, Some(13), asked).expect("the tablet is granted");

@@ -327,3 +327,51 @@ pub fn applies_in_burst(record: &Path, since_us: u64, first_fresh_us: u64) -> Ve
         .filter(|t| *t < first_fresh_us + 15_000)
         .collect()
 }
+
+// ---------------------------------------------------------------------------------------------
+// Common fleets and process limits
+
+/// Vehicle `vehicle` (sim output, recorded; `vehicle_toml` goes before its `[output]`) and laptop
+/// 11 driving it (stationary, throttle 1000; `laptop_toml` at the end of its config), started in
+/// that order; waits until the laptop drives. Returns the vehicle's record.
+pub fn laptop_drives_sim(
+    rig: &mut Rig,
+    vehicle: i64,
+    vehicle_toml: &str,
+    laptop_toml: &str,
+) -> PathBuf {
+    let output = format!("{vehicle_toml}[output]\nadapter = \"sim\"\n");
+    let record = rig.vehicle_with_output(vehicle, &output);
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[vehicle],
+        1000,
+        laptop_toml,
+        &[],
+    );
+    wait_for_output(&record, Some(11), 0).expect("the laptop drives");
+    record
+}
+
+/// A field of `/proc/PID/status` in KiB (`VmSize`, `VmRSS`, `VmHWM`); `None` once the process
+/// is gone.
+pub fn status_kib(pid: u32, field: &str) -> Option<u64> {
+    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    (text.lines())
+        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
+/// Limits `pid`'s address space to what it has mapped now plus `headroom_kib` (util-linux's
+/// `prlimit`), so that a runaway allocation aborts that process instead of filling the machine.
+pub fn limit_address_space(name: &str, pid: u32, headroom_kib: u64) {
+    let size = status_kib(pid, "VmSize").unwrap_or_else(|| panic!("{name} is gone"));
+    let limit_bytes = (size + headroom_kib) * 1024;
+    let limited = Command::new("prlimit")
+        .args(["--pid", &pid.to_string(), &format!("--as={limit_bytes}")])
+        .status()
+        .expect("prlimit (util-linux)");
+    assert!(limited.success(), "prlimit --as on the {name}");
+}
