@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 
-# The fuzz target's participant (fuzz/src/rtps.rs VEHICLE_PREFIX): not a remote.
-VEHICLE = bytes([0x01, 0x0F, 0x52, 0x4F, 0x56, 0x45, 0, 0, 0, 0, 0, 0x64])
+# The fuzz target's participant (fuzz/src/rtps.rs VEHICLE_PREFIX), not a remote, and the walk
+# over a datagram's submessages: seeds.py's, beside this script.
+from seeds import VEHICLE_PREFIX as VEHICLE, submessages
 
 
 def frames(seed):
@@ -21,17 +22,6 @@ def frames(seed):
         (n,) = struct.unpack_from("<H", seed, at)
         yield seed[at + 2 : at + 2 + n]
         at += 2 + n
-
-
-def submessages(d):
-    at = 20
-    while at + 4 <= len(d):
-        kind, flags = d[at], d[at + 1]
-        (n,) = struct.unpack_from("<H" if flags & 1 else ">H", d, at + 2)
-        yield kind, d[at : at + 4 + n]
-        if n == 0:
-            break
-        at += 4 + n
 
 
 def sn(v):

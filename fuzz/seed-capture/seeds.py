@@ -31,17 +31,23 @@ def records(data):
         at += 8 + length
 
 
-def info_destinations(datagram):
+def submessages(datagram):
+    """The submessages of an RTPS datagram (after its 20-byte header): (kind, its bytes with
+    its 4-byte header), in order; a zero length ends the walk."""
     at = 20
     while at + 4 <= len(datagram):
         kind, flags = datagram[at], datagram[at + 1]
-        order = "<" if flags & 1 else ">"
-        (length,) = struct.unpack_from(order + "H", datagram, at + 2)
-        if kind == 0x0E and length >= 12:
-            yield bytes(datagram[at + 4 : at + 16])
+        (length,) = struct.unpack_from("<H" if flags & 1 else ">H", datagram, at + 2)
+        yield kind, datagram[at : at + 4 + length]
         if length == 0:
             break
         at += 4 + length
+
+
+def info_destinations(datagram):
+    for kind, sub in submessages(datagram):
+        if kind == 0x0E and len(sub) >= 16:
+            yield bytes(sub[4:16])
 
 
 # SPDP and SEDP writers' entity ids (RTPS 2.5 9.3.1.3): participant, publications, subscriptions.
@@ -50,16 +56,7 @@ DISCOVERY_WRITERS = {bytes.fromhex("000100c2"), bytes.fromhex("000003c2"), bytes
 
 def discovery(datagram):
     """Whether the datagram carries an SPDP or SEDP DATA."""
-    at = 20
-    while at + 16 <= len(datagram):
-        kind, flags = datagram[at], datagram[at + 1]
-        (length,) = struct.unpack_from("<H" if flags & 1 else ">H", datagram, at + 2)
-        if kind == 0x15 and datagram[at + 12 : at + 16] in DISCOVERY_WRITERS:
-            return True
-        if length == 0:
-            break
-        at += 4 + length
-    return False
+    return any(kind == 0x15 and sub[12:16] in DISCOVERY_WRITERS for kind, sub in submessages(datagram))
 
 
 def main():

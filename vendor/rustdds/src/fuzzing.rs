@@ -189,9 +189,10 @@ impl Participant {
     event_loop.fuzz_discard_sends().expect("a discarding sender");
 
     let mut builtin = Vec::new();
-    let builtins: [(Builtin, &str, &str, QosPolicies, QosPolicies, EntityId, EntityId); 5] = [
+    // `None`: received and stored, not acted on (topic data; rove uses none).
+    let builtins: [(Option<Builtin>, &str, &str, QosPolicies, QosPolicies, EntityId, EntityId); 5] = [
       (
-        Builtin::Participant,
+        Some(Builtin::Participant),
         builtin_topic_names::DCPS_PARTICIPANT,
         builtin_topic_type_names::DCPS_PARTICIPANT,
         Discovery::create_spdp_participant_qos(),
@@ -200,7 +201,7 @@ impl Participant {
         EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER,
       ),
       (
-        Builtin::Subscription,
+        Some(Builtin::Subscription),
         builtin_topic_names::DCPS_SUBSCRIPTION,
         builtin_topic_type_names::DCPS_SUBSCRIPTION,
         Discovery::builtin_sedp_reader_qos(),
@@ -209,7 +210,7 @@ impl Participant {
         EntityId::SEDP_BUILTIN_SUBSCRIPTIONS_WRITER,
       ),
       (
-        Builtin::Publication,
+        Some(Builtin::Publication),
         builtin_topic_names::DCPS_PUBLICATION,
         builtin_topic_type_names::DCPS_PUBLICATION,
         Discovery::builtin_sedp_reader_qos(),
@@ -218,8 +219,7 @@ impl Participant {
         EntityId::SEDP_BUILTIN_PUBLICATIONS_WRITER,
       ),
       (
-        // Topic data: received and stored, not acted on (rove uses none).
-        Builtin::ParticipantMessage,
+        None,
         builtin_topic_names::DCPS_TOPIC,
         builtin_topic_type_names::DCPS_TOPIC,
         Discovery::builtin_sedp_reader_qos(),
@@ -228,7 +228,7 @@ impl Participant {
         EntityId::SEDP_BUILTIN_TOPIC_WRITER,
       ),
       (
-        Builtin::ParticipantMessage,
+        Some(Builtin::ParticipantMessage),
         builtin_topic_names::DCPS_PARTICIPANT_MESSAGE,
         builtin_topic_type_names::DCPS_PARTICIPANT_MESSAGE,
         Discovery::PARTICIPANT_MESSAGE_QOS,
@@ -258,7 +258,7 @@ impl Participant {
         &mut keep,
       );
       event_loop.fuzz_add_writer(writer.0);
-      if topic != builtin_topic_names::DCPS_TOPIC {
+      if let Some(kind) = kind {
         builtin.push((kind, cache, Timestamp::ZERO));
       }
     }
