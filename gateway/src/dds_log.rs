@@ -10,6 +10,7 @@
 //!
 //! The decision is [`SiteLimiter`], pure and tested with an injected clock.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -22,8 +23,9 @@ pub const INTERVAL: Duration = Duration::from_secs(10);
 /// cleared if it ever fills (the worst case is one extra line per site).
 const MAX_SITES: usize = 1024;
 
-/// A call site: the source file and line of the log statement.
-type Site = (String, u32);
+/// A call site: the source file and line of the log statement. The file is borrowed when the
+/// record carries it as `'static` (the `log` macros do), so a flood of records allocates nothing.
+type Site = (Cow<'static, str>, u32);
 
 /// What to do with one record.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -100,10 +102,11 @@ impl log::Log for Logger {
         if !limited(record.metadata()) {
             return self.inner.log(record);
         }
-        let site = (
-            record.file().unwrap_or(record.target()).to_string(),
-            record.line().unwrap_or(0),
-        );
+        let file = match (record.file_static(), record.file()) {
+            (Some(file), _) => Cow::Borrowed(file),
+            (None, file) => Cow::Owned(file.unwrap_or(record.target()).to_string()),
+        };
+        let site = (file, record.line().unwrap_or(0));
         let verdict = match self.limiter.lock() {
             Ok(mut limiter) => limiter.check(site, Instant::now()),
             // A panic while holding the table: log rather than lose lines.
@@ -152,7 +155,7 @@ mod tests {
     use super::*;
 
     fn site(line: u32) -> Site {
-        ("src/rtps/message_receiver.rs".to_string(), line)
+        (Cow::Borrowed("src/rtps/message_receiver.rs"), line)
     }
 
     #[test]
@@ -181,7 +184,7 @@ mod tests {
         assert_eq!(limiter.check(site(1), t0), Verdict::Log { held_back: 0 });
         assert_eq!(limiter.check(site(2), t0), Verdict::Log { held_back: 0 });
         assert_eq!(limiter.check(site(1), t0), Verdict::Drop);
-        let other_file = ("src/rtps/reader.rs".to_string(), 1);
+        let other_file = (Cow::Owned("src/rtps/reader.rs".to_string()), 1);
         assert_eq!(limiter.check(other_file, t0), Verdict::Log { held_back: 0 });
     }
 
