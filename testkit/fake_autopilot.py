@@ -11,6 +11,13 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
 - MAV_CMD_DO_SET_MODE (param1 = custom mode flag, param2 = custom_mode; PX4: param2 main mode,
   param3 sub mode) switches the mode and is answered with COMMAND_ACK; the HEARTBEAT reports it.
 - HEARTBEAT at --heartbeat-hz (1 Hz like the real one).
+- udpout:HOST:PORT is ArduPilot's UDP client (`--serialN udpclient:...`): a connected socket on
+  a port of its own, speaking first. A ground station on udpin learns its address only from its
+  first datagram, and only datagrams from HOST:PORT reach it.
+- tcpin:HOST:PORT is ArduPilot's TCP server: it reads a client's bytes at its own tick
+  (--tcp-tick, 10 ms) and a client that has closed loses what it wrote but was not read yet
+  (recorded as tcp_client_closed with the unread byte count): a GCS that writes its last
+  command and closes at once is not obeyed. One client at a time; the next is accepted after.
 - Optional GCS failsafe (--gcs-failsafe S): no GCS traffic for S seconds -> the safe mode.
 - Default telemetry like ArduPilot's first serial port (--telemetry ardupilot, the default):
   once a second a burst of ardupilotmega messages outside `common` (AHRS, AHRS2, MEMINFO,
@@ -35,6 +42,7 @@ import argparse
 import json
 import os
 import random
+import select
 import socket
 import struct
 import sys
@@ -69,6 +77,8 @@ def main():
     p.add_argument("--garbage", action="store_true")
     p.add_argument("--foreign-sysid", type=int, default=0)
     p.add_argument("--duration", type=float, default=120.0, help="exit after this long (bounded)")
+    p.add_argument("--tcp-tick", type=float, default=0.01,
+                   help="tcpin: seconds between reads of the client's bytes")
     p.add_argument("--stop-reading-after", type=float, default=0.0,
                    help="stop reading S seconds after the GCS's first RC override (a wedged "
                         "autopilot whose receive buffer fills), still sending HEARTBEATs")
@@ -89,9 +99,14 @@ def main():
     if a.foreign_sysid:
         foreign = mavutil.mavlink.MAVLink(m, srcSystem=a.foreign_sysid, srcComponent=1)
     port = None
+    tcp = a.connection.startswith("tcpin:")
     if a.connection.startswith("udpin:"):
         port = m.port.getsockname()[1]
-    elif a.connection.startswith("tcpin:"):
+    elif a.connection.startswith("udpout:"):
+        # ArduPilot's udpclient: a connected socket, so only the GCS's address reaches it.
+        m.port.connect((socket.gethostbyname(m.destination_addr[0]), m.destination_addr[1]))
+        port = m.port.getsockname()[1]
+    elif tcp:
         port = m.listen.getsockname()[1]
         if a.stop_reading_after:
             # A small receive buffer, inherited by the accepted connection (and no window
@@ -119,6 +134,51 @@ def main():
             m.write(data)
         except OSError:
             pass  # udpin before the GCS spoke; a closed tcp peer
+
+    def tcp_messages():
+        """ArduPilot's TCP server: accept one client, read its bytes once per tick, and drop a
+        client that has closed together with the bytes it wrote that were not read yet."""
+        time.sleep(a.tcp_tick)
+        if m.port is None:
+            try:
+                conn, addr = m.listen.accept()
+            except (BlockingIOError, InterruptedError):
+                return []
+            conn.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
+            conn.setblocking(False)
+            m.port, m.fd = conn, conn.fileno()
+            record("tcp_client", peer="%s:%d" % addr)
+        poll = select.poll()
+        poll.register(m.port, select.POLLIN | select.POLLRDHUP)
+        closed = any(ev & (select.POLLRDHUP | select.POLLHUP | select.POLLERR)
+                     for _, ev in poll.poll(0))
+        if closed:
+            unread = 0
+            while True:
+                try:
+                    chunk = m.port.recv(65536)
+                except OSError:
+                    break
+                if not chunk:
+                    break
+                unread += len(chunk)
+            m.port.close()
+            m.port, m.fd = None, m.listen.fileno()
+            m.mav = mavutil.mavlink.MAVLink(m, srcSystem=a.sysid, srcComponent=a.compid)
+            m.mav.robust_parsing = True
+            record("tcp_client_closed", unread=unread)
+            return []
+        try:
+            data = m.port.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError:
+            return []
+        try:
+            return m.mav.parse_buffer(data) or []
+        except Exception:  # a bad frame mid-buffer: what parsed before it is lost, as noise
+            record("bad_data")
+            return []
 
     while time.monotonic() - t0 < a.duration:
         now = time.monotonic()
@@ -171,73 +231,77 @@ def main():
                 record("stopped_reading")
             time.sleep(0.02)
             continue
-        msg = m.recv_match(blocking=True, timeout=0.02)
-        if msg is None:
-            continue
-        kind = msg.get_type()
-        if kind == "BAD_DATA":
-            record("bad_data")
-            continue
-        src, srccomp = msg.get_srcSystem(), msg.get_srcComponent()
-        if src == a.gcs_sysid:
-            last_gcs = time.monotonic()
-            if failsafe_fired:
-                failsafe_fired = False
-                record("gcs_failsafe_cleared")
-        if kind == "HEARTBEAT":
-            record("heartbeat", src=src, comp=srccomp, type=msg.type, autopilot=msg.autopilot,
-                   version=msg.get_msgbuf()[0] == 0xFD and 2 or 1)
-        elif kind == "RC_CHANNELS_OVERRIDE":
-            if first_override is None:
-                first_override = time.monotonic()
-            raw = [getattr(msg, "chan%d_raw" % i, 0) for i in range(1, 19)]
-            accepted = src == a.gcs_sysid and msg.target_system == a.sysid
-            if accepted:
-                for i, v in enumerate(raw, start=1):
-                    if i <= 8:
-                        if v == 0:
-                            overrides.pop(i, None)
-                        elif v != 65535:
-                            overrides[i] = (v, time.monotonic())
-                    else:
-                        if v == 65534:
-                            overrides.pop(i, None)
-                        elif v not in (0, 65535):
-                            overrides[i] = (v, time.monotonic())
-            record("rc_override", src=src, comp=srccomp, target=msg.target_system,
-                   target_comp=msg.target_component, raw=raw, accepted=accepted,
-                   active={str(c): v for c, (v, _) in sorted(overrides.items())})
-        elif kind == "MANUAL_CONTROL":
-            accepted = msg.target == a.sysid and src == a.gcs_sysid
-            record("manual_control", src=src, target=msg.target, x=msg.x, y=msg.y, z=msg.z, r=msg.r,
-                   accepted=accepted)
-        elif kind == "COMMAND_LONG":
-            if msg.command != mavutil.mavlink.MAV_CMD_DO_SET_MODE or msg.target_system != a.sysid:
-                record("command", src=src, command=msg.command, target=msg.target_system)
-                continue
-            if a.autopilot == "px4":
-                wanted = (int(msg.param2) << 16) | (int(msg.param3) << 24)
-            else:
-                wanted = int(msg.param2)
-            if ignore_modes > 0:
-                ignore_modes -= 1
-                record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=False)
-                continue
-            if a.deny_modes:
-                result = mavutil.mavlink.MAV_RESULT_DENIED
-            elif wanted in fail_modes:
-                result = mavutil.mavlink.MAV_RESULT_FAILED
-                m.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING,
-                                      b"Flight mode change failed")
-            else:
-                result = mavutil.mavlink.MAV_RESULT_ACCEPTED
-                mode = wanted
-            record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=True,
-                   result=result)
-            m.mav.command_ack_send(mavutil.mavlink.MAV_CMD_DO_SET_MODE, result)
-            next_hb = time.monotonic()  # like ArduPilot: the new mode shows in the next heartbeat soon
+        if tcp:
+            msgs = tcp_messages()
         else:
-            record("other", type=kind, src=src)
+            msgs = [m.recv_match(blocking=True, timeout=0.02)]
+        for msg in msgs:
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                record("bad_data")
+                continue
+            src, srccomp = msg.get_srcSystem(), msg.get_srcComponent()
+            if src == a.gcs_sysid:
+                last_gcs = time.monotonic()
+                if failsafe_fired:
+                    failsafe_fired = False
+                    record("gcs_failsafe_cleared")
+            if kind == "HEARTBEAT":
+                record("heartbeat", src=src, comp=srccomp, type=msg.type, autopilot=msg.autopilot,
+                       version=msg.get_msgbuf()[0] == 0xFD and 2 or 1)
+            elif kind == "RC_CHANNELS_OVERRIDE":
+                if first_override is None:
+                    first_override = time.monotonic()
+                raw = [getattr(msg, "chan%d_raw" % i, 0) for i in range(1, 19)]
+                accepted = src == a.gcs_sysid and msg.target_system == a.sysid
+                if accepted:
+                    for i, v in enumerate(raw, start=1):
+                        if i <= 8:
+                            if v == 0:
+                                overrides.pop(i, None)
+                            elif v != 65535:
+                                overrides[i] = (v, time.monotonic())
+                        else:
+                            if v == 65534:
+                                overrides.pop(i, None)
+                            elif v not in (0, 65535):
+                                overrides[i] = (v, time.monotonic())
+                record("rc_override", src=src, comp=srccomp, target=msg.target_system,
+                       target_comp=msg.target_component, raw=raw, accepted=accepted,
+                       active={str(c): v for c, (v, _) in sorted(overrides.items())})
+            elif kind == "MANUAL_CONTROL":
+                accepted = msg.target == a.sysid and src == a.gcs_sysid
+                record("manual_control", src=src, target=msg.target, x=msg.x, y=msg.y, z=msg.z, r=msg.r,
+                       accepted=accepted)
+            elif kind == "COMMAND_LONG":
+                if msg.command != mavutil.mavlink.MAV_CMD_DO_SET_MODE or msg.target_system != a.sysid:
+                    record("command", src=src, command=msg.command, target=msg.target_system)
+                    continue
+                if a.autopilot == "px4":
+                    wanted = (int(msg.param2) << 16) | (int(msg.param3) << 24)
+                else:
+                    wanted = int(msg.param2)
+                if ignore_modes > 0:
+                    ignore_modes -= 1
+                    record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=False)
+                    continue
+                if a.deny_modes:
+                    result = mavutil.mavlink.MAV_RESULT_DENIED
+                elif wanted in fail_modes:
+                    result = mavutil.mavlink.MAV_RESULT_FAILED
+                    m.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING,
+                                          b"Flight mode change failed")
+                else:
+                    result = mavutil.mavlink.MAV_RESULT_ACCEPTED
+                    mode = wanted
+                record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=True,
+                       result=result)
+                # Like ArduPilot, the new mode shows in the next regular HEARTBEAT, not at once.
+                m.mav.command_ack_send(mavutil.mavlink.MAV_CMD_DO_SET_MODE, result)
+            else:
+                record("other", type=kind, src=src)
     record("exit")
 
 

@@ -3,7 +3,7 @@
 
 use clap::{Parser, Subcommand};
 use rove_gateway::{
-    bench, chaos, config, demo, doctor, harness, operator, runtime, scale, status, vehicle,
+    bench, chaos, config, demo, doctor, harness, operator, output, runtime, scale, status, vehicle,
 };
 use std::process::ExitCode;
 
@@ -350,8 +350,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             record,
             test_stall_on_sigusr1,
         } => {
-            let config = config::load_vehicle(&path).map_err(bad_config)?;
+            let mut config = config::load_vehicle(&path).map_err(bad_config)?;
             runtime::init_logging(config.common.log_filter.as_deref());
+            output::keep_learned(&mut config.output, config.common.id);
             let options = vehicle::Options {
                 config_path: path,
                 record,
@@ -360,8 +361,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tokio_runtime()?.block_on(vehicle::run(config, options))
         }
         Command::Failsafe { config } => {
-            let config = config::load_vehicle(&config).map_err(bad_config)?;
-            let what = rove_gateway::output::failsafe(&config.output)
+            let mut config = config::load_vehicle(&config).map_err(bad_config)?;
+            runtime::init_logging(config.common.log_filter.as_deref());
+            output::keep_learned(&mut config.output, config.common.id);
+            let what = output::failsafe(&config.output)
                 .map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
             println!("rove failsafe: {what}: safe state written");
             Ok(())

@@ -484,6 +484,11 @@ fn work(
         state = shared.lock();
         state.busy_since = None;
         if stop && state.pending.is_none() {
+            // Closed before saying done: an adapter's drop finishes its stop (MAVLink waits
+            // for the autopilot to confirm the safe mode before it closes the link).
+            drop(state);
+            drop(output);
+            let mut state = shared.lock();
             state.done = true;
             shared.wake.notify_all();
             return;
@@ -500,6 +505,16 @@ pub(crate) fn kind(config: &OutputConfig) -> &'static str {
         OutputConfig::Naza(_) => "naza",
         OutputConfig::Mavlink(_) => "mavlink",
         OutputConfig::Can(_) => "can",
+    }
+}
+
+/// Gives a MAVLink output the file where its link keeps what it learns about the autopilot
+/// (its address and ids), in the [`crate::runtime::runtime_dir`]: `rove failsafe` for the same
+/// vehicle reads it and addresses the autopilot at once. Other outputs need nothing.
+pub fn keep_learned(config: &mut OutputConfig, vehicle_id: i64) {
+    if let OutputConfig::Mavlink(c) = config {
+        c.memory = crate::runtime::runtime_dir()
+            .map(|dir| dir.join(format!("vehicle-{vehicle_id}-mavlink")));
     }
 }
 

@@ -333,6 +333,27 @@ pub fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+/// The directory for what a role keeps while the machine is up (`rove failsafe` reads it after
+/// the role died): systemd's `RuntimeDirectory=` (`$RUNTIME_DIRECTORY`, its first entry), else
+/// `$XDG_RUNTIME_DIR/rove` (created, mode 0700). `None` without either: nothing is kept.
+pub fn runtime_dir() -> Option<std::path::PathBuf> {
+    use std::os::unix::fs::DirBuilderExt;
+    if let Some(dirs) = std::env::var_os("RUNTIME_DIRECTORY") {
+        let first = std::env::split_paths(&dirs).next()?;
+        return first.is_absolute().then_some(first);
+    }
+    let base = std::path::PathBuf::from(std::env::var_os("XDG_RUNTIME_DIR")?);
+    if !base.is_absolute() {
+        return None;
+    }
+    let dir = base.join("rove");
+    match std::fs::DirBuilder::new().mode(0o700).create(&dir) {
+        Ok(()) => Some(dir),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Some(dir),
+        Err(_) => None,
+    }
+}
+
 /// Writes a new file (never overwriting one that exists) with `mode`: `rove keys`' files, the
 /// web console's certificate. Errors name the path.
 ///

@@ -267,6 +267,8 @@ rove_core::config_types! {
         channels: Vec<ChannelConfig> => "rc_override channels (empty for manual_control).",
         manual_control: ManualControlConfig => "manual_control fields.",
         modes: ModesConfig => "Modes.",
+        memory: Option<std::path::PathBuf> => "Where the link keeps what it learned about the \
+            autopilot for `rove failsafe` ([`crate::memory`]); set by the gateway, not a key.",
     }
 }
 
@@ -391,6 +393,7 @@ impl MavlinkSettings {
             channels,
             manual_control,
             modes,
+            memory: None,
         })
     }
 

@@ -14,6 +14,8 @@
 //! - [`mode`]: the mode-command machine with retries (pure, stepped with `now`).
 //! - [`link`]: the transport (udpin/udpout/tcpout with TCP_NODELAY/serial), opened here, with its
 //!   reader thread and reconnect.
+//! - [`memory`]: what the link learned (the autopilot's address and ids), kept on disk so that
+//!   `rove failsafe` addresses the autopilot at once.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //!
 //! Measured against ArduPilot Rover SITL: the reader decodes the `ardupilotmega`
@@ -38,6 +40,7 @@ pub mod config;
 pub mod encode;
 pub mod frame;
 pub mod link;
+pub mod memory;
 pub mod mode;
 pub mod vehicle;
 

@@ -15,6 +15,7 @@
 
 use crate::config::{Endpoint, MavlinkConfig};
 use crate::frame::{Decoder, encode};
+use crate::memory::Learned;
 use crate::mode::AckResult;
 use mavlink::dialects::ardupilotmega::{
     MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavType,
@@ -24,6 +25,7 @@ use rove_core::error::LinkError;
 use std::collections::VecDeque;
 use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
@@ -102,23 +104,25 @@ enum Reader {
 }
 
 impl Reader {
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+    /// Reads what arrived; `true` with it when a `udpin:` link's peer is new (its address
+    /// changed, or it is the first datagram).
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<(usize, bool)> {
         match self {
             Reader::Tcp(s) => match s.read(buf)? {
                 0 => Err(io::Error::new(
                     io::ErrorKind::UnexpectedEof,
                     "the autopilot closed the connection",
                 )),
-                n => Ok(n),
+                n => Ok((n, false)),
             },
             Reader::Udp(sock, peer) => {
                 let (n, from) = sock.recv_from(buf)?;
-                if let Some(peer) = peer {
-                    *lock(peer) = Some(from);
-                }
-                Ok(n)
+                let new = peer
+                    .as_ref()
+                    .is_some_and(|peer| lock(peer).replace(from) != Some(from));
+                Ok((n, new))
             }
-            Reader::Serial(p) => p.read(buf),
+            Reader::Serial(p) => Ok((p.read(buf)?, false)),
         }
     }
 }
@@ -127,6 +131,14 @@ struct Shared {
     endpoint: Endpoint,
     target_system: Option<u8>,
     target_component: Option<u8>,
+    /// Ids learned by an earlier run ([`Learned`]): used until the autopilot is heard.
+    learned: Option<(u8, u8)>,
+    /// A `udpin:` link's peer: the sender of the last datagram (or the learned address).
+    peer: Arc<Mutex<Option<SocketAddr>>>,
+    /// Where to keep what is learned, and what was last written there.
+    memory: Option<PathBuf>,
+    stored: Mutex<Option<Learned>>,
+    memory_warned: AtomicBool,
     writer: Mutex<Option<Arc<Writer>>>,
     status: Mutex<LinkStatus>,
     acks: Mutex<VecDeque<AckResult>>,
@@ -166,10 +178,28 @@ impl Link {
     /// # Errors
     /// The thread cannot be spawned.
     pub fn start(config: &MavlinkConfig) -> Result<Link, LinkError> {
+        Link::start_from(config, None)
+    }
+
+    /// [`Link::start`], addressing the autopilot from what an earlier run learned until it is
+    /// heard: its ids, and on a `udpin:` link its address (`rove failsafe`).
+    ///
+    /// # Errors
+    /// The thread cannot be spawned.
+    pub fn start_from(
+        config: &MavlinkConfig,
+        learned: Option<&Learned>,
+    ) -> Result<Link, LinkError> {
+        let udpin = matches!(config.endpoint, Endpoint::UdpIn(_));
         let shared = Arc::new(Shared {
             endpoint: config.endpoint.clone(),
             target_system: config.target_system,
             target_component: config.target_component,
+            learned: learned.map(|l| (l.system_id, l.component_id)),
+            peer: Arc::new(Mutex::new(learned.and_then(|l| l.peer).filter(|_| udpin))),
+            memory: config.memory.clone(),
+            stored: Mutex::new(None),
+            memory_warned: AtomicBool::new(false),
             writer: Mutex::new(None),
             status: Mutex::new(LinkStatus::default()),
             acks: Mutex::new(VecDeque::new()),
@@ -216,22 +246,26 @@ impl Link {
             .wait_timeout_while(guard, limit, |g| *g == seen);
     }
 
-    /// The (system, component) to address, once known.
+    /// The (system, component) to address, once known: the configured ids, else the
+    /// autopilot's as heard, else as an earlier run learned them.
     pub fn target(&self) -> Option<(u8, u8)> {
         let s = lock(&self.shared.status);
-        match (self.shared.target_system, s.autopilot) {
-            (Some(sys), a) => Some((
-                sys,
-                self.shared
-                    .target_component
-                    .or(a.map(|a| a.component_id))
-                    .unwrap_or(1),
-            )),
-            (None, Some(a)) => Some((
-                a.system_id,
-                self.shared.target_component.unwrap_or(a.component_id),
-            )),
-            (None, None) => None,
+        let heard = s.autopilot.map(|a| (a.system_id, a.component_id));
+        let (sys, comp) = match (self.shared.target_system, heard.or(self.shared.learned)) {
+            (Some(sys), known) => (sys, known.map_or(1, |(_, c)| c)),
+            (None, Some(known)) => known,
+            (None, None) => return None,
+        };
+        Some((sys, self.shared.target_component.unwrap_or(comp)))
+    }
+
+    /// Whether a send can leave now: the transport is open and, on a `udpin:` link, the
+    /// autopilot's address is known.
+    pub fn can_send(&self) -> bool {
+        match lock(&self.shared.writer).as_deref() {
+            None => false,
+            Some(Writer::Udp(_, peer)) => lock(peer).is_some(),
+            Some(_) => true,
         }
     }
 
@@ -328,13 +362,16 @@ fn resolve(addr: &str) -> io::Result<SocketAddr> {
     })
 }
 
-fn open(endpoint: &Endpoint) -> io::Result<(Reader, Writer)> {
+fn open(
+    endpoint: &Endpoint,
+    peer: &Arc<Mutex<Option<SocketAddr>>>,
+) -> io::Result<(Reader, Writer)> {
     Ok(match endpoint {
         Endpoint::UdpIn(a) => {
             let sock = Arc::new(UdpSocket::bind(resolve(a)?)?);
             sock.set_read_timeout(Some(READ_TIMEOUT))?;
             sock.set_write_timeout(Some(SEND_TIMEOUT))?;
-            let peer = Arc::new(Mutex::new(None));
+            let peer = Arc::clone(peer);
             (
                 Reader::Udp(Arc::clone(&sock), Some(Arc::clone(&peer))),
                 Writer::Udp(sock, peer),
@@ -407,7 +444,7 @@ fn run(shared: &Shared) {
     let mut decoder = Decoder::new();
     let mut buf = vec![0u8; READ_CHUNK];
     while !shared.stop.load(Ordering::Relaxed) {
-        let (mut reader, writer) = match open(&shared.endpoint) {
+        let (mut reader, writer) = match open(&shared.endpoint, &shared.peer) {
             Ok(c) => c,
             Err(e) => {
                 let why = format!("{}: {e}", shared.endpoint);
@@ -437,7 +474,12 @@ fn run(shared: &Shared) {
         notify(shared);
         while !shared.stop.load(Ordering::Relaxed) {
             match reader.read(&mut buf) {
-                Ok(n) => {
+                Ok((n, new_peer)) => {
+                    if new_peer {
+                        // A udpin waiter needs the address; `rove failsafe` needs it kept.
+                        notify(shared);
+                        remember(shared);
+                    }
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     let skipped = decoder.skipped();
                     while let Some(frame) = decoder.next_frame() {
@@ -476,13 +518,56 @@ fn notify(shared: &Shared) {
     shared.news.notify_all();
 }
 
+/// Keeps what the link learned in the memory file, when it changed (the udpin peer, the
+/// autopilot's ids). A failure is logged once: the link works without it, only `rove failsafe`
+/// is slower.
+fn remember(shared: &Shared) {
+    let Some(path) = &shared.memory else {
+        return;
+    };
+    let Some(a) = lock(&shared.status).autopilot else {
+        return;
+    };
+    let learned = Learned {
+        endpoint: shared.endpoint.to_string(),
+        peer: *lock(&shared.peer),
+        system_id: a.system_id,
+        component_id: a.component_id,
+    };
+    let mut stored = lock(&shared.stored);
+    if stored.as_ref() == Some(&learned) {
+        return;
+    }
+    match learned.store(path) {
+        Ok(()) => {
+            debug!(path = %path.display(), %learned, "mavlink: kept what the link learned");
+            *stored = Some(learned);
+        }
+        Err(e) => {
+            if !shared.memory_warned.swap(true, Ordering::Relaxed) {
+                warn!(
+                    path = %path.display(),
+                    error = %e,
+                    "mavlink: cannot keep the autopilot's address and ids for `rove failsafe` \
+                     (it will wait for the autopilot instead)"
+                );
+            }
+        }
+    }
+}
+
 fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
     let mut s = lock(&shared.status);
-    let ours = match (shared.target_system, s.autopilot) {
-        (Some(sys), _) => header.system_id == u32::from(sys),
-        (None, Some(a)) => header.system_id == u32::from(a.system_id),
-        (None, None) => true, // decided below: only an autopilot's HEARTBEAT locks on
-    };
+    let expected = shared
+        .target_system
+        .or(s.autopilot.map(|a| a.system_id))
+        .or(shared.learned.map(|(sys, _)| sys));
+    // Until an autopilot is heard (and without a configured target), any autopilot's
+    // HEARTBEAT locks on, even one other than an earlier run learned.
+    let lock_on = shared.target_system.is_none()
+        && s.autopilot.is_none()
+        && matches!(msg, MavMessage::HEARTBEAT(_));
+    let ours = lock_on || expected.is_none_or(|sys| header.system_id == u32::from(sys));
     if !ours {
         s.foreign += 1;
         return;
@@ -512,6 +597,7 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                     .base_mode
                     .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
             };
+            let known = s.autopilot.map(|a| (a.system_id, a.component_id));
             if s.autopilot.is_none() {
                 info!(
                     system = info.system_id,
@@ -525,8 +611,12 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
             s.last_heartbeat = Some(Instant::now());
             drop(s);
             notify(shared);
+            if known != Some((info.system_id, info.component_id)) {
+                remember(shared);
+            }
         }
-        MavMessage::COMMAND_ACK(ack) if s.autopilot.is_some() || shared.target_system.is_some() => {
+        MavMessage::COMMAND_ACK(_) if expected.is_none() => {}
+        MavMessage::COMMAND_ACK(ack) => {
             if ack.command != MavCmd::MAV_CMD_DO_SET_MODE {
                 return;
             }

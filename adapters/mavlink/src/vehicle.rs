@@ -23,6 +23,7 @@ use crate::config::AutopilotMode;
 use crate::config::{Endpoint, FailsafeAction, MavlinkConfig, Method, OnModeRefused};
 use crate::encode::{RC_CHANNELS, manual_control_values, override_values, release_values};
 use crate::link::{Link, LinkStatus};
+use crate::memory::Learned;
 use crate::mode::{ModeControl, ModeState};
 use mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage,
@@ -54,6 +55,11 @@ pub const SERIAL_SHARE: f64 = 0.5;
 /// first override preceded by a release, a blip of radio values. A restart after a
 /// crash still releases, 250 ms late (`rove failsafe` in ExecStopPost releases at once).
 pub const START_RELEASE_GRACE: Duration = Duration::from_millis(250);
+/// How long a stopping adapter waits for the autopilot to confirm the safe mode before it closes
+/// the link. ArduPilot does not act on what a TCP client wrote just before closing (it drops the
+/// connection's unread bytes), so the COMMAND_ACK is the proof the release and the mode were
+/// read. ArduPilot answers DO_SET_MODE in 20–45 ms over TCP.
+pub const STOP_ACK_WAIT: Duration = Duration::from_millis(300);
 /// MAVLink 2 header (10) and CRC (2) around a payload; MAVLink 1: 6 + 2.
 const V2_OVERHEAD: usize = 12;
 const V1_OVERHEAD: usize = 8;
@@ -79,6 +85,10 @@ pub struct MavlinkVehicle {
     next_heartbeat: MonoTime,
     /// Whether the autopilot was heard within the link timeout at the last step.
     link_up: bool,
+    /// Whether it was ever heard (a link coming up again is a return, not a first contact).
+    heard_before: bool,
+    /// When the last mode command left.
+    mode_sent: Option<Instant>,
     /// Maps the caller's `now` to wall time for [`Drop`], which gets no `now`.
     clock: (MonoTime, Instant),
     /// When the last control message (override, MANUAL_CONTROL, release) left.
@@ -129,7 +139,15 @@ impl MavlinkVehicle {
     /// # Errors
     /// The link's thread cannot start.
     pub fn new(config: MavlinkConfig, now: MonoTime) -> Result<MavlinkVehicle, LinkError> {
-        let link = Link::start(&config)?;
+        MavlinkVehicle::start(config, now, None)
+    }
+
+    fn start(
+        config: MavlinkConfig,
+        now: MonoTime,
+        learned: Option<&Learned>,
+    ) -> Result<MavlinkVehicle, LinkError> {
+        let link = Link::start_from(&config, learned)?;
         let mode = ModeControl::new(config.command_timeout, config.command_retries);
         let min_gap = match &config.endpoint {
             Endpoint::Serial { baud, .. } => {
@@ -163,6 +181,8 @@ impl MavlinkVehicle {
             mode,
             next_heartbeat: now,
             link_up: false,
+            heard_before: false,
+            mode_sent: None,
             clock: (now, Instant::now()),
             last_control: None,
             period,
@@ -204,7 +224,14 @@ impl MavlinkVehicle {
         for ack in self.link.take_acks() {
             self.mode.on_ack(now, ack);
         }
-        if let Some(a) = status.autopilot {
+        // Only a HEARTBEAT heard after the last mode command says what the autopilot made of
+        // it: ArduPilot reports a new mode at its next 1 Hz HEARTBEAT, so an older one still
+        // shows the mode before (and would "confirm" HOLD after a quick HOLD → MANUAL → HOLD).
+        if let Some(a) = status.autopilot
+            && status
+                .last_heartbeat
+                .is_some_and(|hb| self.mode_sent.is_none_or(|sent| hb > sent))
+        {
             self.mode.on_heartbeat(a.custom_mode);
         }
         self.check_refusal(now);
@@ -216,8 +243,15 @@ impl MavlinkVehicle {
             self.link_up = up;
             if up {
                 info!(endpoint = %self.config.endpoint, "mavlink: autopilot heard");
-                // ArduPilot leaves a GCS failsafe in HOLD: say again what rove wants.
-                self.mode.reassert(now);
+                // Back after a loss: ArduPilot leaves a GCS failsafe in HOLD, so say again what
+                // rove wants. At first contact a wish already confirmed (an ACK before the
+                // first HEARTBEAT) or still pending (its resends run) is not sent again; one
+                // that gave up while nobody answered is.
+                let gave_up = matches!(self.mode.state(), ModeState::Failed { .. });
+                if self.heard_before || gave_up {
+                    self.mode.reassert(now);
+                }
+                self.heard_before = true;
             } else {
                 warn!(
                     endpoint = %self.config.endpoint,
@@ -368,6 +402,7 @@ impl MavlinkVehicle {
                 ((custom_mode >> 24) & 0xff) as f32,
             ),
         };
+        self.mode_sent = Some(Instant::now());
         self.link.send(&MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
             param1: CUSTOM_MODE_ENABLED,
             param2,
@@ -643,32 +678,72 @@ impl Drop for MavlinkVehicle {
         if self.safe_state(now).is_err() {
             return;
         }
-        self.settle_mode(self.mode_wait());
+        // A safe mode already confirmed is not requested again (nothing is pending then).
+        self.settle_mode(self.mode_wait().min(STOP_ACK_WAIT));
     }
 }
 
-/// `rove failsafe` for a MAVLink vehicle: connect, wait (bounded by the link timeout) for the
-/// autopilot, release (or neutral), command the safe mode and wait for its confirmation.
+/// `rove failsafe` for a MAVLink vehicle: connect, address the autopilot, release (or
+/// neutral), command the safe mode and wait for its confirmation.
 ///
-/// Discovering the autopilot waits for its first HEARTBEAT (1 Hz on ArduPilot and PX4), so
-/// this takes up to a second; with `target_system` set it starts as soon as the transport is
-/// open and takes milliseconds (the COMMAND_ACK confirms the mode).
+/// It starts from what the running vehicle learned ([`crate::memory`], `config.memory`): the
+/// autopilot's ids and, on a `udpin:` link, its address. With them (or `target_system` on a link
+/// that needs no address) the messages leave as soon as the transport is open and the
+/// COMMAND_ACK ends the command within milliseconds. Without, it waits (bounded by the link
+/// timeout) for the autopilot to speak: its HEARTBEAT comes once a second.
 ///
 /// # Errors
-/// The autopilot was not heard, or the safe mode was not confirmed.
+/// Nobody to address within the link timeout (the message says what was missing), the messages
+/// cannot be sent, or the safe mode was refused or not confirmed.
 pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
     let start = Instant::now();
-    let mut v = MavlinkVehicle::new(config.clone(), MonoTime::ZERO)?;
-    // An open transport and a target: the first HEARTBEAT, or at once with `target_system`.
-    let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.status().connected;
+    let endpoint = config.endpoint.to_string();
+    let learned = match config
+        .memory
+        .as_deref()
+        .map(|p| Learned::load(p, &endpoint))
+    {
+        Some(Ok(learned)) => learned,
+        Some(Err(why)) => {
+            warn!(%why, "mavlink: what the vehicle learned is not used");
+            None
+        }
+        None => None,
+    };
+    let mut v = MavlinkVehicle::start(config.clone(), MonoTime::ZERO, learned.as_ref())?;
+    let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.can_send();
     while !ready(&v) && start.elapsed() < config.link_timeout {
         let seen = v.link.generation();
         let now = v.now_from_clock();
         let _ = v.keepalive(now);
-        // The first HEARTBEAT wakes this at once; the keep-alive keeps our heartbeat going.
+        // The autopilot's first datagram or HEARTBEAT wakes this at once.
         v.link.wait_for_news(seen, v.period);
     }
-    v.target()?;
+    if !ready(&v) {
+        let status = v.link.status();
+        let missing = if !status.connected {
+            format!(
+                "the link did not open ({})",
+                status.error.as_deref().unwrap_or("connecting")
+            )
+        } else if v.link.target().is_none() {
+            "no HEARTBEAT from an autopilot, and no system id known (set target_system)".into()
+        } else {
+            "no datagram from the autopilot, so no address to send to".into()
+        };
+        return Err(LinkError::transient(format!(
+            "mavlink {endpoint}: nothing sent: {missing} within {:?}; {}",
+            config.link_timeout,
+            match (&config.memory, &learned) {
+                (None, _) => "no runtime directory to learn the autopilot from".to_string(),
+                (Some(p), None) => format!("no running vehicle had written {}", p.display()),
+                (Some(p), Some(l)) => format!("{} had {l}", p.display()),
+            }
+        )));
+    }
+    if let Some(l) = &learned {
+        info!(learned = %l, "mavlink: addressing the autopilot the vehicle learned");
+    }
     v.failsafe_now()
 }
 
