@@ -87,37 +87,266 @@ fn an_operator_drives_an_autopilot_and_losing_it_releases_and_holds() {
     );
 }
 
+/// How a vehicle reaches its autopilot, each the way ArduPilot behaves on it
+/// (`testkit/fake_autopilot.py`; ../shared/notes/ardupilot.md).
+#[derive(Debug, Clone, Copy)]
+enum Transport {
+    /// The vehicle listens (`udpin:`); the autopilot is a UDP client that speaks first, so its
+    /// address is known only from its first datagram.
+    UdpIn,
+    /// The vehicle sends to the autopilot's port (`udpout:`).
+    UdpOut,
+    /// The autopilot is a TCP server that drops a closed client's unread bytes.
+    Tcp,
+    /// A serial line (a pty pair).
+    Serial,
+}
+
+/// An autopilot on `transport` in the rig's namespace, and the vehicle's `connection`.
+struct Wired {
+    ap: FakeAutopilot,
+    connection: String,
+    _pty: Option<rove_testkit::PtyPair>,
+}
+
+fn wire(rig: &Rig, transport: Transport, extra: &[&str]) -> Wired {
+    let pty = matches!(transport, Transport::Serial).then(rove_testkit::PtyPair::new);
+    let (ap, connection) = match (transport, &pty) {
+        (Transport::UdpIn, _) => (
+            "udpout:127.0.0.1:14550".into(),
+            "udpin:127.0.0.1:14550".into(),
+        ),
+        (Transport::UdpOut, _) => (
+            "udpin:127.0.0.1:14551".into(),
+            "udpout:127.0.0.1:14551".into(),
+        ),
+        (Transport::Tcp, _) => (
+            "tcpin:127.0.0.1:5760".into(),
+            "tcpout:127.0.0.1:5760".into(),
+        ),
+        (Transport::Serial, Some(p)) => (
+            p.a.display().to_string(),
+            format!("serial:{}:115200", p.b.display()),
+        ),
+        (Transport::Serial, None) => unreachable!("a serial link has its pty pair"),
+    };
+    let mut args = vec!["--connection", &ap, "--baud", "115200"];
+    args.extend_from_slice(extra);
+    Wired {
+        ap: rig.autopilot(&args),
+        connection,
+        _pty: pty,
+    }
+}
+
+/// A count from the environment (to repeat a measurement), else `default`.
+fn runs(var: &str, default: usize) -> usize {
+    std::env::var(var)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// SIGTERM of a driven vehicle: release and the safe mode, and the vehicle closes the link only
+/// once the autopilot confirmed it (issue 30: ArduPilot drops what a TCP client wrote just
+/// before closing, so HOLD took effect in 2 of 7 stops). `ROVE_STOP_RUNS` stops (default 2),
+/// the operator driving the restarted vehicle again between them.
+fn stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(transport: Transport) {
+    let mut rig = Rig::new(&format!("mavlink-stop-{transport:?}"));
+    let wired = wire(&rig, transport, &[]);
+    let ap = &wired.ap;
+    let output = format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"{}\"\n",
+        wired.connection
+    );
+    rig.operator(11, "mobile", "phone", &[V], 20000, "", &[]);
+    let mut outcomes = Vec::new();
+    for run in 0..runs("ROVE_STOP_RUNS", 2) {
+        let started = wall_us();
+        let record = rig.vehicle_with_output(V, &output);
+        let vehicle = rig.procs.len() - 1;
+        wait_for_output(&record, Some(11), started).expect("operator drives");
+        ap.wait_for("MANUAL taken", |e| {
+            e["event"] == "set_mode" && e["custom_mode"] == 0 && wall(e) > started
+        });
+        ap.wait_for("driving", |e| {
+            e["event"] == "rc_override" && raw(e).get(2) == Some(&1805) && wall(e) > started
+        });
+        let stop = wall_us();
+        rig.procs[vehicle].terminate();
+        let status = rig.procs[vehicle].wait_exit(PATIENCE);
+        let exited = wall_us();
+        assert!(
+            status.is_some_and(|s| s.success()),
+            "run {run}: vehicle exits cleanly: {status:?}"
+        );
+        // Read once the vehicle is gone: an answer recorded by then was read by the autopilot
+        // while the vehicle still held the link open.
+        let after: Vec<Value> = ap.events().into_iter().filter(|e| wall(e) > stop).collect();
+        let hold = after
+            .iter()
+            .find(|e| e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true);
+        let release = after
+            .iter()
+            .find(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0));
+        assert!(
+            hold.is_some() && release.is_some(),
+            "run {run}: release and HOLD read by the autopilot before the vehicle let go: \
+             {after:#?}"
+        );
+        let hold_ms = hold.map_or(0.0, |h| (wall(h) - stop) as f64 / 1000.0);
+        outcomes.push(format!(
+            "HOLD {hold_ms:.1} ms, exit {:.1} ms",
+            (exited - stop) as f64 / 1000.0
+        ));
+    }
+    eprintln!("{transport:?}: SIGTERM → HOLD answered: {outcomes:?}");
+}
+
 #[test]
-fn stopping_the_vehicle_while_driven_releases_and_commands_the_safe_mode() {
-    let mut rig = Rig::new("mavlink-stop");
-    let ap = autopilot(&rig, 14550);
-    let record = rig.vehicle_with_output(V, &mavlink_output(14550));
+fn stopping_over_udpin_leaves_the_autopilot_in_the_safe_mode() {
+    stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(Transport::UdpIn);
+}
+
+#[test]
+fn stopping_over_udpout_leaves_the_autopilot_in_the_safe_mode() {
+    stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(Transport::UdpOut);
+}
+
+#[test]
+fn stopping_over_tcp_leaves_the_autopilot_in_the_safe_mode() {
+    stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(Transport::Tcp);
+}
+
+#[test]
+fn stopping_over_serial_leaves_the_autopilot_in_the_safe_mode() {
+    stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(Transport::Serial);
+}
+
+/// `rove failsafe` after a `kill -9` of a driven vehicle, `ROVE_FAILSAFE_RUNS` times (default
+/// 3): release and HOLD, confirmed, from what the vehicle learned, without waiting for the
+/// autopilot. Its HEARTBEAT comes every 5 s here (ArduPilot: 1 s) so that a failsafe that
+/// waits for one is seen to (it takes seconds; one that does not, milliseconds); the link
+/// timeout is raised to match. Issue 30: on udpin with `target_system` it sent nothing at all.
+fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: bool) {
+    let mut rig = Rig::new(&format!("mavlink-failsafe-{transport:?}-{target_system}"));
+    let wired = wire(&rig, transport, &["--heartbeat-hz", "0.2"]);
+    let ap = &wired.ap;
+    let target = if target_system {
+        "target_system = 1\n"
+    } else {
+        ""
+    };
+    let output = format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"{}\"\nlink_timeout_ms = 10000\n{target}",
+        wired.connection
+    );
+    let record = rig.vehicle_with_output(V, &output);
     rig.operator(11, "mobile", "phone", &[V], 20000, "", &[]);
     wait_for_output(&record, Some(11), 0).expect("operator drives");
     ap.wait_for("driving", |e| {
         e["event"] == "rc_override" && raw(e).get(2) == Some(&1805)
     });
-    let vehicle = 0;
-    let stop = wall_us();
-    rig.procs[vehicle].terminate();
-    let status = rig.procs[vehicle].wait_exit(PATIENCE);
+    let learned = rig.runtime_dir().join(format!("vehicle-{V}-mavlink"));
+    crate::util::eventually("the vehicle keeps what it learned", || {
+        std::fs::read_to_string(&learned).map_err(|e| e.to_string())
+    });
+    rig.procs[0].crash();
+    let config = rig.dir.join(format!("vehicle-{V}.toml"));
+    let mut times = Vec::new();
+    for run in 0..runs("ROVE_FAILSAFE_RUNS", 3) {
+        let start = wall_us();
+        let t = std::time::Instant::now();
+        let out = rig
+            .command(&["failsafe", "-c", config.to_str().expect("utf-8 path")])
+            .output()
+            .expect("run rove failsafe");
+        let took = t.elapsed().as_secs_f64() * 1000.0;
+        let after: Vec<Value> = ap
+            .events()
+            .into_iter()
+            .filter(|e| wall(e) > start)
+            .collect();
+        assert!(
+            out.status.success(),
+            "run {run}: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            after
+                .iter()
+                .any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0))
+                && after.iter().any(|e| {
+                    e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true
+                }),
+            "run {run}: release and HOLD: {after:#?}"
+        );
+        times.push(took);
+    }
+    eprintln!("{transport:?} target_system={target_system}: rove failsafe, ms: {times:.1?}");
     assert!(
-        status.is_some_and(|s| s.success()),
-        "vehicle exits cleanly: {status:?}"
+        times.iter().all(|&ms| ms < 1000.0),
+        "no run waited for the autopilot's HEARTBEAT (5 s apart): {times:.1?} ms"
     );
-    let after: Vec<Value> = ap.events().into_iter().filter(|e| wall(e) > stop).collect();
-    assert!(
-        after
-            .iter()
-            .any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0)),
-        "release before exit: {after:#?}"
+}
+
+#[test]
+fn rove_failsafe_over_udpin_with_target_system_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::UdpIn, true);
+}
+
+#[test]
+fn rove_failsafe_over_udpin_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::UdpIn, false);
+}
+
+#[test]
+fn rove_failsafe_over_udpout_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::UdpOut, false);
+}
+
+#[test]
+fn rove_failsafe_over_tcp_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::Tcp, false);
+}
+
+#[test]
+fn rove_failsafe_over_serial_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::Serial, false);
+}
+
+/// `rove failsafe` with nothing to go on (no vehicle ran, no autopilot answers) says what was
+/// missing and fails, within the link timeout. MAVLink only, on the host's loopback: it
+/// listens, and nothing is sent.
+#[test]
+fn rove_failsafe_with_nobody_to_address_says_so() {
+    let scratch = crate::util::Scratch::new("mavlink-failsafe-nobody");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("a free port")
+        .port();
+    let config = scratch.dir.join("vehicle.toml");
+    let output = format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpin:127.0.0.1:{port}\"\n\
+         target_system = 1\nlink_timeout_ms = 500\n"
     );
-    assert!(
-        after
-            .iter()
-            .any(|e| e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true),
-        "HOLD commanded and acknowledged before exit: {after:#?}"
-    );
+    std::fs::write(&config, crate::util::vehicle_toml(V, &output)).expect("config");
+    let out = std::process::Command::new(crate::util::ROVE)
+        .args(["failsafe", "-c"])
+        .arg(&config)
+        .env("RUNTIME_DIRECTORY", &scratch.dir)
+        .output()
+        .expect("run rove failsafe");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    for says in [
+        "nothing sent",
+        "no datagram from the autopilot",
+        "no running vehicle had written",
+    ] {
+        assert!(stderr.contains(says), "{says:?} in: {stderr}");
+    }
 }
 
 /// Regression (rove against ArduPilot SITL): a vehicle that starts while an operator already streams drives at once, with no
@@ -199,6 +428,7 @@ fn r20_rove_failsafe_completes_within_200_ms_twenty_times() {
         let out = std::process::Command::new(crate::util::ROVE)
             .args(["failsafe", "-c"])
             .arg(&config)
+            .env("RUNTIME_DIRECTORY", &scratch.dir)
             .output()
             .expect("run rove failsafe");
         let took = start.elapsed();

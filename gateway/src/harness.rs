@@ -121,7 +121,7 @@ impl Rig {
         let ns = format!("rove-{}-{n}", std::process::id());
         let dir = std::env::temp_dir().join(format!("rove-it-{}-{n}-{test}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("test dir");
+        std::fs::create_dir_all(dir.join("run")).expect("test dir");
         let rig = Rig {
             rove: rove.to_path_buf(),
             ns: ns.clone(),
@@ -148,6 +148,32 @@ impl Rig {
         path
     }
 
+    /// The runtime directory every `rove` of the rig gets (`RUNTIME_DIRECTORY`, as systemd's
+    /// `RuntimeDirectory=` gives it): `DIR/run`. Rigs never share one, whatever the caller's
+    /// `XDG_RUNTIME_DIR`.
+    pub fn runtime_dir(&self) -> PathBuf {
+        self.dir.join("run")
+    }
+
+    /// `rove ARGS` in the namespace with the rig's environment, not started yet (for a command
+    /// that runs to completion, such as `rove failsafe`).
+    pub fn command(&self, args: &[&str]) -> Command {
+        let mut command = Command::new("ip");
+        command
+            .arg("netns")
+            .arg("exec")
+            .arg(&self.ns)
+            .arg(&self.rove)
+            .args(args)
+            .env("RUNTIME_DIRECTORY", self.runtime_dir())
+            .env(
+                "RUST_LOG",
+                std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),
+            )
+            .stdin(Stdio::null());
+        command
+    }
+
     /// Starts `rove ARGS` in the namespace, logging to `DIR/N-NAME.log`; returns its index.
     pub fn spawn(&mut self, name: &str, args: &[&str]) -> usize {
         self.spawn_scheduled(name, None, args)
@@ -165,6 +191,7 @@ impl Rig {
             .args(chrt.iter().flatten())
             .arg(&self.rove)
             .args(args)
+            .env("RUNTIME_DIRECTORY", self.runtime_dir())
             .env(
                 "RUST_LOG",
                 std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),

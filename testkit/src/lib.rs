@@ -277,6 +277,60 @@ impl Drop for FakeAutopilot {
     }
 }
 
+/// Two linked pseudo-terminals (`socat`), a serial link without hardware: what one end writes,
+/// the other reads; either end can be closed and opened again. Killed on drop.
+#[derive(Debug)]
+pub struct PtyPair {
+    child: Child,
+    /// One end (the autopilot's, by convention).
+    pub a: PathBuf,
+    /// The other end (the vehicle's).
+    pub b: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl PtyPair {
+    /// Starts `socat` and waits for both ends.
+    ///
+    /// # Panics
+    /// socat is missing (at once, naming the package) or makes no ptys within [`PATIENCE`].
+    pub fn new() -> PtyPair {
+        require_tool("socat", "socat");
+        let dir = tempfile::tempdir().expect("temp dir for the ptys");
+        let (a, b) = (dir.path().join("ttyA"), dir.path().join("ttyB"));
+        let child = Command::new("socat")
+            .args([
+                format!("pty,raw,echo=0,link={}", a.display()),
+                format!("pty,raw,echo=0,link={}", b.display()),
+            ])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("socat runs");
+        let pair = PtyPair {
+            child,
+            a,
+            b,
+            _dir: dir,
+        };
+        eventually("socat makes two ptys", || {
+            match pair.a.exists() && pair.b.exists() {
+                true => Ok(()),
+                false => Err("not yet"),
+            }
+        });
+        pair
+    }
+}
+
+impl Drop for PtyPair {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

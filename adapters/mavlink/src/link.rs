@@ -525,14 +525,22 @@ fn remember(shared: &Shared) {
     let Some(path) = &shared.memory else {
         return;
     };
-    let Some(a) = lock(&shared.status).autopilot else {
+    // The autopilot as heard, else as configured (a udpin link's address is worth keeping
+    // even before the first HEARTBEAT).
+    let heard = lock(&shared.status)
+        .autopilot
+        .map(|a| (a.system_id, a.component_id));
+    let configured = shared
+        .target_system
+        .map(|sys| (sys, shared.target_component.unwrap_or(1)));
+    let Some((system_id, component_id)) = heard.or(configured) else {
         return;
     };
     let learned = Learned {
         endpoint: shared.endpoint.to_string(),
         peer: *lock(&shared.peer),
-        system_id: a.system_id,
-        component_id: a.component_id,
+        system_id,
+        component_id,
     };
     let mut stored = lock(&shared.stored);
     if stored.as_ref() == Some(&learned) {

@@ -16,7 +16,6 @@ use rove_mavlink::mode::ModeState;
 use rove_mavlink::{MavlinkSettings, MavlinkVehicle};
 use rove_testkit::FakeAutopilot;
 use serde_json::Value;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -460,25 +459,8 @@ fn garbage_and_other_systems_change_nothing() {
 
 #[test]
 fn drives_over_a_serial_pty_pair() {
-    let dir = tempfile::tempdir().unwrap();
-    let (a, b) = (dir.path().join("ttyA"), dir.path().join("ttyB"));
-    rove_testkit::require_tool("socat", "socat");
-    let socat = Command::new("socat")
-        .args([
-            format!("pty,raw,echo=0,link={}", a.display()),
-            format!("pty,raw,echo=0,link={}", b.display()),
-        ])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("socat runs (apt-get install socat)");
-    let _socat = KillOnDrop(socat);
-    let start = Instant::now();
-    while !(a.exists() && b.exists()) {
-        assert!(start.elapsed() < WAIT, "socat made no ptys");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let pty = rove_testkit::PtyPair::new();
+    let (a, b) = (&pty.a, &pty.b);
     let peer = Peer::start(&["--connection", a.to_str().unwrap(), "--baud", "57600"]);
     let clock = Clock::new();
     let mut v = vehicle(
@@ -497,16 +479,6 @@ fn drives_over_a_serial_pty_pair() {
     peer.wait_for("GCS heartbeat over serial", |e| {
         e["event"] == "heartbeat" && e["src"] == 255
     });
-}
-
-/// Kills a helper process however the test ends.
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 // Regressions (against ArduPilot SITL): the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
