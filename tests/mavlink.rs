@@ -110,7 +110,7 @@ struct Wired {
 }
 
 fn wire(rig: &Rig, transport: Transport, extra: &[&str]) -> Wired {
-    let pty = matches!(transport, Transport::Serial).then(rove_testkit::PtyPair::new);
+    let pty = matches!(transport, Transport::Serial).then(rove_testkit::PtyPair::start);
     let (ap, connection) = match (transport, &pty) {
         (Transport::UdpIn, _) => (
             "udpout:127.0.0.1:14550".into(),

@@ -294,7 +294,7 @@ impl PtyPair {
     ///
     /// # Panics
     /// socat is missing (at once, naming the package) or makes no ptys within [`PATIENCE`].
-    pub fn new() -> PtyPair {
+    pub fn start() -> PtyPair {
         require_tool("socat", "socat");
         let dir = tempfile::tempdir().expect("temp dir for the ptys");
         let (a, b) = (dir.path().join("ttyA"), dir.path().join("ttyB"));

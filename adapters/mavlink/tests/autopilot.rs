@@ -459,7 +459,7 @@ fn garbage_and_other_systems_change_nothing() {
 
 #[test]
 fn drives_over_a_serial_pty_pair() {
-    let pty = rove_testkit::PtyPair::new();
+    let pty = rove_testkit::PtyPair::start();
     let (a, b) = (&pty.a, &pty.b);
     let peer = Peer::start(&["--connection", a.to_str().unwrap(), "--baud", "57600"]);
     let clock = Clock::new();
