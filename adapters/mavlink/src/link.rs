@@ -606,7 +606,15 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                     .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
             };
             let known = s.autopilot.map(|a| (a.system_id, a.component_id));
-            if s.autopilot.is_none() {
+            s.autopilot = Some(info);
+            s.last_heartbeat = Some(Instant::now());
+            drop(s);
+            notify(shared);
+            if known != Some((info.system_id, info.component_id)) {
+                // Kept before it is announced: once the log says so, `rove failsafe` knows too.
+                remember(shared);
+            }
+            if known.is_none() {
                 info!(
                     system = info.system_id,
                     component = info.component_id,
@@ -614,13 +622,6 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                     mav_type = ?hb.mavtype,
                     "mavlink: autopilot found"
                 );
-            }
-            s.autopilot = Some(info);
-            s.last_heartbeat = Some(Instant::now());
-            drop(s);
-            notify(shared);
-            if known != Some((info.system_id, info.component_id)) {
-                remember(shared);
             }
         }
         MavMessage::COMMAND_ACK(_) if expected.is_none() => {}
