@@ -230,7 +230,9 @@ fn stopping_over_serial_leaves_the_autopilot_in_the_safe_mode() {
 /// timeout is raised to match. Issue 30: on udpin with `target_system` it sent nothing at all.
 fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: bool) {
     let mut rig = Rig::new(&format!("mavlink-failsafe-{transport:?}-{target_system}"));
-    let wired = wire(&rig, transport, &["--heartbeat-hz", "0.2"]);
+    // ROVE_FAILSAFE_HEARTBEAT_HZ=1 measures at ArduPilot's rate (the assertion then says less).
+    let hz = std::env::var("ROVE_FAILSAFE_HEARTBEAT_HZ").unwrap_or_else(|_| "0.2".into());
+    let wired = wire(&rig, transport, &["--heartbeat-hz", &hz]);
     let ap = &wired.ap;
     let target = if target_system {
         "target_system = 1\n"
@@ -317,6 +319,21 @@ fn rove_failsafe_over_tcp_is_immediate() {
 #[test]
 fn rove_failsafe_over_serial_is_immediate() {
     rove_failsafe_after_a_kill_is_immediate(Transport::Serial, false);
+}
+
+#[test]
+fn rove_failsafe_over_udpout_with_target_system_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::UdpOut, true);
+}
+
+#[test]
+fn rove_failsafe_over_tcp_with_target_system_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::Tcp, true);
+}
+
+#[test]
+fn rove_failsafe_over_serial_with_target_system_is_immediate() {
+    rove_failsafe_after_a_kill_is_immediate(Transport::Serial, true);
 }
 
 /// `rove failsafe` with nothing to go on (no vehicle ran, no autopilot answers) says what was
