@@ -654,6 +654,90 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mavlink::dialects::ardupilotmega::{COMMAND_ACK_DATA, HEARTBEAT_DATA, MavState};
+
+    fn header(system_id: u32, component_id: u8) -> MavHeader {
+        MavHeader {
+            system_id,
+            component_id,
+            sequence: 0,
+        }
+    }
+
+    fn heartbeat() -> MavMessage {
+        MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            custom_mode: 4,
+            mavtype: MavType::MAV_TYPE_GROUND_ROVER,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base_mode: MavModeFlag::empty(),
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        })
+    }
+
+    fn ack() -> MavMessage {
+        MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+            command: MavCmd::MAV_CMD_DO_SET_MODE,
+            result: MavResult::MAV_RESULT_ACCEPTED,
+            ..COMMAND_ACK_DATA::default()
+        })
+    }
+
+    /// What an earlier run learned addresses the autopilot until it is heard, but is a hint:
+    /// another autopilot's HEARTBEAT still locks on, and what is heard is kept for next time.
+    #[test]
+    fn learned_ids_address_until_a_heartbeat_says_otherwise() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let memory = dir.path().join("learned");
+        let mut settings: crate::MavlinkSettings =
+            toml::from_str("connection = \"udpout:127.0.0.1:9\"").expect("parses");
+        let mut config = settings.validate().expect("valid");
+        config.memory = Some(memory.clone());
+        let learned = Learned {
+            endpoint: config.endpoint.to_string(),
+            peer: None,
+            system_id: 1,
+            component_id: 1,
+        };
+        let link = Link::start_from(&config, Some(&learned)).expect("link");
+        let shared = &link.shared;
+        assert_eq!(
+            link.target(),
+            Some((1, 1)),
+            "addressed before any HEARTBEAT"
+        );
+        handle(shared, header(7, 1), &ack());
+        assert!(link.take_acks().is_empty(), "an ACK from another system");
+        handle(shared, header(1, 1), &ack());
+        assert_eq!(link.take_acks(), vec![AckResult::Accepted]);
+        assert!(!memory.exists(), "nothing heard, nothing new to keep");
+        // The autopilot on this link now is system 2: its HEARTBEAT wins over the file.
+        handle(shared, header(2, 1), &heartbeat());
+        assert_eq!(link.target(), Some((2, 1)));
+        handle(shared, header(1, 1), &ack());
+        assert!(
+            link.take_acks().is_empty(),
+            "the learned system is no longer ours"
+        );
+        let kept = Learned::load(&memory, &config.endpoint.to_string()).expect("readable");
+        assert_eq!(kept.map(|l| l.system_id), Some(2), "what is heard is kept");
+    }
+
+    #[test]
+    fn without_learned_ids_nothing_is_addressed_before_a_heartbeat() {
+        let mut settings: crate::MavlinkSettings =
+            toml::from_str("connection = \"udpout:127.0.0.1:9\"").expect("parses");
+        let config = settings.validate().expect("valid");
+        let link = Link::start(&config).expect("link");
+        assert_eq!(link.target(), None);
+        handle(&link.shared, header(1, 1), &ack());
+        assert!(
+            link.take_acks().is_empty(),
+            "nobody's ACK before an autopilot is known"
+        );
+        handle(&link.shared, header(3, 1), &heartbeat());
+        assert_eq!(link.target(), Some((3, 1)));
+    }
 
     #[test]
     fn read_errors_are_classified() {
