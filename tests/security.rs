@@ -32,7 +32,7 @@ fn fleet(rig: &Rig, ids: &[i64]) -> PathBuf {
 }
 
 fn security(fleet: &Path, id: i64) -> String {
-    rove_gateway::harness::security_toml(Some(fleet), id)
+    rove_gateway::tools::harness::security_toml(Some(fleet), id)
 }
 
 /// The secured vehicle, and the secured laptop (11) driving it; returns the vehicle's record.

@@ -236,7 +236,7 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
     let mut rig = Rig::new(test);
     let fleet: Option<PathBuf> =
         secured.then(|| rig.fleet(&[V, LAPTOP]).expect("rove keys for 100 and 11"));
-    let security = |id| rove_gateway::harness::security_toml(fleet.as_deref(), id);
+    let security = |id| rove_gateway::tools::harness::security_toml(fleet.as_deref(), id);
 
     // The capture listens before the fleet starts, so that it holds discovery too.
     let capture = rig.dir.join("fleet.cap");

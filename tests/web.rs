@@ -706,7 +706,7 @@ fn in_a_secured_fleet_a_paired_phone_drives_as_its_own_certified_participant() {
     let mut rig = Rig::new("web-secure");
     let fleet = rig.fleet(&[VEHICLE, 20, PHONE]).expect("fleet");
     let web = rove_gateway::keys::web(&fleet, &["127.0.0.1".to_string()]).expect("web cert");
-    let security = |id| rove_gateway::harness::security_toml(Some(&fleet), id);
+    let security = |id| rove_gateway::tools::harness::security_toml(Some(&fleet), id);
     let output = format!("{}[output]\nadapter = \"sim\"\n", security(VEHICLE));
     let record = rig.vehicle_with_output(VEHICLE, &output);
     let device_dir = fleet.join(PHONE.to_string());

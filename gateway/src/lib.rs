@@ -7,33 +7,30 @@
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
 //! - [`dds_log`]: rustdds's log records, rate-limited per call site.
 //! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
+//! - [`output`]: the output adapter on its own thread behind the gateway's failure policy
+//!   (hold, reopen, hung-device watch); `rove failsafe`.
 //! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
-//! - [`demo`]: the README's demo; [`bench`](mod@bench): `rove bench handover` and `input`;
-//!   [`chaos`]: `rove bench chaos` (random faults and packet loss, counted against the contract).
+//! - [`tools`]: apart from the roles: the demo, the benches (`handover`, `input`, `chaos`,
+//!   `scale`) and the process harness they and the multi-process tests share.
 //! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
-//! - [`harness`]: real processes in a private network namespace (tests, demo, bench).
 //! - `keys` (with the `security` feature): `rove keys`, a fleet's DDS Security files.
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
 //! - [`sdnotify`]: systemd readiness, status, watchdog keep-alives and stopping.
 
 #![deny(missing_docs)]
 
-pub mod bench;
-pub mod chaos;
 pub mod config;
 pub mod dds;
 pub mod dds_log;
-pub mod demo;
 pub mod doctor;
-pub mod harness;
 #[cfg(feature = "security")]
 pub mod keys;
 pub mod operator;
 pub mod output;
 pub mod runtime;
-pub mod scale;
 pub mod sdnotify;
 pub mod status;
+pub mod tools;
 pub mod vehicle;
 pub mod web;

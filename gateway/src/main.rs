@@ -2,9 +2,8 @@
 //! the demo (docs/design.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::{
-    bench, chaos, config, demo, doctor, harness, operator, output, runtime, scale, status, vehicle,
-};
+use rove_gateway::tools::{self, demo, harness};
+use rove_gateway::{config, doctor, operator, output, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
@@ -107,7 +106,7 @@ enum Command {
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
-        what: BenchCommand,
+        what: tools::Bench,
     },
     /// A fleet's DDS Security files: its CA and governance, each device's certificate, key and
     /// permissions (docs/security.md).
@@ -177,17 +176,6 @@ enum KeysCommand {
     },
 }
 
-/// `rove bench handover --security`.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum SecurityMode {
-    /// Plain DDS.
-    Off,
-    /// DDS Security.
-    On,
-    /// Both, back to back.
-    Both,
-}
-
 #[derive(Debug, Subcommand)]
 enum InputsCommand {
     /// Input devices (/dev/input/event*) with their axes, buttons and keys.
@@ -200,110 +188,6 @@ enum InputsCommand {
         /// Operator config whose `[input]` mapping to use.
         #[arg(short, long)]
         config: std::path::PathBuf,
-    },
-}
-
-#[derive(Debug, Subcommand)]
-enum BenchCommand {
-    /// Input event → vehicle output latency through DDS, with a replayed joystick (needs root).
-    Input {
-        /// Stick events to replay.
-        #[arg(long, default_value_t = 2000)]
-        events: usize,
-        /// Their rate.
-        #[arg(long, default_value_t = 200.0)]
-        rate_hz: f64,
-    },
-    /// Random faults (kill, terminate, stop, restart of operators and of the vehicle under a
-    /// supervisor) and packet loss, counted against the ownership contract (needs root and
-    /// nftables).
-    Chaos {
-        /// Operators, of distinct strengths (2–12).
-        #[arg(long, default_value_t = 4)]
-        operators: usize,
-        /// Faults in the chaos phase.
-        #[arg(long, default_value_t = 1000)]
-        events: usize,
-        /// Mean time between faults, ms.
-        #[arg(long, default_value_t = 300)]
-        interval_ms: u64,
-        /// Length of each loss phase (10 %, then 30 % of UDP packets dropped), s; 0 skips them.
-        #[arg(long, default_value_t = 60)]
-        loss_s: u64,
-        /// Seed of the fault sequence.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Length of each of three partitions of the strongest operator, which runs in a
-        /// namespace of its own joined by a veth pair, s; 0 skips them.
-        #[arg(long, default_value_t = 5)]
-        partition_s: u64,
-        /// Write the report as JSON to this file.
-        #[arg(long)]
-        json: Option<std::path::PathBuf>,
-    },
-    /// A fleet of real processes, each operator driving its own vehicle: CPU and memory per
-    /// process and in total, handover latency and late-joiner time while the fleet streams,
-    /// wrong owners and stale outputs (needs root).
-    Scale {
-        /// Vehicles.
-        #[arg(long, default_value_t = 16)]
-        vehicles: usize,
-        /// Operators (operator i drives vehicle i mod V).
-        #[arg(long, default_value_t = 16)]
-        operators: usize,
-        /// Operators drive nothing: the fixed cost of the fleet's participants.
-        #[arg(long)]
-        idle: bool,
-        /// CPU window, s.
-        #[arg(long, default_value_t = 10)]
-        window_s: u64,
-        /// Handovers measured on the first vehicle while the fleet streams.
-        #[arg(long, default_value_t = 20)]
-        handover_runs: usize,
-        /// Late joiners measured.
-        #[arg(long, default_value_t = 10)]
-        latejoin_runs: usize,
-        /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
-        #[arg(long)]
-        heartbeat_ms: Option<u64>,
-        /// Run vehicle 100 (whose handovers are measured) under SCHED_FIFO at this priority
-        /// (`chrt -f`), as the vehicle unit's real-time option does.
-        #[arg(long)]
-        vehicle_rt: Option<u8>,
-        /// Write the report as JSON to this file.
-        #[arg(long)]
-        json: Option<std::path::PathBuf>,
-    },
-    /// Handover latency between real processes in a private network namespace (needs root):
-    /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
-    Handover {
-        /// Which experiment.
-        #[arg(long, value_enum)]
-        scenario: bench::Scenario,
-        /// Controller counts to run, comma-separated (graceful/crash: owner + N−1 backups;
-        /// active: owner, requester and N−2 bystanders).
-        #[arg(long, value_delimiter = ',', default_value = "2")]
-        controllers: Vec<usize>,
-        /// Devices on the network for `latejoin`.
-        #[arg(long, default_value_t = 32)]
-        devices: usize,
-        /// Runs per controller count.
-        #[arg(long, default_value_t = 100)]
-        runs: usize,
-        /// DDS Security: off, on (every process authenticated, RTPS messages encrypted), or
-        /// both, back to back for each controller count.
-        #[arg(long, value_enum, default_value = "off")]
-        security: SecurityMode,
-        /// Run the vehicle under SCHED_FIFO at this priority (`chrt -f`), as the vehicle
-        /// unit's real-time option does.
-        #[arg(long)]
-        vehicle_rt: Option<u8>,
-        /// Write one JSON object per scenario run to this file.
-        #[arg(long)]
-        json: Option<std::path::PathBuf>,
-        /// Write a box plot of all runs to this SVG file.
-        #[arg(long)]
-        svg: Option<std::path::PathBuf>,
     },
 }
 
@@ -346,31 +230,13 @@ fn bad_config(err: anyhow::Error) -> anyhow::Error {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Vehicle {
-            config: path,
+            config,
             record,
             test_stall_on_sigusr1,
-        } => {
-            let mut config = config::load_vehicle(&path).map_err(bad_config)?;
-            runtime::init_logging(config.common.log_filter.as_deref());
-            output::keep_learned(&mut config.output, config.common.id);
-            let options = vehicle::Options {
-                config_path: path,
-                record,
-                stall_on_sigusr1: test_stall_on_sigusr1.map(std::time::Duration::from_millis),
-            };
-            tokio_runtime()?.block_on(vehicle::run(config, options))
-        }
-        Command::Failsafe { config } => {
-            let mut config = config::load_vehicle(&config).map_err(bad_config)?;
-            runtime::init_logging(config.common.log_filter.as_deref());
-            output::keep_learned(&mut config.output, config.common.id);
-            let what = output::failsafe(&config.output)
-                .map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
-            println!("rove failsafe: {what}: safe state written");
-            Ok(())
-        }
+        } => vehicle_cmd(config, record, test_stall_on_sigusr1),
+        Command::Failsafe { config } => failsafe_cmd(&config),
         Command::Operator {
-            config: path,
+            config,
             request,
             record,
             headless,
@@ -380,33 +246,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => {
             #[cfg(not(debug_assertions))]
             let test_any_certificate = false;
-            use std::io::IsTerminal;
-            let config = config::load_operator(&path).map_err(bad_config)?;
-            let console =
-                !headless && std::io::stdin().is_terminal() && std::io::stdout().is_terminal();
-            if console {
-                // The console owns the screen: the log goes to a file.
-                let log = log_file.unwrap_or_else(|| {
-                    std::env::temp_dir().join(format!("rove-operator-{}.log", config.common.id))
-                });
-                eprintln!(
-                    "rove operator: console on this terminal; log in {}",
-                    log.display()
-                );
-                runtime::init_logging_to_file(config.common.log_filter.as_deref(), &log)?;
-            } else {
-                runtime::init_logging(config.common.log_filter.as_deref());
-            }
-            let options = operator::Options {
-                config_path: path,
+            operator_cmd(
+                config,
                 request,
                 record,
-                console,
-                any_certificate: test_any_certificate,
-            };
-            tokio_runtime()?.block_on(async {
-                operator::run(config, options, runtime::shutdown_signal()?).await
-            })
+                headless,
+                log_file,
+                test_any_certificate,
+            )
         }
         Command::Status {
             domain,
@@ -437,120 +284,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             in_process,
             fast,
             secure,
-        } => {
-            if !in_process {
-                let rove = std::env::current_exe()?;
-                match demo::run_processes(&rove, secure, &mut |line| println!("{line}")) {
-                    Ok(()) => return Ok(()),
-                    // Without namespaces (not root), fall back to the in-process story.
-                    Err(e) if e.is::<harness::NoNamespace>() && !secure => {
-                        eprintln!("rove demo: {e:#}; playing the story in-process instead");
-                    }
-                    Err(e) => return Err(e),
-                }
-            }
-            demo::run(!fast, |line| println!("{line}"))?;
-            Ok(())
-        }
+        } => demo_cmd(in_process, fast, secure),
         Command::Inputs {
             what: InputsCommand::List,
-        } => {
-            let devices = rove_inputs::device::list_devices();
-            if devices.is_empty() {
-                println!("no input devices in /dev/input (none plugged in, or no evdev here)");
-            }
-            for d in devices {
-                match d.summary {
-                    Ok(summary) => println!("{}\n{summary}\n", d.path.display()),
-                    Err(e) => println!("{}: cannot open: {e}\n", d.path.display()),
-                }
-            }
-            Ok(())
-        }
+        } => inputs_list(),
         Command::Inputs {
             what: InputsCommand::Show { device, config },
         } => show_input(&device, &config),
-        Command::Bench {
-            what: BenchCommand::Input { events, rate_hz },
-        } => bench::input_cli(&std::env::current_exe()?, events, rate_hz),
-        Command::Bench {
-            what:
-                BenchCommand::Chaos {
-                    operators,
-                    events,
-                    interval_ms,
-                    loss_s,
-                    seed,
-                    partition_s,
-                    json,
-                },
-        } => {
-            let options = chaos::Options {
-                operators,
-                events,
-                interval: std::time::Duration::from_millis(interval_ms),
-                loss: std::time::Duration::from_secs(loss_s),
-                seed,
-                partition: std::time::Duration::from_secs(partition_s),
-            };
-            chaos::cli(&std::env::current_exe()?, &options, json.as_deref())
-        }
-        Command::Bench {
-            what:
-                BenchCommand::Scale {
-                    vehicles,
-                    operators,
-                    idle,
-                    window_s,
-                    handover_runs,
-                    latejoin_runs,
-                    heartbeat_ms,
-                    vehicle_rt,
-                    json,
-                },
-        } => {
-            let options = scale::Options {
-                vehicles,
-                operators,
-                idle,
-                window: std::time::Duration::from_secs(window_s),
-                handover_runs: if idle { 0 } else { handover_runs },
-                latejoin_runs,
-                heartbeat_ms,
-                vehicle_rt,
-            };
-            scale::cli(&std::env::current_exe()?, &options, json.as_deref())
-        }
-        Command::Bench {
-            what:
-                BenchCommand::Handover {
-                    scenario,
-                    controllers,
-                    devices,
-                    runs,
-                    security,
-                    vehicle_rt,
-                    json,
-                    svg,
-                },
-        } => {
-            let options = bench::Options {
-                scenario,
-                controllers: 0,
-                devices,
-                runs,
-                secure: false,
-                vehicle_rt,
-            };
-            let outputs = bench::Outputs { json, svg };
-            let modes: &[bool] = match security {
-                SecurityMode::Off => &[false],
-                SecurityMode::On => &[true],
-                SecurityMode::Both => &[false, true],
-            };
-            let rove = std::env::current_exe()?;
-            bench::handover_cli(&rove, options, &controllers, modes, &outputs)
-        }
+        Command::Bench { what } => tools::run(what, &std::env::current_exe()?),
         #[cfg(feature = "security")]
         Command::Keys { what } => match what {
             KeysCommand::Init { dir, fleet, domain } => {
@@ -613,6 +354,104 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// `rove vehicle`.
+fn vehicle_cmd(
+    path: std::path::PathBuf,
+    record: Option<std::path::PathBuf>,
+    stall_ms: Option<u64>,
+) -> anyhow::Result<()> {
+    let mut config = config::load_vehicle(&path).map_err(bad_config)?;
+    runtime::init_logging(config.common.log_filter.as_deref());
+    output::keep_learned(&mut config.output, config.common.id);
+    let options = vehicle::Options {
+        config_path: path,
+        record,
+        stall_on_sigusr1: stall_ms.map(std::time::Duration::from_millis),
+    };
+    tokio_runtime()?.block_on(vehicle::run(config, options))
+}
+
+/// `rove failsafe`: for systemd's `ExecStopPost`.
+fn failsafe_cmd(config: &std::path::Path) -> anyhow::Result<()> {
+    let mut config = config::load_vehicle(config).map_err(bad_config)?;
+    runtime::init_logging(config.common.log_filter.as_deref());
+    output::keep_learned(&mut config.output, config.common.id);
+    let what =
+        output::failsafe(&config.output).map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
+    println!("rove failsafe: {what}: safe state written");
+    Ok(())
+}
+
+/// `rove operator`: the console on a terminal (the log to a file then), headless otherwise.
+fn operator_cmd(
+    path: std::path::PathBuf,
+    request: Option<i64>,
+    record: Option<std::path::PathBuf>,
+    headless: bool,
+    log_file: Option<std::path::PathBuf>,
+    test_any_certificate: bool,
+) -> anyhow::Result<()> {
+    #[cfg(not(debug_assertions))]
+    let test_any_certificate = false;
+    use std::io::IsTerminal;
+    let config = config::load_operator(&path).map_err(bad_config)?;
+    let console = !headless && std::io::stdin().is_terminal() && std::io::stdout().is_terminal();
+    if console {
+        // The console owns the screen: the log goes to a file.
+        let log = log_file.unwrap_or_else(|| {
+            std::env::temp_dir().join(format!("rove-operator-{}.log", config.common.id))
+        });
+        eprintln!(
+            "rove operator: console on this terminal; log in {}",
+            log.display()
+        );
+        runtime::init_logging_to_file(config.common.log_filter.as_deref(), &log)?;
+    } else {
+        runtime::init_logging(config.common.log_filter.as_deref());
+    }
+    let options = operator::Options {
+        config_path: path,
+        request,
+        record,
+        console,
+        any_certificate: test_any_certificate,
+    };
+    tokio_runtime()?
+        .block_on(async { operator::run(config, options, runtime::shutdown_signal()?).await })
+}
+
+/// `rove demo`: as processes in a namespace, else (not root) in this process.
+fn demo_cmd(in_process: bool, fast: bool, secure: bool) -> anyhow::Result<()> {
+    if !in_process {
+        let rove = std::env::current_exe()?;
+        match demo::run_processes(&rove, secure, &mut |line| println!("{line}")) {
+            Ok(()) => return Ok(()),
+            // Without namespaces (not root), fall back to the in-process story.
+            Err(e) if e.is::<harness::NoNamespace>() && !secure => {
+                eprintln!("rove demo: {e:#}; playing the story in-process instead");
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    demo::run(!fast, |line| println!("{line}"))?;
+    Ok(())
+}
+
+/// `rove inputs list`.
+fn inputs_list() -> anyhow::Result<()> {
+    let devices = rove_inputs::device::list_devices();
+    if devices.is_empty() {
+        println!("no input devices in /dev/input (none plugged in, or no evdev here)");
+    }
+    for d in devices {
+        match d.summary {
+            Ok(summary) => println!("{}\n{summary}\n", d.path.display()),
+            Err(e) => println!("{}: cannot open: {e}\n", d.path.display()),
+        }
+    }
+    Ok(())
 }
 
 /// One single-threaded runtime per process: each role is one event loop, and rustdds runs its

@@ -19,8 +19,8 @@
 //! operator (or the phone, on vehicle 100) is a wrong owner; a failsafe entry while its operator
 //! lives is stale (its stream fell silent past the command timeout).
 
-use crate::bench::Stats;
-use crate::harness::{self, Out, Rig, wall_us};
+use crate::tools::bench::Stats;
+use crate::tools::harness::{self, Out, Rig, wall_us};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};

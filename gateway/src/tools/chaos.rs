@@ -25,7 +25,7 @@
 //!   operator driving then counts here, not as a wrong owner), and failsafe entries under loss;
 //! - **recovery**: from the partition's heal to the first apply from the healed operator.
 
-use crate::harness::{Out, Rig, records, wall_us};
+use crate::tools::harness::{Out, Rig, records, wall_us};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -49,7 +49,7 @@ pub const HEAL_US: u64 = 1_000_000;
 
 /// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3),
 /// the handover bench's ranks.
-const LADDER: [(&str, &str); 12] = crate::bench::RANKS;
+const LADDER: [(&str, &str); 12] = crate::tools::bench::RANKS;
 
 /// What the bench did, when (wall clock, µs). Operators are named by device id, ranked by
 /// strength (a higher rank is stronger).
@@ -492,7 +492,7 @@ fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
         ],
     ];
     for step in steps {
-        crate::harness::run(step).map_err(anyhow::Error::msg)?;
+        crate::tools::harness::run(step).map_err(anyhow::Error::msg)?;
     }
     Ok(far)
 }
@@ -589,7 +589,7 @@ pub fn run(
         fleet.start(id);
     }
     let strongest = ids[ids.len() - 1];
-    crate::harness::wait_for_output(&fleet.record, Some(strongest), 0)
+    crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), 0)
         .map_err(|e| anyhow::anyhow!("the fleet never started: {e}"))?;
     progress(&format!(
         "{} operators ({ids:?}, weakest first) drive vehicle {VEHICLE}; {} faults, one every ~{:?}",
@@ -663,7 +663,7 @@ pub fn run(
     if !options.loss.is_zero() {
         fleet.heal(&ids);
         let since = wall_us();
-        crate::harness::wait_for_output(&fleet.record, Some(strongest), since)
+        crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), since)
             .map_err(|e| anyhow::anyhow!("after the chaos, the strongest never drove: {e}"))?;
         // Let every restarted operator be discovered and drive its turn… it never will: the
         // strongest drives. One heartbeat of quiet, then the loss.
@@ -689,7 +689,7 @@ pub fn run(
         let at = wall_us();
         far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
         fleet.note(at, Fault::Start { id: far_id });
-        crate::harness::wait_for_output(&fleet.record, Some(far_id), 0)
+        crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), 0)
             .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
         for n in 0..3 {
             progress(&format!(
@@ -704,7 +704,7 @@ pub fn run(
             let healed = wall_us();
             set_cut(far, false)?;
             fleet.note(healed, Fault::Heal { id: far_id });
-            let back = crate::harness::wait_for_output(&fleet.record, Some(far_id), healed)
+            let back = crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), healed)
                 .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
             recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
             std::thread::sleep(Duration::from_secs(1));
@@ -767,7 +767,7 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             c.failsafe_under_loss.get(pct).copied().unwrap_or(0)
         );
     }
-    if let Some(stats) = crate::bench::Stats::of(&report.failsafe_ms) {
+    if let Some(stats) = crate::tools::bench::Stats::of(&report.failsafe_ms) {
         println!(
             "  rove failsafe (supervisor): {} runs, p50 {:.1} ms, max {:.1} ms",
             report.failsafe_ms.len(),

@@ -13,7 +13,7 @@
 //!
 //! All processes share one machine clock (wall time in microseconds), so no clock sync is needed.
 
-use crate::harness::{self, Follow, Out, Rig, records, wall_us};
+use crate::tools::harness::{self, Follow, Out, Rig, records, wall_us};
 use serde::Serialize;
 use serde_json::Value;
 use std::fmt::Write as _;

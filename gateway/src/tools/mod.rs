@@ -1,0 +1,215 @@
+//! Tools around the product, apart from it: what runs the README's demo, measures the gateway
+//! and checks its contract under faults. Nothing here is part of a shipped role; the roles
+//! ([`crate::vehicle`], [`crate::operator`]) never import it.
+//!
+//! # Layout
+//! - [`harness`]: real `rove` processes in a private network namespace it creates (tests, demo,
+//!   benches): start, signal, crash, read their records.
+//! - [`demo`]: `rove demo`, the README's story (in one process, or as processes with
+//!   `--processes`).
+//! - [`bench`](mod@bench): `rove bench handover` (graceful, active, crash) and `rove bench input`.
+//! - [`chaos`]: `rove bench chaos`: random faults and packet loss, counted against the contract.
+//! - [`fleet`]: `rove bench scale`: a fleet of N vehicles and M operators, per-node cost,
+//!   handover and late-joiner times.
+
+pub mod bench;
+pub mod chaos;
+pub mod demo;
+pub mod fleet;
+pub mod harness;
+
+use std::path::Path;
+
+/// `rove bench …`.
+#[derive(Debug, clap::Subcommand)]
+pub enum Bench {
+    /// Input event → vehicle output latency through DDS, with a replayed joystick (needs root).
+    Input {
+        /// Stick events to replay.
+        #[arg(long, default_value_t = 2000)]
+        events: usize,
+        /// Their rate.
+        #[arg(long, default_value_t = 200.0)]
+        rate_hz: f64,
+    },
+    /// Random faults (kill, terminate, stop, restart of operators and of the vehicle under a
+    /// supervisor) and packet loss, counted against the ownership contract (needs root and
+    /// nftables).
+    Chaos {
+        /// Operators, of distinct strengths (2–12).
+        #[arg(long, default_value_t = 4)]
+        operators: usize,
+        /// Faults in the chaos phase.
+        #[arg(long, default_value_t = 1000)]
+        events: usize,
+        /// Mean time between faults, ms.
+        #[arg(long, default_value_t = 300)]
+        interval_ms: u64,
+        /// Length of each loss phase (10 %, then 30 % of UDP packets dropped), s; 0 skips them.
+        #[arg(long, default_value_t = 60)]
+        loss_s: u64,
+        /// Seed of the fault sequence.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Length of each of three partitions of the strongest operator, which runs in a
+        /// namespace of its own joined by a veth pair, s; 0 skips them.
+        #[arg(long, default_value_t = 5)]
+        partition_s: u64,
+        /// Write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
+    /// A fleet of real processes, each operator driving its own vehicle: CPU and memory per
+    /// process and in total, handover latency and late-joiner time while the fleet streams,
+    /// wrong owners and stale outputs (needs root).
+    Scale {
+        /// Vehicles.
+        #[arg(long, default_value_t = 16)]
+        vehicles: usize,
+        /// Operators (operator i drives vehicle i mod V).
+        #[arg(long, default_value_t = 16)]
+        operators: usize,
+        /// Operators drive nothing: the fixed cost of the fleet's participants.
+        #[arg(long)]
+        idle: bool,
+        /// CPU window, s.
+        #[arg(long, default_value_t = 10)]
+        window_s: u64,
+        /// Handovers measured on the first vehicle while the fleet streams.
+        #[arg(long, default_value_t = 20)]
+        handover_runs: usize,
+        /// Late joiners measured.
+        #[arg(long, default_value_t = 10)]
+        latejoin_runs: usize,
+        /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
+        #[arg(long)]
+        heartbeat_ms: Option<u64>,
+        /// Run vehicle 100 (whose handovers are measured) under SCHED_FIFO at this priority
+        /// (`chrt -f`), as the vehicle unit's real-time option does.
+        #[arg(long)]
+        vehicle_rt: Option<u8>,
+        /// Write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
+    /// Handover latency between real processes in a private network namespace (needs root):
+    /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
+    Handover {
+        /// Which experiment.
+        #[arg(long, value_enum)]
+        scenario: bench::Scenario,
+        /// Controller counts to run, comma-separated (graceful/crash: owner + N−1 backups;
+        /// active: owner, requester and N−2 bystanders).
+        #[arg(long, value_delimiter = ',', default_value = "2")]
+        controllers: Vec<usize>,
+        /// Devices on the network for `latejoin`.
+        #[arg(long, default_value_t = 32)]
+        devices: usize,
+        /// Runs per controller count.
+        #[arg(long, default_value_t = 100)]
+        runs: usize,
+        /// DDS Security: off, on (every process authenticated, RTPS messages encrypted), or
+        /// both, back to back for each controller count.
+        #[arg(long, value_enum, default_value = "off")]
+        security: SecurityMode,
+        /// Run the vehicle under SCHED_FIFO at this priority (`chrt -f`), as the vehicle
+        /// unit's real-time option does.
+        #[arg(long)]
+        vehicle_rt: Option<u8>,
+        /// Write one JSON object per scenario run to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+        /// Write a box plot of all runs to this SVG file.
+        #[arg(long)]
+        svg: Option<std::path::PathBuf>,
+    },
+}
+
+/// `rove bench handover --security`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SecurityMode {
+    /// Plain DDS.
+    Off,
+    /// DDS Security.
+    On,
+    /// Both, back to back.
+    Both,
+}
+
+/// Runs `rove bench WHAT` with the `rove` binary at `rove`.
+///
+/// # Errors
+/// The bench cannot set up its processes (namespaces need root), or a measurement failed.
+pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
+    match what {
+        Bench::Input { events, rate_hz } => bench::input_cli(rove, events, rate_hz),
+        Bench::Chaos {
+            operators,
+            events,
+            interval_ms,
+            loss_s,
+            seed,
+            partition_s,
+            json,
+        } => {
+            let options = chaos::Options {
+                operators,
+                events,
+                interval: std::time::Duration::from_millis(interval_ms),
+                loss: std::time::Duration::from_secs(loss_s),
+                seed,
+                partition: std::time::Duration::from_secs(partition_s),
+            };
+            chaos::cli(rove, &options, json.as_deref())
+        }
+        Bench::Scale {
+            vehicles,
+            operators,
+            idle,
+            window_s,
+            handover_runs,
+            latejoin_runs,
+            heartbeat_ms,
+            vehicle_rt,
+            json,
+        } => {
+            let options = fleet::Options {
+                vehicles,
+                operators,
+                idle,
+                window: std::time::Duration::from_secs(window_s),
+                handover_runs: if idle { 0 } else { handover_runs },
+                latejoin_runs,
+                heartbeat_ms,
+                vehicle_rt,
+            };
+            fleet::cli(rove, &options, json.as_deref())
+        }
+        Bench::Handover {
+            scenario,
+            controllers,
+            devices,
+            runs,
+            security,
+            vehicle_rt,
+            json,
+            svg,
+        } => {
+            let options = bench::Options {
+                scenario,
+                controllers: 0,
+                devices,
+                runs,
+                secure: false,
+                vehicle_rt,
+            };
+            let outputs = bench::Outputs { json, svg };
+            let modes: &[bool] = match security {
+                SecurityMode::Off => &[false],
+                SecurityMode::On => &[true],
+                SecurityMode::Both => &[false, true],
+            };
+            bench::handover_cli(rove, options, &controllers, modes, &outputs)
+        }
+    }
+}
