@@ -13,7 +13,9 @@
 //! at once), and the participant leaves.
 
 use crate::config::{InputChoice, OperatorConfig};
-use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo, KeyedVehicleStatus};
+use crate::dds::{
+    self, Discovery, Domain, KeyedControlCommand, KeyedDeviceInfo, KeyedVehicleStatus, Node,
+};
 use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::StreamExt;
@@ -21,12 +23,12 @@ use rove_console::model::{DeviceKind, InputStatus as UiInput};
 use rove_console::{CommandRequest, ConsoleState, Event, Identity, Stamped};
 use rove_core::adapter::{InputAction, InputEvent, InputSource};
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{Ack, DeviceId, DeviceInfo, DeviceType, RequestControl};
+use rove_core::msg::{Ack, DeviceId, DeviceType, RequestControl};
 use rove_core::session::{
     Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
 use rustdds::with_key::Sample;
-use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
+use rustdds::{DomainParticipantStatusEvent, StatusEvented};
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 use std::path::PathBuf;
@@ -68,27 +70,18 @@ pub struct Options {
     pub any_certificate: bool,
 }
 
-/// What a discovery event tells the session: ControlCommand writers found (with their
-/// strength) and lost, participants gone.
-fn discovery_event(event: DomainParticipantStatusEvent) -> Option<SessionEvent> {
-    match event {
-        DomainParticipantStatusEvent::WriterDetected { writer }
-            if writer.topic_name == rove_core::msg::topic_names::CONTROL_COMMAND =>
-        {
-            Some(SessionEvent::WriterFound {
-                writer: dds::writer_id(writer.guid),
-                strength: dds::strength_of(writer.qos.ownership())?,
-            })
-        }
-        DomainParticipantStatusEvent::WriterLost { guid, .. } => Some(SessionEvent::WriterLost {
+/// What discovery tells the session: ControlCommand writers found (with their strength) and
+/// lost, participants gone.
+fn discovery_event(discovery: Discovery) -> SessionEvent {
+    match discovery {
+        Discovery::CommandWriter { guid, strength } => SessionEvent::WriterFound {
             writer: dds::writer_id(guid),
-        }),
-        DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
-            Some(SessionEvent::ParticipantGone {
-                participant: dds::participant_id(id.as_ref()),
-            })
-        }
-        _ => None,
+            strength,
+        },
+        Discovery::WriterLost { guid } => SessionEvent::WriterLost {
+            writer: dds::writer_id(guid),
+        },
+        Discovery::ParticipantLost { participant } => SessionEvent::ParticipantGone { participant },
     }
 }
 
@@ -204,9 +197,12 @@ pub async fn run_attached(
         .map(JsonLines::create)
         .transpose()?;
     let me = config.common.id;
-    let certifier = dds::certifier(&config.common, options.any_certificate)?;
-    let security = config.common.security.as_deref();
-    let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
+    let node = Node::join(
+        &config.common,
+        DeviceType::Controller,
+        options.any_certificate,
+    )?;
+    let domain = &node.domain;
     let mut writers = Writers {
         strength: config.strength,
         commands: HashMap::new(),
@@ -217,12 +213,11 @@ pub async fn run_attached(
     // The vehicles to drive from the start, and the one to ask for: their writers now, so
     // that discovery has matched them by the first command.
     for &vehicle in &config.drive {
-        writers.command_writer(&domain, Writer::Regular, vehicle);
+        writers.command_writer(domain, Writer::Regular, vehicle);
     }
     if let Some(vehicle) = options.request {
-        writers.prepare(&domain, vehicle);
+        writers.prepare(domain, vehicle);
     }
-    let info_writer = domain.device_info_writer()?;
     let infos = domain.device_info_reader()?;
     // The vehicles' output health for the console; optional (a secured fleet's permissions
     // may predate the topic).
@@ -232,7 +227,6 @@ pub async fn run_attached(
         .ok();
     let requests = domain.request_reader()?;
     let listener = domain.participant.status_listener();
-    let my_participant = dds::writer_id(domain.participant.guid()).participant;
     info!(
         config = %options.config_path.display(),
         device = me,
@@ -276,12 +270,12 @@ pub async fn run_attached(
             heartbeat: config.common.heartbeat,
             confirm_actions: options.console,
             request: options.request,
-            participant: my_participant,
+            participant: node.participant,
             trust: config.common.trust(),
         },
         clock.now(),
     );
-    if let Some(certifier) = certifier {
+    if let Some(certifier) = node.certifier.clone() {
         session.certify(certifier);
     }
 
@@ -355,17 +349,7 @@ pub async fn run_attached(
     let mut link = input_link(device.as_ref());
     ui.show(&session, &link);
 
-    let my_info = DeviceInfo {
-        device_id: me,
-        name: config.common.name.clone(),
-        device_type: DeviceType::Controller,
-        controller_id: me,
-    };
-    let publish_info = || {
-        if let Err(e) = info_writer.write(KeyedDeviceInfo(my_info.clone()), None) {
-            warn!(cause = ?e, "cannot publish DeviceInfo");
-        }
-    };
+    let publish_info = || node.publish(me);
     publish_info();
 
     let mut infos = infos.async_sample_stream();
@@ -428,7 +412,7 @@ pub async fn run_attached(
             _ = keepalive.tick() => { notify.keepalive(); Vec::new() }
             sample = infos.next() => match sample {
                 Some(Ok(s)) => {
-                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    let from = dds::sender(s.sample_info());
                     match s.into_value() {
                         Sample::Value(KeyedDeviceInfo(info)) => {
                             let seen = Event::DeviceSeen {
@@ -467,7 +451,7 @@ pub async fn run_attached(
                 if let Ok(s) = sample
                     && let Sample::Value(KeyedVehicleStatus(status)) = s.value()
                 {
-                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    let from = dds::sender(s.sample_info());
                     // Believed only from the participant that speaks for the vehicle.
                     if session.speaks_for(clock.now(), status.vehicle_id, from) {
                         ui.emit(Event::VehicleStatus {
@@ -483,7 +467,7 @@ pub async fn run_attached(
             sample = requests.next() => match sample {
                 Some(Ok(s)) => {
                     let msg = *s.value();
-                    let from = dds::writer_id(s.sample_info().writer_guid()).participant;
+                    let from = dds::sender(s.sample_info());
                     tracing::debug!(?msg.ack, msg.src_id, msg.current_controller_id, stamp = msg.timestamp.0, %from, "RequestControl");
                     step(&mut session, SessionEvent::RequestControl { msg, from })
                 }
@@ -494,15 +478,15 @@ pub async fn run_attached(
                 if let Some(ev) = &ev {
                     writers.routes_learn(ev);
                 }
-                match ev.and_then(discovery_event) {
-                    Some(event) => step(&mut session, event),
+                match ev.as_ref().and_then(Discovery::of) {
+                    Some(discovery) => step(&mut session, discovery_event(discovery)),
                     None => Vec::new(),
                 }
             }
             _ = sleep_until(deadline) => step(&mut session, SessionEvent::Tick),
         };
         let changed = heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
-        let refused = writers.carry_out(&domain, effects, &clock, record.as_mut(), &ui);
+        let refused = writers.carry_out(domain, effects, &clock, record.as_mut(), &ui);
         // The selected vehicle is the one buttons and the console ask for: both its writers
         // now, so that an owner who accepts at once (auto-accept) is not faster than
         // discovery (measured: made at the REQUEST, the first commands of an auto-accepted
@@ -510,7 +494,7 @@ pub async fn run_attached(
         if session.selected() != selected {
             selected = session.selected();
             if let Some(vehicle) = selected {
-                writers.prepare(&domain, vehicle);
+                writers.prepare(domain, vehicle);
             }
         }
         if let Some(reply) = reply {
@@ -544,11 +528,8 @@ pub async fn run_attached(
     info!("operator stopping: finishing grants and releasing vehicles");
     notify.stopping("stopping: finishing grants, releasing vehicles");
     let effects = session.stop(clock.stamp());
-    writers.carry_out(&domain, effects, &clock, record.as_mut(), &ui);
-    // Leave the device lists at once rather than after missed heartbeats.
-    if let Err(e) = info_writer.dispose(&me, None) {
-        warn!(cause = ?e, "cannot withdraw DeviceInfo");
-    }
+    writers.carry_out(domain, effects, &clock, record.as_mut(), &ui);
+    node.withdraw();
     // The FINISHes and disposals above are reliable writes; leaving the domain at once would
     // drop them before every reader has them (seen: a replier never resumed). Wait, bounded,
     // for the acknowledgments. Blocking is fine here: the event loop is over.
@@ -561,10 +542,7 @@ pub async fn run_attached(
             "RequestControl (FINISH)",
             writers.requests.wait_for_acknowledgments(wait),
         ),
-        (
-            "DeviceInfo (withdrawal)",
-            info_writer.wait_for_acknowledgments(wait),
-        ),
+        ("DeviceInfo (withdrawal)", node.wait_for_withdrawal(wait)),
     ];
     for writer in writers.commands.values() {
         let result = writer.wait_for_acknowledgments(wait);

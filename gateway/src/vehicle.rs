@@ -29,17 +29,17 @@
 //! keeps its default action (the process ends; ExecStopPost makes the outputs safe).
 
 use crate::config::VehicleConfig;
-use crate::dds::{self, Domain, KeyedControlCommand, KeyedDeviceInfo};
+use crate::dds::{self, Discovery, Domain, KeyedControlCommand, KeyedDeviceInfo, Node};
 use crate::output::{OutputReport, OutputWorker, WriteLimits};
 use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::{FutureExt, StreamExt};
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, ParticipantId};
 use rove_core::freshness::Freshness;
-use rove_core::msg::{DeviceInfo, DeviceType, VehicleStatus};
+use rove_core::msg::{DeviceType, VehicleStatus};
 use rove_core::trust::Suspect;
+use rustdds::StatusEvented;
 use rustdds::with_key::Sample;
-use rustdds::{DomainParticipantStatusEvent, RTPSEntity, StatusEvented};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -81,16 +81,13 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
 
-    let certifier = dds::certifier(&config.common, false)?;
-    let security = config.common.security.as_deref();
-    let domain = Domain::join(config.common.domain_id, &config.common.interfaces, security)?;
-    let info_writer = domain.device_info_writer()?;
-    let mut status_writer = StatusWriter::new(me, &domain);
+    let node = Node::join(&config.common, DeviceType::Vehicle, false)?;
+    let domain = &node.domain;
+    let mut status_writer = StatusWriter::new(me, domain);
     let commands = domain.command_reader(config.common.id)?;
     let requests = domain.request_reader()?;
     let infos = domain.device_info_reader()?;
     let listener = domain.participant.status_listener();
-    let my_participant = dds::writer_id(domain.participant.guid()).participant;
     info!(
         config = %options.config_path.display(),
         device = me,
@@ -111,22 +108,12 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     }
 
     let mut arbiter = Arbiter::new(me, config.arbiter).with_access(config.access.clone());
-    arbiter.pin_own(my_participant);
-    if let Some(certifier) = certifier {
+    arbiter.pin_own(node.participant);
+    if let Some(certifier) = node.certifier.clone() {
         arbiter.certify(certifier);
     }
     let mut suspects = Suspects::default();
-    let publish = |controller_id| {
-        let info = DeviceInfo {
-            device_id: me,
-            name: config.common.name.clone(),
-            device_type: DeviceType::Vehicle,
-            controller_id,
-        };
-        if let Err(e) = info_writer.write(KeyedDeviceInfo(info), None) {
-            warn!(cause = ?e, "cannot publish DeviceInfo");
-        }
-    };
+    let publish = |controller_id| node.publish(controller_id);
     publish(arbiter.controller_id());
 
     let mut commands = commands.async_sample_stream();
@@ -161,14 +148,14 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                     {
                         batch.push(more);
                     }
-                    queued.extend(intake.events(&domain, &clock, batch));
+                    queued.extend(intake.events(domain, &clock, batch));
                     queued.pop_front()
                 }
                 None => anyhow::bail!("ControlCommand stream ended"),
             },
             request = requests.next() => match request {
                 Some(Ok(sample)) => {
-                    let sender = dds::writer_id(sample.sample_info().writer_guid()).participant;
+                    let sender = dds::sender(sample.sample_info());
                     Some(Event::from_request_control(me, sample.value(), sender))
                 }
                 Some(Err(e)) => { malformed.warn(&e); None }
@@ -176,7 +163,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
             },
             info = infos.next() => match info {
                 Some(Ok(sample)) => {
-                    let sender = dds::writer_id(sample.sample_info().writer_guid()).participant;
+                    let sender = dds::sender(sample.sample_info());
                     match sample.into_value() {
                         Sample::Value(KeyedDeviceInfo(info)) => {
                             Some(Event::Heard { device: info.device_id, sender })
@@ -187,21 +174,19 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
                 Some(Err(e)) => { malformed.warn(&e); None }
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
-            ev = status.next() => match ev {
-                Some(DomainParticipantStatusEvent::WriterDetected { writer }) => {
-                    if let Some(s) = dds::strength_of(writer.qos.ownership()) {
-                        intake.learn(writer.guid, s);
-                    }
+            ev = status.next() => match ev.as_ref().and_then(Discovery::of) {
+                Some(Discovery::CommandWriter { guid, strength }) => {
+                    intake.learn(guid, strength);
                     None
                 }
-                Some(DomainParticipantStatusEvent::WriterLost { guid, .. }) => {
+                Some(Discovery::WriterLost { guid }) => {
                     intake.forget(guid);
                     Some(Event::WriterGone { writer: dds::writer_id(guid) })
                 }
-                Some(DomainParticipantStatusEvent::ParticipantLost { id, .. }) => {
-                    Some(Event::ParticipantGone { participant: dds::participant_id(id.as_ref()) })
+                Some(Discovery::ParticipantLost { participant }) => {
+                    Some(Event::ParticipantGone { participant })
                 }
-                _ => None,
+                None => None,
             },
             _ = heartbeat.tick() => {
                 publish(arbiter.controller_id());
@@ -274,10 +259,7 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
     publish(me);
-    // Leave the device lists at once rather than after missed heartbeats.
-    if let Err(e) = info_writer.dispose(&me, None) {
-        warn!(cause = ?e, "cannot withdraw DeviceInfo");
-    }
+    node.withdraw();
     status_writer.withdraw();
     Ok(())
 }

@@ -10,10 +10,24 @@
 //! participant's `WriterDetected` events, falling back to `discovered_writers()` for a sample
 //! whose writer it has not seen announced yet: the standard mechanism, no side channel.
 //!
+//! # Layout
+//! - this file: the keyed wire types, the seed's QoS, [`Domain`] (a participant and the topics,
+//!   readers and writers), DDS identities → core identities.
+//! - [`Node`] (`node.rs`): what both roles do to be on the network — the certificate check,
+//!   joining, our participant, DeviceInfo published and withdrawn — and [`Discovery`], the
+//!   participant's events as the roles read them.
+//! - [`Routes`] (`routes.rs`): which partition each vehicle's commands travel in.
+//!
 //! Known limitations (intentional, not bugs):
 //! - rustdds has no `unregister_instance`; a graceful release is a `dispose` of the instance.
 //! - A foreign *exclusive reader* does not match rove's exclusive writers (a rustdds QoS parsing
 //!   bug, see `docs/rustdds.md`); foreign exclusive writers → rove readers do match.
+
+mod node;
+mod routes;
+
+pub use node::{Discovery, Node, certifier, sender};
+pub use routes::{Route, Routes, VEHICLE_PARTITION_PREFIX, vehicle_partition};
 
 use anyhow::Context;
 use rove_core::arbiter::{ParticipantId, WriterId};
@@ -97,80 +111,6 @@ pub fn control_command_qos(strength: Strength) -> QosPolicies {
             strength: i32::from(strength.0),
         })
         .build()
-}
-
-/// The DDS partition a vehicle's commands travel in: `rove/vehicle/ID`. Operators write each
-/// vehicle's commands there, and a vehicle reads its own partition (and the default one, for
-/// peers that use none), so a vehicle never receives, nor an operator sends to it, what other
-/// vehicles' operators stream (docs/design.md, "Fleet scale").
-pub fn vehicle_partition(vehicle: DeviceId) -> String {
-    format!("{VEHICLE_PARTITION_PREFIX}{vehicle}")
-}
-
-/// The prefix of [`vehicle_partition`]: a ControlCommand reader in a partition named so is a
-/// rove vehicle's.
-pub const VEHICLE_PARTITION_PREFIX: &str = "rove/vehicle/";
-
-/// Where an operator sends a vehicle's commands.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Route {
-    /// The vehicle's own partition ([`vehicle_partition`]).
-    Vehicle(DeviceId),
-    /// The default partition, for a vehicle whose command reader uses none (a peer built on
-    /// the seed IDL alone). Every rove vehicle reads it too.
-    Default,
-}
-
-/// Where each vehicle's commands go: its partition, unless discovery showed that the vehicle's
-/// participant reads ControlCommand in no rove partition (a peer that knows only the seed IDL),
-/// whose commands then go to the default partition. Learnt from ControlCommand readers found
-/// in discovery and from the participant each vehicle's DeviceInfo comes from; both tables are
-/// bounded (a vehicle beyond them is routed to its partition, as any rove vehicle).
-#[derive(Debug, Default)]
-pub struct Routes {
-    /// Participants with a ControlCommand reader in no rove partition.
-    foreign: std::collections::HashSet<ParticipantId>,
-    /// The participant each vehicle's DeviceInfo came from.
-    vehicles: std::collections::HashMap<DeviceId, ParticipantId>,
-}
-
-impl Routes {
-    /// At most this many participants and vehicles are remembered.
-    pub const MAX: usize = 1024;
-
-    /// A ControlCommand reader of `participant` with `partition` was discovered.
-    pub fn reader_found(&mut self, participant: ParticipantId, partition: Option<&Partition>) {
-        let names = partition.map_or(&[][..], |p| &p.names[..]);
-        if names
-            .iter()
-            .any(|n| n.starts_with(VEHICLE_PARTITION_PREFIX))
-        {
-            self.foreign.remove(&participant);
-        } else if self.foreign.len() < Self::MAX {
-            self.foreign.insert(participant);
-        }
-    }
-
-    /// A believed DeviceInfo of vehicle `id` came from `participant`.
-    pub fn vehicle_seen(&mut self, id: DeviceId, participant: ParticipantId) {
-        if self.vehicles.len() < Self::MAX || self.vehicles.contains_key(&id) {
-            self.vehicles.insert(id, participant);
-        }
-    }
-
-    /// A participant left the domain.
-    pub fn participant_gone(&mut self, participant: ParticipantId) {
-        self.foreign.remove(&participant);
-        self.vehicles.retain(|_, p| *p != participant);
-    }
-
-    /// Where vehicle `id`'s commands go.
-    pub fn route(&self, id: DeviceId) -> Route {
-        match self.vehicles.get(&id) {
-            Some(p) if self.foreign.contains(p) => Route::Default,
-            _ => Route::Vehicle(id),
-        }
-    }
 }
 
 /// Samples of each writer the vehicle's command reader holds until its loop takes them (rove's
@@ -447,51 +387,6 @@ impl Domain {
     }
 }
 
-/// Under `[security]`: checks this device's DDS Security directory and returns who may speak
-/// for which id (a participant only for the id in its certificate, `keys::FleetIdentity`).
-/// `None` without `[security]`. `any_id` (a test hook) lets a device run with another device's
-/// certificate, to see the others refuse it.
-///
-/// # Errors
-/// The directory is incomplete, the certificate is another device's, or this build has no
-/// security.
-pub fn certifier(
-    common: &crate::config::Common,
-    any_id: bool,
-) -> anyhow::Result<Option<rove_core::trust::Certifier>> {
-    let Some(dir) = &common.security else {
-        tracing::warn!(
-            "no [security] in the config: participants are not authenticated, device ids are \
-             pinned to whichever participant speaks for them first (docs/security.md)"
-        );
-        return Ok(None);
-    };
-    #[cfg(feature = "security")]
-    {
-        // The test hook exists in debug builds only: a release build always checks that the
-        // certificate is this device's.
-        let any_id = cfg!(debug_assertions) && any_id;
-        let fleet = crate::keys::check_device_dir(dir, common.id, any_id)?;
-        tracing::info!(
-            dir = %dir.display(),
-            fleet = fleet.fleet(),
-            "DDS Security on: only this fleet's authenticated participants match, each speaking \
-             only for the device id in its certificate"
-        );
-        Ok(Some(std::sync::Arc::new(move |id, participant| {
-            fleet.speaks_for(id, participant)
-        })))
-    }
-    #[cfg(not(feature = "security"))]
-    {
-        let _ = any_id;
-        anyhow::bail!(
-            "[security] {}: this rove was built without the `security` feature",
-            dir.display()
-        )
-    }
-}
-
 /// The strength of an EXCLUSIVE writer; `None` for SHARED or absent ownership, and for values
 /// outside 0..=65535 (not a rove strength).
 pub fn strength_of(ownership: Option<Ownership>) -> Option<Strength> {
@@ -577,86 +472,6 @@ mod tests {
         let wrapped = serde_json::to_value(KeyedControlCommand(cmd)).expect("json");
         assert_eq!(wrapped, serde_json::to_value(cmd).expect("json"));
         assert_eq!(KeyedControlCommand(cmd).key(), 2);
-    }
-
-    #[test]
-    fn vehicles_are_routed_to_their_partition_unless_their_reader_knows_none() {
-        let (rove, seed) = (ParticipantId(1), ParticipantId(2));
-        let mut routes = Routes::default();
-        assert_eq!(routes.route(7), Route::Vehicle(7), "unknown: its partition");
-        let ours = Partition {
-            names: vec![vehicle_partition(7), String::new()],
-        };
-        routes.reader_found(rove, Some(&ours));
-        routes.reader_found(seed, None);
-        routes.vehicle_seen(7, rove);
-        routes.vehicle_seen(8, seed);
-        assert_eq!(routes.route(7), Route::Vehicle(7));
-        assert_eq!(routes.route(8), Route::Default);
-        // An empty list is the default partition too.
-        let seed2 = ParticipantId(3);
-        routes.reader_found(seed2, Some(&Partition { names: vec![] }));
-        routes.vehicle_seen(9, seed2);
-        assert_eq!(routes.route(9), Route::Default);
-        // Order does not matter: the reader may be found after the DeviceInfo.
-        routes.vehicle_seen(10, ParticipantId(4));
-        assert_eq!(routes.route(10), Route::Vehicle(10));
-        routes.reader_found(ParticipantId(4), None);
-        assert_eq!(routes.route(10), Route::Default);
-        routes.participant_gone(seed);
-        assert_eq!(routes.route(8), Route::Vehicle(8));
-    }
-
-    #[test]
-    fn route_tables_are_bounded() {
-        let mut routes = Routes::default();
-        for i in 0..3 * Routes::MAX as u128 {
-            routes.reader_found(ParticipantId(i), None);
-            routes.vehicle_seen(i as DeviceId, ParticipantId(i));
-        }
-        assert_eq!(routes.foreign.len(), Routes::MAX);
-        assert_eq!(routes.vehicles.len(), Routes::MAX);
-        // A vehicle already known still moves.
-        routes.vehicle_seen(0, ParticipantId(5000));
-        assert_eq!(routes.route(0), Route::Vehicle(0));
-    }
-
-    #[test]
-    fn partitions_match_as_dds_says() {
-        let p = |names: &[&str]| Partition {
-            names: names.iter().map(|s| s.to_string()).collect(),
-        };
-        let m = |w: Option<&Partition>, r: Option<&Partition>| Partition::is_match(w, r);
-        let (v7, v8) = (p(&["rove/vehicle/7"]), p(&["rove/vehicle/8"]));
-        let vehicle7 = p(&["rove/vehicle/7", ""]);
-        assert!(m(Some(&v7), Some(&vehicle7)));
-        assert!(
-            !m(Some(&v8), Some(&vehicle7)),
-            "another vehicle's partition"
-        );
-        assert!(
-            m(None, Some(&vehicle7)),
-            "a writer in no partition reaches the vehicle"
-        );
-        assert!(
-            !m(Some(&v7), None),
-            "a reader in no partition misses partitioned writers"
-        );
-        assert!(m(None, None));
-        assert!(
-            m(Some(&p(&[])), Some(&p(&[""]))),
-            "empty list = default partition"
-        );
-        assert!(
-            m(Some(&v7), Some(&p(&["rove/vehicle/*"]))),
-            "a pattern matches names"
-        );
-        assert!(m(Some(&p(&["rove/?ehicle/7"])), Some(&vehicle7)));
-        assert!(
-            !m(Some(&p(&["rove/*"])), Some(&p(&["rove/vehicle/*"]))),
-            "never two patterns"
-        );
-        assert!(!m(Some(&v7), Some(&p(&["rove/vehicle/7?"]))));
     }
 
     #[test]

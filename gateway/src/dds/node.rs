@@ -1,0 +1,193 @@
+//! What both roles do to be on the network, once: the certificate check, joining the domain,
+//! our participant, our DeviceInfo published and withdrawn; and the participant's discovery
+//! events as the roles read them ([`Discovery`]).
+
+use super::{Domain, KeyedDeviceInfo, participant_id, strength_of, writer_id};
+use crate::config::Common;
+use rove_core::arbiter::ParticipantId;
+use rove_core::hierarchy::Strength;
+use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, topic_names};
+use rove_core::trust::Certifier;
+use rustdds::{DomainParticipantStatusEvent, GUID, RTPSEntity};
+use tracing::warn;
+
+/// This device on the DDS network.
+pub struct Node {
+    /// The participant and the topics.
+    pub domain: Domain,
+    /// Our participant, as the core names it (the arbiter and the session pin our own id to it).
+    pub participant: ParticipantId,
+    /// Under `[security]`: who may speak for which id ([`certifier`]).
+    pub certifier: Option<Certifier>,
+    info: rustdds::with_key::DataWriterCdr<KeyedDeviceInfo>,
+    id: DeviceId,
+    name: String,
+    kind: DeviceType,
+}
+
+impl std::fmt::Debug for Node {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Node")
+            .field("id", &self.id)
+            .field("kind", &self.kind)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Node {
+    /// Checks this device's security files (`[security]`), joins the domain confined to the
+    /// configured interfaces and creates our DeviceInfo writer. `any_certificate` is the
+    /// operator's test hook ([`certifier`]).
+    ///
+    /// # Errors
+    /// The security files are incomplete or another device's, or rustdds cannot create the
+    /// participant, a topic or the writer.
+    pub fn join(common: &Common, kind: DeviceType, any_certificate: bool) -> anyhow::Result<Node> {
+        let certifier = certifier(common, any_certificate)?;
+        let domain = Domain::join(
+            common.domain_id,
+            &common.interfaces,
+            common.security.as_deref(),
+        )?;
+        let info = domain.device_info_writer()?;
+        let participant = writer_id(domain.participant.guid()).participant;
+        Ok(Node {
+            domain,
+            participant,
+            certifier,
+            info,
+            id: common.id,
+            name: common.name.clone(),
+            kind,
+        })
+    }
+
+    /// Publishes our DeviceInfo with `controller_id` (a vehicle's owner; an operator's own id).
+    /// A failed write is logged: the next heartbeat publishes again.
+    pub fn publish(&self, controller_id: DeviceId) {
+        let info = DeviceInfo {
+            device_id: self.id,
+            name: self.name.clone(),
+            device_type: self.kind,
+            controller_id,
+        };
+        if let Err(e) = self.info.write(KeyedDeviceInfo(info), None) {
+            warn!(cause = ?e, "cannot publish DeviceInfo");
+        }
+    }
+
+    /// Leaves the device lists at once (a dispose of our DeviceInfo) rather than after missed
+    /// heartbeats.
+    pub fn withdraw(&self) {
+        if let Err(e) = self.info.dispose(&self.id, None) {
+            warn!(cause = ?e, "cannot withdraw DeviceInfo");
+        }
+    }
+
+    /// Waits, at most `wait`, until every matched reader acknowledged our DeviceInfo writes
+    /// (the withdrawal, before the participant leaves).
+    ///
+    /// # Errors
+    /// rustdds cannot wait.
+    pub fn wait_for_withdrawal(
+        &self,
+        wait: std::time::Duration,
+    ) -> rustdds::dds::WriteResult<bool, ()> {
+        self.info.wait_for_acknowledgments(wait)
+    }
+}
+
+/// The participant a sample came from: who sent it is the DDS participant and writer, never a
+/// payload field.
+pub fn sender(info: &rustdds::SampleInfo) -> ParticipantId {
+    writer_id(info.writer_guid()).participant
+}
+
+/// What the roles read in the participant's discovery events.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Discovery {
+    /// A ControlCommand writer with EXCLUSIVE ownership, and its strength.
+    CommandWriter {
+        /// The writer.
+        guid: GUID,
+        /// Its OWNERSHIP_STRENGTH.
+        strength: Strength,
+    },
+    /// A writer left.
+    WriterLost {
+        /// The writer.
+        guid: GUID,
+    },
+    /// A participant left (goodbye, or its lease ran out).
+    ParticipantLost {
+        /// The participant.
+        participant: ParticipantId,
+    },
+}
+
+impl Discovery {
+    /// The event as the roles read it; `None` for what they do not use.
+    pub fn of(event: &DomainParticipantStatusEvent) -> Option<Discovery> {
+        match event {
+            DomainParticipantStatusEvent::WriterDetected { writer }
+                if writer.topic_name == topic_names::CONTROL_COMMAND =>
+            {
+                Some(Discovery::CommandWriter {
+                    guid: writer.guid,
+                    strength: strength_of(writer.qos.ownership())?,
+                })
+            }
+            DomainParticipantStatusEvent::WriterLost { guid, .. } => {
+                Some(Discovery::WriterLost { guid: *guid })
+            }
+            DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+                Some(Discovery::ParticipantLost {
+                    participant: participant_id(id.as_ref()),
+                })
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Under `[security]`: checks this device's DDS Security directory and returns who may speak
+/// for which id (a participant only for the id in its certificate, `keys::FleetIdentity`).
+/// `None` without `[security]`. `any_id` (a test hook) lets a device run with another device's
+/// certificate, to see the others refuse it.
+///
+/// # Errors
+/// The directory is incomplete, the certificate is another device's, or this build has no
+/// security.
+pub fn certifier(common: &Common, any_id: bool) -> anyhow::Result<Option<Certifier>> {
+    let Some(dir) = &common.security else {
+        tracing::warn!(
+            "no [security] in the config: participants are not authenticated, device ids are \
+             pinned to whichever participant speaks for them first (docs/security.md)"
+        );
+        return Ok(None);
+    };
+    #[cfg(feature = "security")]
+    {
+        // The test hook exists in debug builds only: a release build always checks that the
+        // certificate is this device's.
+        let any_id = cfg!(debug_assertions) && any_id;
+        let fleet = crate::keys::check_device_dir(dir, common.id, any_id)?;
+        tracing::info!(
+            dir = %dir.display(),
+            fleet = fleet.fleet(),
+            "DDS Security on: only this fleet's authenticated participants match, each speaking \
+             only for the device id in its certificate"
+        );
+        Ok(Some(std::sync::Arc::new(move |id, participant| {
+            fleet.speaks_for(id, participant)
+        })))
+    }
+    #[cfg(not(feature = "security"))]
+    {
+        let _ = any_id;
+        anyhow::bail!(
+            "[security] {}: this rove was built without the `security` feature",
+            dir.display()
+        )
+    }
+}
