@@ -6,7 +6,8 @@
 //! - [`config`]: TOML files → validated configs; errors name file, line and key.
 //! - [`dds`]: the seed topics on rustdds; GUID → core identities; strength from discovery.
 //! - [`dds_log`]: rustdds's log records, rate-limited per call site.
-//! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop.
+//! - [`vehicle`], [`operator`]: the two roles, each one `select!` loop with injected edges
+//!   (clock, shutdown, front ends); [`host`] assembles them on this machine for `main.rs`.
 //! - [`output`]: the output adapter on its own thread behind the gateway's failure policy
 //!   (hold, reopen, hung-device watch); `rove failsafe`.
 //! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
@@ -24,6 +25,7 @@ pub mod config;
 pub mod dds;
 pub mod dds_log;
 pub mod doctor;
+pub mod host;
 #[cfg(feature = "security")]
 pub mod keys;
 pub mod operator;

@@ -3,7 +3,7 @@
 
 use clap::{Parser, Subcommand};
 use rove_gateway::tools::{self, demo, harness};
-use rove_gateway::{config, doctor, operator, output, runtime, status, vehicle};
+use rove_gateway::{config, doctor, host, operator, output, runtime, status, vehicle};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.
@@ -370,7 +370,7 @@ fn vehicle_cmd(
         record,
         stall_on_sigusr1: stall_ms.map(std::time::Duration::from_millis),
     };
-    tokio_runtime()?.block_on(vehicle::run(config, options))
+    tokio_runtime()?.block_on(host::vehicle(config, options))
 }
 
 /// `rove failsafe`: for systemd's `ExecStopPost`.
@@ -419,7 +419,7 @@ fn operator_cmd(
         any_certificate: test_any_certificate,
     };
     tokio_runtime()?
-        .block_on(async { operator::run(config, options, runtime::shutdown_signal()?).await })
+        .block_on(async { host::operator(config, options, runtime::shutdown_signal()?).await })
 }
 
 /// `rove demo`: as processes in a namespace, else (not root) in this process.

@@ -31,7 +31,7 @@
 use crate::config::VehicleConfig;
 use crate::dds::{self, Discovery, Domain, KeyedControlCommand, KeyedDeviceInfo, Node};
 use crate::output::{OutputReport, OutputWorker, WriteLimits};
-use crate::runtime::{Clock, JsonLines, RateLimited, shutdown_signal, sleep_until};
+use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
 use crate::sdnotify::Notifier;
 use futures::{FutureExt, StreamExt};
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, ParticipantId};
@@ -56,13 +56,17 @@ pub struct Options {
     pub stall_on_sigusr1: Option<Duration>,
 }
 
-/// Runs the vehicle role until SIGTERM/SIGINT.
+/// Runs the vehicle role on `clock` until `shutdown` completes.
 ///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, the output record file
-/// cannot be opened, or a signal handler cannot be installed.
-pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> {
-    let clock = Clock::start();
+/// cannot be opened, or the SIGUSR1 test hook's handler cannot be installed.
+pub async fn run(
+    config: VehicleConfig,
+    options: Options,
+    clock: Clock,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
     let me = config.common.id;
     let mut notify = Notifier::from_env();
     let record = options.record;
@@ -121,7 +125,6 @@ pub async fn run(config: VehicleConfig, options: Options) -> anyhow::Result<()> 
     let mut infos = infos.async_sample_stream();
     let mut status = listener.as_async_status_stream();
     let mut heartbeat = tokio::time::interval(config.common.heartbeat);
-    let shutdown = shutdown_signal()?;
     tokio::pin!(shutdown);
     let mut keepalive = notify.keepalive_timer();
     let mut stall = StallHook::new(options.stall_on_sigusr1)?;

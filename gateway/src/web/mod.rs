@@ -21,7 +21,7 @@ pub mod pairing;
 pub mod tls;
 
 use crate::config::{OperatorConfig, WebConfig};
-use crate::operator::{self, Attached, Options};
+use crate::operator::{self, Edges, Options, Sticks};
 use crate::runtime::Clock;
 use axum::extract::State;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -93,6 +93,12 @@ impl WebInput {
             };
             (Some(r.deadman()), text)
         })
+    }
+}
+
+impl Sticks for WebInput {
+    fn link(&self) -> (Option<bool>, String) {
+        self.status()
     }
 }
 
@@ -658,20 +664,19 @@ async fn serve_page(
 
 /// Starts a web device's operator loop.
 fn start_device(config: &OperatorConfig, options: &Options) -> Running {
-    let clock = Clock::start();
     let input = WebInput(Arc::new(Mutex::new(RemoteInput::new(SILENCE))));
     let wake = Arc::new(Notify::new());
-    let (events, _) = broadcast::channel(1024);
-    let (commands_tx, commands) = mpsc::channel(64);
-    let hub = Hub::start(operator::console_state(config), events.subscribe());
+    // systemd hears from the host's operator only: a web device starting or stopping is not
+    // the service's.
+    let sticks: Box<dyn Sticks> = Box::new(input.clone());
+    let (edges, commands_tx) = Edges::new(
+        Some(sticks),
+        Arc::clone(&wake),
+        crate::sdnotify::Notifier::disabled(),
+    );
+    let clock = edges.clock;
+    let hub = Hub::start(operator::console_state(config), edges.events.subscribe());
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let attached = Attached {
-        input: input.clone(),
-        wake: Arc::clone(&wake),
-        clock,
-        events,
-        commands,
-    };
     let (config, options) = (config.clone(), options.clone());
     let id = config.common.id;
     info!(device = id, "web: starting the device's participant");
@@ -679,7 +684,7 @@ fn start_device(config: &OperatorConfig, options: &Options) -> Running {
         let stop = async {
             let _ = stop_rx.await;
         };
-        if let Err(e) = operator::run_attached(config, options, Some(attached), stop).await {
+        if let Err(e) = operator::run(config, options, edges, stop).await {
             warn!(device = id, cause = %format!("{e:#}"), "web device stopped");
         }
     });

@@ -1,0 +1,508 @@
+//! `rove operator`: the DDS side of an operator. Every decision — what to stream to which
+//! vehicle, input liveness, the console's and the API's commands, active handover — is
+//! [`rove_core::session::OperatorSession`]'s; this module is the loop around it: it turns DDS
+//! samples, input events, commands and timers into session events, and the session's effects
+//! into DDS writes, disposals, log lines and front-end events.
+//!
+//! The loop's edges are injected ([`Edges`]): its clock, its sticks, the channel its events go
+//! out on and the one its commands come in on, systemd's notifier, and the shutdown future.
+//! Who is on the other side — the terminal console, the local API and the browser console of
+//! `rove operator` ([`crate::host`]), or one browser's device ([`crate::web`]) — is not this
+//! module's business: it imports neither.
+//!
+//! Under systemd (see [`crate::sdnotify`]): `READY=1` once the participant and every writer
+//! exist, `STATUS=` with what we drive, hold and stand by for, `WATCHDOG=1` from this loop, and
+//! `STOPPING=1` when the stop begins.
+//!
+//! Stop (the injected shutdown future: SIGTERM or SIGINT in `rove operator`): held grants are
+//! finished, every instance we drive is disposed (an explicit release, so the vehicle hands over
+//! at once), and the participant leaves.
+//!
+//! # Layout
+//! - this file: [`Options`], [`Edges`], [`run`] (set-up, the `select!` loop, the stop).
+//! - `samples.rs`: DDS samples and discovery → session events and front-end events.
+//! - `writers.rs`: the DDS writers and the session's effects carried out on them.
+//! - `ui.rs`: what the front ends are told, only when it changed.
+
+mod samples;
+mod ui;
+mod writers;
+
+use crate::config::{InputChoice, OperatorConfig};
+use crate::dds::{self, Node};
+use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
+use crate::sdnotify::Notifier;
+use futures::StreamExt;
+use rove_console::{CommandRequest, ConsoleState, Event, Identity, Stamped};
+use rove_core::adapter::{InputAction, InputEvent, InputSource};
+use rove_core::msg::{DeviceId, DeviceType};
+use rove_core::session::{
+    Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
+};
+use rustdds::StatusEvented;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use tracing::{info, warn};
+use ui::Ui;
+use writers::Writers;
+
+/// Longest wait, per writer, for peers to acknowledge the final FINISH and disposals on exit.
+/// Loopback acknowledges in about a millisecond; 300 ms covers a loaded radio link without
+/// holding up a systemd stop noticeably. If it runs out, peers fall back to the command timeout.
+const SHUTDOWN_ACK_WAIT: std::time::Duration = std::time::Duration::from_millis(300);
+
+/// Most input events taken in one turn of the loop, so a chattering device cannot keep the loop
+/// from DDS samples and timers; the rest are taken on the next turn.
+const INPUT_EVENTS_PER_TURN: usize = 256;
+
+/// How `rove operator` was started, beyond its config.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// The config file, for the start-up line.
+    pub config_path: PathBuf,
+    /// Ask this vehicle's owner for control as soon as the vehicle is seen.
+    pub request: Option<DeviceId>,
+    /// Append every RequestControl sent, and every stick value read, as JSON lines (for the
+    /// benchmarks).
+    pub record: Option<PathBuf>,
+    /// Run the console on this terminal.
+    pub console: bool,
+    /// Test hook: run with another device's certificate (`[security]`), to see the others
+    /// refuse what it sends in this device's name.
+    pub any_certificate: bool,
+}
+
+/// Sticks the loop reads: an evdev device under its mapping, or a browser's.
+pub trait Sticks: InputSource + Send {
+    /// Whether the deadman is held, and the link in words, for the front ends.
+    fn link(&self) -> (Option<bool>, String);
+}
+
+impl Sticks for rove_inputs::MappedSource {
+    fn link(&self) -> (Option<bool>, String) {
+        let status = self.status();
+        (status.deadman, status.to_string())
+    }
+}
+
+/// The loop's edges: everything it reads or tells that is not DDS.
+#[derive(Debug)]
+pub struct Edges {
+    /// The clock every time in the loop is on (the sticks' too).
+    pub clock: Clock,
+    /// The sticks; `None`: the config's constant sticks (`[input] source = "constant"`).
+    pub sticks: Option<Box<dyn Sticks>>,
+    /// Notified when the sticks have something new.
+    pub wake: Arc<tokio::sync::Notify>,
+    /// Where the loop's events go (front ends subscribe).
+    pub events: tokio::sync::broadcast::Sender<Stamped>,
+    /// The front ends' commands.
+    pub commands: tokio::sync::mpsc::Receiver<CommandRequest>,
+    /// Presses to confirm, when a console asks the person first (`None`: nobody asks).
+    pub confirm: Option<tokio::sync::mpsc::Sender<InputAction>>,
+    /// systemd (disabled for a browser's device: its start and stop are not the service's).
+    pub notify: Notifier,
+}
+
+impl std::fmt::Debug for dyn Sticks {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.describe())
+    }
+}
+
+impl Edges {
+    /// Edges with no front end yet: a fresh clock, `sticks`, and channels nobody listens to.
+    /// Returns the sender of the command channel too.
+    pub fn new(
+        sticks: Option<Box<dyn Sticks>>,
+        wake: Arc<tokio::sync::Notify>,
+        notify: Notifier,
+    ) -> (Edges, tokio::sync::mpsc::Sender<CommandRequest>) {
+        let (commands_tx, commands) = tokio::sync::mpsc::channel(64);
+        let edges = Edges {
+            clock: Clock::start(),
+            sticks,
+            wake,
+            events: tokio::sync::broadcast::channel(1024).0,
+            commands,
+            confirm: None,
+            notify,
+        };
+        (edges, commands_tx)
+    }
+}
+
+/// Opens the sticks `[input]` names (`None` for constant sticks), waking `wake` on news.
+///
+/// # Errors
+/// The device cannot be opened.
+pub fn open_sticks(
+    config: &OperatorConfig,
+    wake: &Arc<tokio::sync::Notify>,
+) -> anyhow::Result<Option<Box<dyn Sticks>>> {
+    let InputChoice::Device(input) = &config.input else {
+        return Ok(None);
+    };
+    let mut source =
+        rove_inputs::open_mapped(input).map_err(|e| anyhow::anyhow!("[input]: {e}"))?;
+    let waker = Arc::clone(wake);
+    source.set_waker(Arc::new(move || waker.notify_one()));
+    info!(input = %source.describe(), "input opened: driving starts when its sticks are live and centred");
+    Ok(Some(Box::new(source)))
+}
+
+/// The front ends' view of an operator before its first event: its identity, and devices
+/// offline after three missed heartbeats. The host's console and API, and each web device's
+/// page, start from it.
+pub fn console_state(config: &OperatorConfig) -> ConsoleState {
+    let identity = Identity {
+        id: config.common.id,
+        name: config.common.name.clone(),
+        level: config.level,
+        class: config.device_class,
+        strength: config.strength,
+    };
+    ConsoleState::new(identity, config.common.heartbeat * 3)
+}
+
+/// The operator as the loop holds it.
+struct Role {
+    config: OperatorConfig,
+    node: Node,
+    writers: Writers,
+    session: OperatorSession,
+    ui: Ui,
+    edges: Edges,
+    record: Option<JsonLines>,
+    malformed: RateLimited,
+}
+
+/// Runs the operator role with `edges` until `shutdown` completes, then finishes its grants,
+/// releases its vehicles and leaves.
+///
+/// # Errors
+/// The participant, a topic, a reader or writer cannot be created, or the record cannot be
+/// opened.
+pub async fn run(
+    config: OperatorConfig,
+    options: Options,
+    edges: Edges,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
+    let mut role = Role::start(config, &options, edges)?;
+    let result = role.run(shutdown).await;
+    role.leave();
+    result
+}
+
+impl Role {
+    /// Joins the domain, makes the writers the config needs from the start and the session.
+    fn start(config: OperatorConfig, options: &Options, edges: Edges) -> anyhow::Result<Role> {
+        let record = options
+            .record
+            .as_deref()
+            .map(JsonLines::create)
+            .transpose()?;
+        let node = Node::join(
+            &config.common,
+            DeviceType::Controller,
+            options.any_certificate,
+        )?;
+        let mut writers = Writers {
+            strength: config.strength,
+            commands: HashMap::new(),
+            routes: dds::Routes::default(),
+            requests: node.domain.request_writer()?,
+            failed: RateLimited::new("ControlCommand write failed"),
+        };
+        // The vehicles to drive from the start, and the one to ask for: their writers now, so
+        // that discovery has matched them by the first command.
+        for &vehicle in &config.drive {
+            writers.command_writer(&node.domain, Writer::Regular, vehicle);
+        }
+        if let Some(vehicle) = options.request {
+            writers.prepare(&node.domain, vehicle);
+        }
+        let input = match (&edges.sticks, &config.input) {
+            (Some(_), _) => SessionInput::Device,
+            (None, InputChoice::Constant(movement, mode)) => {
+                SessionInput::Constant(*movement, *mode)
+            }
+            (None, InputChoice::Device(_)) => {
+                anyhow::bail!("[input] names a device, and none was opened")
+            }
+        };
+        let clock = edges.clock;
+        let mut session = OperatorSession::new(
+            SessionConfig {
+                me: config.common.id,
+                strength: config.strength,
+                handover: config.handover,
+                drive: config.drive.clone(),
+                input,
+                heartbeat: config.common.heartbeat,
+                confirm_actions: edges.confirm.is_some(),
+                request: options.request,
+                participant: node.participant,
+                trust: config.common.trust(),
+            },
+            clock.now(),
+        );
+        if let Some(certifier) = node.certifier.clone() {
+            session.certify(certifier);
+        }
+        info!(
+            config = %options.config_path.display(),
+            device = config.common.id,
+            name = %config.common.name,
+            level = ?config.level,
+            class = ?config.device_class,
+            strength = config.strength.0,
+            domain = config.common.domain_id,
+            interfaces = ?config.common.interfaces,
+            drive = ?config.drive,
+            watchdog_keepalive_ms = edges.notify.watchdog_period().map(|p| p.as_millis() as u64),
+            "operator started"
+        );
+        let ui = Ui {
+            tx: edges.events.clone(),
+            clock,
+            actions: edges.confirm.clone(),
+            shown_input: None,
+            shown_streams: None,
+            untrusted_told: std::cell::Cell::new(None),
+        };
+        Ok(Role {
+            config,
+            node,
+            writers,
+            session,
+            ui,
+            edges,
+            record,
+            malformed: RateLimited::new("malformed DeviceInfo or RequestControl sample"),
+        })
+    }
+
+    /// The sticks' link for the front ends.
+    fn link(&self) -> (Option<bool>, String) {
+        match &self.edges.sticks {
+            Some(sticks) => sticks.link(),
+            None => (None, "constant sticks (config)".to_string()),
+        }
+    }
+
+    fn step(&mut self, event: SessionEvent) -> Vec<Effect> {
+        let clock = self.edges.clock;
+        self.session.step(clock.now(), clock.stamp(), event)
+    }
+
+    /// The loop: until `shutdown`, or a DDS stream ends (an error).
+    async fn run(&mut self, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+        let domain = &self.node.domain;
+        let mut infos = domain.device_info_reader()?.async_sample_stream();
+        let mut requests = domain.request_reader()?.async_sample_stream();
+        // The vehicles' output health for the front ends; optional (a secured fleet's
+        // permissions may predate the topic).
+        let mut statuses = domain
+            .vehicle_status_reader()
+            .map_err(|e| warn!(cause = %format!("{e:#}"), "no VehicleStatus: the console shows no output health"))
+            .ok()
+            .map(|r| r.async_sample_stream());
+        let listener = domain.participant.status_listener();
+        let mut discovery = listener.as_async_status_stream();
+        let clock = self.edges.clock;
+        let mut stream_timer = tokio::time::interval(self.config.stream_period);
+        stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut heartbeat = tokio::time::interval(self.config.common.heartbeat);
+        let mut keepalive = self.edges.notify.keepalive_timer();
+        tokio::pin!(shutdown);
+        self.ui
+            .emit(Event::Identity(console_state(&self.config).identity));
+        let mut link = self.link();
+        self.ui.show(&self.session, &link);
+        self.node.publish(self.config.common.id);
+        let mut shown = self.session.status_line();
+        self.edges.notify.ready(&shown);
+        let mut selected = None;
+        loop {
+            let deadline = self.session.next_deadline().map(|d| clock.instant(d));
+            let input_deadline = (self.edges.sticks.as_ref())
+                .and_then(|s| s.next_deadline())
+                .map(|d| clock.instant(d));
+            let wake = Arc::clone(&self.edges.wake);
+            let mut reply = None;
+            let mut polled = false;
+            // The status line only changes with what we stream to or the vehicles seen:
+            // recomputed when a step did more than write samples (the hot path: sticks,
+            // keep-alives), and on each heartbeat.
+            let mut heartbeat_due = false;
+            let effects = tokio::select! {
+                _ = &mut shutdown => break,
+                Some(req) = self.edges.commands.recv() => {
+                    reply = Some(req.reply);
+                    self.step(SessionEvent::Command(req.command))
+                }
+                _ = wake.notified(), if self.edges.sticks.is_some() => {
+                    polled = true;
+                    self.poll_sticks()
+                }
+                _ = sleep_until(input_deadline), if input_deadline.is_some() => {
+                    polled = true;
+                    self.poll_sticks()
+                }
+                _ = stream_timer.tick() => self.step(SessionEvent::StreamTick),
+                _ = heartbeat.tick() => {
+                    heartbeat_due = true;
+                    self.node.publish(self.config.common.id);
+                    self.ui.emit(Event::Tick);
+                    Vec::new()
+                }
+                // From this loop, so that a hung loop stops the keep-alives.
+                _ = keepalive.tick() => { self.edges.notify.keepalive(); Vec::new() }
+                sample = infos.next() => match sample {
+                    Some(sample) => self.on_device_info(sample),
+                    None => anyhow::bail!("DeviceInfo stream ended"),
+                },
+                Some(sample) = samples::next_status(&mut statuses) => {
+                    self.on_vehicle_status(sample);
+                    Vec::new()
+                }
+                sample = requests.next() => match sample {
+                    Some(sample) => self.on_request(sample),
+                    None => anyhow::bail!("RequestControl stream ended"),
+                },
+                event = discovery.next() => match event {
+                    Some(event) => self.on_discovery(&event),
+                    None => Vec::new(),
+                },
+                _ = sleep_until(deadline) => self.step(SessionEvent::Tick),
+            };
+            let changed =
+                heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
+            let refused = self.writers.carry_out(
+                &self.node.domain,
+                effects,
+                &clock,
+                self.record.as_mut(),
+                &self.ui,
+            );
+            // The selected vehicle is the one buttons and the console ask for: both its writers
+            // now, so that an owner who accepts at once (auto-accept) is not faster than
+            // discovery (measured: made at the REQUEST, the first commands of an auto-accepted
+            // grant were lost until the vehicle had matched the new writer, p50 3 → 8 ms).
+            if self.session.selected() != selected {
+                selected = self.session.selected();
+                if let Some(vehicle) = selected {
+                    self.writers.prepare(&self.node.domain, vehicle);
+                }
+            }
+            if let Some(reply) = reply {
+                if let Some(why) = &refused {
+                    self.ui.emit(Event::Notice { text: why.clone() });
+                }
+                // The asker may have gone; nothing to do then.
+                let _ = reply.send(refused.map_or(Ok(()), Err));
+            } else if let Some(why) = refused {
+                warn!("button: {why}");
+            }
+            if polled && self.ui.watched() {
+                link = self.link();
+            }
+            self.ui.show(&self.session, &link);
+            if changed {
+                let line = self.session.status_line();
+                if line != shown {
+                    self.edges.notify.status(&line);
+                    shown = line;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads every event the sticks have now and steps the session with each.
+    fn poll_sticks(&mut self) -> Vec<Effect> {
+        let clock = self.edges.clock;
+        let Some(sticks) = self.edges.sticks.as_mut() else {
+            return Vec::new();
+        };
+        let mut effects = Vec::new();
+        for _ in 0..INPUT_EVENTS_PER_TURN {
+            let event = match sticks.poll(clock.now()) {
+                Ok(Some(e)) => e,
+                Ok(None) => break,
+                Err(e) => InputEvent::Lost {
+                    reason: e.to_string(),
+                },
+            };
+            if let (InputEvent::Axes(movement), Some(record)) = (&event, self.record.as_mut()) {
+                // For `rove bench input`: when each stick value was read.
+                record.write(&serde_json::json!({
+                    "wall_us": clock.wall_micros(), "kind": "input",
+                    "throttle": movement.throttle, "roll": movement.roll,
+                }));
+            }
+            effects.extend(self.session.step(
+                clock.now(),
+                clock.stamp(),
+                SessionEvent::Input(event),
+            ));
+        }
+        effects
+    }
+
+    /// The stop: held grants finished, driven vehicles released, DeviceInfo withdrawn, and a
+    /// bounded wait for the peers to acknowledge all of it.
+    fn leave(mut self) {
+        info!("operator stopping: finishing grants and releasing vehicles");
+        self.edges
+            .notify
+            .stopping("stopping: finishing grants, releasing vehicles");
+        let clock = self.edges.clock;
+        let effects = self.session.stop(clock.stamp());
+        self.writers.carry_out(
+            &self.node.domain,
+            effects,
+            &clock,
+            self.record.as_mut(),
+            &self.ui,
+        );
+        self.node.withdraw();
+        // The FINISHes and disposals above are reliable writes; leaving the domain at once would
+        // drop them before every reader has them (seen: a replier never resumed). Wait, bounded,
+        // for the acknowledgments. Blocking is fine here: the event loop is over.
+        // Each writer is named: one that had nothing unacknowledged, or whose readers all
+        // answered, is quiet; a timeout means some matched reader (maybe one that has itself
+        // left) did not answer in time, and those peers fall back to the command timeout.
+        let wait = SHUTDOWN_ACK_WAIT;
+        let mut acked = vec![
+            (
+                "RequestControl (FINISH)",
+                self.writers.requests.wait_for_acknowledgments(wait),
+            ),
+            (
+                "DeviceInfo (withdrawal)",
+                self.node.wait_for_withdrawal(wait),
+            ),
+        ];
+        for writer in self.writers.commands.values() {
+            acked.push((
+                "ControlCommand (release)",
+                writer.wait_for_acknowledgments(wait),
+            ));
+        }
+        for (writer, result) in acked {
+            match result {
+                Ok(true) => {}
+                Ok(false) => warn!(
+                    writer,
+                    wait_ms = wait.as_millis() as u64,
+                    "a matched reader did not acknowledge before exit; it falls back to its timeout"
+                ),
+                Err(e) => warn!(writer, cause = ?e, "cannot wait for acknowledgments"),
+            }
+        }
+    }
+}
