@@ -16,12 +16,23 @@
 //! stream rate in between. Stale-input safety is [`rove_core::remote::RemoteInput`]'s: a
 //! hidden page, a lifted finger, a closed socket or 200 ms of silence release at once, and
 //! driving resumes only through centred sticks.
+//!
+//! # Layout
+//! - this file: the HTTPS server, pairing and the WebSocket protocol.
+//! - `device.rs`: a web device — its operator loop (with injected edges, [`crate::operator`])
+//!   started and stopped, and [`WebInput`], the browser's sticks.
+//! - [`pairing`]: one-time codes and session tokens (pure).
+//! - [`tls`]: the page's certificate, loaded or made.
 
+mod device;
 pub mod pairing;
 pub mod tls;
 
+pub use device::WebInput;
+use device::{Running, reap, start_device, stop_device};
+
 use crate::config::{OperatorConfig, WebConfig};
-use crate::operator::{self, Edges, Options, Sticks};
+use crate::operator::Options;
 use crate::runtime::Clock;
 use axum::extract::State;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -30,12 +41,9 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use pairing::Pairing;
 use rove_console::server::answer;
-use rove_console::{CommandRequest, Event, Hub, Joined, Source};
-use rove_core::adapter::{InputEvent, InputSource};
-use rove_core::error::LinkError;
+use rove_console::{CommandRequest, Event, Joined, Source};
 use rove_core::msg::MovementCommand;
-use rove_core::remote::{Frame, RemoteInput, RemoteLink};
-use rove_core::time::MonoTime;
+use rove_core::remote::Frame;
 use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -69,77 +77,12 @@ const INDEX: &str = include_str!("page/index.html");
 const SCRIPT: &str = include_str!("page/app.js");
 const STYLE: &str = include_str!("page/style.css");
 
-/// Sticks from a browser: the operator loop's input source for a web device.
-#[derive(Debug, Clone)]
-pub struct WebInput(Arc<Mutex<RemoteInput>>);
-
-impl WebInput {
-    fn with<T>(&self, f: impl FnOnce(&mut RemoteInput) -> T) -> T {
-        // Every RemoteInput method leaves it consistent: a poisoned lock is used as it is.
-        f(&mut crate::runtime::lock(&self.0))
-    }
-
-    /// Whether the deadman is held, and the link in words, for the console.
-    pub fn status(&self) -> (Option<bool>, String) {
-        self.with(|r| {
-            let text = match r.link() {
-                RemoteLink::Live => "live".to_string(),
-                RemoteLink::AwaitingCentre => {
-                    "put a thumb on a stick (or hold the gamepad's shoulder button), sticks \
-                     centred, to drive"
-                        .to_string()
-                }
-                RemoteLink::Lost(why) => why.clone(),
-            };
-            (Some(r.deadman()), text)
-        })
-    }
-}
-
-impl Sticks for WebInput {
-    fn link(&self) -> (Option<bool>, String) {
-        self.status()
-    }
-}
-
-impl InputSource for WebInput {
-    fn describe(&self) -> String {
-        "a browser (touch sticks or gamepad) over [web]".into()
-    }
-
-    fn poll(&mut self, now: MonoTime) -> Result<Option<InputEvent>, LinkError> {
-        Ok(self.with(|r| {
-            r.tick(now);
-            r.pop()
-        }))
-    }
-
-    fn next_deadline(&self) -> Option<MonoTime> {
-        self.with(|r| r.next_deadline())
-    }
-}
-
-/// A running web device: its operator loop and what its browser connection talks to.
-struct Running {
-    input: WebInput,
-    wake: Arc<Notify>,
-    clock: Clock,
-    hub: Hub,
-    commands: mpsc::Sender<CommandRequest>,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<()>,
-    /// The connection that speaks for the device now (a number per connection), if any.
-    connection: watch::Sender<Option<u64>>,
-    /// When its last connection closed.
-    idle_since: Option<tokio::time::Instant>,
-}
-
-struct Slot {
+pub(super) struct Slot {
     config: OperatorConfig,
     running: tokio::sync::Mutex<Option<Running>>,
 }
 
-struct Shared {
+pub(super) struct Shared {
     devices: Vec<Slot>,
     pairing: Mutex<Pairing>,
     /// The host operator's clock: pairing times, and the time of its console's notices.
@@ -659,84 +602,5 @@ async fn serve_page(
                 }
             }
         }
-    }
-}
-
-/// Starts a web device's operator loop.
-fn start_device(config: &OperatorConfig, options: &Options) -> Running {
-    let input = WebInput(Arc::new(Mutex::new(RemoteInput::new(SILENCE))));
-    let wake = Arc::new(Notify::new());
-    // systemd hears from the host's operator only: a web device starting or stopping is not
-    // the service's.
-    let sticks: Box<dyn Sticks> = Box::new(input.clone());
-    let (edges, commands_tx) = Edges::new(
-        Some(sticks),
-        Arc::clone(&wake),
-        crate::sdnotify::Notifier::disabled(),
-    );
-    let clock = edges.clock;
-    let hub = Hub::start(operator::console_state(config), edges.events.subscribe());
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let (config, options) = (config.clone(), options.clone());
-    let id = config.common.id;
-    info!(device = id, "web: starting the device's participant");
-    let task = tokio::spawn(async move {
-        let stop = async {
-            let _ = stop_rx.await;
-        };
-        if let Err(e) = operator::run(config, options, edges, stop).await {
-            warn!(device = id, cause = %format!("{e:#}"), "web device stopped");
-        }
-    });
-    Running {
-        input,
-        wake,
-        clock,
-        hub,
-        commands: commands_tx,
-        stop: Some(stop_tx),
-        task,
-        connection: watch::Sender::new(None),
-        idle_since: None,
-    }
-}
-
-/// Stops the devices whose browsers left more than [`LINGER`] ago.
-async fn reap(shared: &Shared) {
-    for slot in &shared.devices {
-        let idle = {
-            let running = slot.running.lock().await;
-            running
-                .as_ref()
-                .and_then(|r| r.idle_since)
-                .is_some_and(|t| t.elapsed() >= LINGER)
-        };
-        if idle {
-            info!(
-                device = slot.config.common.id,
-                "web: no browser for a while, the device leaves"
-            );
-            stop_device(slot).await;
-        }
-    }
-}
-
-/// Stops a device's loop (it releases its vehicles and leaves) and waits for it, bounded.
-async fn stop_device(slot: &Slot) {
-    let Some(mut running) = slot.running.lock().await.take() else {
-        return;
-    };
-    if let Some(stop) = running.stop.take() {
-        let _ = stop.send(());
-    }
-    if tokio::time::timeout(Duration::from_secs(5), &mut running.task)
-        .await
-        .is_err()
-    {
-        warn!(
-            device = slot.config.common.id,
-            "web device did not stop within 5 s"
-        );
-        running.task.abort();
     }
 }
