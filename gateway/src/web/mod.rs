@@ -21,15 +21,18 @@
 //! - this file: the HTTPS server, pairing and the WebSocket protocol.
 //! - `device.rs`: a web device — its operator loop (with injected edges, [`crate::operator`])
 //!   started and stopped, and [`WebInput`], the browser's sticks.
+//! - `protocol.rs`: what a page's WebSocket message is ([`page_message`], pure).
 //! - [`pairing`]: one-time codes and session tokens (pure).
 //! - [`tls`]: the page's certificate, loaded or made.
 
 mod device;
 pub mod pairing;
+mod protocol;
 pub mod tls;
 
 pub use device::WebInput;
 use device::{Running, reap, start_device, stop_device};
+pub use protocol::{MAX_REASON, PageMessage, page_message};
 
 use crate::config::{OperatorConfig, WebConfig};
 use crate::operator::Options;
@@ -42,8 +45,6 @@ use axum::routing::{get, post};
 use pairing::Pairing;
 use rove_console::server::answer;
 use rove_console::{CommandRequest, Event, Joined, Source};
-use rove_core::msg::MovementCommand;
-use rove_core::remote::Frame;
 use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -381,63 +382,6 @@ async fn upgrade(State(shared): State<Arc<Shared>>, ws: WebSocketUpgrade) -> Res
     ws.max_message_size(MAX_MESSAGE)
         .max_frame_size(MAX_MESSAGE)
         .on_upgrade(move |socket| connection(shared, socket))
-}
-
-/// A message from the page.
-#[derive(Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FrameMsg {
-    /// Throttle, roll, pitch, yaw.
-    #[serde(rename = "in")]
-    sticks: [i64; 4],
-    /// The deadman is held.
-    dm: bool,
-}
-
-fn axis(v: i64) -> i16 {
-    i16::try_from(v.clamp(i64::from(-i16::MAX), i64::from(i16::MAX))).unwrap_or(0)
-}
-
-/// What a page's message is.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum PageMessage {
-    /// An input frame, axes clamped to ±32767.
-    Frame(Frame),
-    /// The page cannot be trusted now (hidden, closing); why, bounded and printable.
-    Lost(String),
-    /// Anything else: a local-API command line, parsed and answered as the API does.
-    Command,
-}
-
-/// Longest loss reason taken from a page, in characters.
-pub const MAX_REASON: usize = 80;
-
-/// Classifies one text message from a page (docs/web.md, "Protocol").
-pub fn page_message(text: &str) -> PageMessage {
-    if let Ok(frame) = serde_json::from_str::<FrameMsg>(text) {
-        let [throttle, roll, pitch, yaw] = frame.sticks.map(axis);
-        let sticks = MovementCommand {
-            throttle,
-            roll,
-            pitch,
-            yaw,
-        };
-        return PageMessage::Frame(Frame {
-            sticks,
-            deadman: frame.dm,
-        });
-    }
-    let value = serde_json::from_str::<serde_json::Value>(text).ok();
-    match value.as_ref().and_then(|v| v.get("lost")?.as_str()) {
-        // Said by the page: bounded and printable before it reaches the log.
-        Some(why) => PageMessage::Lost(
-            why.chars()
-                .filter(|c| !c.is_control())
-                .take(MAX_REASON)
-                .collect(),
-        ),
-        None => PageMessage::Command,
-    }
 }
 
 async fn send(socket: &mut WebSocket, value: &serde_json::Value) -> bool {
