@@ -201,6 +201,7 @@ fn the_template_is_the_vehicle_unit_with_a_config_per_instance() {
         .map(|(s, k, v)| {
             let v = v
                 .replace("/etc/rove/vehicle-%i.toml", "/etc/rove/vehicle.toml")
+                .replace("rove-vehicle-%i", "rove-vehicle")
                 .replace("gateway %i (", "gateway (");
             (s, k, v)
         })

@@ -1,0 +1,351 @@
+//! `rove bench chaos`: real processes under random faults, counted against the ownership
+//! contract (docs/design.md §4, §5).
+//!
+//! One vehicle (sim adapter, recording its outputs) and N operators of distinct strengths run in
+//! a network namespace the bench creates. Three phases:
+//! 1. **Chaos**: `events` random faults, one every `interval` (±50 %): an operator SIGKILLed,
+//!    SIGTERMed, SIGSTOPped (continued 100–600 ms later) or restarted; the vehicle SIGKILLed or
+//!    SIGTERMed under a supervisor that runs `rove failsafe` and restarts it, as systemd's
+//!    `ExecStopPost=` and `Restart=` do.
+//! 2. **Loss**: every operator running, then random loss of UDP packets on the namespace's
+//!    loopback (nftables), 10 % and then 30 %, each for `loss_secs`.
+//! 3. **Partition** (with `--partition`): the strongest operator runs in a second namespace
+//!    joined by a veth pair; its link is cut (an nftables drop: a silent partition) and
+//!    restored, and the bench measures how long after the heal it drives again.
+//!
+//! What is counted comes from the vehicle's record and the bench's own log of what it did, both
+//! in wall-clock microseconds ([`analyse`], pure and unit-tested):
+//! - **wrong owner**: an apply from X while a stronger operator that already drove this vehicle
+//!   (since both were last started) is running, neither stopped nor told to stop, for longer
+//!   than [`GRACE_US`];
+//! - **stale**: an apply from X later than the command timeout plus 15 ms after X was killed or
+//!   terminated;
+//! - **failsafe while live**: the vehicle going safe while such an operator runs;
+//! - **owner changes** under loss (none is demanded: nothing else happens then; a weaker
+//!   operator driving then counts here, not as a wrong owner), and failsafe entries under loss;
+//! - **recovery**: from the partition's heal to the first apply from the healed operator.
+
+mod contract;
+mod fleet;
+
+pub use contract::{Counts, Fault, Logged, analyse};
+
+use crate::tools::harness::{Rig, records, wall_us};
+use fleet::{Fleet, Rng, VETH_FAR, VETH_NEAR, far_namespace, set_cut, set_loss};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+const VEHICLE: i64 = 100;
+
+/// The vehicle's command timeout, µs (the default of `[vehicle] command_timeout_ms`).
+const COMMAND_TIMEOUT_US: u64 = 100_000;
+
+/// How long after a fault (or the end of one: a SIGCONT, a restart) the bench does not judge
+/// the owner: one command timeout for the vehicle to notice, plus what a loaded 2-core machine
+/// needs to resume a continued process and deliver its next sample. A fault's effect that
+/// outlasts it is counted.
+pub const GRACE_US: u64 = 300_000;
+
+/// How soon after a partition heals the right owner must drive again (the target: one
+/// second; discovery already knows the peer, so its next sample takes over).
+pub const HEAL_US: u64 = 1_000_000;
+
+/// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3),
+/// the handover bench's ranks.
+const LADDER: [(&str, &str); 12] = crate::tools::bench::RANKS;
+
+/// Options of `rove bench chaos`.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Operators, of distinct strengths (at most 12: the hierarchy's cells).
+    pub operators: usize,
+    /// Faults in the chaos phase.
+    pub events: usize,
+    /// Mean time between faults.
+    pub interval: Duration,
+    /// Length of each loss phase (10 %, then 30 %); 0 skips them.
+    pub loss: Duration,
+    /// Seed of the fault sequence (the same seed, the same sequence).
+    pub seed: u64,
+    /// How long each of the three partitions lasts; 0 skips them.
+    pub partition: Duration,
+}
+
+/// What a chaos run measured.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    /// Operators.
+    pub operators: usize,
+    /// Faults done in the chaos phase, by kind.
+    pub faults: BTreeMap<&'static str, usize>,
+    /// The seed.
+    pub seed: u64,
+    /// Length of the chaos phase, s.
+    pub chaos_s: f64,
+    /// Length of each loss phase, s.
+    pub loss_s: f64,
+    /// Outputs the vehicle recorded.
+    pub outputs: usize,
+    /// What [`analyse`] counted.
+    pub counts: Counts,
+    /// Owner changes per minute under each loss percentage.
+    pub owner_changes_per_min: BTreeMap<u8, f64>,
+    /// How long each `rove failsafe` of the supervisor took, ms.
+    pub failsafe_ms: Vec<f64>,
+    /// From each partition's heal to the first apply from the operator behind it, ms.
+    pub recovery_ms: Vec<f64>,
+}
+
+/// Runs the chaos bench; `progress` hears what happens.
+///
+/// # Errors
+/// The rig cannot be built, nftables is missing, or a process does not start.
+pub fn run(
+    rove: &Path,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    anyhow::ensure!(options.operators >= 2, "--operators must be at least 2");
+    let mut rig = Rig::new(rove, "bench-chaos")?;
+    let partitions = !options.partition.is_zero();
+    // With partitions, the vehicle also listens on its end of the veth pair to the far
+    // namespace, where the strongest operator will run.
+    let far = if partitions {
+        Some(far_namespace(rove, &rig)?)
+    } else {
+        None
+    };
+    let network = if partitions {
+        format!("[network]\ninterfaces = [\"127.0.0.1\", \"{VETH_NEAR}\"]\n")
+    } else {
+        String::new()
+    };
+    let record =
+        rig.vehicle_with_output(VEHICLE, &format!("[output]\nadapter = \"sim\"\n{network}"));
+    let vehicle = rig.procs.len() - 1;
+    let mut fleet = Fleet {
+        rig,
+        record,
+        vehicle,
+        running: BTreeMap::new(),
+        stopped: BTreeMap::new(),
+        log: Vec::new(),
+        failsafe_ms: Vec::new(),
+    };
+    // The strongest `operators` cells (below the far operator's, the strongest, with
+    // partitions), so that ranks follow strengths.
+    let top = LADDER.len() - usize::from(partitions);
+    anyhow::ensure!(options.operators <= top, "--operators must be 2..={top}");
+    let ids: Vec<i64> = (top - options.operators..top)
+        .map(|i| 11 + i as i64)
+        .collect();
+    let far_id = 11 + top as i64;
+    let mut ranks: BTreeMap<i64, usize> = ids.iter().enumerate().map(|(r, id)| (*id, r)).collect();
+    ranks.insert(far_id, ids.len());
+    for &id in &ids {
+        fleet.start(id);
+    }
+    let strongest = ids[ids.len() - 1];
+    crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), 0)
+        .map_err(|e| anyhow::anyhow!("the fleet never started: {e}"))?;
+    progress(&format!(
+        "{} operators ({ids:?}, weakest first) drive vehicle {VEHICLE}; {} faults, one every ~{:?}",
+        options.operators, options.events, options.interval
+    ));
+
+    let mut rng = Rng(options.seed.max(1));
+    let mut faults: BTreeMap<&'static str, usize> = BTreeMap::new();
+    let chaos_start = Instant::now();
+    for n in 0..options.events {
+        std::thread::sleep(rng.between(options.interval / 2, options.interval * 3 / 2));
+        fleet.cont_due(Instant::now());
+        let movable: Vec<i64> = (ids.iter().copied())
+            .filter(|id| fleet.running.contains_key(id) && !fleet.stopped.contains_key(id))
+            .collect();
+        let dead: Vec<i64> = (ids.iter().copied())
+            .filter(|id| !fleet.running.contains_key(id))
+            .collect();
+        // Restart the dead about as often as others die, so the fleet neither empties nor
+        // stays whole.
+        let kind = match rng.below(20) {
+            0 => "vehicle_kill",
+            1 => "vehicle_term",
+            2..=8 if !dead.is_empty() => "restart",
+            9..=11 => "kill",
+            12..=14 => "term",
+            _ => "stop",
+        };
+        let kind = if movable.is_empty() && kind != "vehicle_kill" && kind != "vehicle_term" {
+            if dead.is_empty() {
+                "vehicle_kill"
+            } else {
+                "restart"
+            }
+        } else {
+            kind
+        };
+        match kind {
+            "vehicle_kill" | "vehicle_term" => fleet.restart_vehicle(kind == "vehicle_term")?,
+            "restart" => {
+                let id = dead[rng.below(dead.len())];
+                fleet.start(id);
+            }
+            _ => {
+                let id = movable[rng.below(movable.len())];
+                match kind {
+                    "kill" => {
+                        fleet.signal(id, "-KILL", Fault::Kill { id });
+                        fleet.running.remove(&id);
+                    }
+                    "term" => {
+                        fleet.signal(id, "-TERM", Fault::Term { id });
+                        fleet.running.remove(&id);
+                    }
+                    _ => {
+                        fleet.signal(id, "-STOP", Fault::Stop { id });
+                        let pause =
+                            rng.between(Duration::from_millis(100), Duration::from_millis(600));
+                        fleet.stopped.insert(id, Instant::now() + pause);
+                    }
+                }
+            }
+        }
+        *faults.entry(kind).or_default() += 1;
+        if (n + 1) % 100 == 0 {
+            progress(&format!("{} faults done", n + 1));
+        }
+    }
+    let chaos_s = chaos_start.elapsed().as_secs_f64();
+
+    if !options.loss.is_zero() {
+        fleet.heal(&ids);
+        let since = wall_us();
+        crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), since)
+            .map_err(|e| anyhow::anyhow!("after the chaos, the strongest never drove: {e}"))?;
+        // Let every restarted operator be discovered and drive its turn… it never will: the
+        // strongest drives. One heartbeat of quiet, then the loss.
+        std::thread::sleep(Duration::from_secs(1));
+        for pct in [10, 30] {
+            progress(&format!("{pct} % UDP loss for {:?}", options.loss));
+            let at = wall_us();
+            set_loss(&fleet.rig, pct)?;
+            fleet.note(at, Fault::Loss { pct });
+            std::thread::sleep(options.loss);
+        }
+        let at = wall_us();
+        set_loss(&fleet.rig, 0)?;
+        fleet.note(at, Fault::Loss { pct: 0 });
+    }
+    let mut recovery_ms = Vec::new();
+    // The far namespace (and its operator) lives until the record is read: dropping it kills
+    // the operator, which the analysis would not know of.
+    let mut far = far;
+    if let Some(far) = far.as_mut() {
+        let (level, class) = LADDER[top];
+        let network = format!("[network]\ninterfaces = [\"{VETH_FAR}\"]\n");
+        let at = wall_us();
+        far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
+        fleet.note(at, Fault::Start { id: far_id });
+        crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), 0)
+            .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
+        for n in 0..3 {
+            progress(&format!(
+                "partition {}: cut for {:?}",
+                n + 1,
+                options.partition
+            ));
+            let at = wall_us();
+            set_cut(far, true)?;
+            fleet.note(at, Fault::Cut { id: far_id });
+            std::thread::sleep(options.partition);
+            let healed = wall_us();
+            set_cut(far, false)?;
+            fleet.note(healed, Fault::Heal { id: far_id });
+            let back = crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), healed)
+                .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
+            recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
+            std::thread::sleep(Duration::from_secs(1));
+        }
+    }
+    // The last outputs reach the record.
+    std::thread::sleep(Duration::from_millis(200));
+
+    let mut outputs = records(&fleet.record);
+    outputs.sort_by_key(|o| o.wall_us);
+    let counts = analyse(&fleet.log, &outputs, &ranks);
+    drop(far);
+    let minutes = options.loss.as_secs_f64() / 60.0;
+    let owner_changes_per_min = [10u8, 30]
+        .into_iter()
+        .filter(|_| minutes > 0.0)
+        .map(|pct| {
+            let n = counts
+                .owner_changes_under_loss
+                .get(&pct)
+                .copied()
+                .unwrap_or(0);
+            (pct, n as f64 / minutes)
+        })
+        .collect();
+    Ok(Report {
+        operators: options.operators,
+        faults,
+        seed: options.seed,
+        chaos_s,
+        loss_s: options.loss.as_secs_f64(),
+        outputs: outputs.len(),
+        counts,
+        owner_changes_per_min,
+        failsafe_ms: fleet.failsafe_ms,
+        recovery_ms,
+    })
+}
+
+/// `rove bench chaos`: runs, prints a summary, writes `json` if asked.
+///
+/// # Errors
+/// As [`run`], or the JSON file cannot be written.
+pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Result<()> {
+    let report = run(rove, options, &mut |line| eprintln!("{line}"))?;
+    let c = &report.counts;
+    println!(
+        "chaos: {} faults in {:.0} s ({:?}), {} outputs\n  wrong owner {}, stale {}, failsafe while live {}",
+        report.faults.values().sum::<usize>(),
+        report.chaos_s,
+        report.faults,
+        report.outputs,
+        c.wrong_owner,
+        c.stale,
+        c.failsafe_while_live
+    );
+    for (pct, per_min) in &report.owner_changes_per_min {
+        println!(
+            "  {pct} % loss: {per_min:.1} owner changes a minute, {} failsafe entries",
+            c.failsafe_under_loss.get(pct).copied().unwrap_or(0)
+        );
+    }
+    if let Some(stats) = crate::tools::bench::Stats::of(&report.failsafe_ms) {
+        println!(
+            "  rove failsafe (supervisor): {} runs, p50 {:.1} ms, max {:.1} ms",
+            report.failsafe_ms.len(),
+            stats.p50,
+            stats.max
+        );
+    }
+    if !report.recovery_ms.is_empty() {
+        println!(
+            "  partitions healed: the far operator drove again after {:.1?} ms",
+            report.recovery_ms
+        );
+    }
+    for example in &c.examples {
+        println!("  e.g. {example}");
+    }
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")?;
+    }
+    Ok(())
+}
+
