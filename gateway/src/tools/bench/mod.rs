@@ -167,7 +167,15 @@ fn passive(
     let (mut info, mut applied, mut ping_pong) = (Vec::new(), Vec::new(), 0);
     for run in 0..options.runs {
         // The owner: a mobile phone, above every backup.
-        let owner = rig.operator(11, "mobile", "phone", &[VEHICLE], 2000, &security.toml(11), &[]);
+        let owner = rig.operator(
+            11,
+            "mobile",
+            "phone",
+            &[VEHICLE],
+            2000,
+            &security.toml(11),
+            &[],
+        );
         harness::wait_for_output(&record, Some(11), wall_us()).map_err(anyhow::Error::msg)?;
         let t0 = wall_us();
         if options.scenario == Scenario::Crash {
@@ -217,7 +225,10 @@ fn active(
         "phone",
         &[VEHICLE],
         1000,
-        &format!("{}[handover]\nauto_accept = \"always\"\n", security.toml(11)),
+        &format!(
+            "{}[handover]\nauto_accept = \"always\"\n",
+            security.toml(11)
+        ),
         &["--record", sent_path.to_str().unwrap_or_default()],
     );
     let mut sent = Follow::new(&sent_path);
@@ -234,7 +245,15 @@ fn active(
     for run in 0..options.runs {
         let start = wall_us();
         let request = ["--request", "100"];
-        let requester = rig.operator(13, "remote", "tablet", &[], 3000, &security.toml(13), &request);
+        let requester = rig.operator(
+            13,
+            "remote",
+            "tablet",
+            &[],
+            3000,
+            &security.toml(13),
+            &request,
+        );
         let accept = wait_event(&mut sent, start, |e| {
             e["kind"] == "request" && e["ack"] == "accept" && e["src"] == 13 && e["current"] == 11
         })?;

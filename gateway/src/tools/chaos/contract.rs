@@ -157,7 +157,9 @@ impl Analysis<'_> {
                 (s.running, s.stopped, s.drove) = (false, false, false);
                 s.dead_since = Some(done);
             }
-            Fault::Stop { id } | Fault::Cut { id } => self.ops.entry(id).or_default().stopped = true,
+            Fault::Stop { id } | Fault::Cut { id } => {
+                self.ops.entry(id).or_default().stopped = true
+            }
             Fault::Cont { id } => {
                 let s = self.ops.entry(id).or_default();
                 (s.stopped, s.settles_at) = (false, done + GRACE_US);
@@ -223,9 +225,17 @@ impl Analysis<'_> {
             if let Some(before) = self.last_owner
                 && before != owner
             {
-                *self.counts.owner_changes_under_loss.entry(self.loss).or_default() += 1;
+                *self
+                    .counts
+                    .owner_changes_under_loss
+                    .entry(self.loss)
+                    .or_default() += 1;
                 if owner.is_none() {
-                    *self.counts.failsafe_under_loss.entry(self.loss).or_default() += 1;
+                    *self
+                        .counts
+                        .failsafe_under_loss
+                        .entry(self.loss)
+                        .or_default() += 1;
                 }
             }
             self.last_owner = Some(owner);
@@ -242,7 +252,10 @@ impl Analysis<'_> {
             && t > dead + COMMAND_TIMEOUT_US + 15_000
         {
             self.counts.stale += 1;
-            self.example(format!("stale: {x} applied {} ms after it died", (t - dead) / 1000));
+            self.example(format!(
+                "stale: {x} applied {} ms after it died",
+                (t - dead) / 1000
+            ));
         }
         let rank = self.rank(x);
         let stronger = (self.ops.iter())
@@ -254,7 +267,9 @@ impl Analysis<'_> {
         {
             self.counts.wrong_owner += 1;
             let why = self.silent(y, t);
-            self.example(format!("wrong owner at {t}: {x} drove while {y} ran, {why}"));
+            self.example(format!(
+                "wrong owner at {t}: {x} drove while {y} ran, {why}"
+            ));
         }
         if let Some(s) = self.ops.get_mut(&x)
             && s.running

@@ -228,4 +228,3 @@ pub(super) fn nft(rig: &Rig, rule: Option<&str>, hooks: &[&str]) -> anyhow::Resu
     );
     Ok(())
 }
-

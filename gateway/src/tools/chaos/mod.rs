@@ -98,6 +98,20 @@ pub struct Report {
     pub recovery_ms: Vec<f64>,
 }
 
+/// The bench's fleet once started: the operators by rank, the far namespace with partitions.
+struct Started {
+    fleet: Fleet,
+    /// The far namespace (and its operator) lives until the record is read: dropping it kills
+    /// the operator, which the analysis would not know of.
+    far: Option<Rig>,
+    /// The operators in the vehicle's namespace, weakest first.
+    ids: Vec<i64>,
+    /// The far operator's id and its ladder cell.
+    far_id: i64,
+    top: usize,
+    ranks: BTreeMap<i64, usize>,
+}
+
 /// Runs the chaos bench; `progress` hears what happens.
 ///
 /// # Errors
@@ -107,6 +121,51 @@ pub fn run(
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<Report> {
+    let mut started = start(rove, options, progress)?;
+    let chaos_start = Instant::now();
+    let faults = chaos_phase(&mut started, options, progress)?;
+    let chaos_s = chaos_start.elapsed().as_secs_f64();
+    if !options.loss.is_zero() {
+        loss_phase(&mut started, options, progress)?;
+    }
+    let recovery_ms = partition_phase(&mut started, options, progress)?;
+    // The last outputs reach the record.
+    std::thread::sleep(Duration::from_millis(200));
+    let mut outputs = records(&started.fleet.record);
+    outputs.sort_by_key(|o| o.wall_us);
+    let counts = analyse(&started.fleet.log, &outputs, &started.ranks);
+    drop(started.far);
+    let minutes = options.loss.as_secs_f64() / 60.0;
+    let owner_changes_per_min = [10u8, 30]
+        .into_iter()
+        .filter(|_| minutes > 0.0)
+        .map(|pct| {
+            let n = (counts.owner_changes_under_loss.get(&pct))
+                .copied()
+                .unwrap_or(0);
+            (pct, n as f64 / minutes)
+        })
+        .collect();
+    Ok(Report {
+        operators: options.operators,
+        faults,
+        seed: options.seed,
+        chaos_s,
+        loss_s: options.loss.as_secs_f64(),
+        outputs: outputs.len(),
+        counts,
+        owner_changes_per_min,
+        failsafe_ms: started.fleet.failsafe_ms,
+        recovery_ms,
+    })
+}
+
+/// The rig (and the far namespace with partitions), the vehicle, and the operators driving.
+fn start(
+    rove: &Path,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Started> {
     anyhow::ensure!(options.operators >= 2, "--operators must be at least 2");
     let mut rig = Rig::new(rove, "bench-chaos")?;
     let partitions = !options.partition.is_zero();
@@ -154,10 +213,25 @@ pub fn run(
         "{} operators ({ids:?}, weakest first) drive vehicle {VEHICLE}; {} faults, one every ~{:?}",
         options.operators, options.events, options.interval
     ));
+    Ok(Started {
+        fleet,
+        far,
+        ids,
+        far_id,
+        top,
+        ranks,
+    })
+}
 
+/// `options.events` random faults; returns how many of each kind.
+fn chaos_phase(
+    started: &mut Started,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<BTreeMap<&'static str, usize>> {
+    let (fleet, ids) = (&mut started.fleet, &started.ids);
     let mut rng = Rng(options.seed.max(1));
     let mut faults: BTreeMap<&'static str, usize> = BTreeMap::new();
-    let chaos_start = Instant::now();
     for n in 0..options.events {
         std::thread::sleep(rng.between(options.interval / 2, options.interval * 3 / 2));
         fleet.cont_due(Instant::now());
@@ -167,49 +241,27 @@ pub fn run(
         let dead: Vec<i64> = (ids.iter().copied())
             .filter(|id| !fleet.running.contains_key(id))
             .collect();
-        // Restart the dead about as often as others die, so the fleet neither empties nor
-        // stays whole.
-        let kind = match rng.below(20) {
-            0 => "vehicle_kill",
-            1 => "vehicle_term",
-            2..=8 if !dead.is_empty() => "restart",
-            9..=11 => "kill",
-            12..=14 => "term",
-            _ => "stop",
-        };
-        let kind = if movable.is_empty() && kind != "vehicle_kill" && kind != "vehicle_term" {
-            if dead.is_empty() {
-                "vehicle_kill"
-            } else {
-                "restart"
-            }
-        } else {
-            kind
-        };
+        let kind = fault_kind(&mut rng, movable.is_empty(), dead.is_empty());
         match kind {
             "vehicle_kill" | "vehicle_term" => fleet.restart_vehicle(kind == "vehicle_term")?,
             "restart" => {
                 let id = dead[rng.below(dead.len())];
                 fleet.start(id);
             }
+            "kill" | "term" => {
+                let id = movable[rng.below(movable.len())];
+                let (signal, fault) = match kind {
+                    "kill" => ("-KILL", Fault::Kill { id }),
+                    _ => ("-TERM", Fault::Term { id }),
+                };
+                fleet.signal(id, signal, fault);
+                fleet.running.remove(&id);
+            }
             _ => {
                 let id = movable[rng.below(movable.len())];
-                match kind {
-                    "kill" => {
-                        fleet.signal(id, "-KILL", Fault::Kill { id });
-                        fleet.running.remove(&id);
-                    }
-                    "term" => {
-                        fleet.signal(id, "-TERM", Fault::Term { id });
-                        fleet.running.remove(&id);
-                    }
-                    _ => {
-                        fleet.signal(id, "-STOP", Fault::Stop { id });
-                        let pause =
-                            rng.between(Duration::from_millis(100), Duration::from_millis(600));
-                        fleet.stopped.insert(id, Instant::now() + pause);
-                    }
-                }
+                fleet.signal(id, "-STOP", Fault::Stop { id });
+                let pause = rng.between(Duration::from_millis(100), Duration::from_millis(600));
+                fleet.stopped.insert(id, Instant::now() + pause);
             }
         }
         *faults.entry(kind).or_default() += 1;
@@ -217,90 +269,93 @@ pub fn run(
             progress(&format!("{} faults done", n + 1));
         }
     }
-    let chaos_s = chaos_start.elapsed().as_secs_f64();
+    Ok(faults)
+}
 
-    if !options.loss.is_zero() {
-        fleet.heal(&ids);
-        let since = wall_us();
-        crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), since)
-            .map_err(|e| anyhow::anyhow!("after the chaos, the strongest never drove: {e}"))?;
-        // Let every restarted operator be discovered and drive its turn… it never will: the
-        // strongest drives. One heartbeat of quiet, then the loss.
-        std::thread::sleep(Duration::from_secs(1));
-        for pct in [10, 30] {
-            progress(&format!("{pct} % UDP loss for {:?}", options.loss));
-            let at = wall_us();
-            set_loss(&fleet.rig, pct)?;
-            fleet.note(at, Fault::Loss { pct });
-            std::thread::sleep(options.loss);
-        }
-        let at = wall_us();
-        set_loss(&fleet.rig, 0)?;
-        fleet.note(at, Fault::Loss { pct: 0 });
+/// The next fault's kind. Restarts of the dead come about as often as others die, so the fleet
+/// neither empties nor stays whole; with nobody to signal, the vehicle or a restart.
+fn fault_kind(rng: &mut Rng, none_movable: bool, none_dead: bool) -> &'static str {
+    let kind = match rng.below(20) {
+        0 => "vehicle_kill",
+        1 => "vehicle_term",
+        2..=8 if !none_dead => "restart",
+        9..=11 => "kill",
+        12..=14 => "term",
+        _ => "stop",
+    };
+    match (none_movable && !kind.starts_with("vehicle"), none_dead) {
+        (false, _) => kind,
+        (true, true) => "vehicle_kill",
+        (true, false) => "restart",
     }
+}
+
+/// Every operator running, then 10 % and 30 % UDP loss, each for `options.loss`.
+fn loss_phase(
+    started: &mut Started,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<()> {
+    let fleet = &mut started.fleet;
+    fleet.heal(&started.ids);
+    let strongest = started.ids[started.ids.len() - 1];
+    let since = wall_us();
+    crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), since)
+        .map_err(|e| anyhow::anyhow!("after the chaos, the strongest never drove: {e}"))?;
+    // Let every restarted operator be discovered and drive its turn… it never will: the
+    // strongest drives. One heartbeat of quiet, then the loss.
+    std::thread::sleep(Duration::from_secs(1));
+    for pct in [10, 30] {
+        progress(&format!("{pct} % UDP loss for {:?}", options.loss));
+        let at = wall_us();
+        set_loss(&fleet.rig, pct)?;
+        fleet.note(at, Fault::Loss { pct });
+        std::thread::sleep(options.loss);
+    }
+    let at = wall_us();
+    set_loss(&fleet.rig, 0)?;
+    fleet.note(at, Fault::Loss { pct: 0 });
+    Ok(())
+}
+
+/// With partitions: the strongest operator in the far namespace, its link cut and restored
+/// three times; returns, per heal, how long until it drove again (ms).
+fn partition_phase(
+    started: &mut Started,
+    options: &Options,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Vec<f64>> {
     let mut recovery_ms = Vec::new();
-    // The far namespace (and its operator) lives until the record is read: dropping it kills
-    // the operator, which the analysis would not know of.
-    let mut far = far;
-    if let Some(far) = far.as_mut() {
-        let (level, class) = LADDER[top];
-        let network = format!("[network]\ninterfaces = [\"{VETH_FAR}\"]\n");
+    let (fleet, far_id) = (&mut started.fleet, started.far_id);
+    let Some(far) = started.far.as_mut() else {
+        return Ok(recovery_ms);
+    };
+    let (level, class) = LADDER[started.top];
+    let network = format!("[network]\ninterfaces = [\"{VETH_FAR}\"]\n");
+    let at = wall_us();
+    far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
+    fleet.note(at, Fault::Start { id: far_id });
+    crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), 0)
+        .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
+    for n in 0..3 {
+        progress(&format!(
+            "partition {}: cut for {:?}",
+            n + 1,
+            options.partition
+        ));
         let at = wall_us();
-        far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
-        fleet.note(at, Fault::Start { id: far_id });
-        crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), 0)
-            .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
-        for n in 0..3 {
-            progress(&format!(
-                "partition {}: cut for {:?}",
-                n + 1,
-                options.partition
-            ));
-            let at = wall_us();
-            set_cut(far, true)?;
-            fleet.note(at, Fault::Cut { id: far_id });
-            std::thread::sleep(options.partition);
-            let healed = wall_us();
-            set_cut(far, false)?;
-            fleet.note(healed, Fault::Heal { id: far_id });
-            let back = crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), healed)
-                .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
-            recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
-            std::thread::sleep(Duration::from_secs(1));
-        }
+        set_cut(far, true)?;
+        fleet.note(at, Fault::Cut { id: far_id });
+        std::thread::sleep(options.partition);
+        let healed = wall_us();
+        set_cut(far, false)?;
+        fleet.note(healed, Fault::Heal { id: far_id });
+        let back = crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), healed)
+            .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
+        recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
+        std::thread::sleep(Duration::from_secs(1));
     }
-    // The last outputs reach the record.
-    std::thread::sleep(Duration::from_millis(200));
-
-    let mut outputs = records(&fleet.record);
-    outputs.sort_by_key(|o| o.wall_us);
-    let counts = analyse(&fleet.log, &outputs, &ranks);
-    drop(far);
-    let minutes = options.loss.as_secs_f64() / 60.0;
-    let owner_changes_per_min = [10u8, 30]
-        .into_iter()
-        .filter(|_| minutes > 0.0)
-        .map(|pct| {
-            let n = counts
-                .owner_changes_under_loss
-                .get(&pct)
-                .copied()
-                .unwrap_or(0);
-            (pct, n as f64 / minutes)
-        })
-        .collect();
-    Ok(Report {
-        operators: options.operators,
-        faults,
-        seed: options.seed,
-        chaos_s,
-        loss_s: options.loss.as_secs_f64(),
-        outputs: outputs.len(),
-        counts,
-        owner_changes_per_min,
-        failsafe_ms: fleet.failsafe_ms,
-        recovery_ms,
-    })
+    Ok(recovery_ms)
 }
 
 /// `rove bench chaos`: runs, prints a summary, writes `json` if asked.
@@ -348,4 +403,3 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
     }
     Ok(())
 }
-
