@@ -40,33 +40,7 @@ use crate::trust::{Access, Identities, Suspect, TrustConfig};
 use crate::watchdog::{CommandTimeout, Watchdog};
 use std::fmt;
 
-/// A process on the network that owns writers (a DDS participant), as an opaque number the
-/// binding derives from its identity (the GUID prefix).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct ParticipantId(pub u128);
-
-/// One command stream's identity: which process, and which writer in it (a DDS writer GUID).
-/// Ordered, so that ties are broken deterministically.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct WriterId {
-    /// The process the writer belongs to.
-    pub participant: ParticipantId,
-    /// The writer within that process.
-    pub entity: u32,
-}
-
-/// The participant's 12-byte GUID prefix in hex.
-impl fmt::Display for ParticipantId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:024x}", self.0)
-    }
-}
-
-impl fmt::Display for WriterId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:x}/{:x}", self.participant.0, self.entity)
-    }
-}
+pub use crate::sender::{ParticipantId, WriterId};
 
 /// A controller as the arbiter knows it: a writer, the device it speaks for, its strength.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

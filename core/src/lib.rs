@@ -23,7 +23,9 @@
 //! - [`adapter`]: output-adapter and input-source traits.
 //! - [`sim`]: a recording output and a scripted input.
 //! - [`time`]: monotonic instants.
+//! - [`sender`]: who sent a message (participant, writer), as the binding names them.
 //! - [`trust`]: device ids pinned to participants, and the strengths a vehicle believes.
+//! - [`freshness`]: whether a command sample queued up too long to drive with.
 //! - [`error`]: configuration errors (naming their keys) and classified link errors.
 //! - [`config`]: the shared config vocabulary: integer policy, range/required/unique checks,
 //!   unknown keys of tables built from shared pieces, and [`config_types!`], the one-line-a-key
@@ -41,6 +43,7 @@ pub mod hierarchy;
 pub mod mapping;
 pub mod msg;
 pub mod remote;
+pub mod sender;
 pub mod session;
 pub mod sim;
 pub mod time;

@@ -22,9 +22,9 @@
 //! only through the arbiter's grant rules; with an access list, only listed ids, each up to
 //! the highest rank it may claim.
 
-use crate::arbiter::ParticipantId;
 use crate::hierarchy::{DeviceClass, Hierarchy, Level, MAX_OFFSET, Strength};
 use crate::msg::DeviceId;
+use crate::sender::ParticipantId;
 use crate::time::MonoTime;
 use std::collections::BTreeMap;
 use std::fmt;

@@ -6,7 +6,7 @@
 //! for rppal), prepares a channel on first use, and retries that preparation on the next write
 //! after a failure. It never panics on any pulse value: out-of-range values are reported.
 
-use crate::config::{BackendConfig, ChannelAddress, PwmVehicleConfig};
+use crate::config::{ChannelAddress, PwmVehicleConfig};
 use rove_core::MonoTime;
 use rove_core::error::LinkError;
 use std::collections::VecDeque;
@@ -51,38 +51,6 @@ impl<B: PwmBackend + ?Sized> PwmBackend for Box<B> {
     ) -> Result<(), LinkError> {
         (**self).set_pulse_us(now, channel, pulse_us)
     }
-}
-
-/// Builds the backend `config` names, with its channels.
-///
-/// Opening touches no device: sysfs and rppal prepare each channel at its first write, so the
-/// first error (with the path or pin) comes from [`crate::PwmVehicle::new`]'s safe-state write.
-///
-/// # Errors
-/// A fatal [`LinkError`] for `backend = "rppal"` in a build without the `rppal` feature, or
-/// when rppal cannot open the GPIO peripheral.
-pub fn open_backend(config: &PwmVehicleConfig) -> Result<Box<dyn PwmBackend + Send>, LinkError> {
-    match &config.backend {
-        BackendConfig::Sysfs { root } => Ok(Box::new(crate::sysfs::SysfsBackend::new(
-            root.clone(),
-            config,
-        ))),
-        BackendConfig::Sim => Ok(Box::new(SimBackend::for_config(config))),
-        BackendConfig::Rppal => open_rppal(config),
-    }
-}
-
-#[cfg(all(feature = "rppal", target_os = "linux"))]
-fn open_rppal(config: &PwmVehicleConfig) -> Result<Box<dyn PwmBackend + Send>, LinkError> {
-    Ok(Box::new(crate::rppal::RppalBackend::new(config)?))
-}
-
-#[cfg(not(all(feature = "rppal", target_os = "linux")))]
-fn open_rppal(_config: &PwmVehicleConfig) -> Result<Box<dyn PwmBackend + Send>, LinkError> {
-    Err(LinkError::fatal(
-        "backend = \"rppal\": this rove was built without the `rppal` feature \
-         (rebuild with `--features rove-pwm/rppal` on the Pi, or use backend = \"sysfs\")",
-    ))
 }
 
 /// One pulse the sim backend was told to output.
@@ -306,7 +274,9 @@ mod tests {
         )
         .expect("parses");
         let cfg = cfg.validate().expect("valid");
-        let err = open_backend(&cfg).err().expect("no rppal in this build");
+        let err = crate::open_backend(&cfg)
+            .err()
+            .expect("no rppal in this build");
         assert_eq!(err.disposition, rove_core::error::Disposition::Fatal);
         assert!(err.detail.contains("`rppal` feature"), "{err}");
     }

@@ -50,16 +50,18 @@
 
 pub mod backend;
 pub mod config;
+mod open;
 #[cfg(all(feature = "rppal", target_os = "linux"))]
 pub mod rppal;
 pub mod sysfs;
 pub mod vehicle;
 
-pub use backend::{PulseRecord, PwmBackend, SimBackend, SimLog, open_backend};
+pub use backend::{PulseRecord, PwmBackend, SimBackend, SimLog};
 pub use config::{
     BackendConfig, BackendKind, ChannelAddress, ChannelConfig, ChannelSettings, ChannelSource,
     ChannelSourceKind, Polarity, PwmAddressSettings, PwmBackendSettings, PwmVehicleConfig,
     PwmVehicleSettings, ServoChannelSettings,
 };
+pub use open::open_backend;
 pub use sysfs::SysfsBackend;
 pub use vehicle::PwmVehicle;
