@@ -263,23 +263,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             listen_ms,
             events,
             security,
-        } => {
-            let interfaces = if interfaces.is_empty() {
-                vec![std::net::Ipv4Addr::LOCALHOST]
-            } else {
-                interfaces
-            };
-            tokio_runtime()?.block_on(status::run(status::Options {
-                domain_id: domain,
-                interfaces,
-                listen: std::time::Duration::from_millis(listen_ms),
-                heartbeat: std::time::Duration::from_millis(500),
-                json,
-                watch,
-                events,
-                security,
-            }))
-        }
+        } => status_cmd(status::Options {
+            domain_id: domain,
+            interfaces,
+            listen: std::time::Duration::from_millis(listen_ms),
+            heartbeat: std::time::Duration::from_millis(500),
+            json,
+            watch,
+            events,
+            security,
+        }),
         Command::Demo {
             in_process,
             fast,
@@ -293,32 +286,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => show_input(&device, &config),
         Command::Bench { what } => tools::run(what, &std::env::current_exe()?),
         #[cfg(feature = "security")]
-        Command::Keys { what } => match what {
-            KeysCommand::Init { dir, fleet, domain } => {
-                rove_gateway::keys::init(&dir, &fleet, domain)?;
-                println!(
-                    "fleet {fleet:?} created in {} (domain {domain})",
-                    dir.display()
-                );
-                Ok(())
-            }
-            KeysCommand::Add { dir, id } => {
-                let out = rove_gateway::keys::add(&dir, id)?;
-                println!(
-                    "device {id}: certificate, key and permissions in {}",
-                    out.display()
-                );
-                Ok(())
-            }
-            KeysCommand::Web { dir, hosts } => {
-                let out = rove_gateway::keys::web(&dir, &hosts)?;
-                println!(
-                    "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
-                    out.display()
-                );
-                Ok(())
-            }
-        },
+        Command::Keys { what } => keys_cmd(what),
         Command::Doctor { config, user, root } => {
             let loaded = match &config {
                 Some(path) => Some(config::load_any(path).map_err(bad_config)?.0),
@@ -452,6 +420,45 @@ fn inputs_list() -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `rove keys …`.
+#[cfg(feature = "security")]
+fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
+    match what {
+        KeysCommand::Init { dir, fleet, domain } => {
+            rove_gateway::keys::init(&dir, &fleet, domain)?;
+            println!(
+                "fleet {fleet:?} created in {} (domain {domain})",
+                dir.display()
+            );
+            Ok(())
+        }
+        KeysCommand::Add { dir, id } => {
+            let out = rove_gateway::keys::add(&dir, id)?;
+            println!(
+                "device {id}: certificate, key and permissions in {}",
+                out.display()
+            );
+            Ok(())
+        }
+        KeysCommand::Web { dir, hosts } => {
+            let out = rove_gateway::keys::web(&dir, &hosts)?;
+            println!(
+                "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
+                out.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+/// `rove status`: on loopback unless interfaces are given.
+fn status_cmd(mut options: status::Options) -> anyhow::Result<()> {
+    if options.interfaces.is_empty() {
+        options.interfaces = vec![std::net::Ipv4Addr::LOCALHOST];
+    }
+    tokio_runtime()?.block_on(status::run(options))
 }
 
 /// One single-threaded runtime per process: each role is one event loop, and rustdds runs its

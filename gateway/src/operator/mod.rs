@@ -381,32 +381,7 @@ impl Role {
             };
             let changed =
                 heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
-            let refused = self.writers.carry_out(
-                &self.node.domain,
-                effects,
-                &clock,
-                self.record.as_mut(),
-                &self.ui,
-            );
-            // The selected vehicle is the one buttons and the console ask for: both its writers
-            // now, so that an owner who accepts at once (auto-accept) is not faster than
-            // discovery (measured: made at the REQUEST, the first commands of an auto-accepted
-            // grant were lost until the vehicle had matched the new writer, p50 3 → 8 ms).
-            if self.session.selected() != selected {
-                selected = self.session.selected();
-                if let Some(vehicle) = selected {
-                    self.writers.prepare(&self.node.domain, vehicle);
-                }
-            }
-            if let Some(reply) = reply {
-                if let Some(why) = &refused {
-                    self.ui.emit(Event::Notice { text: why.clone() });
-                }
-                // The asker may have gone; nothing to do then.
-                let _ = reply.send(refused.map_or(Ok(()), Err));
-            } else if let Some(why) = refused {
-                warn!("button: {why}");
-            }
+            self.carry_out(effects, reply, &mut selected);
             if polled && self.ui.watched() {
                 link = self.link();
             }
@@ -420,6 +395,42 @@ impl Role {
             }
         }
         Ok(())
+    }
+
+    /// Carries out a turn's effects and answers the command that caused them, if one did.
+    fn carry_out(
+        &mut self,
+        effects: Vec<Effect>,
+        reply: Option<tokio::sync::oneshot::Sender<Result<(), String>>>,
+        selected: &mut Option<DeviceId>,
+    ) {
+        let clock = self.edges.clock;
+        let refused = self.writers.carry_out(
+            &self.node.domain,
+            effects,
+            &clock,
+            self.record.as_mut(),
+            &self.ui,
+        );
+        // The selected vehicle is the one buttons and the console ask for: both its writers
+        // now, so that an owner who accepts at once (auto-accept) is not faster than discovery
+        // (measured: made at the REQUEST, the first commands of an auto-accepted grant were
+        // lost until the vehicle had matched the new writer, p50 3 → 8 ms).
+        if self.session.selected() != *selected {
+            *selected = self.session.selected();
+            if let Some(vehicle) = *selected {
+                self.writers.prepare(&self.node.domain, vehicle);
+            }
+        }
+        if let Some(reply) = reply {
+            if let Some(why) = &refused {
+                self.ui.emit(Event::Notice { text: why.clone() });
+            }
+            // The asker may have gone; nothing to do then.
+            let _ = reply.send(refused.map_or(Ok(()), Err));
+        } else if let Some(why) = refused {
+            warn!("button: {why}");
+        }
     }
 
     /// Reads every event the sticks have now and steps the session with each.

@@ -173,11 +173,45 @@ impl World<'_> {
         }
         Ok(())
     }
+
+    /// Plays one cue of the script.
+    fn cue(&mut self, cue: Cue) -> anyhow::Result<()> {
+        match cue {
+            Cue::Join(i) => {
+                self.ops[i].running = true;
+                let line = format!("{} starts", self.ops[i].name);
+                self.say(&line);
+                // DeviceInfo is TRANSIENT_LOCAL: a joiner gets the vehicle's at once.
+                self.publish_owner()?;
+            }
+            Cue::Quit(i) => {
+                let line = format!("{} quits (releases, leaves the network)", self.ops[i].name);
+                self.say(&line);
+                let stamp = self.stamp();
+                let effects = self.ops[i].session.stop(stamp);
+                self.deliver(i, effects)?;
+                self.ops[i].running = false;
+                let participant = self.ops[i].participant();
+                self.vehicle_step(Event::ParticipantGone { participant })?;
+            }
+            Cue::Crash(i) => {
+                self.ops[i].running = false;
+                let line = format!("{} crashes (stops sending, no release)", self.ops[i].name);
+                self.say(&line);
+            }
+            Cue::Command(i, command) => {
+                let line = format!("{}'s operator: {}", self.ops[i].name, command.name());
+                self.say(&line);
+                self.step(i, SessionEvent::Command(command))?;
+            }
+        }
+        Ok(())
+    }
 }
 
-/// Runs the demo. With `pace`, waits in real time between events so it can be watched; the
-/// story and its output are the same either way. Returns the printed story.
-pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummary> {
+/// The story's three operators: a stationary laptop and a mobile phone that drive the
+/// vehicle from the start, and a remote tablet that asks for it.
+fn operators() -> anyhow::Result<Vec<Operator>> {
     let h = Hierarchy::STANDARD;
     let make = |name, id, level, class, drive: &[DeviceId]| -> anyhow::Result<Operator> {
         let strength = h.strength(level, class, 0)?;
@@ -201,7 +235,7 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
             running: false,
         })
     };
-    let ops = vec![
+    Ok(vec![
         make(
             "laptop (stationary)",
             11,
@@ -223,7 +257,13 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
             DeviceClass::Tablet,
             &[],
         )?,
-    ];
+    ])
+}
+
+/// Runs the demo. With `pace`, waits in real time between events so it can be watched; the
+/// story and its output are the same either way. Returns the printed story.
+pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummary> {
+    let ops = operators()?;
     let vehicle = Command::Request { vehicle: VEHICLE };
     let script = [
         (100, Cue::Join(0)),
@@ -277,36 +317,7 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
                 break;
             }
             next_cue += 1;
-            match cue {
-                Cue::Join(i) => {
-                    world.ops[i].running = true;
-                    let line = format!("{} starts", world.ops[i].name);
-                    world.say(&line);
-                    // DeviceInfo is TRANSIENT_LOCAL: a joiner gets the vehicle's at once.
-                    world.publish_owner()?;
-                }
-                Cue::Quit(i) => {
-                    let line =
-                        format!("{} quits (releases, leaves the network)", world.ops[i].name);
-                    world.say(&line);
-                    let stamp = world.stamp();
-                    let effects = world.ops[i].session.stop(stamp);
-                    world.deliver(i, effects)?;
-                    world.ops[i].running = false;
-                    let participant = world.ops[i].participant();
-                    world.vehicle_step(Event::ParticipantGone { participant })?;
-                }
-                Cue::Crash(i) => {
-                    world.ops[i].running = false;
-                    let line = format!("{} crashes (stops sending, no release)", world.ops[i].name);
-                    world.say(&line);
-                }
-                Cue::Command(i, command) => {
-                    let line = format!("{}'s operator: {}", world.ops[i].name, command.name());
-                    world.say(&line);
-                    world.step(i, SessionEvent::Command(command))?;
-                }
-            }
+            world.cue(cue)?;
         }
         if t % STREAM_PERIOD_MS == 0 {
             // A gentle sweep on every joystick, so that applied values visibly change; the

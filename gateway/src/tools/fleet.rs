@@ -283,42 +283,20 @@ pub fn run(
         "a process of the fleet exited during the window"
     );
     let (v_usage, o_usage) = measured.split_at(vehicles.len());
-    let mut handover = Vec::new();
-    if !options.idle {
+    let handover = if options.idle {
+        Vec::new()
+    } else {
         let (record, owner) = (&records[0], drives[&vehicles[0]]);
-        for run in 0..options.handover_runs {
-            let phone = rig.operator(PHONE, "mobile", "phone", &[vehicles[0]], 2000, "", &[]);
-            harness::wait_for_output(record, Some(PHONE), wall_us()).map_err(anyhow::Error::msg)?;
-            let t0 = wall_us();
-            rig.procs[phone].terminate();
-            let out =
-                harness::wait_for_output(record, Some(owner), t0).map_err(anyhow::Error::msg)?;
-            rig.procs[phone].wait_exit(harness::PATIENCE);
-            handover.push(out.wall_us.saturating_sub(t0) as f64 / 1000.0);
-            progress(&format!(
-                "handover {}/{}: {:.2} ms",
-                run + 1,
-                options.handover_runs,
-                handover[run]
-            ));
-        }
-    }
-    let mut latejoin = Vec::new();
-    for run in 0..options.latejoin_runs {
-        let t0 = wall_us();
-        let path = observer(&mut rig, &format!("joiner-{run}"));
-        let done =
-            harness::wait_listed(&path, &everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
-        stop_last(&mut rig);
-        latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
-        progress(&format!(
-            "late joiner {}/{}: {} devices listed after {:.1} ms",
-            run + 1,
-            options.latejoin_runs,
-            everyone.len(),
-            latejoin[run]
-        ));
-    }
+        handovers(
+            &mut rig,
+            record,
+            vehicles[0],
+            owner,
+            options.handover_runs,
+            progress,
+        )?
+    };
+    let latejoin = late_joiners(&mut rig, &everyone, options.latejoin_runs, progress)?;
     let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
     for (&vehicle, record) in vehicles.iter().zip(&records) {
         let outs = harness::records(record);
@@ -349,6 +327,60 @@ pub fn run(
         stale,
         outputs,
     })
+}
+
+/// `runs` times: a mobile phone takes `vehicle` from `owner` and quits; from its SIGTERM to
+/// `owner`'s first command applied again, ms.
+fn handovers(
+    rig: &mut Rig,
+    record: &Path,
+    vehicle: i64,
+    owner: i64,
+    runs: usize,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Vec<f64>> {
+    let mut handover = Vec::new();
+    for run in 0..runs {
+        let phone = rig.operator(PHONE, "mobile", "phone", &[vehicle], 2000, "", &[]);
+        harness::wait_for_output(record, Some(PHONE), wall_us()).map_err(anyhow::Error::msg)?;
+        let t0 = wall_us();
+        rig.procs[phone].terminate();
+        let out = harness::wait_for_output(record, Some(owner), t0).map_err(anyhow::Error::msg)?;
+        rig.procs[phone].wait_exit(harness::PATIENCE);
+        handover.push(out.wall_us.saturating_sub(t0) as f64 / 1000.0);
+        progress(&format!(
+            "handover {}/{runs}: {:.2} ms",
+            run + 1,
+            handover[run]
+        ));
+    }
+    Ok(handover)
+}
+
+/// `runs` times: `rove status --events` starts; from its start to every device of `everyone`
+/// listed, ms.
+fn late_joiners(
+    rig: &mut Rig,
+    everyone: &BTreeSet<i64>,
+    runs: usize,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Vec<f64>> {
+    let mut latejoin = Vec::new();
+    for run in 0..runs {
+        let t0 = wall_us();
+        let path = observer(rig, &format!("joiner-{run}"));
+        let done =
+            harness::wait_listed(&path, everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
+        stop_last(rig);
+        latejoin.push(done.saturating_sub(t0) as f64 / 1000.0);
+        progress(&format!(
+            "late joiner {}/{runs}: {} devices listed after {:.1} ms",
+            run + 1,
+            everyone.len(),
+            latejoin[run]
+        ));
+    }
+    Ok(latejoin)
 }
 
 /// `rove bench scale`: runs, prints a summary and optionally writes the JSON report.
