@@ -1,0 +1,177 @@
+//! `rove doctor` against fake machines: a sysfs, /dev, /etc and /proc tree in a temp dir.
+
+use super::*;
+use std::os::unix::fs::PermissionsExt;
+
+/// A fake system root; device files belong to the test's own user (root: gid 0), so the
+/// fake /etc/group names gid 0 as the device group under test.
+fn tree(name: &str) -> Roots {
+    let dir = std::env::temp_dir().join(format!("rove-doctor-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("tree");
+    Roots(dir)
+}
+
+fn put(roots: &Roots, path: &str, text: &str, mode: u32) {
+    let path = roots.at(path);
+    std::fs::create_dir_all(path.parent().expect("parent")).expect("dirs");
+    std::fs::write(&path, text).expect("write");
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).expect("mode");
+}
+
+fn vehicle(roots: &Roots, output: &str) -> AnyConfig {
+    let text = format!(
+        "[device]\nid = 100\n[network]\ninterfaces = [\"10.42.0.2\", \"127.0.0.1\"]\n{output}"
+    );
+    let path = roots.0.join("vehicle.toml");
+    std::fs::write(&path, text).expect("config");
+    crate::config::load_any(&path).expect("valid config").0
+}
+
+fn line<'a>(found: &'a [Finding], starts: &str) -> &'a Finding {
+    (found.iter())
+        .find(|f| f.what.starts_with(starts))
+        .unwrap_or_else(|| panic!("no {starts:?} in {found:#?}"))
+}
+
+#[test]
+fn a_pi_with_pwm_serial_and_groups_is_reported_and_the_configs_needs_checked() {
+    let roots = tree("pi");
+    put(
+        &roots,
+        "/etc/group",
+        "root:x:0:rove\ndialout:x:20:\nrove:x:999:\n",
+        0o644,
+    );
+    put(
+        &roots,
+        "/proc/device-tree/model",
+        "Raspberry Pi 4 Model B Rev 1.5\0",
+        0o444,
+    );
+    put(&roots, "/sys/class/pwm/pwmchip0/npwm", "2\n", 0o444);
+    put(&roots, "/dev/gpiochip0", "", 0o660);
+    put(&roots, "/dev/ttyAMA0", "", 0o600);
+    put(&roots, "/sys/class/net/can0/type", "280\n", 0o444);
+    put(&roots, "/sys/class/net/can0/operstate", "down\n", 0o444);
+    put(&roots, "/sys/class/net/eth0/type", "1\n", 0o444);
+    put(
+        &roots,
+        "/proc/net/fib_trie",
+        "Main:\n  +-- 10.42.0.0/24 2 0 2\n     |-- 10.42.0.2\n        /32 host LOCAL\n",
+        0o444,
+    );
+    let config = vehicle(
+        &roots,
+        "[output]\nadapter = \"eyedrive\"\nbackend = \"sysfs\"\n\
+         [output.steering]\nchannel = 1\n[output.throttle]\nchannel = 2\n",
+    );
+    let found = check(&roots, "rove", Some(&config));
+    let shown: Vec<String> = found.iter().map(Finding::to_string).collect();
+    eprintln!("{}", shown.join("\n"));
+
+    assert_eq!(line(&found, "user: rove").status, Status::Ok);
+    assert_eq!(line(&found, "board: Raspberry Pi 4").status, Status::Ok);
+    assert_eq!(line(&found, "gpio: /dev/gpiochip0").status, Status::Ok);
+    assert_eq!(
+        line(&found, "pwm: pwmchip0 with 2 channels").status,
+        Status::Ok
+    );
+    assert_eq!(line(&found, "pwm: \"steering\"").status, Status::Ok);
+    // Channel 2 of a two-channel chip.
+    let throttle = line(&found, "pwm: \"throttle\"");
+    assert_eq!(throttle.status, Status::Wrong);
+    assert!(
+        throttle.to_string().contains("has 2 channels"),
+        "{throttle}"
+    );
+    // Mode 0600: no access through the group; told, but not needed by this config.
+    let serial = line(&found, "serial: /dev/ttyAMA0");
+    assert_eq!(serial.status, Status::Ok);
+    assert!(
+        serial
+            .to_string()
+            .contains("not needed by the config; usermod -aG root rove")
+    );
+
+    assert_eq!(line(&found, "can: can0 (down)").status, Status::Ok);
+    assert!(!found.iter().any(|f| f.what.starts_with("can: eth0")));
+    assert_eq!(line(&found, "network: 10.42.0.2").status, Status::Ok);
+    assert_eq!(line(&found, "network: 127.0.0.1").status, Status::Ok);
+}
+
+#[test]
+fn what_a_config_needs_and_the_computer_lacks_is_missing_or_wrong_with_the_fix() {
+    let roots = tree("bare");
+    put(&roots, "/etc/group", "input:x:0:\n", 0o644);
+    let config = vehicle(
+        &roots,
+        "[output]\nadapter = \"eyedrive\"\nbackend = \"rppal\"\n[output.steering]\n\
+         pwm_channel = 0\n[output.throttle]\npin = 13\n",
+    );
+    let found = check(&roots, "rove", Some(&config));
+    assert_eq!(line(&found, "user: rove").status, Status::Missing);
+    let board = line(&found, "board: no device-tree model");
+    assert_eq!(board.status, Status::Missing);
+    assert!(board.to_string().contains("backend = \"sysfs\""), "{board}");
+    assert_eq!(
+        line(&found, "gpio: no /dev/gpiochip").status,
+        Status::Missing
+    );
+    let net = line(&found, "network: 10.42.0.2");
+    assert_eq!(net.status, Status::Missing);
+    assert!(net.fix.as_deref().is_some_and(|f| f.contains("ip addr")));
+
+    let can = vehicle(
+        &roots,
+        "[output]\nadapter = \"can\"\ninterface = \"can1\"\n[output.dronecan]\nnode_id = 10\n\
+         [[output.dronecan.servos]]\nactuator_id = 1\nsource = \"roll\"\n",
+    );
+    let found = check(&roots, "rove", Some(&can));
+    assert_eq!(line(&found, "can: can1 (absent)").status, Status::Missing);
+    put(&roots, "/sys/class/net/can1/type", "280\n", 0o444);
+    put(&roots, "/sys/class/net/can1/operstate", "down\n", 0o444);
+    let found = check(&roots, "rove", Some(&can));
+    let down = line(&found, "can: can1 (down)");
+    assert_eq!(down.status, Status::Wrong);
+    assert!(down.to_string().contains("ip link set can1 up"), "{down}");
+
+    let serial = vehicle(
+        &roots,
+        "[output]\nadapter = \"mavlink\"\nconnection = \"serial:/dev/ttyACM0:115200\"\n",
+    );
+    let found = check(&roots, "rove", Some(&serial));
+    assert_eq!(line(&found, "serial: /dev/ttyACM0").status, Status::Missing);
+    put(&roots, "/dev/ttyACM0", "", 0o660);
+    let found = check(&roots, "rove", Some(&serial));
+    let port = line(&found, "serial: /dev/ttyACM0");
+    assert_eq!(
+        port.status,
+        Status::Wrong,
+        "needed, and rove is not in its group"
+    );
+    assert!(
+        port.to_string().contains("usermod -aG input rove"),
+        "{port}"
+    );
+    put(&roots, "/etc/group", "dialout:x:0:rove\n", 0o644);
+    let found = check(&roots, "rove", Some(&serial));
+    assert_eq!(line(&found, "serial: /dev/ttyACM0").status, Status::Ok);
+}
+
+#[test]
+fn input_devices_are_listed_by_name_with_their_access() {
+    let roots = tree("inputs");
+    put(&roots, "/etc/group", "input:x:0:rove\n", 0o644);
+    put(&roots, "/dev/input/event3", "", 0o660);
+    put(
+        &roots,
+        "/sys/class/input/event3/device/name",
+        "Logitech Gamepad F310\n",
+        0o444,
+    );
+    let found = check(&roots, "rove", None);
+    let pad = line(&found, "input: /dev/input/event3 \"Logitech Gamepad F310\"");
+    assert_eq!(pad.status, Status::Ok);
+    assert!(!found.iter().any(|f| f.what.starts_with("network")));
+}
