@@ -521,8 +521,53 @@ impl Arbiter {
         let mut decision = Decision::default();
 
         // 1. Record the event. `sampled` is the writer whose new values may need applying.
+        let sampled = self.record(now, &event, &mut decision);
+
+        // 2. Re-arbitrate.
+        let after = self.select(now);
+        if after.writer() != before.writer() {
+            let reason = self.reason(before, &event, now);
+            if let Owner::Controller(c) = before {
+                let stepped_down =
+                    matches!(reason, Reason::Released | Reason::Left | Reason::TimedOut);
+                self.stepped_down = stepped_down.then_some(SteppedDown {
+                    device: c.device,
+                    until: now + self.config.command_timeout.get(),
+                });
+            }
+            self.owner = after;
+            decision.owner_change = Some(OwnerChange {
+                from: before,
+                to: after,
+                reason,
+            });
+            decision.output = Some(self.output_for_owner());
+        } else {
+            // Same writer; its strength may have been updated.
+            self.owner = after;
+            let owner_sent_values = sampled.is_some() && sampled == after.writer();
+            let values_lapsed = self.driving
+                && self
+                    .owner_source()
+                    .and_then(|s| s.fresh_setpoint(now, self.config.command_timeout))
+                    .is_none();
+            if owner_sent_values || values_lapsed {
+                decision.output = Some(self.output_for_owner());
+            }
+        }
+
+        decision
+    }
+
+    /// Records `event`; returns the writer whose new values may need applying.
+    fn record(
+        &mut self,
+        now: MonoTime,
+        event: &Event,
+        decision: &mut Decision,
+    ) -> Option<WriterId> {
         let mut sampled = None;
-        match event {
+        match *event {
             Event::Sample {
                 writer,
                 strength,
@@ -607,41 +652,7 @@ impl Arbiter {
             }
             Event::Tick => {}
         }
-
-        // 2. Re-arbitrate.
-        let after = self.select(now);
-        if after.writer() != before.writer() {
-            let reason = self.reason(before, &event, now);
-            if let Owner::Controller(c) = before {
-                let stepped_down =
-                    matches!(reason, Reason::Released | Reason::Left | Reason::TimedOut);
-                self.stepped_down = stepped_down.then_some(SteppedDown {
-                    device: c.device,
-                    until: now + self.config.command_timeout.get(),
-                });
-            }
-            self.owner = after;
-            decision.owner_change = Some(OwnerChange {
-                from: before,
-                to: after,
-                reason,
-            });
-            decision.output = Some(self.output_for_owner());
-        } else {
-            // Same writer; its strength may have been updated.
-            self.owner = after;
-            let owner_sent_values = sampled.is_some() && sampled == after.writer();
-            let values_lapsed = self.driving
-                && self
-                    .owner_source()
-                    .and_then(|s| s.fresh_setpoint(now, self.config.command_timeout))
-                    .is_none();
-            if owner_sent_values || values_lapsed {
-                decision.output = Some(self.output_for_owner());
-            }
-        }
-
-        decision
+        sampled
     }
 
     /// Records a sample. `Ok(true)` if it carried values (movement or mode), `Ok(false)` for a
