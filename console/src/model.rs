@@ -438,41 +438,7 @@ impl ConsoleState {
                 name,
                 kind,
                 owner,
-            } => {
-                let previous = self
-                    .devices
-                    .get(&id)
-                    .and_then(|d| d.vehicle.as_ref())
-                    .map(|v| v.owner);
-                if let Some(from) = previous.filter(|&from| from != owner) {
-                    self.log_owner(now, id, from, owner, "reported by the vehicle".into());
-                }
-                let device = self.devices.entry(id).or_insert_with(|| Device {
-                    id,
-                    name: name.clone(),
-                    kind,
-                    online: true,
-                    last_seen: now,
-                    vehicle: None,
-                });
-                device.name = name;
-                device.kind = kind;
-                device.online = true;
-                device.last_seen = now;
-                device.vehicle = match (kind, device.vehicle.take()) {
-                    (DeviceKind::Controller, _) => None,
-                    (DeviceKind::Vehicle, Some(v)) => Some(VehicleView { owner, ..v }),
-                    (DeviceKind::Vehicle, None) => Some(VehicleView {
-                        owner,
-                        mode: None,
-                        failsafe: false,
-                        link: None,
-                    }),
-                };
-                if self.selected.is_none() && kind == DeviceKind::Vehicle {
-                    self.selected = Some(id);
-                }
-            }
+            } => self.device_seen(now, id, name, kind, owner),
             Event::DeviceGone { id } => {
                 if let Some(d) = self.devices.get_mut(&id) {
                     d.online = false;
@@ -532,23 +498,7 @@ impl ConsoleState {
                 from,
                 src_priority,
                 deadline,
-            } => {
-                // A question about another vehicle now covers the screen: a "yes" meant for the
-                // hidden confirmation must not land on it, nor the other way round.
-                self.confirm = None;
-                self.incoming.insert(
-                    vehicle,
-                    IncomingRequest {
-                        vehicle,
-                        from,
-                        src_priority,
-                        deadline,
-                        opened: now,
-                    },
-                );
-                let text = format!("{} asks for {}", self.label(from), self.label(vehicle));
-                self.note(now, text);
-            }
+            } => self.request_incoming(now, vehicle, from, src_priority, deadline),
             Event::PromptClosed { vehicle, outcome } => {
                 if let Some(req) = self.incoming.remove(&vehicle) {
                     let text = format!(
@@ -585,6 +535,76 @@ impl ConsoleState {
             Event::Tick => {}
         }
         self.expire(now);
+    }
+
+    /// A device's DeviceInfo: listed (or updated), its owner change logged.
+    fn device_seen(
+        &mut self,
+        now: MonoTime,
+        id: DeviceId,
+        name: String,
+        kind: DeviceKind,
+        owner: DeviceId,
+    ) {
+        let previous = self
+            .devices
+            .get(&id)
+            .and_then(|d| d.vehicle.as_ref())
+            .map(|v| v.owner);
+        if let Some(from) = previous.filter(|&from| from != owner) {
+            self.log_owner(now, id, from, owner, "reported by the vehicle".into());
+        }
+        let device = self.devices.entry(id).or_insert_with(|| Device {
+            id,
+            name: name.clone(),
+            kind,
+            online: true,
+            last_seen: now,
+            vehicle: None,
+        });
+        device.name = name;
+        device.kind = kind;
+        device.online = true;
+        device.last_seen = now;
+        device.vehicle = match (kind, device.vehicle.take()) {
+            (DeviceKind::Controller, _) => None,
+            (DeviceKind::Vehicle, Some(v)) => Some(VehicleView { owner, ..v }),
+            (DeviceKind::Vehicle, None) => Some(VehicleView {
+                owner,
+                mode: None,
+                failsafe: false,
+                link: None,
+            }),
+        };
+        if self.selected.is_none() && kind == DeviceKind::Vehicle {
+            self.selected = Some(id);
+        }
+    }
+
+    /// Another operator asks for a vehicle we hold: the question, shown.
+    fn request_incoming(
+        &mut self,
+        now: MonoTime,
+        vehicle: DeviceId,
+        from: DeviceId,
+        src_priority: i32,
+        deadline: MonoTime,
+    ) {
+        // A question about another vehicle now covers the screen: a "yes" meant for the
+        // hidden confirmation must not land on it, nor the other way round.
+        self.confirm = None;
+        self.incoming.insert(
+            vehicle,
+            IncomingRequest {
+                vehicle,
+                from,
+                src_priority,
+                deadline,
+                opened: now,
+            },
+        );
+        let text = format!("{} asks for {}", self.label(from), self.label(vehicle));
+        self.note(now, text);
     }
 
     /// Time-driven changes: devices go offline, stale confirmations close.
