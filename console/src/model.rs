@@ -7,7 +7,6 @@
 //! server keeps its own mirror of it to greet late clients with a snapshot.
 
 use rove_core::MonoTime;
-use rove_core::handover;
 use rove_core::hierarchy::{DeviceClass, Level, Strength};
 use rove_core::msg::{DeviceId, DeviceType, Mode, MovementCommand};
 use std::collections::{BTreeMap, VecDeque};
@@ -83,41 +82,8 @@ pub enum MyRole {
     Paused,
 }
 
-/// How a handover ended (mirrors [`rove_core::handover::Outcome`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Outcome {
-    /// Accepted: the requester drives with a priority writer.
-    Accepted,
-    /// Refused.
-    Refused,
-    /// No answer in time.
-    TimedOut,
-    /// The requester withdrew.
-    Withdrawn,
-}
-
-impl Outcome {
-    /// Lower-case name, as the API spells it.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Outcome::Accepted => "accepted",
-            Outcome::Refused => "refused",
-            Outcome::TimedOut => "timed_out",
-            Outcome::Withdrawn => "withdrawn",
-        }
-    }
-}
-
-impl From<handover::Outcome> for Outcome {
-    fn from(o: handover::Outcome) -> Self {
-        match o {
-            handover::Outcome::Accepted => Outcome::Accepted,
-            handover::Outcome::Refused => Outcome::Refused,
-            handover::Outcome::TimedOut => Outcome::TimedOut,
-            handover::Outcome::Withdrawn => Outcome::Withdrawn,
-        }
-    }
-}
+/// How a handover ended: the core's, as the API and the views spell it.
+pub use rove_core::handover::Outcome;
 
 /// The input device as the operator sees it.
 #[derive(Debug, Clone, PartialEq, Eq)]

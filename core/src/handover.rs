@@ -172,6 +172,18 @@ pub enum Outcome {
     Withdrawn,
 }
 
+impl Outcome {
+    /// Lower-case name, as the local API spells it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Outcome::Accepted => "accepted",
+            Outcome::Refused => "refused",
+            Outcome::TimedOut => "timed_out",
+            Outcome::Withdrawn => "withdrawn",
+        }
+    }
+}
+
 /// What the operator role must do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Action {

@@ -49,7 +49,7 @@ impl CommandTimeout {
     }
 
     /// The timeout as a duration.
-    pub fn get(self) -> Duration {
+    pub const fn get(self) -> Duration {
         self.0
     }
 }

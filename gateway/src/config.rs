@@ -623,7 +623,8 @@ impl RawVehicle<OutputSection> {
         common.security = self.security.as_ref().map(|s| s.dir.clone());
         let output = self.output.validate(&mut errors);
         let key = "vehicle.command_timeout_ms";
-        let millis = *self.vehicle.command_timeout_ms.get_or_insert(100);
+        let default = CommandTimeout::DEFAULT.get().as_millis();
+        let millis = *(self.vehicle.command_timeout_ms).get_or_insert(default as Int);
         let timeout = errors
             .int(key, millis, 0..=Int::MAX, "")
             .and_then(|ms| errors.section("", CommandTimeout::from_millis(key, ms)));

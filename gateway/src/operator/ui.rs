@@ -95,14 +95,8 @@ impl Ui {
                 src_priority,
                 deadline,
             },
-            Report::PromptClosed { vehicle, outcome } => Event::PromptClosed {
-                vehicle,
-                outcome: outcome.into(),
-            },
-            Report::RequestEnded { vehicle, outcome } => Event::RequestEnded {
-                vehicle,
-                outcome: outcome.into(),
-            },
+            Report::PromptClosed { vehicle, outcome } => Event::PromptClosed { vehicle, outcome },
+            Report::RequestEnded { vehicle, outcome } => Event::RequestEnded { vehicle, outcome },
             Report::Untrusted(suspect) => Event::Notice {
                 text: format!("not believed: {suspect}"),
             },

@@ -40,7 +40,9 @@ use std::time::{Duration, Instant};
 const VEHICLE: i64 = 100;
 
 /// The vehicle's command timeout, µs (the default of `[vehicle] command_timeout_ms`).
-const COMMAND_TIMEOUT_US: u64 = 100_000;
+const COMMAND_TIMEOUT_US: u64 = rove_core::watchdog::CommandTimeout::DEFAULT
+    .get()
+    .as_micros() as u64;
 
 /// How long after a fault (or the end of one: a SIGCONT, a restart) the bench does not judge
 /// the owner: one command timeout for the vehicle to notice, plus what a loaded 2-core machine
