@@ -15,19 +15,20 @@
 //! - [`tools`]: apart from the roles: the demo, the benches (`handover`, `input`, `chaos`,
 //!   `scale`) and the process harness they and the multi-process tests share.
 //! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
-//! - `keys` (with the `security` feature): `rove keys`, a fleet's DDS Security files.
+//! - `certs` (with the `security` feature): `rove keys`, a fleet's DDS Security files (CA,
+//!   governance, each device's certificate and permissions); `keys` in the console is the keyboard.
 //! - [`runtime`]: clock, signals, rate-limited warnings, logging.
 //! - [`sdnotify`]: systemd readiness, status, watchdog keep-alives and stopping.
 
 #![deny(missing_docs)]
 
+#[cfg(feature = "security")]
+pub mod certs;
 pub mod config;
 pub mod dds;
 pub mod dds_log;
 pub mod doctor;
 pub mod host;
-#[cfg(feature = "security")]
-pub mod keys;
 pub mod operator;
 pub mod output;
 pub mod runtime;

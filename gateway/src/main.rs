@@ -427,7 +427,7 @@ fn inputs_list() -> anyhow::Result<()> {
 fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
     match what {
         KeysCommand::Init { dir, fleet, domain } => {
-            rove_gateway::keys::init(&dir, &fleet, domain)?;
+            rove_gateway::certs::init(&dir, &fleet, domain)?;
             println!(
                 "fleet {fleet:?} created in {} (domain {domain})",
                 dir.display()
@@ -435,7 +435,7 @@ fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
             Ok(())
         }
         KeysCommand::Add { dir, id } => {
-            let out = rove_gateway::keys::add(&dir, id)?;
+            let out = rove_gateway::certs::add(&dir, id)?;
             println!(
                 "device {id}: certificate, key and permissions in {}",
                 out.display()
@@ -443,7 +443,7 @@ fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
             Ok(())
         }
         KeysCommand::Web { dir, hosts } => {
-            let out = rove_gateway::keys::web(&dir, &hosts)?;
+            let out = rove_gateway::certs::web(&dir, &hosts)?;
             println!(
                 "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
                 out.display()

@@ -1,5 +1,5 @@
-//! The PWM device interface ([`PwmBackend`]), the recording [`SimBackend`], and
-//! [`open_backend`], which builds the configured backend.
+//! The PWM device interface ([`PwmBackend`]) and the recording [`SimBackend`]; the backend a
+//! config names is built by [`crate::open_backend`].
 //!
 //! A backend owns one set of channels, indexed `0..n` in config order, all at one period. It
 //! turns pulse widths (µs) into whatever its device wants (ns duty cycles for sysfs, `Duration`s

@@ -5,7 +5,8 @@
 //! # Layout
 //! - [`config`]: `[output]` as written ([`PwmVehicleSettings`]) and validated
 //!   ([`PwmVehicleConfig`]).
-//! - [`backend`]: the [`PwmBackend`] trait, the recording [`SimBackend`], [`open_backend`].
+//! - [`backend`]: the [`PwmBackend`] trait and the recording [`SimBackend`]; `open.rs`:
+//!   [`open_backend`], the backend a config names.
 //! - [`sysfs`]: `/sys/class/pwm` ([`SysfsBackend`]).
 //! - `rppal` (feature `rppal`): Raspberry Pi hardware and software PWM (`RppalBackend`).
 //! - [`vehicle`]: [`PwmVehicle`], the [`rove_core::adapter::OutputAdapter`].

@@ -151,7 +151,7 @@ impl Discovery {
 }
 
 /// Under `[security]`: checks this device's DDS Security directory and returns who may speak
-/// for which id (a participant only for the id in its certificate, `keys::FleetIdentity`).
+/// for which id (a participant only for the id in its certificate, `certs::FleetIdentity`).
 /// `None` without `[security]`. `any_id` (a test hook) lets a device run with another device's
 /// certificate, to see the others refuse it.
 ///
@@ -171,7 +171,7 @@ pub fn certifier(common: &Common, any_id: bool) -> anyhow::Result<Option<Certifi
         // The test hook exists in debug builds only: a release build always checks that the
         // certificate is this device's.
         let any_id = cfg!(debug_assertions) && any_id;
-        let fleet = crate::keys::check_device_dir(dir, common.id, any_id)?;
+        let fleet = crate::certs::check_device_dir(dir, common.id, any_id)?;
         tracing::info!(
             dir = %dir.display(),
             fleet = fleet.fleet(),

@@ -218,9 +218,9 @@ impl Rig {
         let dir = self.dir.join("fleet");
         #[cfg(feature = "security")]
         {
-            crate::keys::init(&dir, "rove demo fleet", 0)?;
+            crate::certs::init(&dir, "rove demo fleet", 0)?;
             for &id in ids {
-                crate::keys::add(&dir, id)?;
+                crate::certs::add(&dir, id)?;
             }
             Ok(dir)
         }
