@@ -158,11 +158,18 @@ impl Rig {
     /// `rove ARGS` in the namespace with the rig's environment, not started yet (for a command
     /// that runs to completion, such as `rove failsafe`).
     pub fn command(&self, args: &[&str]) -> Command {
+        self.command_scheduled(None, args)
+    }
+
+    /// [`Rig::command`], under SCHED_FIFO at priority `fifo` (`chrt -f`) if given.
+    fn command_scheduled(&self, fifo: Option<u8>, args: &[&str]) -> Command {
+        let chrt = fifo.map(|p| ["chrt".to_string(), "-f".into(), p.to_string()]);
         let mut command = Command::new("ip");
         command
             .arg("netns")
             .arg("exec")
             .arg(&self.ns)
+            .args(chrt.iter().flatten())
             .arg(&self.rove)
             .args(args)
             .env("RUNTIME_DIRECTORY", self.runtime_dir())
@@ -183,20 +190,8 @@ impl Rig {
     fn spawn_scheduled(&mut self, name: &str, fifo: Option<u8>, args: &[&str]) -> usize {
         let log = self.dir.join(format!("{}-{name}.log", self.procs.len()));
         let file = std::fs::File::create(&log).expect("log file");
-        let chrt = fifo.map(|p| ["chrt".to_string(), "-f".into(), p.to_string()]);
-        let child = Command::new("ip")
-            .arg("netns")
-            .arg("exec")
-            .arg(&self.ns)
-            .args(chrt.iter().flatten())
-            .arg(&self.rove)
-            .args(args)
-            .env("RUNTIME_DIRECTORY", self.runtime_dir())
-            .env(
-                "RUST_LOG",
-                std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),
-            )
-            .stdin(Stdio::null())
+        let child = self
+            .command_scheduled(fifo, args)
             .stdout(file.try_clone().expect("log"))
             .stderr(file)
             .spawn()
