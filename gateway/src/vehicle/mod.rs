@@ -97,9 +97,30 @@ pub async fn run(
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let mut vehicle = Vehicle::start(&config, &options, clock)?;
-    let result = vehicle.run(&config, &options, shutdown).await;
+    let mut readers = Readers::open(&vehicle.node.domain, vehicle.me)?;
+    let result = vehicle.run(&config, &options, &mut readers, shutdown).await;
     vehicle.stop();
+    // Only now: deleting a reader is announced to every peer; the stop (outputs safe,
+    // DeviceInfo) goes first.
+    drop(readers);
     result
+}
+
+/// The vehicle's DDS readers, kept until it has stopped.
+struct Readers {
+    commands: rustdds::with_key::DataReaderStream<dds::KeyedControlCommand>,
+    requests: rustdds::no_key::DataReaderStream<rove_core::msg::RequestControl>,
+    infos: rustdds::with_key::DataReaderStream<KeyedDeviceInfo>,
+}
+
+impl Readers {
+    fn open(domain: &dds::Domain, me: i64) -> anyhow::Result<Readers> {
+        Ok(Readers {
+            commands: domain.command_reader(me)?.async_sample_stream(),
+            requests: domain.request_reader()?.async_sample_stream(),
+            infos: domain.device_info_reader()?.async_sample_stream(),
+        })
+    }
 }
 
 impl Vehicle {
@@ -168,13 +189,15 @@ impl Vehicle {
         &mut self,
         config: &VehicleConfig,
         options: &Options,
+        readers: &mut Readers,
         shutdown: impl std::future::Future<Output = ()>,
     ) -> anyhow::Result<()> {
-        let domain = &self.node.domain;
-        let mut commands = domain.command_reader(self.me)?.async_sample_stream();
-        let mut requests = domain.request_reader()?.async_sample_stream();
-        let mut infos = domain.device_info_reader()?.async_sample_stream();
-        let listener = domain.participant.status_listener();
+        let Readers {
+            commands,
+            requests,
+            infos,
+        } = readers;
+        let listener = self.node.domain.participant.status_listener();
         let mut status = listener.as_async_status_stream();
         self.node.publish(self.arbiter.controller_id());
         let mut heartbeat = tokio::time::interval(config.common.heartbeat);
