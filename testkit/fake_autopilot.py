@@ -170,9 +170,7 @@ def main():
             return []
         try:
             data = m.port.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return []
-        except OSError:
+        except OSError:  # nothing to read yet (BlockingIOError), or the socket failed
             return []
         try:
             return m.mav.parse_buffer(data) or []

@@ -330,9 +330,7 @@ fn vehicle_cmd(
     record: Option<std::path::PathBuf>,
     stall_ms: Option<u64>,
 ) -> anyhow::Result<()> {
-    let mut config = config::load_vehicle(&path).map_err(bad_config)?;
-    runtime::init_logging(config.common.log_filter.as_deref());
-    output::keep_learned(&mut config.output, config.common.id);
+    let config = load_vehicle(&path)?;
     let options = vehicle::Options {
         config_path: path,
         record,
@@ -341,11 +339,19 @@ fn vehicle_cmd(
     tokio_runtime()?.block_on(host::vehicle(config, options))
 }
 
-/// `rove failsafe`: for systemd's `ExecStopPost`.
-fn failsafe_cmd(config: &std::path::Path) -> anyhow::Result<()> {
-    let mut config = config::load_vehicle(config).map_err(bad_config)?;
+/// A vehicle config for `rove vehicle` and `rove failsafe`: loaded, logging started, and the
+/// MAVLink output told where the running vehicle keeps what it learns (which the failsafe
+/// reads).
+fn load_vehicle(path: &std::path::Path) -> anyhow::Result<config::VehicleConfig> {
+    let mut config = config::load_vehicle(path).map_err(bad_config)?;
     runtime::init_logging(config.common.log_filter.as_deref());
     output::keep_learned(&mut config.output, config.common.id);
+    Ok(config)
+}
+
+/// `rove failsafe`: for systemd's `ExecStopPost`.
+fn failsafe_cmd(config: &std::path::Path) -> anyhow::Result<()> {
+    let config = load_vehicle(config)?;
     let what =
         output::failsafe(&config.output).map_err(|e| anyhow::anyhow!("failsafe: {}", e.detail))?;
     println!("rove failsafe: {what}: safe state written");

@@ -249,14 +249,7 @@ impl Link {
     /// The (system, component) to address, once known: the configured ids, else the
     /// autopilot's as heard, else as an earlier run learned them.
     pub fn target(&self) -> Option<(u8, u8)> {
-        let s = lock(&self.shared.status);
-        let heard = s.autopilot.map(|a| (a.system_id, a.component_id));
-        let (sys, comp) = match (self.shared.target_system, heard.or(self.shared.learned)) {
-            (Some(sys), known) => (sys, known.map_or(1, |(_, c)| c)),
-            (None, Some(known)) => known,
-            (None, None) => return None,
-        };
-        Some((sys, self.shared.target_component.unwrap_or(comp)))
+        target(&self.shared)
     }
 
     /// Whether a send can leave now: the transport is open and, on a `udpin:` link, the
@@ -518,6 +511,19 @@ fn notify(shared: &Shared) {
     shared.news.notify_all();
 }
 
+/// The (system, component) to address: see [`Link::target`].
+fn target(shared: &Shared) -> Option<(u8, u8)> {
+    let heard = lock(&shared.status)
+        .autopilot
+        .map(|a| (a.system_id, a.component_id));
+    let (sys, comp) = match (shared.target_system, heard.or(shared.learned)) {
+        (Some(sys), known) => (sys, known.map_or(1, |(_, c)| c)),
+        (None, Some(known)) => known,
+        (None, None) => return None,
+    };
+    Some((sys, shared.target_component.unwrap_or(comp)))
+}
+
 /// Keeps what the link learned in the memory file, when it changed (the udpin peer, the
 /// autopilot's ids). A failure is logged once: the link works without it, only `rove failsafe`
 /// is slower.
@@ -525,15 +531,9 @@ fn remember(shared: &Shared) {
     let Some(path) = &shared.memory else {
         return;
     };
-    // The autopilot as heard, else as configured (a udpin link's address is worth keeping
-    // even before the first HEARTBEAT).
-    let heard = lock(&shared.status)
-        .autopilot
-        .map(|a| (a.system_id, a.component_id));
-    let configured = shared
-        .target_system
-        .map(|sys| (sys, shared.target_component.unwrap_or(1)));
-    let Some((system_id, component_id)) = heard.or(configured) else {
+    // Whom the link addresses: a udpin link's address is worth keeping with a configured
+    // target even before the first HEARTBEAT.
+    let Some((system_id, component_id)) = target(shared) else {
         return;
     };
     let learned = Learned {
