@@ -155,8 +155,17 @@ impl ModeControl {
     }
 
     /// The target's HEARTBEAT reports `custom_mode`.
+    ///
+    /// It confirms only a wish that was sent at least once: a HEARTBEAT read before the command
+    /// left may be stale (bytes a serial line or socket held from before), and a safe mode is
+    /// always commanded rather than assumed.
     pub fn on_heartbeat(&mut self, custom_mode: u32) {
-        if let ModeState::Pending { mode, .. } | ModeState::Failed { mode, .. } = &self.state
+        let sent = match &self.state {
+            ModeState::Pending { attempts, .. } => *attempts > 0,
+            _ => true,
+        };
+        if sent
+            && let ModeState::Pending { mode, .. } | ModeState::Failed { mode, .. } = &self.state
             && mode.custom_mode == custom_mode
         {
             self.state = ModeState::Confirmed(mode.clone());
@@ -330,6 +339,17 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_heartbeat_before_the_first_send_confirms_nothing() {
+        let mut m = machine();
+        m.request(ms(0), &hold());
+        m.on_heartbeat(4);
+        assert!(matches!(m.state(), ModeState::Pending { attempts: 0, .. }));
+        assert_eq!(m.poll(ms(0)), Some(4), "the safe mode is commanded anyway");
+        m.on_heartbeat(4);
+        assert_eq!(m.state(), &ModeState::Confirmed(hold()));
     }
 
     #[test]
