@@ -26,6 +26,7 @@
 //! - [`sender`]: who sent a message (participant, writer), as the binding names them.
 //! - [`trust`]: device ids pinned to participants, and the strengths a vehicle believes.
 //! - [`freshness`]: whether a command sample queued up too long to drive with.
+//! - [`world`]: sessions and an arbiter joined by direct delivery (demo, tests, fuzzing).
 //! - [`error`]: configuration errors (naming their keys) and classified link errors.
 //! - [`config`]: the shared config vocabulary: integer policy, range/required/unique checks,
 //!   unknown keys of tables built from shared pieces, and [`config_types!`], the one-line-a-key
@@ -49,6 +50,7 @@ pub mod sim;
 pub mod time;
 pub mod trust;
 pub mod watchdog;
+pub mod world;
 
 pub use error::{Error, Result};
 pub use time::MonoTime;

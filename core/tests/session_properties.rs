@@ -1,10 +1,11 @@
 //! Property tests of operator sessions together with the vehicle's arbiter.
 //!
 //! Three operator sessions (strengths 130, 220, 340; each with a device input that can go live
-//! and be lost) and one vehicle's arbiter are joined by a perfect, in-order network: every
-//! effect a session produces is delivered at once — ControlCommand writes and releases to the
-//! arbiter, RequestControl to the arbiter (ACCEPT / FINISH) and to every session — and the
-//! vehicle's owner is published back to the sessions after every step, as its DeviceInfo does.
+//! and be lost) and one vehicle's arbiter are joined by the shared simulated world
+//! (`rove_core::world`), a perfect, in-order network: every effect a session produces is
+//! delivered at once — ControlCommand writes and releases to the arbiter, RequestControl to the
+//! arbiter (ACCEPT / FINISH) and to every session — and the vehicle's owner is published back to
+//! the sessions on every change and after every operation, as its DeviceInfo does.
 //! Random operations drive them: sticks, lost inputs, deadman releases, every console command,
 //! graceful quits, crashes and time. (Loss, duplication and reordering of RequestControl are
 //! covered by `handover_properties`.)
@@ -28,16 +29,16 @@
 use proptest::prelude::*;
 use rove_core::MonoTime;
 use rove_core::adapter::InputEvent;
-use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, ParticipantId};
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Decision, Event, Output, Owner, ParticipantId};
 use rove_core::handover::{AutoAccept, HandoverConfig};
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
 use rove_core::msg::Ack;
 use rove_core::msg::{CommandType, DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
 use rove_core::session::{
-    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput, Writer,
+    Command, Effect, Report, SessionConfig, SessionEvent, SessionInput, Writer,
 };
 use rove_core::trust::{Access, Grant, TrustConfig};
-use std::collections::VecDeque;
+use rove_core::world::{Halt, Observer, Operator, View, World};
 use std::time::Duration;
 
 const V: DeviceId = 1000;
@@ -76,7 +77,8 @@ enum Forgery {
         src: usize,
         owner: usize,
         priority: i32,
-        stamp: u64,
+        /// Long ago, now, or at the far end of time.
+        stamp: u8,
     },
     Info {
         owner: usize,
@@ -110,7 +112,7 @@ fn forgery() -> impl Strategy<Value = Forgery> {
             0usize..4,
             0usize..4,
             prop::sample::select(vec![0, 131, 400, i32::MAX]),
-            prop::sample::select(vec![0u64, 1_000_000, u64::MAX])
+            0u8..3
         )
             .prop_map(|(ack, src, owner, priority, stamp)| Forgery::Request {
                 ack,
@@ -181,24 +183,115 @@ fn participant(i: usize) -> ParticipantId {
     ParticipantId(u128::from(IDS[i].unsigned_abs()))
 }
 
-struct World {
-    now: MonoTime,
-    sessions: Vec<OperatorSession>,
-    /// When each operator crashed or quit (it takes no more events).
-    gone: [Option<MonoTime>; 3],
-    vehicle: Arbiter,
-    /// Keep-alive periods so far (for the heartbeat).
-    periods: u64,
+/// Stops the test with what the world found.
+fn halt(h: Halt<TestCaseError>) -> TestCaseError {
+    match h {
+        Halt::Observer(e) => e,
+        unsettled => TestCaseError::fail(unsettled.to_string()),
+    }
+}
+
+/// Checks every effect before it is delivered and every decision of the vehicle.
+#[derive(Default)]
+struct Checker {
     /// The operator each one last yielded the vehicle to (its ACCEPT).
     yielded_to: [Option<usize>; 3],
+    /// Since each one's yield, the vehicle has had an owner other than the holder's priority
+    /// writer. Between an ACCEPT and the holder's first sample the vehicle falls back to whoever
+    /// is next (a bystander, a standing-by earlier owner, the holder's own regular writer) and
+    /// publishes it; DeviceInfo names only a device, so a replier that hears such an owner may
+    /// resume early, beside the holder (docs/design.md §5, "Resuming on the vehicle's word").
+    /// The vehicle is unaffected. A resume without any such owner is a fault.
+    fallback_named: [bool; 3],
     /// When each operator's regular writer last sent the vehicle a sample (PROBEs included).
     last_sample: [Option<MonoTime>; 3],
 }
 
-impl World {
+impl Observer for Checker {
+    type Error = TestCaseError;
+
+    fn effect(&mut self, w: View<'_>, i: usize, effect: &Effect) -> Result<(), TestCaseError> {
+        // A yielded owner resumes only once the grant it yielded to is over: no forged FINISH
+        // or DeviceInfo makes it drive beside a live holder.
+        if let Effect::Send(msg) = effect
+            && msg.ack == Ack::Accept
+            && msg.current_controller_id == IDS[i]
+        {
+            self.yielded_to[i] = IDS.iter().position(|&d| d == msg.src_id);
+            self.fallback_named[i] = false;
+        }
+        if let Effect::Report(Report::Resumed { .. }) = effect
+            && let Some(h) = self.yielded_to[i].take()
+        {
+            let honoured = w.operators[h].runs()
+                && w.operators[h].session.streams().holding.contains(&V)
+                && w.vehicle.grant_holder() == Some(IDS[h]);
+            prop_assert!(
+                !honoured || self.fallback_named[i],
+                "op {i} resumed while op {h} still holds its grant"
+            );
+        }
+        if let Effect::Write { writer, command } = effect {
+            if *writer == Writer::Regular && command.dest_id == V {
+                self.last_sample[i] = Some(w.now);
+            }
+            let s = &w.operators[i].session;
+            if *writer == Writer::Regular && command.command_type == CommandType::Movement {
+                prop_assert!(s.input().2, "op {i} drives without live input");
+                prop_assert!(
+                    !s.handover().has_yielded(V),
+                    "op {i} drives a vehicle it yielded"
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Values are applied only from an operator that drives the vehicle.
+    fn decision(&mut self, w: View<'_>, d: &Decision) -> Result<(), TestCaseError> {
+        if let Some(change) = d.owner_change {
+            for i in 0..3 {
+                if let Some(h) = self.yielded_to[i] {
+                    let holder = matches!(change.to, Owner::Controller(c)
+                        if c.device == IDS[h] && c.strength == Strength::PRIORITY);
+                    self.fallback_named[i] |= !holder;
+                }
+            }
+        }
+        if let Some(Output::Apply { by, .. }) = d.output {
+            prop_assert_ne!(by.writer.participant, ROGUE, "a rogue sample was applied");
+            let i = IDS
+                .iter()
+                .position(|&d| d == by.device)
+                .ok_or_else(|| TestCaseError::fail("applied from an unknown device"))?;
+            if w.operators[i].runs() {
+                let s = &w.operators[i].session;
+                let streams = s.streams();
+                // A replier standing by may see its own last values (fresh for one timeout)
+                // applied when the grant returns, just before its FINISH reaches it.
+                let drives = (streams.driving.contains(&V) && s.input().2)
+                    || streams.holding.contains(&V)
+                    || streams.standby.contains(&V);
+                prop_assert!(
+                    drives,
+                    "applied values from op {i}, which does not drive: {streams:?}"
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The shared world (rove_core::world), with the checker, and the heartbeat's count.
+struct Sim {
+    w: World<Checker>,
+    /// Keep-alive periods so far (for the heartbeat).
+    periods: u64,
+}
+
+impl Sim {
     fn new(policies: [AutoAccept; 3], drive: [bool; 3]) -> Self {
-        let now = MonoTime::ZERO;
-        let sessions = (0..3)
+        let operators = (0..3)
             .map(|i| {
                 let handover = HandoverConfig {
                     auto_accept: policies[i],
@@ -206,67 +299,53 @@ impl World {
                     reply_timeout: Duration::from_millis(400),
                     resend: Duration::from_millis(100),
                 };
-                OperatorSession::new(
-                    SessionConfig {
-                        me: IDS[i],
-                        strength: Strength(STRENGTHS[i]),
-                        handover,
-                        drive: if drive[i] { vec![V] } else { vec![] },
-                        input: SessionInput::Device,
-                        heartbeat: Duration::from_millis(500),
-                        confirm_actions: false,
-                        request: None,
-                        participant: participant(i),
-                        trust: TrustConfig::default(),
-                    },
-                    now,
-                )
-            })
-            .collect::<Vec<_>>();
-        // Discovery: every session knows the others' regular writers and their strengths.
-        let mut sessions = sessions;
-        for (i, session) in sessions.iter_mut().enumerate() {
-            for j in (0..3).filter(|&j| j != i) {
-                let writer = Writer::Regular.id(participant(j));
-                let found = SessionEvent::WriterFound {
-                    writer,
-                    strength: Strength(STRENGTHS[j]),
+                let config = SessionConfig {
+                    me: IDS[i],
+                    strength: Strength(STRENGTHS[i]),
+                    handover,
+                    drive: if drive[i] { vec![V] } else { vec![] },
+                    input: SessionInput::Device,
+                    heartbeat: Duration::from_millis(500),
+                    confirm_actions: false,
+                    request: None,
+                    participant: participant(i),
+                    trust: TrustConfig::default(),
                 };
-                session.step(now, TimeT(0), found);
-            }
-        }
-        World {
-            now,
-            sessions,
-            gone: [None; 3],
-            vehicle: Arbiter::new(V, ArbiterConfig::default()).with_access(access()),
-            periods: 0,
-            yielded_to: [None; 3],
-            last_sample: [None; 3],
-        }
+                Operator::new(config, MonoTime::ZERO)
+            })
+            .collect();
+        let vehicle = Arbiter::new(V, ArbiterConfig::default()).with_access(access());
+        let mut w = World::new(vehicle, VEHICLE_PARTICIPANT, operators, Checker::default());
+        // Discovery: every session knows the others' regular writers and their strengths.
+        w.discover();
+        Sim { w, periods: 0 }
+    }
+
+    fn live(&self, i: usize) -> bool {
+        self.w.runs(i)
+    }
+
+    fn session(&self, i: usize) -> &rove_core::session::OperatorSession {
+        self.w.session(i)
+    }
+
+    fn step(&mut self, i: usize, event: SessionEvent) -> Result<(), TestCaseError> {
+        self.w.step(i, event).map_err(halt)
+    }
+
+    fn vehicle_step(&mut self, event: Event) -> Result<(), TestCaseError> {
+        self.w.vehicle_step(event).map_err(halt).map(drop)
+    }
+
+    fn publish_owner(&mut self) -> Result<(), TestCaseError> {
+        self.w.publish_owner().map_err(halt)
     }
 
     /// Every running operator's DeviceInfo, to the vehicle and the other sessions.
     fn presence(&mut self) -> Result<(), TestCaseError> {
-        let running: Vec<usize> = (0..3).filter(|&i| self.live(i)).collect();
-        for i in running {
-            let (device, sender) = (IDS[i], participant(i));
-            let d = self.vehicle.step(self.now, Event::Heard { device, sender });
-            prop_assert!(d.suspect.is_none(), "operator {i}'s id taken: {d:?}");
-            let info = DeviceInfo {
-                device_id: device,
-                name: format!("op{device}"),
-                device_type: DeviceType::Controller,
-                controller_id: device,
-            };
-            for j in (0..3).filter(|&j| j != i) {
-                self.step(
-                    j,
-                    SessionEvent::DeviceInfo {
-                        info: info.clone(),
-                        from: sender,
-                    },
-                )?;
+        for i in 0..3 {
+            if let Some(d) = self.w.announce(i).map_err(halt)? {
+                prop_assert!(d.suspect.is_none(), "operator {i}'s id taken: {d:?}");
             }
         }
         Ok(())
@@ -283,15 +362,20 @@ impl World {
 
     /// A forged RequestControl, from the rogue, to the vehicle and every running session.
     fn forge_request(&mut self, msg: rove_core::msg::RequestControl) -> Result<(), TestCaseError> {
-        let d = (self.vehicle).step(self.now, Event::from_request_control(V, &msg, ROGUE));
-        self.check_output(d.output)?;
-        for j in (0..3).filter(|&j| self.live(j)).collect::<Vec<_>>() {
-            let (now, stamp) = (self.now, self.stamp());
-            let event = SessionEvent::RequestControl { msg, from: ROGUE };
-            let more = self.sessions[j].step(now, stamp, event);
-            self.deliver(j, more)?;
+        self.vehicle_step(Event::from_request_control(V, &msg, ROGUE))?;
+        for j in 0..3 {
+            self.step(j, SessionEvent::RequestControl { msg, from: ROGUE })?;
         }
         Ok(())
+    }
+
+    /// A forged stamp: long ago, now, or at the far end of time.
+    fn forged_stamp(&self, stamp: u8) -> TimeT {
+        match stamp {
+            0 => TimeT(0),
+            1 => self.w.stamp(),
+            _ => TimeT(u64::MAX),
+        }
     }
 
     /// Delivers a forgery to the vehicle and every session.
@@ -311,17 +395,16 @@ impl World {
                         ..MovementCommand::CENTRED
                     },
                     mode: rove_core::msg::Mode::Manual,
-                    timestamp: self.stamp(),
+                    timestamp: self.w.stamp(),
                 };
                 let writer = Writer::Regular.id(ROGUE);
                 let event = Event::Sample {
                     writer,
                     strength: Strength(strength),
                     command,
-                    arrival: self.now,
+                    arrival: self.w.now(),
                 };
-                let d = self.vehicle.step(self.now, event);
-                self.check_output(d.output)?;
+                self.vehicle_step(event)?;
             }
             Forgery::Request {
                 ack,
@@ -337,21 +420,18 @@ impl World {
                     src_priority: priority,
                     ack: [Ack::Request, Ack::Accept, Ack::Refuse, Ack::Finish]
                         [usize::from(ack % 4)],
-                    timestamp: TimeT(stamp),
+                    timestamp: self.forged_stamp(stamp),
                 };
                 self.forge_request(msg)?;
             }
             Forgery::Targeted { holder } => {
-                let (ack, src, owner) = match self.vehicle.grant_holder() {
+                let vehicle = self.w.vehicle();
+                let (ack, src, owner) = match vehicle.grant_holder() {
                     Some(h) => {
-                        let yielded = (0..3).find(|&r| self.sessions[r].handover().has_yielded(V));
+                        let yielded = (0..3).find(|&r| self.session(r).handover().has_yielded(V));
                         (Ack::Finish, h, yielded.map_or(STRANGER, |r| IDS[r]))
                     }
-                    None => (
-                        Ack::Accept,
-                        self.claimed(holder),
-                        self.vehicle.controller_id(),
-                    ),
+                    None => (Ack::Accept, self.claimed(holder), vehicle.controller_id()),
                 };
                 let msg = rove_core::msg::RequestControl {
                     src_id: src,
@@ -371,155 +451,22 @@ impl World {
                     controller_id: self.claimed(owner),
                 };
                 for i in 0..3 {
-                    self.step(
-                        i,
-                        SessionEvent::DeviceInfo {
-                            info: info.clone(),
-                            from: ROGUE,
-                        },
-                    )?;
+                    let info = info.clone();
+                    self.step(i, SessionEvent::DeviceInfo { info, from: ROGUE })?;
                 }
             }
-        }
-        Ok(())
-    }
-
-    fn stamp(&self) -> TimeT {
-        TimeT(1_000_000 + self.now.as_nanos() / 100)
-    }
-
-    fn live(&self, i: usize) -> bool {
-        self.gone[i].is_none()
-    }
-
-    /// Steps session `i` and delivers everything that follows, to quiescence.
-    fn step(&mut self, i: usize, event: SessionEvent) -> Result<(), TestCaseError> {
-        if !self.live(i) {
-            return Ok(());
-        }
-        let (now, stamp) = (self.now, self.stamp());
-        let effects = self.sessions[i].step(now, stamp, event);
-        self.deliver(i, effects)
-    }
-
-    fn deliver(&mut self, from: usize, effects: Vec<Effect>) -> Result<(), TestCaseError> {
-        let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
-        let mut budget = 10_000;
-        while let Some((i, effect)) = queue.pop_front() {
-            budget -= 1;
-            prop_assert!(budget > 0, "effects never settle");
-            // A yielded owner resumes only once the grant it yielded to is over: no forged
-            // FINISH or DeviceInfo makes it drive beside a live holder.
-            if let Effect::Send(msg) = &effect
-                && msg.ack == Ack::Accept
-                && msg.current_controller_id == IDS[i]
-            {
-                self.yielded_to[i] = IDS.iter().position(|&d| d == msg.src_id);
-            }
-            if let Effect::Report(Report::Resumed { .. }) = &effect
-                && let Some(h) = self.yielded_to[i].take()
-            {
-                let honoured = self.live(h)
-                    && self.sessions[h].streams().holding.contains(&V)
-                    && self.vehicle.grant_holder() == Some(IDS[h]);
-                prop_assert!(
-                    !honoured,
-                    "op {i} resumed while op {h} still holds its grant"
-                );
-            }
-            if let Effect::Write { writer, command } = &effect {
-                if *writer == Writer::Regular && command.dest_id == V {
-                    self.last_sample[i] = Some(self.now);
-                }
-                let s = &self.sessions[i];
-                if *writer == Writer::Regular && command.command_type == CommandType::Movement {
-                    prop_assert!(s.input().2, "op {i} drives without live input");
-                    prop_assert!(
-                        !s.handover().has_yielded(V),
-                        "op {i} drives a vehicle it yielded"
-                    );
-                }
-            }
-            let strength = Strength(STRENGTHS[i]);
-            if let Some(event) = effect.arbiter_event(V, participant(i), strength, self.now) {
-                let d = self.vehicle.step(self.now, event);
-                self.check_output(d.output)?;
-            }
-            if let Effect::Send(msg) = effect {
-                for j in 0..3 {
-                    if self.live(j) {
-                        let (now, stamp) = (self.now, self.stamp());
-                        let more = self.sessions[j].step(
-                            now,
-                            stamp,
-                            SessionEvent::RequestControl {
-                                msg,
-                                from: participant(i),
-                            },
-                        );
-                        queue.extend(more.into_iter().map(|e| (j, e)));
-                    }
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// Values are applied only from an operator that drives the vehicle.
-    fn check_output(&self, output: Option<Output>) -> Result<(), TestCaseError> {
-        if let Some(Output::Apply { by, .. }) = output {
-            prop_assert_ne!(by.writer.participant, ROGUE, "a rogue sample was applied");
-            let i = IDS
-                .iter()
-                .position(|&d| d == by.device)
-                .ok_or_else(|| TestCaseError::fail("applied from an unknown device"))?;
-            if self.live(i) {
-                let s = &self.sessions[i];
-                let streams = s.streams();
-                // A replier standing by may see its own last values (fresh for one timeout)
-                // applied when the grant returns, just before its FINISH reaches it.
-                let drives = (streams.driving.contains(&V) && s.input().2)
-                    || streams.holding.contains(&V)
-                    || streams.standby.contains(&V);
-                prop_assert!(
-                    drives,
-                    "applied values from op {i}, which does not drive: {streams:?}"
-                );
-            }
-        }
-        Ok(())
-    }
-
-    /// The vehicle's DeviceInfo to every session, as its heartbeat and owner changes send it.
-    fn publish_owner(&mut self) -> Result<(), TestCaseError> {
-        let info = DeviceInfo {
-            device_id: V,
-            name: "v".into(),
-            device_type: DeviceType::Vehicle,
-            controller_id: self.vehicle.controller_id(),
-        };
-        for i in 0..3 {
-            let from = VEHICLE_PARTICIPANT;
-            self.step(
-                i,
-                SessionEvent::DeviceInfo {
-                    info: info.clone(),
-                    from,
-                },
-            )?;
         }
         Ok(())
     }
 
     fn advance(&mut self, periods: u64) -> Result<(), TestCaseError> {
         for _ in 0..periods {
-            self.now = self.now + Duration::from_millis(STREAM_MS);
+            self.w.advance(Duration::from_millis(STREAM_MS));
             self.periods += 1;
             if self.periods % HEARTBEAT_PERIODS == 0 {
                 self.presence()?;
             }
-            let d = self.vehicle.step(self.now, Event::Tick);
-            self.check_output(d.output)?;
+            self.vehicle_step(Event::Tick)?;
             for i in 0..3 {
                 self.step(i, SessionEvent::Tick)?;
                 self.step(i, SessionEvent::StreamTick)?;
@@ -530,22 +477,24 @@ impl World {
     }
 
     fn check_ownership(&self) -> Result<(), TestCaseError> {
-        let owner = self.vehicle.owner().device();
+        let now = self.w.now();
+        let vehicle = self.w.vehicle();
+        let owner = vehicle.owner().device();
         let holders: Vec<usize> = (0..3)
-            .filter(|&i| self.live(i) && self.sessions[i].streams().holding.contains(&V))
+            .filter(|&i| self.live(i) && self.session(i).streams().holding.contains(&V))
             .collect();
         prop_assert!(holders.len() <= 1, "two grant holders: {holders:?}");
+        let mut timing_out = false;
         if let Some(d) = owner {
             let i = IDS.iter().position(|&x| x == d).unwrap_or(usize::MAX);
             prop_assert!(i < 3, "owned by unknown device {d}");
             if self.live(i) {
-                let s = &self.sessions[i];
+                let s = self.session(i);
                 // An operator that stopped sending (it stood by for a grant that never came,
                 // gave up, then lost its input) owns until the vehicle times it out, a command
                 // timeout after its last sample, as after any stop.
-                let timing_out = self.last_sample[i].is_some_and(|t| {
-                    self.now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS)
-                });
+                timing_out = self.w.observer().last_sample[i]
+                    .is_some_and(|t| now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS));
                 prop_assert!(
                     s.streams_to(V) || s.handover().has_yielded(V) || timing_out,
                     "owner {d} neither streams nor stands by: {:?}",
@@ -557,25 +506,24 @@ impl World {
             // Only a grant the vehicle honours: a person may still accept a prompt for a
             // vehicle released more than a command timeout ago; the vehicle then refuses the
             // consent (not from its owner) and the requester's priority stream drives nothing.
-            if self.sessions[h].input().2 && self.vehicle.grant_holder() == Some(IDS[h]) {
+            if self.session(h).input().2 && vehicle.grant_holder() == Some(IDS[h]) {
                 prop_assert_eq!(owner, Some(IDS[h]), "a live grant holder does not own");
             }
             return Ok(());
         }
-        let recently_gone = self.gone.iter().flatten().any(|&t| {
-            self.now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS + STREAM_MS)
-        });
+        let recently_gone = (self.w.operators().iter().filter_map(|o| o.out_since))
+            .any(|t| now.saturating_since(t) <= Duration::from_millis(TIMEOUT_MS + STREAM_MS));
         // Yielded (standing by, or the standby ended and the vehicle times us out): the
         // owner may be the yielded replier for up to a command timeout.
-        let standby = (0..3).any(|i| self.live(i) && self.sessions[i].handover().has_yielded(V));
-        if recently_gone || standby || self.vehicle.grant_holder().is_some() {
+        let standby = (0..3).any(|i| self.live(i) && self.session(i).handover().has_yielded(V));
+        if recently_gone || standby || timing_out || vehicle.grant_holder().is_some() {
             return Ok(());
         }
         let strongest = (0..3)
             .filter(|&i| {
                 self.live(i)
-                    && self.sessions[i].input().2
-                    && self.sessions[i].streams().driving.contains(&V)
+                    && self.session(i).input().2
+                    && self.session(i).streams().driving.contains(&V)
             })
             .max_by_key(|&i| STRENGTHS[i])
             .map(|i| IDS[i]);
@@ -597,7 +545,7 @@ proptest! {
         drive in [any::<bool>(), any::<bool>(), any::<bool>()],
         ops in prop::collection::vec(op(), 1..60),
     ) {
-        let mut w = World::new(policies, drive);
+        let mut w = Sim::new(policies, drive);
         w.presence()?;
         w.publish_owner()?;
         for op in ops {
@@ -609,24 +557,10 @@ proptest! {
                 Op::Lost(i) => w.step(i, SessionEvent::Input(InputEvent::Lost { reason: "lost".into() }))?,
                 Op::DeadmanReleased(i) => w.step(i, SessionEvent::Input(InputEvent::Deadman(false)))?,
                 Op::Cmd(i, c) => w.step(i, SessionEvent::Command(c))?,
-                Op::Quit(i) => {
-                    if w.live(i) {
-                        let stamp = w.stamp();
-                        let effects = w.sessions[i].stop(stamp);
-                        // Stopping: until its releases land, the vehicle may still use its
-                        // values; it takes no more events.
-                        w.gone[i] = Some(w.now);
-                        w.deliver(i, effects)?;
-                        let participant = participant(i);
-                        let d = w.vehicle.step(w.now, Event::ParticipantGone { participant });
-                        w.check_output(d.output)?;
-                    }
-                }
-                Op::Crash(i) => {
-                    if w.live(i) {
-                        w.gone[i] = Some(w.now);
-                    }
-                }
+                // Stopping: until its releases land, the vehicle may still use its values; it
+                // takes no more events.
+                Op::Quit(i) => w.w.quit(i).map_err(halt)?,
+                Op::Crash(i) => w.w.crash(i),
                 Op::Advance(n) => w.advance(n)?,
                 Op::Rogue(f) => w.rogue(f)?,
             }
@@ -644,7 +578,7 @@ proptest! {
 fn a_yield_to_an_unknown_requester_then_a_lost_input_is_timed_out_not_driven() {
     let run = || -> Result<(), TestCaseError> {
         let policies = [AutoAccept::Never, AutoAccept::Never, AutoAccept::Always];
-        let mut w = World::new(policies, [false, false, true]);
+        let mut w = Sim::new(policies, [false, false, true]);
         w.presence()?;
         w.publish_owner()?;
         let sticks = MovementCommand::CENTRED;
@@ -670,7 +604,7 @@ fn a_yield_to_an_unknown_requester_then_a_lost_input_is_timed_out_not_driven() {
         // A command timeout later the vehicle has timed the operator out.
         w.advance(6)?;
         w.check_ownership()?;
-        prop_assert_eq!(w.vehicle.owner().device(), None);
+        prop_assert_eq!(w.w.vehicle().owner().device(), None);
         Ok(())
     };
     run().expect("the session and the vehicle agree");

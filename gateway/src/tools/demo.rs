@@ -16,16 +16,14 @@
 
 use rove_core::MonoTime;
 use rove_core::adapter::{InputEvent, OutputAdapter};
-use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, Output, Owner, ParticipantId};
+use rove_core::arbiter::{Arbiter, ArbiterConfig, Decision, Event, Output, Owner, ParticipantId};
 use rove_core::handover::HandoverConfig;
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, MovementCommand, TimeT};
-use rove_core::session::{
-    Command, Effect, OperatorSession, Report, SessionConfig, SessionEvent, SessionInput,
-};
+use rove_core::msg::{DeviceId, MovementCommand};
+use rove_core::session::{Command, Effect, Report, SessionConfig, SessionEvent, SessionInput};
 use rove_core::sim::{SimAction, SimOutput};
 use rove_core::trust::TrustConfig;
-use std::collections::VecDeque;
+use rove_core::world::{Observer, Operator, View, World};
 use std::fmt::Write as _;
 use std::time::Duration;
 
@@ -39,22 +37,6 @@ const HEARTBEAT_MS: u64 = 500;
 /// The simulation's resolution: fine enough to show the 100 ms timeout to within 5 ms.
 const STEP_MS: u64 = 5;
 
-/// One operator: the same session `rove operator` runs, with a scripted joystick.
-struct Operator {
-    name: &'static str,
-    id: DeviceId,
-    strength: Strength,
-    session: OperatorSession,
-    /// Its process runs (joined, not quit or crashed).
-    running: bool,
-}
-
-impl Operator {
-    fn participant(&self) -> ParticipantId {
-        ParticipantId(u128::from(self.id.unsigned_abs()))
-    }
-}
-
 #[derive(Debug, Clone, Copy)]
 enum Cue {
     Join(usize),
@@ -63,161 +45,116 @@ enum Cue {
     Command(usize, Command),
 }
 
-/// The operators and the vehicle, joined by direct delivery (the network of the in-process
-/// story): every effect of a session reaches the vehicle's arbiter and the other sessions at
-/// once, in order.
-struct World<'p> {
-    ops: Vec<Operator>,
-    vehicle: Arbiter,
+/// The in-process story's observer: prints what happens, drives the sim output from the
+/// arbiter's decisions and keeps the summary.
+struct Story<'p> {
+    names: Vec<&'static str>,
     output: SimOutput,
     summary: DemoSummary,
-    now: MonoTime,
-    t: u64,
     print: &'p mut dyn FnMut(&str),
 }
 
-impl World<'_> {
-    fn stamp(&self) -> TimeT {
-        TimeT::from_unix(Duration::from_millis(self.t))
+impl Story<'_> {
+    fn say(&mut self, now: MonoTime, line: &str) {
+        (self.print)(&format!("{:>8}  {line}", now.to_string()));
     }
 
-    fn say(&mut self, line: &str) {
-        (self.print)(&format!("{:>8}  {line}", self.now.to_string()));
-    }
-
-    /// Steps operator `i` (if it runs) and delivers what follows.
-    fn step(&mut self, i: usize, event: SessionEvent) -> anyhow::Result<()> {
-        if !self.ops[i].running {
-            return Ok(());
+    fn name(&self, world: View<'_>, owner: Owner) -> String {
+        match owner {
+            Owner::Failsafe => "failsafe".into(),
+            Owner::Controller(c) => {
+                let mut s = (world.operators.iter().position(|o| o.id == c.device))
+                    .and_then(|i| self.names.get(i))
+                    .map_or_else(|| c.device.to_string(), ToString::to_string);
+                if c.strength == Strength::PRIORITY {
+                    let _ = write!(s, " [priority]");
+                }
+                s
+            }
         }
-        let (now, stamp) = (self.now, self.stamp());
-        let effects = self.ops[i].session.step(now, stamp, event);
-        self.deliver(i, effects)
     }
+}
 
-    fn deliver(&mut self, from: usize, effects: Vec<Effect>) -> anyhow::Result<()> {
-        let mut queue: VecDeque<(usize, Effect)> = effects.into_iter().map(|e| (from, e)).collect();
-        while let Some((i, effect)) = queue.pop_front() {
-            let (from, name) = (self.ops[i].participant(), self.ops[i].name);
-            let event = effect.arbiter_event(VEHICLE, from, self.ops[i].strength, self.now);
-            match effect {
-                Effect::Send(msg) => {
-                    for j in 0..self.ops.len() {
-                        if self.ops[j].running {
-                            let (now, stamp) = (self.now, self.stamp());
-                            let more = self.ops[j].session.step(
-                                now,
-                                stamp,
-                                SessionEvent::RequestControl { msg, from },
-                            );
-                            queue.extend(more.into_iter().map(|e| (j, e)));
-                        }
-                    }
-                }
-                Effect::Report(report) => {
-                    if !matches!(report, Report::Selected { .. } | Report::InputLive { .. }) {
-                        let line = format!("{name}: {report}");
-                        self.say(&line);
-                    }
-                }
-                Effect::Refused(why) => anyhow::bail!("{name}: {why}"),
-                Effect::Write { .. } | Effect::Release { .. } | Effect::Confirm(_) => {}
-            }
-            if let Some(event) = event {
-                self.vehicle_step(event)?;
-            }
+impl Observer for Story<'_> {
+    type Error = anyhow::Error;
+
+    fn effect(&mut self, world: View<'_>, from: usize, effect: &Effect) -> anyhow::Result<()> {
+        let name = self.names.get(from).copied().unwrap_or("?");
+        match effect {
+            Effect::Report(Report::Selected { .. } | Report::InputLive { .. }) => {}
+            Effect::Report(report) => self.say(world.now, &format!("{name}: {report}")),
+            Effect::Refused(why) => anyhow::bail!("{name}: {why}"),
+            _ => {}
         }
         Ok(())
     }
 
-    fn vehicle_step(&mut self, event: Event) -> anyhow::Result<()> {
-        let d = self.vehicle.step(self.now, event);
+    fn decision(&mut self, world: View<'_>, d: &Decision) -> anyhow::Result<()> {
         if let Some(change) = d.owner_change {
+            let ms = world.now.saturating_since(MonoTime::ZERO).as_millis();
+            let ms = u64::try_from(ms).unwrap_or(u64::MAX);
+            let reason = change.reason.to_string();
+            let line = format!(
+                "vehicle {VEHICLE}: {} → {} ({reason})",
+                self.name(world, change.from),
+                self.name(world, change.to),
+            );
             self.summary
                 .handovers
-                .push((self.t, change.to.device(), change.reason.to_string()));
-            let line = format!(
-                "vehicle {VEHICLE}: {} → {} ({})",
-                name(&self.ops, change.from),
-                name(&self.ops, change.to),
-                change.reason
-            );
-            self.say(&line);
-            self.publish_owner()?;
+                .push((ms, change.to.device(), reason));
+            self.say(world.now, &line);
         }
         match d.output {
-            Some(Output::Apply { setpoint, .. }) => self.output.apply(self.now, &setpoint)?,
-            Some(Output::SafeState { .. }) => self.output.safe_state(self.now)?,
+            Some(Output::Apply { setpoint, .. }) => self.output.apply(world.now, &setpoint)?,
+            Some(Output::SafeState { .. }) => self.output.safe_state(world.now)?,
             None => {}
         }
         Ok(())
     }
-
-    /// The vehicle's DeviceInfo, to every operator.
-    fn publish_owner(&mut self) -> anyhow::Result<()> {
-        let info = DeviceInfo {
-            device_id: VEHICLE,
-            name: "sim vehicle".into(),
-            device_type: DeviceType::Vehicle,
-            controller_id: self.vehicle.controller_id(),
-        };
-        for i in 0..self.ops.len() {
-            let from = VEHICLE_PARTICIPANT;
-            self.step(
-                i,
-                SessionEvent::DeviceInfo {
-                    info: info.clone(),
-                    from,
-                },
-            )?;
-        }
-        Ok(())
-    }
-
-    /// Plays one cue of the script.
-    fn cue(&mut self, cue: Cue) -> anyhow::Result<()> {
-        match cue {
-            Cue::Join(i) => {
-                self.ops[i].running = true;
-                let line = format!("{} starts", self.ops[i].name);
-                self.say(&line);
-                // DeviceInfo is TRANSIENT_LOCAL: a joiner gets the vehicle's at once.
-                self.publish_owner()?;
-            }
-            Cue::Quit(i) => {
-                let line = format!("{} quits (releases, leaves the network)", self.ops[i].name);
-                self.say(&line);
-                let stamp = self.stamp();
-                let effects = self.ops[i].session.stop(stamp);
-                self.deliver(i, effects)?;
-                self.ops[i].running = false;
-                let participant = self.ops[i].participant();
-                self.vehicle_step(Event::ParticipantGone { participant })?;
-            }
-            Cue::Crash(i) => {
-                self.ops[i].running = false;
-                let line = format!("{} crashes (stops sending, no release)", self.ops[i].name);
-                self.say(&line);
-            }
-            Cue::Command(i, command) => {
-                let line = format!("{}'s operator: {}", self.ops[i].name, command.name());
-                self.say(&line);
-                self.step(i, SessionEvent::Command(command))?;
-            }
-        }
-        Ok(())
-    }
 }
 
-/// The story's three operators: a stationary laptop and a mobile phone that drive the
-/// vehicle from the start, and a remote tablet that asks for it.
-fn operators() -> anyhow::Result<Vec<Operator>> {
+type Demo<'p> = World<Story<'p>>;
+
+/// Plays one cue of the script.
+fn cue(world: &mut Demo<'_>, cue: Cue) -> anyhow::Result<()> {
+    let now = world.now();
+    let name = |w: &Demo<'_>, i: usize| w.observer().names.get(i).copied().unwrap_or("?");
+    match cue {
+        Cue::Join(i) => {
+            let line = format!("{} starts", name(world, i));
+            world.observer_mut().say(now, &line);
+            world.start(i);
+            // DeviceInfo is TRANSIENT_LOCAL: a joiner gets the vehicle's at once.
+            world.publish_owner()?;
+        }
+        Cue::Quit(i) => {
+            let line = format!("{} quits (releases, leaves the network)", name(world, i));
+            world.observer_mut().say(now, &line);
+            world.quit(i)?;
+        }
+        Cue::Crash(i) => {
+            let line = format!("{} crashes (stops sending, no release)", name(world, i));
+            world.observer_mut().say(now, &line);
+            world.crash(i);
+        }
+        Cue::Command(i, command) => {
+            let line = format!("{}'s operator: {}", name(world, i), command.name());
+            world.observer_mut().say(now, &line);
+            world.step(i, SessionEvent::Command(command))?;
+        }
+    }
+    Ok(())
+}
+
+/// The story's three operators (names, and the operators not started yet): a stationary
+/// laptop and a mobile phone that drive the vehicle from the start, and a remote tablet that
+/// asks for it.
+fn operators() -> anyhow::Result<(Vec<&'static str>, Vec<Operator>)> {
     let h = Hierarchy::STANDARD;
-    let make = |name, id, level, class, drive: &[DeviceId]| -> anyhow::Result<Operator> {
-        let strength = h.strength(level, class, 0)?;
+    let make = |id, level, class, drive: &[DeviceId]| -> anyhow::Result<Operator> {
         let config = SessionConfig {
             me: id,
-            strength,
+            strength: h.strength(level, class, 0)?,
             handover: HandoverConfig::default(),
             drive: drive.to_vec(),
             input: SessionInput::Device,
@@ -227,43 +164,22 @@ fn operators() -> anyhow::Result<Vec<Operator>> {
             participant: ParticipantId(u128::from(id.unsigned_abs())),
             trust: TrustConfig::default(),
         };
-        Ok(Operator {
-            name,
-            id,
-            strength,
-            session: OperatorSession::new(config, MonoTime::ZERO),
-            running: false,
-        })
+        Ok(Operator::new(config, MonoTime::ZERO).not_started())
     };
-    Ok(vec![
-        make(
-            "laptop (stationary)",
-            11,
-            Level::Stationary,
-            DeviceClass::Laptop,
-            &[VEHICLE],
-        )?,
-        make(
-            "phone (mobile)",
-            12,
-            Level::Mobile,
-            DeviceClass::Phone,
-            &[VEHICLE],
-        )?,
-        make(
-            "tablet (remote)",
-            13,
-            Level::Remote,
-            DeviceClass::Tablet,
-            &[],
-        )?,
-    ])
+    let (stationary, mobile) = (Level::Stationary, Level::Mobile);
+    let ops = vec![
+        make(11, stationary, DeviceClass::Laptop, &[VEHICLE])?,
+        make(12, mobile, DeviceClass::Phone, &[VEHICLE])?,
+        make(13, Level::Remote, DeviceClass::Tablet, &[])?,
+    ];
+    let names = vec!["laptop (stationary)", "phone (mobile)", "tablet (remote)"];
+    Ok((names, ops))
 }
 
 /// Runs the demo. With `pace`, waits in real time between events so it can be watched; the
 /// story and its output are the same either way. Returns the printed story.
 pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummary> {
-    let ops = operators()?;
+    let (names, ops) = operators()?;
     let vehicle = Command::Request { vehicle: VEHICLE };
     let script = [
         (100, Cue::Join(0)),
@@ -277,34 +193,32 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
     ];
     let end_ms = 4500;
 
-    let mut print = |line: &str| print(line);
-    let mut world = World {
-        ops,
-        vehicle: Arbiter::new(VEHICLE, ArbiterConfig::default()),
-        output: SimOutput::default(),
-        summary: DemoSummary::default(),
-        now: MonoTime::ZERO,
-        t: 0,
-        print: &mut print,
-    };
-    world.output.safe_state(MonoTime::ZERO)?;
     let line = format!(
         "rove demo: vehicle {VEHICLE} (sim output) and operators {} — in-process simulation of \
          the control core (the operators run rove operator's session)",
-        world
-            .ops
+        names
             .iter()
-            .map(|o| format!("{} id {} strength {}", o.name, o.id, o.strength))
+            .zip(&ops)
+            .map(|(name, o)| format!("{name} id {} strength {}", o.id, o.strength))
             .collect::<Vec<_>>()
             .join(", ")
     );
-    (world.print)(&line);
+    print(&line);
+    let mut print = |line: &str| print(line);
+    let story = Story {
+        names,
+        output: SimOutput::default(),
+        summary: DemoSummary::default(),
+        print: &mut print,
+    };
+    let arbiter = Arbiter::new(VEHICLE, ArbiterConfig::default());
+    let mut world = World::new(arbiter, VEHICLE_PARTICIPANT, ops, story);
+    world.observer_mut().output.safe_state(MonoTime::ZERO)?;
 
     let mut next_cue = 0;
     let started = std::time::Instant::now();
     for t in (0..=end_ms).step_by(STEP_MS as usize) {
-        world.t = t;
-        world.now = MonoTime::from_millis(t);
+        world.set_now(MonoTime::from_millis(t));
         if pace {
             let due = Duration::from_millis(t);
             if let Some(wait) = due.checked_sub(started.elapsed()) {
@@ -312,12 +226,12 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
             }
         }
         // Cues due now.
-        while let Some((at, cue)) = script.get(next_cue).copied() {
+        while let Some((at, next)) = script.get(next_cue).copied() {
             if at > t {
                 break;
             }
             next_cue += 1;
-            world.cue(cue)?;
+            cue(&mut world, next)?;
         }
         if t % STREAM_PERIOD_MS == 0 {
             // A gentle sweep on every joystick, so that applied values visibly change; the
@@ -327,7 +241,7 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
                 throttle,
                 ..MovementCommand::CENTRED
             };
-            for i in 0..world.ops.len() {
+            for i in 0..world.operators().len() {
                 world.step(i, SessionEvent::Input(InputEvent::Axes(sticks)))?;
                 world.step(i, SessionEvent::StreamTick)?;
             }
@@ -335,15 +249,16 @@ pub fn run(pace: bool, mut print: impl FnMut(&str)) -> anyhow::Result<DemoSummar
         if t % HEARTBEAT_MS == 0 {
             world.publish_owner()?;
         }
-        for i in 0..world.ops.len() {
+        for i in 0..world.operators().len() {
             world.step(i, SessionEvent::Tick)?;
         }
         world.vehicle_step(Event::Tick)?;
     }
-    let mut summary = world.summary;
-    summary.outputs = world.output.records().count();
+    let story = world.into_observer();
+    let mut summary = story.summary;
+    summary.outputs = story.output.records().count();
     summary.safe_at_end = matches!(
-        world.output.last().map(|r| r.action),
+        story.output.last().map(|r| r.action),
         Some(SimAction::SafeState)
     );
     let line = format!(
@@ -451,22 +366,6 @@ pub struct DemoSummary {
     pub outputs: usize,
     /// The vehicle's outputs were in the safe state at the end.
     pub safe_at_end: bool,
-}
-
-fn name(ops: &[Operator], owner: Owner) -> String {
-    match owner {
-        Owner::Failsafe => "failsafe".into(),
-        Owner::Controller(c) => {
-            let mut s = ops
-                .iter()
-                .find(|o| o.id == c.device)
-                .map_or_else(|| c.device.to_string(), |o| o.name.to_string());
-            if c.strength == Strength::PRIORITY {
-                let _ = write!(s, " [priority]");
-            }
-            s
-        }
-    }
 }
 
 #[cfg(test)]
