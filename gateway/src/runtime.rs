@@ -7,23 +7,28 @@ use tracing::warn;
 
 /// The role's clock: `MonoTime` for the core (nanoseconds since start), convertible back to a
 /// tokio instant for timers, plus wall-clock time for records.
+///
+/// On tokio's clock, so that a test with tokio's time paused drives the loops in virtual
+/// time. Outside a runtime (the output's thread) tokio's clock is the system's monotonic one.
 #[derive(Debug, Clone, Copy)]
 pub struct Clock {
-    start: Instant,
+    start: tokio::time::Instant,
 }
 
 impl Clock {
     /// Starts the clock now.
     pub fn start() -> Clock {
         Clock {
-            start: Instant::now(),
+            start: tokio::time::Instant::now(),
         }
     }
 
     /// A clock that started at `start` (tests: a clock already running for a while).
     #[cfg(test)]
     pub(crate) fn since(start: Instant) -> Clock {
-        Clock { start }
+        Clock {
+            start: tokio::time::Instant::from_std(start),
+        }
     }
 
     /// Now, for the core.
@@ -33,7 +38,7 @@ impl Clock {
 
     /// The tokio instant of a core time, for `sleep_until`.
     pub fn instant(&self, t: MonoTime) -> tokio::time::Instant {
-        tokio::time::Instant::from_std(self.start + Duration::from_nanos(t.as_nanos()))
+        self.start + Duration::from_nanos(t.as_nanos())
     }
 
     /// Microseconds since the Unix epoch (0 if the system clock is before 1970).

@@ -62,6 +62,11 @@ impl Node {
         })
     }
 
+    /// Our device id.
+    pub fn id(&self) -> DeviceId {
+        self.id
+    }
+
     /// Publishes our DeviceInfo with `controller_id` (a vehicle's owner; an operator's own id).
     /// A failed write is logged: the next heartbeat publishes again.
     pub fn publish(&self, controller_id: DeviceId) {

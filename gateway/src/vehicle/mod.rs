@@ -24,11 +24,14 @@
 //! device's id is pinned to its participant before anyone else can claim it.
 //!
 //! # Layout
-//! - this file: [`Options`], [`run`] (start, the `select!` loop, the stop), decisions carried
-//!   out.
+//! - this file: [`Options`], [`Outputs`], [`run`] (start: output, then the network), the
+//!   `select!` loop on injected edges (network, output, clock, notifier, shutdown), the stop.
+//! - `net.rs`: the network edge ([`net::Net`]) and its DDS form: samples and discovery →
+//!   arbiter events, DeviceInfo and VehicleStatus out.
 //! - `intake.rs`: ControlCommand samples → arbiter events (strengths, freshness, batching).
 //! - `report.rs`: VehicleStatus, the `STATUS=` line, the hung-output and not-believed watches.
 //! - `hooks.rs`: the SIGUSR1 stall test hook and the output record (`--record`).
+//! - `tests.rs`: the loop on a channel network and a recording output, on tokio's paused clock.
 //!
 //! Test hook: with the hidden `--test-stall-on-sigusr1 MS`, SIGUSR1 blocks this loop (the
 //! whole thread) for MS milliseconds, the way a hung device write would, after saying so in
@@ -37,21 +40,20 @@
 
 mod hooks;
 mod intake;
+mod net;
 mod report;
+#[cfg(test)]
+mod tests;
 
 use crate::config::VehicleConfig;
-use crate::dds::{self, Discovery, KeyedDeviceInfo, Node};
-use crate::output::{OutputWorker, WriteLimits};
-use crate::runtime::{Clock, RateLimited, sleep_until};
+use crate::output::{OutputReport, OutputWorker, WriteLimits};
+use crate::runtime::{Clock, sleep_until};
 use crate::sdnotify::Notifier;
-use futures::{FutureExt, StreamExt};
 use hooks::{OutputLog, StallHook};
-use intake::{Intake, MAX_BATCH};
-use report::{HungWatch, StatusWriter, Suspects, status_line};
-use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner};
-use rove_core::msg::DeviceType;
-use rustdds::StatusEvented;
-use rustdds::with_key::Sample;
+use net::{Dds, Net};
+use report::{HungWatch, StatusWatch, Suspects, status_line};
+use rove_core::MonoTime;
+use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, Setpoint};
 use std::path::PathBuf;
 use std::time::Duration;
 use tracing::{info, warn};
@@ -67,25 +69,54 @@ pub struct Options {
     pub stall_on_sigusr1: Option<Duration>,
 }
 
-/// The vehicle as its loop holds it: the arbiter, the output, and what it tells.
-struct Vehicle {
+/// What the vehicle loop needs of its output: the output's own thread ([`OutputWorker`]) in
+/// `rove vehicle`, a recorder in the loop's tests.
+pub(crate) trait Outputs {
+    /// Drive with `setpoint`, decided at `now`.
+    fn apply(&self, now: MonoTime, setpoint: Setpoint);
+    /// Go safe.
+    fn safe_state(&self);
+    /// How the output is.
+    fn report(&self) -> OutputReport;
+    /// Safe state, then stop, waiting at most `wait`; `false` if the device did not return.
+    fn stop(self, wait: Duration) -> bool;
+}
+
+impl Outputs for OutputWorker {
+    fn apply(&self, now: MonoTime, setpoint: Setpoint) {
+        OutputWorker::apply(self, now, setpoint);
+    }
+    fn safe_state(&self) {
+        OutputWorker::safe_state(self);
+    }
+    fn report(&self) -> OutputReport {
+        OutputWorker::report(self)
+    }
+    fn stop(self, wait: Duration) -> bool {
+        OutputWorker::stop(self, wait)
+    }
+}
+
+/// The vehicle as its loop holds it: the arbiter, its edges, and what it tells.
+struct Vehicle<N, O> {
     me: i64,
     clock: Clock,
-    node: Node,
+    net: N,
     arbiter: Arbiter,
-    output: OutputWorker,
+    output: O,
     log: Option<OutputLog>,
-    status_writer: StatusWriter,
+    status: StatusWatch,
     suspects: Suspects,
     hung: HungWatch,
     notify: Notifier,
     /// The `STATUS=` line last sent.
     shown: String,
-    intake: Intake,
-    malformed: RateLimited,
+    heartbeat: Duration,
+    stall: Option<Duration>,
 }
 
-/// Runs the vehicle role on `clock` until `shutdown` completes.
+/// Runs the vehicle role on `clock` until `shutdown` completes: opens the output (which
+/// writes its safe state) before joining the domain, then the loop, then the stop.
 ///
 /// # Errors
 /// The participant, a topic, a reader or writer cannot be created, the output record file
@@ -96,210 +127,162 @@ pub async fn run(
     clock: Clock,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let mut vehicle = Vehicle::start(&config, &options, clock)?;
-    let mut readers = Readers::open(&vehicle.node.domain, vehicle.me)?;
-    let result = vehicle.run(&config, &options, &mut readers, shutdown).await;
-    vehicle.stop();
-    // Only now: deleting a reader is announced to every peer; the stop (outputs safe,
-    // DeviceInfo) goes first.
-    drop(readers);
-    result
-}
-
-/// The vehicle's DDS readers, kept until it has stopped.
-struct Readers {
-    commands: rustdds::with_key::DataReaderStream<dds::KeyedControlCommand>,
-    requests: rustdds::no_key::DataReaderStream<rove_core::msg::RequestControl>,
-    infos: rustdds::with_key::DataReaderStream<KeyedDeviceInfo>,
-}
-
-impl Readers {
-    fn open(domain: &dds::Domain, me: i64) -> anyhow::Result<Readers> {
-        Ok(Readers {
-            commands: domain.command_reader(me)?.async_sample_stream(),
-            requests: domain.request_reader()?.async_sample_stream(),
-            infos: domain.device_info_reader()?.async_sample_stream(),
-        })
+    let notify = Notifier::from_env();
+    let limits = WriteLimits {
+        deadline: config.output_deadline,
+        max_age: config.arbiter.command_timeout.get(),
+    };
+    // Opening writes the safe state; a transient failure is retried by the output's thread.
+    let output = OutputWorker::start(config.output.clone(), clock, limits)?;
+    let mut log = options
+        .record
+        .as_deref()
+        .map(OutputLog::create)
+        .transpose()?;
+    if let Some(log) = log.as_mut() {
+        log.record(&clock, "safe", Owner::Failsafe, None);
     }
+    let net = Dds::join(&config)?;
+    info!(
+        config = %options.config_path.display(),
+        device = config.common.id,
+        name = %config.common.name,
+        domain = config.common.domain_id,
+        interfaces = ?config.common.interfaces,
+        adapter = %output.report().describe,
+        output_health = %output.report(),
+        command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
+        watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
+        "vehicle started"
+    );
+    if config.access.is_open() {
+        warn!(
+            "no [access] in the config: this vehicle trusts every participant on its network \
+             (any operator id may drive it, at any strength inside the hierarchy)"
+        );
+    }
+    let mut vehicle = Vehicle::new(&config, options.stall_on_sigusr1, clock, net, output, log);
+    vehicle.notify = notify;
+    vehicle.serve(shutdown).await
 }
 
-impl Vehicle {
-    /// Opens the output (which writes its safe state) before joining the domain.
-    fn start(config: &VehicleConfig, options: &Options, clock: Clock) -> anyhow::Result<Vehicle> {
+impl<N: Net, O: Outputs> Vehicle<N, O> {
+    /// The vehicle on its edges; `output` has written its safe state (and `log` recorded it).
+    fn new(
+        config: &VehicleConfig,
+        stall: Option<Duration>,
+        clock: Clock,
+        net: N,
+        output: O,
+        log: Option<OutputLog>,
+    ) -> Vehicle<N, O> {
         let me = config.common.id;
-        let notify = Notifier::from_env();
-        let limits = WriteLimits {
-            deadline: config.output_deadline,
-            max_age: config.arbiter.command_timeout.get(),
-        };
-        // Opening writes the safe state; a transient failure is retried by the output's thread.
-        let output = OutputWorker::start(config.output.clone(), clock, limits)?;
-        let mut log = options
-            .record
-            .as_deref()
-            .map(OutputLog::create)
-            .transpose()?;
-        if let Some(log) = log.as_mut() {
-            log.record(&clock, "safe", Owner::Failsafe, None);
-        }
-        let node = Node::join(&config.common, DeviceType::Vehicle, false)?;
-        let status_writer = StatusWriter::new(me, &node.domain);
-        info!(
-            config = %options.config_path.display(),
-            device = me,
-            name = %config.common.name,
-            domain = config.common.domain_id,
-            interfaces = ?config.common.interfaces,
-            adapter = %output.report().describe,
-            output_health = %output.report(),
-            command_timeout_ms = config.arbiter.command_timeout.get().as_millis() as u64,
-            watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
-            "vehicle started"
-        );
-        if config.access.is_open() {
-            warn!(
-                "no [access] in the config: this vehicle trusts every participant on its network \
-                 (any operator id may drive it, at any strength inside the hierarchy)"
-            );
-        }
         let mut arbiter = Arbiter::new(me, config.arbiter).with_access(config.access.clone());
-        arbiter.pin_own(node.participant);
-        if let Some(certifier) = node.certifier.clone() {
+        arbiter.pin_own(net.participant());
+        if let Some(certifier) = net.certifier() {
             arbiter.certify(certifier);
         }
-        Ok(Vehicle {
+        Vehicle {
             me,
             clock,
-            node,
+            net,
             arbiter,
             output,
             log,
-            status_writer,
+            status: StatusWatch::new(me),
             suspects: Suspects::default(),
             hung: HungWatch::new(config.output_hung_limit),
-            notify,
+            notify: Notifier::disabled(),
             shown: String::new(),
-            intake: Intake::new(me, config.arbiter.command_timeout.get()),
-            malformed: RateLimited::new("malformed or unreadable RequestControl or DeviceInfo"),
-        })
+            heartbeat: config.common.heartbeat,
+            stall,
+        }
     }
 
-    /// The loop: until `shutdown`, or a DDS stream ends (an error).
-    async fn run(
-        &mut self,
-        config: &VehicleConfig,
-        options: &Options,
-        readers: &mut Readers,
+    /// The loop until `shutdown` (or the network is gone: an error), then the stop.
+    async fn serve(
+        mut self,
         shutdown: impl std::future::Future<Output = ()>,
     ) -> anyhow::Result<()> {
-        let Readers {
-            commands,
-            requests,
-            infos,
-        } = readers;
-        let listener = self.node.domain.participant.status_listener();
-        let mut status = listener.as_async_status_stream();
-        self.node.publish(self.arbiter.controller_id());
-        let mut heartbeat = tokio::time::interval(config.common.heartbeat);
+        let result = self.run(shutdown).await;
+        self.stop();
+        result
+    }
+
+    /// The loop: until `shutdown`, or the network is gone (an error).
+    async fn run(&mut self, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+        /// What woke the loop.
+        enum Wake {
+            Heard(anyhow::Result<Vec<Event>>),
+            Heartbeat,
+            Keepalive,
+            Stall(Duration),
+            Deadline,
+            Shutdown,
+        }
+        self.net.publish_owner(self.arbiter.controller_id());
+        let mut heartbeat = tokio::time::interval(self.heartbeat);
         tokio::pin!(shutdown);
         let mut keepalive = self.notify.keepalive_timer();
-        let mut stall = StallHook::new(options.stall_on_sigusr1)?;
-        // Events of a batch of samples not yet given to the arbiter.
-        let mut queued = std::collections::VecDeque::new();
+        let mut stall = StallHook::new(self.stall)?;
         // The outputs are safe (or held safe while their device is reopened), the participant
         // is up and the signal handlers are in place: ready.
         let clock = self.clock;
         self.shown = status_line(&self.arbiter, &self.output.report(), clock.now());
-        self.status_writer
-            .update(&self.arbiter, &self.output.report());
+        self.publish_status();
         self.notify.ready(&self.shown);
         loop {
             let deadline = self.arbiter.next_deadline().map(|d| clock.instant(d));
-            let event = tokio::select! {
-                _ = &mut shutdown => break,
-                sample = commands.next() => match sample {
-                    Some(first) => {
-                        // With what already queued behind it: only each writer's newest counts.
-                        let mut batch = vec![first];
-                        while batch.len() < MAX_BATCH
-                            && let Some(Some(more)) = commands.next().now_or_never()
-                        {
-                            batch.push(more);
-                        }
-                        queued.extend(self.intake.events(&self.node.domain, &clock, batch));
-                        queued.pop_front()
-                    }
-                    None => anyhow::bail!("ControlCommand stream ended"),
-                },
-                request = requests.next() => match request {
-                    Some(Ok(sample)) => {
-                        let sender = dds::sender(sample.sample_info());
-                        Some(Event::from_request_control(self.me, sample.value(), sender))
-                    }
-                    Some(Err(e)) => { self.malformed.warn(&e); None }
-                    None => anyhow::bail!("RequestControl stream ended"),
-                },
-                info = infos.next() => match info {
-                    Some(Ok(sample)) => {
-                        let sender = dds::sender(sample.sample_info());
-                        match sample.into_value() {
-                            Sample::Value(KeyedDeviceInfo(info)) => {
-                                Some(Event::Heard { device: info.device_id, sender })
-                            }
-                            Sample::Dispose(_) => None,
-                        }
-                    }
-                    Some(Err(e)) => { self.malformed.warn(&e); None }
-                    None => anyhow::bail!("DeviceInfo stream ended"),
-                },
-                ev = status.next() => self.on_discovery(ev.as_ref().and_then(Discovery::of)),
-                _ = heartbeat.tick() => { self.on_heartbeat(); None }
+            let wake = tokio::select! {
+                () = &mut shutdown => Wake::Shutdown,
+                heard = self.net.heard(&clock) => Wake::Heard(heard),
+                _ = heartbeat.tick() => Wake::Heartbeat,
                 // From this loop, so that a hung loop stops the keep-alives; and stopped while
                 // the output has been hung past its limit, so that systemd restarts the unit.
-                _ = keepalive.tick() => { self.on_keepalive(); None }
-                stall_for = stall.requested() => {
-                    warn!(stall_ms = stall_for.as_millis() as u64, "test hook: stalling the control loop");
-                    self.notify.status("control loop stalled by the SIGUSR1 test hook");
+                _ = keepalive.tick() => Wake::Keepalive,
+                stall_for = stall.requested() => Wake::Stall(stall_for),
+                () = sleep_until(deadline) => Wake::Deadline,
+            };
+            match wake {
+                Wake::Shutdown => break,
+                Wake::Heard(events) => {
+                    for event in events? {
+                        self.decide(event);
+                    }
+                }
+                Wake::Heartbeat => self.on_heartbeat(),
+                Wake::Keepalive => self.on_keepalive(),
+                Wake::Stall(stall_for) => {
+                    warn!(
+                        stall_ms = stall_for.as_millis() as u64,
+                        "test hook: stalling the control loop"
+                    );
+                    self.notify
+                        .status("control loop stalled by the SIGUSR1 test hook");
                     // Blocking on purpose: this is the hang the watchdog is there to catch.
                     std::thread::sleep(stall_for);
                     self.notify.status(&self.shown);
-                    None
                 }
-                _ = sleep_until(deadline) => Some(Event::Tick),
-            };
-            let mut next = event;
-            while let Some(event) = next.take().or_else(|| queued.pop_front()) {
-                self.decide(event);
+                Wake::Deadline => self.decide(Event::Tick),
             }
         }
         Ok(())
     }
 
-    /// Discovery: strengths learnt, writers and participants gone.
-    fn on_discovery(&mut self, discovery: Option<Discovery>) -> Option<Event> {
-        match discovery? {
-            Discovery::CommandWriter { guid, strength } => {
-                self.intake.learn(guid, strength);
-                None
-            }
-            Discovery::WriterLost { guid } => {
-                self.intake.forget(guid);
-                Some(Event::WriterGone {
-                    writer: dds::writer_id(guid),
-                })
-            }
-            Discovery::ParticipantLost { participant } => {
-                Some(Event::ParticipantGone { participant })
-            }
+    /// VehicleStatus, if it changed.
+    fn publish_status(&mut self) {
+        let report = self.output.report();
+        if let Some(status) = self.status.changed(&self.arbiter, &report) {
+            self.net.publish_status(status);
         }
     }
 
     /// Every heartbeat: DeviceInfo again, VehicleStatus and `STATUS=` if they changed.
     fn on_heartbeat(&mut self) {
-        self.node.publish(self.arbiter.controller_id());
+        self.net.publish_owner(self.arbiter.controller_id());
         let report = self.output.report();
         self.hung.observe(&report);
-        self.status_writer.update(&self.arbiter, &report);
+        self.publish_status();
         let line = status_line(&self.arbiter, &report, self.clock.now());
         let line = self.hung.annotate(self.suspects.annotate(line));
         if line != self.shown {
@@ -325,25 +308,24 @@ impl Vehicle {
             tracing::trace!(wall_us = clock.wall_micros(), ?event, "event");
         }
         let decision = self.arbiter.step(clock.now(), event);
-        let node = &self.node;
+        let net = &self.net;
         carry_out(
             self.me,
             &decision,
             &self.output,
             self.log.as_mut(),
             &clock,
-            &|id| node.publish(id),
+            &|id| net.publish_owner(id),
         );
         if let Some(Output::Apply { setpoint, .. }) = decision.output {
-            self.status_writer.mode = setpoint.mode;
+            self.status.mode = setpoint.mode;
         }
         if let Some(suspect) = decision.suspect {
             self.suspects.report(suspect);
         }
         if decision.owner_change.is_some() {
-            let report = self.output.report();
-            self.status_writer.update(&self.arbiter, &report);
-            let line = status_line(&self.arbiter, &report, clock.now());
+            self.publish_status();
+            let line = status_line(&self.arbiter, &self.output.report(), clock.now());
             self.shown = self.hung.annotate(self.suspects.annotate(line));
             self.notify.status(&self.shown);
         }
@@ -363,9 +345,8 @@ impl Vehicle {
         if let Some(log) = self.log.as_mut() {
             log.record(&self.clock, "safe", Owner::Failsafe, None);
         }
-        self.node.publish(self.me);
-        self.node.withdraw();
-        self.status_writer.withdraw();
+        self.net.publish_owner(self.me);
+        self.net.withdraw();
     }
 }
 
@@ -375,7 +356,7 @@ const STOP_WAIT: Duration = Duration::from_millis(500);
 fn carry_out(
     me: i64,
     decision: &Decision,
-    output: &OutputWorker,
+    output: &impl Outputs,
     log: Option<&mut OutputLog>,
     clock: &Clock,
     publish: &impl Fn(i64),

@@ -1,7 +1,6 @@
 //! What the vehicle tells about itself: VehicleStatus on DDS, the `STATUS=` line for systemd,
 //! and the watches that annotate it (an output hung past its limit, messages not believed).
 
-use crate::dds::{self, Domain};
 use crate::output::OutputReport;
 
 use rove_core::arbiter::{Arbiter, Owner, ParticipantId};
@@ -11,50 +10,36 @@ use std::collections::HashMap;
 use std::time::Duration;
 use tracing::{info, warn};
 
-/// The vehicle's VehicleStatus: published when it changes (checked on every owner change and
-/// every heartbeat), withdrawn on stop. Without a writer (a secured fleet whose permissions
-/// predate the topic) the vehicle runs on and says so once.
-pub(super) struct StatusWriter {
+/// The vehicle's VehicleStatus as last published: a new one is published when it changes
+/// (checked on every owner change and every heartbeat).
+pub(super) struct StatusWatch {
     me: i64,
-    writer: Option<rustdds::with_key::DataWriterCdr<dds::KeyedVehicleStatus>>,
     /// The mode last applied.
     pub(super) mode: rove_core::msg::Mode,
     last: Option<VehicleStatus>,
 }
 
-impl StatusWriter {
-    pub(super) fn new(me: i64, domain: &Domain) -> StatusWriter {
-        let writer = domain
-            .vehicle_status_writer()
-            .map_err(|e| warn!(cause = %format!("{e:#}"), "no VehicleStatus: operators will not see the output's health"))
-            .ok();
-        StatusWriter {
+impl StatusWatch {
+    pub(super) fn new(me: i64) -> StatusWatch {
+        StatusWatch {
             me,
-            writer,
             mode: rove_core::msg::Mode::Manual,
             last: None,
         }
     }
 
-    pub(super) fn update(&mut self, arbiter: &Arbiter, report: &OutputReport) {
+    /// The status to publish, if it changed.
+    pub(super) fn changed(
+        &mut self,
+        arbiter: &Arbiter,
+        report: &OutputReport,
+    ) -> Option<&VehicleStatus> {
         let status = vehicle_status(self.me, arbiter, self.mode, report);
         if self.last.as_ref() == Some(&status) {
-            return;
-        }
-        if let Some(writer) = &self.writer
-            && let Err(e) = writer.write(dds::KeyedVehicleStatus(status.clone()), None)
-        {
-            warn!(cause = ?e, "cannot publish VehicleStatus");
+            return None;
         }
         self.last = Some(status);
-    }
-
-    pub(super) fn withdraw(&self) {
-        if let Some(writer) = &self.writer
-            && let Err(e) = writer.dispose(&self.me, None)
-        {
-            warn!(cause = ?e, "cannot withdraw VehicleStatus");
-        }
+        self.last.as_ref()
     }
 }
 
