@@ -4,11 +4,13 @@
 //! samples, input events, commands and timers into session events, and the session's effects
 //! into DDS writes, disposals, log lines and front-end events.
 //!
-//! The loop's edges are injected ([`Edges`]): its clock, its sticks, the channel its events go
-//! out on and the one its commands come in on, systemd's notifier, and the shutdown future.
-//! Who is on the other side — the terminal console, the local API and the browser console of
-//! `rove operator` ([`crate::host`]), or one browser's device ([`crate::web`]) — is not this
-//! module's business: it imports neither.
+//! The loop's edges are injected: the network (`net::Net`; in `rove operator` the DDS node,
+//! readers and writers, `net::Dds`), and [`Edges`]: its clock, its sticks, the channel its
+//! events go out on and the one its commands come in on, systemd's notifier, and the shutdown
+//! future. Who is on the other side — the terminal console, the local API and the browser
+//! console of `rove operator` ([`crate::host`]), or one browser's device ([`crate::web`]) — is
+//! not this module's business: it imports neither. Its tests run it on a channel network in
+//! virtual time.
 //!
 //! Under systemd (see [`crate::sdnotify`]): `READY=1` once the participant and every writer
 //! exist, `STATUS=` with what we drive, hold and stand by for, `WATCHDOG=1` from this loop, and
@@ -19,33 +21,33 @@
 //! at once), and the participant leaves.
 //!
 //! # Layout
-//! - this file: [`Options`], [`Edges`], [`run`] (set-up, the `select!` loop, the stop).
-//! - `samples.rs`: DDS samples and discovery → session events and front-end events.
-//! - `writers.rs`: the DDS writers and the session's effects carried out on them.
+//! - this file: [`Options`], [`Edges`], [`run`] (set-up, the `select!` loop, the stop), the
+//!   session's effects carried out.
+//! - `net.rs`: the network edge (`Net`, what was heard and from whom) and its DDS form.
+//! - `samples.rs`: what was heard → session events and front-end events.
+//! - `writers.rs`: the DDS writers (a ControlCommand writer per session writer and route).
 //! - `ui.rs`: what the front ends are told, only when it changed.
+//! - `tests.rs`: the loop on a channel network, on tokio's paused clock.
 
+mod net;
 mod samples;
+#[cfg(test)]
+mod tests;
 mod ui;
 mod writers;
 
 use crate::config::{InputChoice, OperatorConfig};
-use crate::dds::{self, Node};
-use crate::runtime::{Clock, JsonLines, RateLimited, sleep_until};
+use crate::runtime::{Clock, JsonLines, sleep_until};
 use crate::sdnotify::Notifier;
-use futures::StreamExt;
+use net::{Dds, Net};
 use rove_console::{CommandRequest, ConsoleState, Event, Identity, Stamped};
 use rove_core::adapter::{InputAction, InputEvent, InputSource};
-use rove_core::msg::{DeviceId, DeviceType};
-use rove_core::session::{
-    Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput, Writer,
-};
-use rustdds::StatusEvented;
-use std::collections::HashMap;
+use rove_core::msg::DeviceId;
+use rove_core::session::{Effect, OperatorSession, SessionConfig, SessionEvent, SessionInput};
 use std::path::PathBuf;
 use std::sync::Arc;
 use tracing::{info, warn};
 use ui::Ui;
-use writers::Writers;
 
 /// Longest wait, per writer, for peers to acknowledge the final FINISH and disposals on exit.
 /// Loopback acknowledges in about a millisecond; 300 ms covers a loaded radio link without
@@ -167,15 +169,13 @@ pub fn console_state(config: &OperatorConfig) -> ConsoleState {
 }
 
 /// The operator as the loop holds it.
-struct Role {
+struct Role<N> {
     config: OperatorConfig,
-    node: Node,
-    writers: Writers,
+    net: N,
     session: OperatorSession,
     ui: Ui,
     edges: Edges,
     record: Option<JsonLines>,
-    malformed: RateLimited,
 }
 
 /// Runs the operator role with `edges` until `shutdown` completes, then finishes its grants,
@@ -190,67 +190,39 @@ pub async fn run(
     edges: Edges,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let mut role = Role::start(config, &options, edges)?;
-    let mut readers = Readers::open(&role.node.domain)?;
-    let result = role.run(&mut readers, shutdown).await;
-    role.leave();
-    // Only now: deleting a reader is announced to every peer, which ahead of the releases
-    // delayed a graceful handover by about a millisecond (measured).
-    drop(readers);
-    result
+    let record = options
+        .record
+        .as_deref()
+        .map(JsonLines::create)
+        .transpose()?;
+    let net = Dds::join(&config, options.request, options.any_certificate)?;
+    info!(
+        config = %options.config_path.display(),
+        device = config.common.id,
+        name = %config.common.name,
+        level = ?config.level,
+        class = ?config.device_class,
+        strength = config.strength.0,
+        domain = config.common.domain_id,
+        interfaces = ?config.common.interfaces,
+        drive = ?config.drive,
+        watchdog_keepalive_ms = edges.notify.watchdog_period().map(|p| p.as_millis() as u64),
+        "operator started"
+    );
+    Role::new(config, options.request, edges, net, record)?
+        .serve(shutdown)
+        .await
 }
 
-/// The role's DDS readers, kept until it has left.
-struct Readers {
-    infos: rustdds::with_key::DataReaderStream<dds::KeyedDeviceInfo>,
-    requests: rustdds::no_key::DataReaderStream<rove_core::msg::RequestControl>,
-    /// The vehicles' output health for the front ends; optional (a secured fleet's
-    /// permissions may predate the topic).
-    statuses: Option<rustdds::with_key::DataReaderStream<dds::KeyedVehicleStatus>>,
-}
-
-impl Readers {
-    fn open(domain: &dds::Domain) -> anyhow::Result<Readers> {
-        Ok(Readers {
-            infos: domain.device_info_reader()?.async_sample_stream(),
-            requests: domain.request_reader()?.async_sample_stream(),
-            statuses: domain
-                .vehicle_status_reader()
-                .map_err(|e| warn!(cause = %format!("{e:#}"), "no VehicleStatus: the console shows no output health"))
-                .ok()
-                .map(|r| r.async_sample_stream()),
-        })
-    }
-}
-
-impl Role {
-    /// Joins the domain, makes the writers the config needs from the start and the session.
-    fn start(config: OperatorConfig, options: &Options, edges: Edges) -> anyhow::Result<Role> {
-        let record = options
-            .record
-            .as_deref()
-            .map(JsonLines::create)
-            .transpose()?;
-        let node = Node::join(
-            &config.common,
-            DeviceType::Controller,
-            options.any_certificate,
-        )?;
-        let mut writers = Writers {
-            strength: config.strength,
-            commands: HashMap::new(),
-            routes: dds::Routes::default(),
-            requests: node.domain.request_writer()?,
-            failed: RateLimited::new("ControlCommand write failed"),
-        };
-        // The vehicles to drive from the start, and the one to ask for: their writers now, so
-        // that discovery has matched them by the first command.
-        for &vehicle in &config.drive {
-            writers.command_writer(&node.domain, Writer::Regular, vehicle);
-        }
-        if let Some(vehicle) = options.request {
-            writers.prepare(&node.domain, vehicle);
-        }
+impl<N: Net> Role<N> {
+    /// The session on its edges.
+    fn new(
+        config: OperatorConfig,
+        request: Option<DeviceId>,
+        edges: Edges,
+        net: N,
+        record: Option<JsonLines>,
+    ) -> anyhow::Result<Role<N>> {
         let input = match (&edges.sticks, &config.input) {
             (Some(_), _) => SessionInput::Device,
             (None, InputChoice::Constant(movement, mode)) => {
@@ -270,28 +242,15 @@ impl Role {
                 input,
                 heartbeat: config.common.heartbeat,
                 confirm_actions: edges.confirm.is_some(),
-                request: options.request,
-                participant: node.participant,
+                request,
+                participant: net.participant(),
                 trust: config.common.trust(),
             },
             clock.now(),
         );
-        if let Some(certifier) = node.certifier.clone() {
+        if let Some(certifier) = net.certifier() {
             session.certify(certifier);
         }
-        info!(
-            config = %options.config_path.display(),
-            device = config.common.id,
-            name = %config.common.name,
-            level = ?config.level,
-            class = ?config.device_class,
-            strength = config.strength.0,
-            domain = config.common.domain_id,
-            interfaces = ?config.common.interfaces,
-            drive = ?config.drive,
-            watchdog_keepalive_ms = edges.notify.watchdog_period().map(|p| p.as_millis() as u64),
-            "operator started"
-        );
         let ui = Ui {
             tx: edges.events.clone(),
             clock,
@@ -302,14 +261,22 @@ impl Role {
         };
         Ok(Role {
             config,
-            node,
-            writers,
+            net,
             session,
             ui,
             edges,
             record,
-            malformed: RateLimited::new("malformed DeviceInfo or RequestControl sample"),
         })
+    }
+
+    /// The loop until `shutdown` (or the network is gone: an error), then the leave.
+    async fn serve(
+        mut self,
+        shutdown: impl std::future::Future<Output = ()>,
+    ) -> anyhow::Result<()> {
+        let result = self.run(shutdown).await;
+        self.leave();
+        result
     }
 
     /// The sticks' link for the front ends.
@@ -325,19 +292,8 @@ impl Role {
         self.session.step(clock.now(), clock.stamp(), event)
     }
 
-    /// The loop: until `shutdown`, or a DDS stream ends (an error).
-    async fn run(
-        &mut self,
-        readers: &mut Readers,
-        shutdown: impl std::future::Future<Output = ()>,
-    ) -> anyhow::Result<()> {
-        let Readers {
-            infos,
-            requests,
-            statuses,
-        } = readers;
-        let listener = self.node.domain.participant.status_listener();
-        let mut discovery = listener.as_async_status_stream();
+    /// The loop: until `shutdown`, or the network is gone (an error).
+    async fn run(&mut self, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
         let clock = self.edges.clock;
         let mut stream_timer = tokio::time::interval(self.config.stream_period);
         stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -348,7 +304,7 @@ impl Role {
             .emit(Event::Identity(console_state(&self.config).identity));
         let mut link = self.link();
         self.ui.show(&self.session, &link);
-        self.node.publish(self.config.common.id);
+        self.net.announce();
         let mut shown = self.session.status_line();
         self.edges.notify.ready(&shown);
         let mut selected = None;
@@ -357,53 +313,47 @@ impl Role {
             let input_deadline = (self.edges.sticks.as_ref())
                 .and_then(|s| s.next_deadline())
                 .map(|d| clock.instant(d));
-            let wake = Arc::clone(&self.edges.wake);
+            let news = Arc::clone(&self.edges.wake);
             let mut reply = None;
             let mut polled = false;
             // The status line only changes with what we stream to or the vehicles seen:
             // recomputed when a step did more than write samples (the hot path: sticks,
             // keep-alives), and on each heartbeat.
             let mut heartbeat_due = false;
-            let effects = tokio::select! {
-                _ = &mut shutdown => break,
-                Some(req) = self.edges.commands.recv() => {
+            let wake = tokio::select! {
+                () = &mut shutdown => break,
+                Some(req) = self.edges.commands.recv() => Wake::Command(req),
+                () = news.notified(), if self.edges.sticks.is_some() => Wake::Sticks,
+                () = sleep_until(input_deadline), if input_deadline.is_some() => Wake::Sticks,
+                _ = stream_timer.tick() => Wake::Stream,
+                _ = heartbeat.tick() => Wake::Heartbeat,
+                // From this loop, so that a hung loop stops the keep-alives.
+                _ = keepalive.tick() => Wake::Keepalive,
+                heard = self.net.heard() => Wake::Heard(heard?),
+                () = sleep_until(deadline) => Wake::Deadline,
+            };
+            let effects = match wake {
+                Wake::Command(req) => {
                     reply = Some(req.reply);
                     self.step(SessionEvent::Command(req.command))
                 }
-                _ = wake.notified(), if self.edges.sticks.is_some() => {
+                Wake::Sticks => {
                     polled = true;
                     self.poll_sticks()
                 }
-                _ = sleep_until(input_deadline), if input_deadline.is_some() => {
-                    polled = true;
-                    self.poll_sticks()
-                }
-                _ = stream_timer.tick() => self.step(SessionEvent::StreamTick),
-                _ = heartbeat.tick() => {
+                Wake::Stream => self.step(SessionEvent::StreamTick),
+                Wake::Heartbeat => {
                     heartbeat_due = true;
-                    self.node.publish(self.config.common.id);
+                    self.net.announce();
                     self.ui.emit(Event::Tick);
                     Vec::new()
                 }
-                // From this loop, so that a hung loop stops the keep-alives.
-                _ = keepalive.tick() => { self.edges.notify.keepalive(); Vec::new() }
-                sample = infos.next() => match sample {
-                    Some(sample) => self.on_device_info(sample),
-                    None => anyhow::bail!("DeviceInfo stream ended"),
-                },
-                Some(sample) = samples::next_status(statuses) => {
-                    self.on_vehicle_status(sample);
+                Wake::Keepalive => {
+                    self.edges.notify.keepalive();
                     Vec::new()
                 }
-                sample = requests.next() => match sample {
-                    Some(sample) => self.on_request(sample),
-                    None => anyhow::bail!("RequestControl stream ended"),
-                },
-                event = discovery.next() => match event {
-                    Some(event) => self.on_discovery(&event),
-                    None => Vec::new(),
-                },
-                _ = sleep_until(deadline) => self.step(SessionEvent::Tick),
+                Wake::Heard(heard) => self.on_heard(heard),
+                Wake::Deadline => self.step(SessionEvent::Tick),
             };
             let changed =
                 heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
@@ -430,14 +380,7 @@ impl Role {
         reply: Option<tokio::sync::oneshot::Sender<Result<(), String>>>,
         selected: &mut Option<DeviceId>,
     ) {
-        let clock = self.edges.clock;
-        let refused = self.writers.carry_out(
-            &self.node.domain,
-            effects,
-            &clock,
-            self.record.as_mut(),
-            &self.ui,
-        );
+        let refused = self.apply(effects);
         // The selected vehicle is the one buttons and the console ask for: both its writers
         // now, so that an owner who accepts at once (auto-accept) is not faster than discovery
         // (measured: made at the REQUEST, the first commands of an auto-accepted grant were
@@ -445,7 +388,7 @@ impl Role {
         if self.session.selected() != *selected {
             *selected = self.session.selected();
             if let Some(vehicle) = *selected {
-                self.writers.prepare(&self.node.domain, vehicle);
+                self.net.prepare(vehicle);
             }
         }
         if let Some(reply) = reply {
@@ -457,6 +400,34 @@ impl Role {
         } else if let Some(why) = refused {
             warn!("button: {why}");
         }
+    }
+
+    /// The session's effects: on the network, to the front ends; returns why a command was
+    /// refused, if one was.
+    fn apply(&mut self, effects: Vec<Effect>) -> Option<String> {
+        let mut refused = None;
+        for effect in effects {
+            match effect {
+                Effect::Write { writer, command } => self.net.write(writer, command),
+                Effect::Release { writer, vehicle } => self.net.release(writer, vehicle),
+                Effect::Send(msg) => {
+                    if let Some(record) = self.record.as_mut() {
+                        record.write(&crate::runtime::request_json(&self.edges.clock, &msg));
+                    }
+                    self.net.send(msg);
+                }
+                Effect::Report(report) => self.ui.report(report),
+                Effect::Confirm(action) => {
+                    // The console confirms what would move a vehicle, then sends the command
+                    // back; a full queue drops the press (the person presses again).
+                    if let Some(actions) = &self.ui.actions {
+                        let _ = actions.try_send(action);
+                    }
+                }
+                Effect::Refused(why) => refused = Some(why),
+            }
+        }
+        refused
     }
 
     /// Reads every event the sticks have now and steps the session with each.
@@ -497,49 +468,19 @@ impl Role {
         self.edges
             .notify
             .stopping("stopping: finishing grants, releasing vehicles");
-        let clock = self.edges.clock;
-        let effects = self.session.stop(clock.stamp());
-        self.writers.carry_out(
-            &self.node.domain,
-            effects,
-            &clock,
-            self.record.as_mut(),
-            &self.ui,
-        );
-        self.node.withdraw();
-        // The FINISHes and disposals above are reliable writes; leaving the domain at once would
-        // drop them before every reader has them (seen: a replier never resumed). Wait, bounded,
-        // for the acknowledgments. Blocking is fine here: the event loop is over.
-        // Each writer is named: one that had nothing unacknowledged, or whose readers all
-        // answered, is quiet; a timeout means some matched reader (maybe one that has itself
-        // left) did not answer in time, and those peers fall back to the command timeout.
-        let wait = SHUTDOWN_ACK_WAIT;
-        let mut acked = vec![
-            (
-                "RequestControl (FINISH)",
-                self.writers.requests.wait_for_acknowledgments(wait),
-            ),
-            (
-                "DeviceInfo (withdrawal)",
-                self.node.wait_for_withdrawal(wait),
-            ),
-        ];
-        for writer in self.writers.commands.values() {
-            acked.push((
-                "ControlCommand (release)",
-                writer.wait_for_acknowledgments(wait),
-            ));
-        }
-        for (writer, result) in acked {
-            match result {
-                Ok(true) => {}
-                Ok(false) => warn!(
-                    writer,
-                    wait_ms = wait.as_millis() as u64,
-                    "a matched reader did not acknowledge before exit; it falls back to its timeout"
-                ),
-                Err(e) => warn!(writer, cause = ?e, "cannot wait for acknowledgments"),
-            }
-        }
+        let effects = self.session.stop(self.edges.clock.stamp());
+        self.apply(effects);
+        self.net.leave(SHUTDOWN_ACK_WAIT);
     }
+}
+
+/// What woke the operator loop.
+enum Wake {
+    Command(CommandRequest),
+    Sticks,
+    Stream,
+    Heartbeat,
+    Keepalive,
+    Heard(net::Heard),
+    Deadline,
 }

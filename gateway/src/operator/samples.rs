@@ -1,142 +1,74 @@
-//! DDS samples and discovery events → session events, and what the front ends are shown of
-//! them. Who sent a sample is the participant it came from ([`dds::sender`]), never a payload
-//! field; what the session does not believe is not shown.
+//! What the operator heard → session events, and what the front ends are shown of it. Who sent
+//! a message is the participant it came from ([`Heard`] carries it), never a payload field;
+//! what the session does not believe is not shown.
 
 use super::Role;
-use crate::dds::{self, Discovery, KeyedDeviceInfo, KeyedVehicleStatus};
-use futures::StreamExt;
+use super::net::{Heard, Net};
 use rove_console::Event;
 use rove_console::model::DeviceKind;
-use rove_core::msg::{DeviceType, RequestControl};
+use rove_core::arbiter::ParticipantId;
+use rove_core::msg::{DeviceInfo, DeviceType, VehicleStatus};
 use rove_core::session::{Effect, Report, SessionEvent};
-use rustdds::DomainParticipantStatusEvent;
-use rustdds::dds::ReadResult;
-use rustdds::with_key::{DataReaderStream, DataSample, Sample};
 
-/// The next VehicleStatus sample, or never without a reader.
-pub(super) async fn next_status(
-    statuses: &mut Option<DataReaderStream<KeyedVehicleStatus>>,
-) -> Option<ReadResult<DataSample<KeyedVehicleStatus>>> {
-    match statuses {
-        Some(stream) => stream.next().await,
-        None => std::future::pending().await,
-    }
-}
-
-/// What discovery tells the session: ControlCommand writers found (with their strength) and
-/// lost, participants gone.
-fn discovery_event(discovery: Discovery) -> SessionEvent {
-    match discovery {
-        Discovery::CommandWriter { guid, strength } => SessionEvent::WriterFound {
-            writer: dds::writer_id(guid),
-            strength,
-        },
-        Discovery::WriterLost { guid } => SessionEvent::WriterLost {
-            writer: dds::writer_id(guid),
-        },
-        Discovery::ParticipantLost { participant } => SessionEvent::ParticipantGone { participant },
-    }
-}
-
-impl Role {
-    /// A DeviceInfo sample: the session learns the device; the front ends see it if believed.
-    /// A withdrawal counts only from the participant that speaks for the device.
-    pub(super) fn on_device_info(
-        &mut self,
-        sample: ReadResult<DataSample<KeyedDeviceInfo>>,
-    ) -> Vec<Effect> {
-        let sample = match sample {
-            Ok(s) => s,
-            Err(e) => {
-                self.malformed.warn(&e);
-                return Vec::new();
-            }
-        };
-        let from = dds::sender(sample.sample_info());
-        match sample.into_value() {
-            Sample::Value(KeyedDeviceInfo(info)) => {
-                let vehicle = info.device_type == DeviceType::Vehicle;
-                let seen = Event::DeviceSeen {
-                    id: info.device_id,
-                    name: info.name.clone(),
-                    kind: if vehicle {
-                        DeviceKind::Vehicle
-                    } else {
-                        DeviceKind::Controller
-                    },
-                    owner: info.controller_id,
-                };
-                let id = info.device_id;
-                let effects = self.step(SessionEvent::DeviceInfo { info, from });
-                // Shown only if believed; the session reports it otherwise.
-                let untrusted =
-                    (effects.iter()).any(|e| matches!(e, Effect::Report(Report::Untrusted(_))));
-                if !untrusted {
-                    self.ui.emit(seen);
-                    if vehicle {
-                        self.writers.routes.vehicle_seen(id, from);
-                    }
-                }
-                effects
-            }
-            Sample::Dispose(id) => {
+impl<N: Net> Role<N> {
+    /// One thing heard, to the session and the front ends.
+    pub(super) fn on_heard(&mut self, heard: Heard) -> Vec<Effect> {
+        match heard {
+            Heard::Info { info, from } => self.on_device_info(info, from),
+            Heard::InfoGone { id, from } => {
+                // A withdrawal counts only from the participant that speaks for the device.
                 let now = self.edges.clock.now();
                 if self.session.speaks_for(now, id, from) {
                     self.ui.emit(Event::DeviceGone { id });
                 }
                 Vec::new()
             }
+            Heard::Request { msg, from } => self.step(SessionEvent::RequestControl { msg, from }),
+            Heard::Status { status, from } => {
+                self.on_vehicle_status(&status, from);
+                Vec::new()
+            }
+            Heard::Discovery(event) => self.step(event),
+            Heard::Nothing => Vec::new(),
         }
     }
 
-    /// A VehicleStatus sample: shown if it comes from the participant that speaks for the
-    /// vehicle.
-    pub(super) fn on_vehicle_status(&mut self, sample: ReadResult<DataSample<KeyedVehicleStatus>>) {
-        let Ok(s) = sample else {
-            return;
+    /// A DeviceInfo: the session learns the device; the front ends see it if believed.
+    fn on_device_info(&mut self, info: DeviceInfo, from: ParticipantId) -> Vec<Effect> {
+        let vehicle = info.device_type == DeviceType::Vehicle;
+        let seen = Event::DeviceSeen {
+            id: info.device_id,
+            name: info.name.clone(),
+            kind: if vehicle {
+                DeviceKind::Vehicle
+            } else {
+                DeviceKind::Controller
+            },
+            owner: info.controller_id,
         };
-        let Sample::Value(KeyedVehicleStatus(status)) = s.value() else {
-            return;
-        };
-        let from = dds::sender(s.sample_info());
-        if self
-            .session
-            .speaks_for(self.edges.clock.now(), status.vehicle_id, from)
-        {
+        let id = info.device_id;
+        let effects = self.step(SessionEvent::DeviceInfo { info, from });
+        // Shown only if believed; the session reports it otherwise.
+        let untrusted = (effects.iter()).any(|e| matches!(e, Effect::Report(Report::Untrusted(_))));
+        if !untrusted {
+            self.ui.emit(seen);
+            if vehicle {
+                self.net.vehicle_seen(id, from);
+            }
+        }
+        effects
+    }
+
+    /// A VehicleStatus: shown if it comes from the participant that speaks for the vehicle.
+    fn on_vehicle_status(&mut self, status: &VehicleStatus, from: ParticipantId) {
+        let now = self.edges.clock.now();
+        if self.session.speaks_for(now, status.vehicle_id, from) {
             self.ui.emit(Event::VehicleStatus {
                 vehicle: status.vehicle_id,
                 mode: Some(status.mode),
                 failsafe: status.failsafe,
                 link: crate::status::output_text(status),
             });
-        }
-    }
-
-    /// A RequestControl sample, with the participant it came from.
-    pub(super) fn on_request(
-        &mut self,
-        sample: ReadResult<rustdds::no_key::DataSample<RequestControl>>,
-    ) -> Vec<Effect> {
-        match sample {
-            Ok(s) => {
-                let msg = *s.value();
-                let from = dds::sender(s.sample_info());
-                tracing::debug!(?msg.ack, msg.src_id, msg.current_controller_id, stamp = msg.timestamp.0, %from, "RequestControl");
-                self.step(SessionEvent::RequestControl { msg, from })
-            }
-            Err(e) => {
-                self.malformed.warn(&e);
-                Vec::new()
-            }
-        }
-    }
-
-    /// A discovery event: routes learnt from it, and the session told what it needs.
-    pub(super) fn on_discovery(&mut self, event: &DomainParticipantStatusEvent) -> Vec<Effect> {
-        self.writers.routes_learn(event);
-        match Discovery::of(event) {
-            Some(discovery) => self.step(discovery_event(discovery)),
-            None => Vec::new(),
         }
     }
 }

@@ -1,13 +1,11 @@
 //! The operator's DDS writers: a ControlCommand writer per session writer (regular, priority)
-//! and route, made when first needed, the RequestControl writer, and the session's effects
-//! carried out on them.
+//! and route, made when first needed, and the RequestControl writer.
 
-use super::ui::Ui;
 use crate::dds::{self, Domain, KeyedControlCommand};
-use crate::runtime::{Clock, JsonLines, RateLimited};
+use crate::runtime::RateLimited;
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{Ack, DeviceId, RequestControl};
-use rove_core::session::{Effect, Writer};
+use rove_core::msg::{Ack, ControlCommand, DeviceId, RequestControl};
+use rove_core::session::Writer;
 use rustdds::DomainParticipantStatusEvent;
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
@@ -91,65 +89,42 @@ impl Writers {
         }
     }
 
-    /// Carries out the session's effects; returns why a command was refused, if one was.
-    pub(super) fn carry_out(
-        &mut self,
-        domain: &Domain,
-        effects: Vec<Effect>,
-        clock: &Clock,
-        mut record: Option<&mut JsonLines>,
-        ui: &Ui,
-    ) -> Option<String> {
-        let mut refused = None;
-        for effect in effects {
-            match effect {
-                Effect::Write { writer, command } => {
-                    let Some(w) = self.command_writer(domain, writer, command.dest_id) else {
-                        continue;
-                    };
-                    // The source timestamp lets the vehicle tell a sample that queued up from a
-                    // fresh one (rove_core::freshness).
-                    let stamp = Some(rustdds::Timestamp::now());
-                    if let Err(e) = w.write(KeyedControlCommand(command), stamp) {
-                        self.failed.warn(&e);
-                    }
-                }
-                Effect::Release { writer, vehicle } => {
-                    // Vehicles read commands best effort (dds::Domain::command_reader): a lost
-                    // dispose would leave them waiting a command timeout, so it is repeated.
-                    let Some(w) = self.command_writer(domain, writer, vehicle) else {
-                        continue;
-                    };
-                    for _ in 0..RELEASE_REPEATS {
-                        if let Err(e) = w.dispose(&vehicle, None) {
-                            warn!(vehicle, cause = ?e, "release (dispose) failed");
-                            break;
-                        }
-                    }
-                }
-                Effect::Send(msg) => {
-                    // Asking for a vehicle not selected before: both writers for it now.
-                    if msg.ack == Ack::Request && msg.src_id != msg.current_controller_id {
-                        self.prepare(domain, msg.dest_id);
-                    }
-                    if let Some(record) = record.as_deref_mut() {
-                        record.write(&crate::runtime::request_json(clock, &msg));
-                    }
-                    if let Err(e) = self.requests.write(msg, None) {
-                        warn!(cause = ?e, "cannot send RequestControl");
-                    }
-                }
-                Effect::Report(report) => ui.report(report),
-                Effect::Confirm(action) => {
-                    // The console confirms what would move a vehicle, then sends the command
-                    // back; a full queue drops the press (the person presses again).
-                    if let Some(actions) = &ui.actions {
-                        let _ = actions.try_send(action);
-                    }
-                }
-                Effect::Refused(why) => refused = Some(why),
+    /// Writes `command` on the session's `writer` for its vehicle's route.
+    pub(super) fn write(&mut self, domain: &Domain, writer: Writer, command: ControlCommand) {
+        let Some(w) = self.command_writer(domain, writer, command.dest_id) else {
+            return;
+        };
+        // The source timestamp lets the vehicle tell a sample that queued up from a fresh one
+        // (rove_core::freshness).
+        let stamp = Some(rustdds::Timestamp::now());
+        if let Err(e) = w.write(KeyedControlCommand(command), stamp) {
+            self.failed.warn(&e);
+        }
+    }
+
+    /// Releases `vehicle`'s instance of the session's `writer`. Vehicles read commands best
+    /// effort (dds::Domain::command_reader): a lost dispose would leave them waiting a command
+    /// timeout, so it is repeated.
+    pub(super) fn release(&mut self, domain: &Domain, writer: Writer, vehicle: DeviceId) {
+        let Some(w) = self.command_writer(domain, writer, vehicle) else {
+            return;
+        };
+        for _ in 0..RELEASE_REPEATS {
+            if let Err(e) = w.dispose(&vehicle, None) {
+                warn!(vehicle, cause = ?e, "release (dispose) failed");
+                break;
             }
         }
-        refused
+    }
+
+    /// Sends a RequestControl; asking for a vehicle not selected before makes both its
+    /// writers now.
+    pub(super) fn send(&mut self, domain: &Domain, msg: RequestControl) {
+        if msg.ack == Ack::Request && msg.src_id != msg.current_controller_id {
+            self.prepare(domain, msg.dest_id);
+        }
+        if let Err(e) = self.requests.write(msg, None) {
+            warn!(cause = ?e, "cannot send RequestControl");
+        }
     }
 }

@@ -24,9 +24,9 @@
 //! device's id is pinned to its participant before anyone else can claim it.
 //!
 //! # Layout
-//! - this file: [`Options`], [`Outputs`], [`run`] (start: output, then the network), the
+//! - this file: [`Options`], `Outputs`, [`run`] (start: output, then the network), the
 //!   `select!` loop on injected edges (network, output, clock, notifier, shutdown), the stop.
-//! - `net.rs`: the network edge ([`net::Net`]) and its DDS form: samples and discovery →
+//! - `net.rs`: the network edge (`Net`) and its DDS form: samples and discovery →
 //!   arbiter events, DeviceInfo and VehicleStatus out.
 //! - `intake.rs`: ControlCommand samples → arbiter events (strengths, freshness, batching).
 //! - `report.rs`: VehicleStatus, the `STATUS=` line, the hung-output and not-believed watches.
