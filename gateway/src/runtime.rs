@@ -389,6 +389,34 @@ pub fn request_json(clock: &Clock, rc: &rove_core::msg::RequestControl) -> serde
     })
 }
 
+/// For the role loops' tests, on tokio's paused clock.
+#[cfg(test)]
+pub(crate) mod virtual_time {
+    use std::time::Duration;
+
+    /// Lets the loop take what was sent (no virtual time passes while tasks can run). Tests
+    /// look between ticks: what is due at the instant a test wakes may not have run yet.
+    pub(crate) async fn settle() {
+        for _ in 0..10 {
+            tokio::task::yield_now().await;
+        }
+    }
+
+    /// Lets `ms` of virtual time pass.
+    pub(crate) async fn wait_ms(ms: u64) {
+        tokio::time::sleep(Duration::from_millis(ms)).await;
+    }
+
+    /// Awaits a loop whose network went away: it must end with that error, not panic.
+    pub(crate) async fn ends_with_network_gone(task: tokio::task::JoinHandle<anyhow::Result<()>>) {
+        let error = task
+            .await
+            .expect("the loop does not panic")
+            .expect_err("the loop reports the lost network");
+        assert!(error.to_string().contains("network gone"), "{error:#}");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
