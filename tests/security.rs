@@ -7,22 +7,24 @@ use std::process::Command;
 
 const V: i64 = 100;
 
+/// `rove keys ARGS`, which must succeed.
+fn keys(args: &[&str]) {
+    let out = Command::new(ROVE)
+        .arg("keys")
+        .args(args)
+        .output()
+        .expect("rove keys");
+    assert!(
+        out.status.success(),
+        "rove keys {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// `rove keys init` in the rig's directory, then `rove keys add` for each id; returns the
 /// fleet's directory.
 fn fleet(rig: &Rig, ids: &[i64]) -> PathBuf {
     let dir = rig.dir.join("fleet");
-    let keys = |args: &[&str]| {
-        let out = Command::new(ROVE)
-            .arg("keys")
-            .args(args)
-            .output()
-            .expect("rove keys");
-        assert!(
-            out.status.success(),
-            "rove keys {args:?}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
     let d = dir.to_str().expect("utf-8 path");
     keys(&["init", "--dir", d, "--fleet", "test fleet"]);
     for id in ids {
@@ -118,4 +120,114 @@ fn a_certificate_for_one_device_cannot_speak_for_another() {
     assert!(!status.success());
     let log = std::fs::read_to_string(&rig.procs[refused].log).unwrap_or_default();
     assert!(log.contains("not device 12's"), "{log}");
+}
+
+/// A stronger operator (12) whose certificate is valid from `starts_in_days` for `days` days
+/// joins a secured fleet where the laptop drives: the vehicle refuses it, saying `why` in its
+/// log, and never applies it. Without the test hook the operator does not even start.
+fn dated_certificate_is_refused(name: &str, starts_in_days: i64, days: u32, why: &str) {
+    let mut rig = Rig::new(name);
+    let fleet = fleet(&rig, &[V, 11]);
+    let d = fleet.to_str().expect("utf-8 path");
+    let (starts, days) = (starts_in_days.to_string(), days.to_string());
+    keys(&[
+        "add",
+        "--dir",
+        d,
+        "--id",
+        "12",
+        "--days",
+        &days,
+        "--starts-in-days",
+        &starts,
+    ]);
+    let record = secured_laptop_drives(&mut rig, &fleet);
+    // The hook skips the operator's check of its own dates, so that it tries to join.
+    let hook = ["--test-any-certificate"];
+    let sec = security(&fleet, 12);
+    rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &hook);
+    let needle = format!("remote identity refused: certificate of CN=rove-12,O=test fleet {why}");
+    crate::util::eventually("the vehicle refuses 12's certificate", || {
+        let log = rig.log_of("vehicle-100");
+        log.contains(&needle).then_some(()).ok_or("not yet")
+    });
+    // Two more seconds of the laptop driving: 12 (stronger) never drives.
+    let after = wall_us();
+    let end = after + 2_000_000;
+    while wall_us() < end {
+        wait_for_output(&record, Some(11), wall_us()).expect("the laptop still drives");
+    }
+    let refused = records(&record).into_iter().find(|o| o.owner == Some(12));
+    assert!(refused.is_none(), "12 was applied: {refused:?}");
+    // Without the hook the operator refuses to start, and says why.
+    let own = rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
+    let status = rig.procs[own]
+        .wait_exit(crate::util::PATIENCE)
+        .expect("exits");
+    assert!(!status.success());
+    let log = std::fs::read_to_string(&rig.procs[own].log).unwrap_or_default();
+    let own_needle = format!("own identity: certificate of CN=rove-12,O=test fleet {why}");
+    assert!(log.contains(&own_needle), "{log}");
+}
+
+#[test]
+fn an_expired_certificate_is_refused_by_a_running_vehicle() {
+    dated_certificate_is_refused("secure-expired", -10, 5, "expired on");
+}
+
+#[test]
+fn a_certificate_not_valid_yet_is_refused_by_a_running_vehicle() {
+    dated_certificate_is_refused("secure-not-yet", 2, 30, "is not valid yet");
+}
+
+#[test]
+fn rove_keys_list_shows_each_certificate_and_its_end() {
+    let rig = Rig::new("keys-list");
+    let fleet = fleet(&rig, &[V, 11]);
+    let d = fleet.to_str().expect("utf-8 path");
+    keys(&[
+        "add",
+        "--dir",
+        d,
+        "--id",
+        "12",
+        "--days",
+        "10",
+        "--starts-in-days",
+        "-20",
+    ]);
+    let out = Command::new(ROVE)
+        .args(["keys", "list", "--dir", d])
+        .output()
+        .expect("rove keys list");
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = |id: &str| {
+        (text.lines())
+            .find(|l| l.split_whitespace().next() == Some(id))
+            .unwrap_or_default()
+            .to_string()
+    };
+    assert!(line("100").contains("valid until"), "{text}");
+    let year = ["(364 days)", "(365 days)"];
+    assert!(
+        year.iter().any(|y| line("100").contains(y)),
+        "a year by default: {text}"
+    );
+    assert!(line("12").contains("EXPIRED on"), "{text}");
+    assert!(text.contains("3 devices"), "{text}");
+    // An existing device is renewed only when asked.
+    let again = Command::new(ROVE)
+        .args(["keys", "add", "--dir", d, "--id", "12"])
+        .output()
+        .expect("rove keys add");
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--renew"));
+    keys(&["add", "--dir", d, "--id", "12", "--renew"]);
+    let out = Command::new(ROVE)
+        .args(["keys", "list", "--dir", d])
+        .output()
+        .expect("rove keys list");
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(!text.contains("EXPIRED"), "renewed: {text}");
 }

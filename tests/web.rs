@@ -710,7 +710,12 @@ fn a_tablet_lays_out_side_by_side_drives_with_a_gamepad_and_its_expired_session_
 fn in_a_secured_fleet_a_paired_phone_drives_as_its_own_certified_participant() {
     let mut rig = Rig::new("web-secure");
     let fleet = rig.fleet(&[VEHICLE, 20, PHONE]).expect("fleet");
-    let web = rove_gateway::certs::web(&fleet, &["127.0.0.1".to_string()]).expect("web cert");
+    let web = rove_gateway::certs::web(
+        &fleet,
+        &["127.0.0.1".to_string()],
+        rove_gateway::certs::Lifetime::DEVICE,
+    )
+    .expect("web cert");
     let security = |id| rove_gateway::tools::harness::security_toml(Some(&fleet), id);
     let output = format!("{}[output]\nadapter = \"sim\"\n", security(VEHICLE));
     let record = rig.vehicle_with_output(VEHICLE, &output);

@@ -163,6 +163,23 @@ enum KeysCommand {
         /// The device id (vehicle or operator).
         #[arg(long)]
         id: i64,
+        /// Days the certificate is valid (`rove doctor` warns 30 days before the end).
+        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
+        days: u32,
+        /// Re-issue an existing device: a new key and certificate (copy the directory to the
+        /// device again).
+        #[arg(long)]
+        renew: bool,
+        /// Test hook, hidden from --help: the validity starts this many days from now
+        /// (negative: in the past).
+        #[arg(long, hide = true, default_value_t = 0, allow_negative_numbers = true)]
+        starts_in_days: i64,
+    },
+    /// List a fleet's devices and how long each certificate is valid.
+    List {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
     },
     /// Issue the browser console's HTTPS certificate, signed by the fleet CA, in
     /// DIR/web-HOST/ (docs/web.md).
@@ -173,6 +190,9 @@ enum KeysCommand {
         /// A name or address browsers reach the operator by (repeat for more).
         #[arg(long = "host", required = true)]
         hosts: Vec<String>,
+        /// Days the certificate is valid.
+        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
+        days: u32,
     },
 }
 
@@ -298,7 +318,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             let bad = found
                 .iter()
-                .filter(|f| f.status != doctor::Status::Ok)
+                .filter(|f| matches!(f.status, doctor::Status::Missing | doctor::Status::Wrong))
                 .count();
             match bad {
                 0 => Ok(()),
@@ -431,25 +451,47 @@ fn inputs_list() -> anyhow::Result<()> {
 /// `rove keys …`.
 #[cfg(feature = "security")]
 fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
+    use rove_gateway::certs;
     match what {
         KeysCommand::Init { dir, fleet, domain } => {
-            rove_gateway::certs::init(&dir, &fleet, domain)?;
+            certs::init(&dir, &fleet, domain)?;
             println!(
                 "fleet {fleet:?} created in {} (domain {domain})",
                 dir.display()
             );
             Ok(())
         }
-        KeysCommand::Add { dir, id } => {
-            let out = rove_gateway::certs::add(&dir, id)?;
+        KeysCommand::Add {
+            dir,
+            id,
+            days,
+            renew,
+            starts_in_days,
+        } => {
+            let lifetime = certs::Lifetime {
+                days,
+                starts_in_days,
+            };
+            let out = certs::add(&dir, id, lifetime, renew)?;
+            let expiry = certs::Expiry::of(&std::fs::read(out.join("cert.pem"))?)?;
             println!(
-                "device {id}: certificate, key and permissions in {}",
+                "device {id}: certificate ({}), key and permissions in {}",
+                expiry.describe(),
                 out.display()
             );
             Ok(())
         }
-        KeysCommand::Web { dir, hosts } => {
-            let out = rove_gateway::certs::web(&dir, &hosts)?;
+        KeysCommand::List { dir } => {
+            let issued = certs::list(&dir)?;
+            println!("{:>8}  certificate", "device");
+            for device in &issued {
+                println!("{:>8}  {}", device.id, device.expiry.describe());
+            }
+            println!("{} devices in {}", issued.len(), dir.display());
+            Ok(())
+        }
+        KeysCommand::Web { dir, hosts, days } => {
+            let out = certs::web(&dir, &hosts, certs::Lifetime::days(days))?;
             println!(
                 "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
                 out.display()

@@ -131,6 +131,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         options.domain_id,
         &options.interfaces,
         options.security.as_deref(),
+        false,
     )?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
     let mut requests = domain.request_reader()?.async_sample_stream();

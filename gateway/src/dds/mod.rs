@@ -158,7 +158,8 @@ impl std::fmt::Debug for Domain {
 
 impl Domain {
     /// Joins `domain_id`, confined to `interfaces`; with `security`, as the device whose DDS
-    /// Security files are in that directory (`rove keys`).
+    /// Security files are in that directory (`rove keys`). `any_certificate` is a test hook:
+    /// our own certificate's dates are not checked (peers still check them).
     ///
     /// # Errors
     /// rustdds cannot create the participant (ports in use, no such interface, security files
@@ -167,6 +168,7 @@ impl Domain {
         domain_id: u16,
         interfaces: &[Ipv4Addr],
         security: Option<&std::path::Path>,
+        any_certificate: bool,
     ) -> anyhow::Result<Domain> {
         let builder = DomainParticipantBuilder::new(domain_id)
             .with_only_networks(interfaces.iter().copied())
@@ -174,17 +176,23 @@ impl Domain {
         let builder = match security {
             None => builder,
             #[cfg(feature = "security")]
-            Some(dir) => builder.builtin_security(
-                rustdds::DomainParticipantSecurityConfigFiles::with_ros_default_names(
-                    dir,
-                    String::new(),
-                ),
-            ),
+            Some(dir) => {
+                let mut files =
+                    rustdds::DomainParticipantSecurityConfigFiles::with_ros_default_names(
+                        dir,
+                        String::new(),
+                    );
+                files.own_certificate_dates_unchecked = any_certificate;
+                builder.builtin_security(files)
+            }
             #[cfg(not(feature = "security"))]
-            Some(dir) => anyhow::bail!(
-                "[security] {}: this rove was built without the `security` feature",
-                dir.display()
-            ),
+            Some(dir) => {
+                let _ = any_certificate;
+                anyhow::bail!(
+                    "[security] {}: this rove was built without the `security` feature",
+                    dir.display()
+                )
+            }
         };
         let participant = builder
             .build()

@@ -48,6 +48,7 @@ impl Node {
             common.domain_id,
             &common.interfaces,
             common.security.as_deref(),
+            any_certificate,
         )?;
         let info = domain.device_info_writer()?;
         let participant = writer_id(domain.participant.guid()).participant;

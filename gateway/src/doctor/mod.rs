@@ -57,6 +57,8 @@ pub enum Status {
     Missing,
     /// There, but not usable as it is (permissions, state).
     Wrong,
+    /// Usable now, but not for long (a certificate near its end): told, not counted.
+    Warning,
 }
 
 /// One line of the report.
@@ -76,6 +78,7 @@ impl fmt::Display for Finding {
             Status::Ok => "ok",
             Status::Missing => "missing",
             Status::Wrong => "wrong",
+            Status::Warning => "warning",
         };
         write!(f, "{status:<8} {}", self.what)?;
         match &self.fix {
@@ -159,6 +162,8 @@ pub fn check(roots: &Roots, user: &str, config: Option<&AnyConfig>) -> Vec<Findi
     found.extend(can(roots, config));
     found.extend(inputs(roots, &user, config));
     found.extend(network(roots, config));
+    #[cfg(feature = "security")]
+    found.extend(certificate(config));
     found
 }
 
@@ -426,6 +431,45 @@ fn network(roots: &Roots, config: Option<&AnyConfig>) -> Vec<Finding> {
             }
         })
         .collect()
+}
+
+/// `[security]`: the device's certificate, and how long it is still valid.
+#[cfg(feature = "security")]
+fn certificate(config: Option<&AnyConfig>) -> Vec<Finding> {
+    use crate::certs::{Expiry, WARN_DAYS};
+    let common = match config {
+        Some(AnyConfig::Vehicle(v)) => &v.common,
+        Some(AnyConfig::Operator(o)) => &o.common,
+        None => return Vec::new(),
+    };
+    let Some(dir) = &common.security else {
+        return Vec::new();
+    };
+    let path = dir.join("cert.pem");
+    let id = common.id;
+    let renew = format!(
+        "on the fleet's machine: rove keys add --dir FLEET --id {id} --renew, then copy \
+         FLEET/{id}/ to {}",
+        dir.display()
+    );
+    let expiry = std::fs::read(&path)
+        .map_err(anyhow::Error::from)
+        .and_then(|pem| Expiry::of(&pem));
+    let what = |state: &str| format!("security: certificate {} {state}", path.display());
+    vec![match expiry {
+        Err(e) => bad(
+            Status::Missing,
+            what(&format!("unreadable ({e:#})")),
+            format!("on the fleet's machine: rove keys add --dir FLEET --id {id}"),
+        ),
+        Ok(x) if !x.valid() => bad(Status::Wrong, what(&x.describe()), renew),
+        Ok(x) if x.days_left < WARN_DAYS => Finding {
+            status: Status::Warning,
+            what: what(&x.describe()),
+            fix: Some(renew),
+        },
+        Ok(x) => ok(what(&x.describe())),
+    }]
 }
 
 #[cfg(test)]

@@ -175,3 +175,51 @@ fn input_devices_are_listed_by_name_with_their_access() {
     assert_eq!(pad.status, Status::Ok);
     assert!(!found.iter().any(|f| f.what.starts_with("network")));
 }
+
+/// A vehicle config whose `[security] dir` holds device 100's files, issued for `days` days
+/// starting `starts_in_days` from now.
+#[cfg(feature = "security")]
+fn secured_vehicle(roots: &Roots, starts_in_days: i64, days: u32) -> AnyConfig {
+    use crate::certs::{Lifetime, add, init};
+    let fleet = roots.0.join("fleet");
+    init(&fleet, "doctor fleet", 0).expect("fleet");
+    let lifetime = Lifetime {
+        days,
+        starts_in_days,
+    };
+    let dir = add(&fleet, 100, lifetime, false).expect("device");
+    let text = format!(
+        "[device]\nid = 100\n[network]\ninterfaces = [\"127.0.0.1\"]\n[security]\ndir = \"{}\"\n\
+         [output]\nadapter = \"sim\"\n",
+        dir.display()
+    );
+    let path = roots.0.join("vehicle.toml");
+    std::fs::write(&path, text).expect("config");
+    crate::config::load_any(&path).expect("valid config").0
+}
+
+#[cfg(feature = "security")]
+#[test]
+fn a_certificate_near_its_end_is_a_warning_and_an_expired_one_is_wrong() {
+    let cases = [
+        (0, 365, Status::Ok, "valid until"),
+        (0, 20, Status::Warning, "days)"),
+        (-10, 5, Status::Wrong, "EXPIRED on"),
+        (3, 30, Status::Wrong, "not valid yet"),
+    ];
+    for (i, (starts, days, status, says)) in cases.into_iter().enumerate() {
+        let roots = tree(&format!("cert-{i}"));
+        let config = secured_vehicle(&roots, starts, days);
+        let found = check(&roots, "rove", Some(&config));
+        let cert = line(&found, "security: certificate");
+        assert_eq!(cert.status, status, "{cert}");
+        assert!(cert.what.contains(says), "{cert}");
+        if status != Status::Ok {
+            let fix = cert.fix.as_deref().unwrap_or_default();
+            assert!(
+                fix.contains("rove keys add") && fix.contains("--renew"),
+                "{cert}"
+            );
+        }
+    }
+}

@@ -215,7 +215,7 @@ impl Rig {
         {
             crate::certs::init(&dir, "rove demo fleet", 0)?;
             for &id in ids {
-                crate::certs::add(&dir, id)?;
+                crate::certs::add(&dir, id, crate::certs::Lifetime::DEVICE, false)?;
             }
             Ok(dir)
         }

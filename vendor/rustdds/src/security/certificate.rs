@@ -127,6 +127,32 @@ impl Certificate {
       .map_err(|e| security_error(&format!("Signature verification failure: {e:?}")))
   }
 
+  /// Checks that `now` lies inside the validity period, allowing `skew` either side for
+  /// clocks that disagree a little (rove patch: certificate lifetime; upstream checks no
+  /// dates). The error names the subject, the period and `now`.
+  pub fn check_validity(
+    &self,
+    now: chrono::DateTime<chrono::Utc>,
+    skew: chrono::Duration,
+  ) -> SecurityResult<()> {
+    let (from, until) = (
+      self.cert.validity_not_before(),
+      self.cert.validity_not_after(),
+    );
+    let subject = &self.subject_name;
+    if now + skew < from {
+      Err(security_error(&format!(
+        "certificate of {subject} is not valid yet: valid from {from}, now {now}"
+      )))
+    } else if now - skew > until {
+      Err(security_error(&format!(
+        "certificate of {subject} expired on {until}, now {now}"
+      )))
+    } else {
+      Ok(())
+    }
+  }
+
   // Verify that `self` was signed by `other` Certificate
   // e.g.
   // `someones_identity.verify_signed_by_certificate( certificate_authority )`

@@ -75,7 +75,14 @@ pub struct DomainParticipantSecurityConfigFiles {
   pub participant_permissions_document: PathBuf,
   /// CRLs are not yet implemented.
   pub certificate_revocation_list: Option<PathBuf>,
+  /// rove patch (certificate lifetime), a test hook: do not check the dates of our own
+  /// certificate, so that a test can see peers refuse an expired one.
+  pub own_certificate_dates_unchecked: bool,
 }
+
+/// The property that carries [`DomainParticipantSecurityConfigFiles::own_certificate_dates_unchecked`].
+pub(crate) const ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME: &str =
+  "rove.test.own_certificate_dates_unchecked";
 
 impl DomainParticipantSecurityConfigFiles {
   /// Assign some default names to security config files.
@@ -98,6 +105,7 @@ impl DomainParticipantSecurityConfigFiles {
       domain_governance_document: own_and_append(&d, "governance.p7s"),
       participant_permissions_document: own_and_append(&d, "permissions.p7s"),
       certificate_revocation_list: None, // "crl.pem"
+      own_certificate_dates_unchecked: false,
     }
   }
 
@@ -123,6 +131,7 @@ impl DomainParticipantSecurityConfigFiles {
       domain_governance_document: own_and_append(&d, "governance.p7s"),
       participant_permissions_document: own_and_append(&d, "permissions.p7s"),
       certificate_revocation_list: None, // "crl.pem"
+      own_certificate_dates_unchecked: false,
     }
   }
 
@@ -167,6 +176,10 @@ impl DomainParticipantSecurityConfigFiles {
       mk_file_prop(
         QOS_PERMISSIONS_DOCUMENT_PROPERTY_NAME,
         &self.participant_permissions_document,
+      ),
+      mk_string_prop(
+        ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME,
+        self.own_certificate_dates_unchecked.to_string(),
       ),
     ];
     if let PrivateSigningKey::Files { file_password, .. } = self.participant_identity_private_key {

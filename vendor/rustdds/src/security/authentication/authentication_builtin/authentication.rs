@@ -178,6 +178,19 @@ impl Authentication for AuthenticationBuiltin {
         )
       })?;
 
+    // rove patch (certificate lifetime): our own certificate and the CA's must be valid now;
+    // a device whose certificate expired does not join (its log says why).
+    let unchecked = participant_qos
+      .get_optional_property(ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME)
+      .is_some_and(|v| v == "true");
+    if !unchecked {
+      for (what, cert) in [("identity CA", &identity_ca), ("own identity", &identity_certificate)] {
+        cert
+          .check_validity(chrono::Utc::now(), CLOCK_SKEW)
+          .map_err(|e| create_security_error_and_log!("{what}: {}", e.msg))?;
+      }
+    }
+
     // TODO: Check (somehow) that my identity has not been revoked.
 
     // Compute the new adjusted GUID. The start is computed from the hash of the
@@ -534,6 +547,8 @@ impl Authentication for AuthenticationBuiltin {
 
     // Verify that 1's identity cert checks out against CA.
     cert1.verify_signed_by_certificate(&local_info.identity_ca)?;
+    // rove patch (certificate lifetime): and that it is valid now.
+    check_remote_validity(&cert1)?;
 
     // Verify that the remote GUID is as specified by the spec
     let remote_pdata =
@@ -724,6 +739,8 @@ impl Authentication for AuthenticationBuiltin {
 
         // Verify that 2's identity cert checks out against CA.
         cert2.verify_signed_by_certificate(&local_info.identity_ca)?;
+        // rove patch (certificate lifetime): and that it is valid now.
+        check_remote_validity(&cert2)?;
 
         // Verify that the remote GUID is as specified by the spec.
         // Note that spec does say that this check needs to be done here. But it seems
@@ -1099,6 +1116,18 @@ impl Authentication for AuthenticationBuiltin {
       "set_listener not supported. Use status events in DataReader/DataWriter instead."
     ))
   }
+}
+
+/// How far apart two devices' clocks may be for a certificate's dates (rove patch: certificate
+/// lifetime): a certificate made on a machine a few minutes ahead is accepted at once.
+pub(crate) const CLOCK_SKEW: chrono::Duration = chrono::Duration::minutes(5);
+
+/// A remote identity certificate must be valid now (rove patch: certificate lifetime). The
+/// error is logged, naming the certificate's subject and dates.
+fn check_remote_validity(cert: &Certificate) -> SecurityResult<()> {
+  cert
+    .check_validity(chrono::Utc::now(), CLOCK_SKEW)
+    .map_err(|e| create_security_error_and_log!("remote identity refused: {}", e.msg))
 }
 
 #[cfg(test)]

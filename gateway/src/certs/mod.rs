@@ -29,7 +29,6 @@
 //! certificate.
 
 use anyhow::{Context, anyhow, bail};
-use openssl::asn1::Asn1Time;
 use openssl::bn::{BigNum, MsbOption};
 use openssl::ec::{EcGroup, EcKey};
 use openssl::hash::{MessageDigest, hash};
@@ -43,10 +42,9 @@ use rove_core::arbiter::ParticipantId;
 use rove_core::msg::DeviceId;
 use std::path::{Path, PathBuf};
 
-/// How long certificates and permissions are valid: 10 years. rustdds checks no revocation
-/// list, so an operator is withdrawn through the vehicles' `[access]` lists, and a stolen key
-/// by re-keying the fleet (docs/security.md).
-const VALID_DAYS: u32 = 3650;
+mod lifetime;
+
+pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
 
 /// The topics every device may publish and subscribe.
 const TOPICS: [&str; 4] = [
@@ -75,7 +73,7 @@ pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("create {}", dir.display()))?;
     let key = new_key()?;
     let name = subject(fleet, "rove fleet CA")?;
-    let mut cert = builder(&name, &name, &key)?;
+    let mut cert = builder(&name, &name, &key, Lifetime::CA)?;
     cert.append_extension(BasicConstraints::new().critical().ca().build()?)?;
     cert.append_extension(
         KeyUsage::new()
@@ -101,11 +99,13 @@ pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
     write(&dir.join("domain"), domain.to_string().as_bytes(), false)
 }
 
-/// Issues device `id`'s certificate, key and permissions in `dir/ID/`; returns that directory.
+/// Issues device `id`'s certificate (valid for `lifetime`), key and permissions in `dir/ID/`;
+/// returns that directory. With `renew`, an existing device gets a new key and certificate.
 ///
 /// # Errors
-/// `dir` holds no fleet, the device exists already, or a file cannot be read or written.
-pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
+/// `dir` holds no fleet, the device exists already (and not `renew`), or a file cannot be
+/// read or written.
+pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow::Result<PathBuf> {
     if id <= 0 {
         bail!("device id {id}: must be positive");
     }
@@ -118,12 +118,21 @@ pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
     let fleet = fleet_of(&ca)?;
     let out = dir.join(id.to_string());
     if out.join("cert.pem").exists() {
-        bail!("device {id} exists already in {}", out.display());
+        if !renew {
+            bail!(
+                "device {id} exists already in {} (renew it with --renew)",
+                out.display()
+            );
+        }
+        for name in DEVICE_FILES {
+            let path = out.join(name);
+            std::fs::remove_file(&path).with_context(|| format!("remove {}", path.display()))?;
+        }
     }
     std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
     let key = new_key()?;
     let name = subject(&fleet, &common_name(id))?;
-    let mut cert = builder(&name, ca.subject_name(), &key)?;
+    let mut cert = builder(&name, ca.subject_name(), &key, lifetime)?;
     cert.append_extension(BasicConstraints::new().critical().build()?)?;
     cert.append_extension(
         KeyUsage::new()
@@ -156,7 +165,7 @@ pub fn add(dir: &Path, id: DeviceId) -> anyhow::Result<PathBuf> {
 ///
 /// # Errors
 /// `dir` holds no fleet, `hosts` is empty, the files exist, or OpenSSL fails.
-pub fn web(dir: &Path, hosts: &[String]) -> anyhow::Result<PathBuf> {
+pub fn web(dir: &Path, hosts: &[String], lifetime: Lifetime) -> anyhow::Result<PathBuf> {
     use openssl::x509::extension::{ExtendedKeyUsage, SubjectAlternativeName};
     let Some(first) = hosts.first() else {
         bail!("name at least one host (--host NAME or address)");
@@ -169,7 +178,7 @@ pub fn web(dir: &Path, hosts: &[String]) -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
     let key = new_key()?;
     let name = subject(&fleet_of(&ca)?, first)?;
-    let mut cert = builder(&name, ca.subject_name(), &key)?;
+    let mut cert = builder(&name, ca.subject_name(), &key, lifetime)?;
     let mut names = SubjectAlternativeName::new();
     for host in hosts {
         if host.parse::<std::net::IpAddr>().is_ok() {
@@ -328,6 +337,7 @@ fn builder(
     subject: &openssl::x509::X509NameRef,
     issuer: &openssl::x509::X509NameRef,
     key: &PKey<Private>,
+    lifetime: Lifetime,
 ) -> anyhow::Result<X509Builder> {
     let mut cert = X509Builder::new()?;
     cert.set_version(2)?;
@@ -338,10 +348,7 @@ fn builder(
     cert.set_subject_name(subject)?;
     cert.set_issuer_name(issuer)?;
     cert.set_pubkey(key)?;
-    let (from, until) = (
-        Asn1Time::days_from_now(0)?,
-        Asn1Time::days_from_now(VALID_DAYS)?,
-    );
+    let (from, until) = lifetime.period()?;
     cert.set_not_before(&from)?;
     cert.set_not_after(&until)?;
     Ok(cert)
@@ -444,7 +451,7 @@ mod tests {
     fn a_fleet_issues_device_certificates_that_verify_against_its_ca() {
         let dir = scratch("issue");
         init(&dir, "test fleet", 0).expect("init");
-        let out = add(&dir, 11).expect("add");
+        let out = add(&dir, 11, Lifetime::DEVICE, false).expect("add");
         let ca = X509::from_pem(&std::fs::read(dir.join("ca.cert.pem")).expect("ca")).expect("pem");
         let cert =
             X509::from_pem(&std::fs::read(out.join("cert.pem")).expect("cert")).expect("pem");
@@ -463,7 +470,10 @@ mod tests {
         assert_eq!(mode & 0o777, 0o600);
         let signed = std::fs::read_to_string(out.join("permissions.p7s")).expect("p7s");
         assert!(signed.contains("multipart/signed") && signed.contains("CN=rove-11,O=test fleet"));
-        assert!(add(&dir, 11).is_err(), "a device is issued once");
+        assert!(
+            add(&dir, 11, Lifetime::DEVICE, false).is_err(),
+            "a device is issued once"
+        );
         let fleet = check_device_dir(&out, 11, false).expect("complete");
         assert_eq!(fleet.fleet(), "test fleet");
         let e = check_device_dir(&out, 12, false).expect_err("another's");
@@ -477,7 +487,7 @@ mod tests {
         let dir = scratch("web");
         init(&dir, "test fleet", 0).expect("init");
         let hosts = ["rover-base.local".to_string(), "192.168.1.20".to_string()];
-        let out = web(&dir, &hosts).expect("issued");
+        let out = web(&dir, &hosts, Lifetime::DEVICE).expect("issued");
         let pem = |p: &Path| std::fs::read(p).expect("read");
         let ca = X509::from_pem(&pem(&dir.join("ca.cert.pem"))).expect("ca");
         let cert = X509::from_pem(&pem(&out.join("cert.pem"))).expect("cert");
@@ -495,8 +505,11 @@ mod tests {
         let listen = "0.0.0.0:8443".parse().expect("addr");
         let served = crate::web::tls::identity(Some(&files), listen).expect("rustls takes it");
         assert!(served.origin.starts_with("loaded"), "{}", served.origin);
-        assert!(web(&dir, &hosts).is_err(), "never overwritten");
-        assert!(web(&dir, &[]).is_err());
+        assert!(
+            web(&dir, &hosts, Lifetime::DEVICE).is_err(),
+            "never overwritten"
+        );
+        assert!(web(&dir, &[], Lifetime::DEVICE).is_err());
     }
 
     #[test]
