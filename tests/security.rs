@@ -231,3 +231,83 @@ fn rove_keys_list_shows_each_certificate_and_its_end() {
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(!text.contains("EXPIRED"), "renewed: {text}");
 }
+
+#[test]
+fn a_revoked_certificate_is_refused_by_a_running_vehicle_and_the_device_does_not_start() {
+    let mut rig = Rig::new("secure-revoked");
+    let fleet = fleet(&rig, &[V, 11, 12]);
+    let d = fleet.to_str().expect("utf-8 path");
+    let record = secured_laptop_drives(&mut rig, &fleet);
+    // Revoked while the vehicle runs: the list it read at start is read again on change.
+    keys(&["revoke", "--dir", d, "--id", "12"]);
+    let hook = ["--test-any-certificate"];
+    let sec = security(&fleet, 12);
+    rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &hook);
+    let needle = "remote identity refused: certificate of CN=rove-12,O=test fleet is revoked";
+    crate::util::eventually("the vehicle refuses 12's revoked certificate", || {
+        let log = rig.log_of("vehicle-100");
+        log.contains(needle).then_some(()).ok_or("not yet")
+    });
+    let end = wall_us() + 2_000_000;
+    while wall_us() < end {
+        wait_for_output(&record, Some(11), wall_us()).expect("the laptop still drives");
+    }
+    let refused = records(&record).into_iter().find(|o| o.owner == Some(12));
+    assert!(refused.is_none(), "12 was applied: {refused:?}");
+    let own = rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
+    let status = rig.procs[own]
+        .wait_exit(crate::util::PATIENCE)
+        .expect("exits");
+    assert!(!status.success());
+    let log = std::fs::read_to_string(&rig.procs[own].log).unwrap_or_default();
+    assert!(
+        log.contains("own identity: certificate of CN=rove-12,O=test fleet is revoked"),
+        "{log}"
+    );
+    // The fleet's list says so too.
+    let out = Command::new(ROVE)
+        .args(["keys", "list", "--dir", d])
+        .output()
+        .expect("rove keys list");
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let line = (text.lines())
+        .find(|l| l.split_whitespace().next() == Some("12"))
+        .unwrap_or_default();
+    assert!(line.contains("REVOKED"), "{text}");
+}
+
+#[test]
+fn revoking_a_driving_operator_drops_it_and_the_next_operator_drives() {
+    let mut rig = Rig::new("secure-revoke-live");
+    let fleet = fleet(&rig, &[V, 11, 12]);
+    let d = fleet.to_str().expect("utf-8 path");
+    let record = secured_laptop_drives(&mut rig, &fleet);
+    let sec = security(&fleet, 12);
+    rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
+    wait_for_output(&record, Some(12), 0).expect("the phone (stronger) drives");
+    // Settled: the phone still drives a second later.
+    let settled = wall_us() + 1_000_000;
+    while wall_us() < settled {
+        wait_for_output(&record, Some(12), wall_us()).expect("the phone drives");
+    }
+    let revoked = wall_us();
+    keys(&["revoke", "--dir", d, "--id", "12"]);
+    let needle = "dropped: certificate of CN=rove-12,O=test fleet is revoked";
+    crate::util::eventually("the vehicle drops the revoked phone", || {
+        let log = rig.log_of("vehicle-100");
+        log.contains(needle).then_some(()).ok_or("not yet")
+    });
+    let dropped = wall_us();
+    let back = wait_for_output(&record, Some(11), revoked).expect("the laptop drives again");
+    eprintln!(
+        "revoked → the laptop drives: {:.0} ms (the vehicle reads the list every 2 s)",
+        (back.wall_us - revoked) as f64 / 1000.0
+    );
+    // The phone keeps running, and never drives again.
+    let end = wall_us() + 3_000_000;
+    while wall_us() < end {
+        wait_for_output(&record, Some(11), wall_us()).expect("the laptop drives");
+    }
+    let again = (records(&record).into_iter()).find(|o| o.owner == Some(12) && o.wall_us > dropped);
+    assert!(again.is_none(), "the revoked phone drove again: {again:?}");
+}

@@ -175,7 +175,18 @@ enum KeysCommand {
         #[arg(long, hide = true, default_value_t = 0, allow_negative_numbers = true)]
         starts_in_days: i64,
     },
-    /// List a fleet's devices and how long each certificate is valid.
+    /// Revoke a device's certificate: the fleet's revocation list (crl.pem) names it, and every
+    /// device directory in the fleet gets the new list (copy it to the devices, as the
+    /// governance; running devices read it again when the file changes).
+    Revoke {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The device id.
+        #[arg(long)]
+        id: i64,
+    },
+    /// List a fleet's devices, how long each certificate is valid, and which are revoked.
     List {
         /// The fleet's directory.
         #[arg(long)]
@@ -481,11 +492,29 @@ fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
             );
             Ok(())
         }
+        KeysCommand::Revoke { dir, id } => {
+            let done = certs::revoke(&dir, id)?;
+            let plural =
+                |n: usize, what: &str| format!("{n} {what}{}", if n == 1 { "" } else { "s" });
+            println!(
+                "device {id} revoked: {} now names {}; copied into {} — copy {} to every device \
+                 (running devices read it again)",
+                dir.join(certs::CRL_FILE).display(),
+                plural(done.listed, "certificate"),
+                match done.copied.len() {
+                    1 => "1 device directory".to_string(),
+                    n => format!("{n} device directories"),
+                },
+                certs::CRL_FILE
+            );
+            Ok(())
+        }
         KeysCommand::List { dir } => {
             let issued = certs::list(&dir)?;
             println!("{:>8}  certificate", "device");
             for device in &issued {
-                println!("{:>8}  {}", device.id, device.expiry.describe());
+                let revoked = if device.revoked { "REVOKED; " } else { "" };
+                println!("{:>8}  {revoked}{}", device.id, device.expiry.describe());
             }
             println!("{} devices in {}", issued.len(), dir.display());
             Ok(())

@@ -124,6 +124,8 @@ pub struct Issued {
     pub id: DeviceId,
     /// Its certificate's validity.
     pub expiry: Expiry,
+    /// The fleet's revocation list names it.
+    pub revoked: bool,
 }
 
 /// The devices issued in fleet directory `dir`, by id.
@@ -144,7 +146,12 @@ pub fn list(dir: &Path) -> anyhow::Result<Vec<Issued>> {
         }
         let pem = std::fs::read(&path).with_context(|| format!("read {}", path.display()))?;
         let expiry = Expiry::of(&pem).with_context(|| path.display().to_string())?;
-        found.push(Issued { id, expiry });
+        let revoked = super::is_revoked(dir, &pem)?;
+        found.push(Issued {
+            id,
+            expiry,
+            revoked,
+        });
     }
     found.sort_by_key(|i| i.id);
     Ok(found)

@@ -43,8 +43,10 @@ use rove_core::msg::DeviceId;
 use std::path::{Path, PathBuf};
 
 mod lifetime;
+mod revocation;
 
 pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
+pub use revocation::{CRL_FILE, Revoked, is_revoked, revoke};
 
 /// The topics every device may publish and subscribe.
 const TOPICS: [&str; 4] = [
@@ -96,6 +98,7 @@ pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
         &sign(&cert, &key, &governance)?,
         false,
     )?;
+    revocation::write_list(dir, &cert, &key, None)?;
     write(&dir.join("domain"), domain.to_string().as_bytes(), false)
 }
 
@@ -155,6 +158,11 @@ pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow:
     write(&out.join("identity_ca.cert.pem"), &ca_pem, false)?;
     write(&out.join("permissions_ca.cert.pem"), &ca_pem, false)?;
     write(&out.join("governance.p7s"), &read("governance.p7s")?, false)?;
+    // A fleet made before revocation lists gets its (empty) list now.
+    if !dir.join(CRL_FILE).exists() {
+        revocation::write_list(dir, &ca, &ca_key, None)?;
+    }
+    revocation::copy_to(dir, &out)?;
     Ok(out)
 }
 
@@ -438,94 +446,4 @@ fn permissions_xml(fleet: &str, id: DeviceId, domain: u16) -> String {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn scratch(test: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("rove-keys-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        dir
-    }
-
-    #[test]
-    fn a_fleet_issues_device_certificates_that_verify_against_its_ca() {
-        let dir = scratch("issue");
-        init(&dir, "test fleet", 0).expect("init");
-        let out = add(&dir, 11, Lifetime::DEVICE, false).expect("add");
-        let ca = X509::from_pem(&std::fs::read(dir.join("ca.cert.pem")).expect("ca")).expect("pem");
-        let cert =
-            X509::from_pem(&std::fs::read(out.join("cert.pem")).expect("cert")).expect("pem");
-        assert!(cert.verify(&ca.public_key().expect("key")).expect("verify"));
-        let cn = cert
-            .subject_name()
-            .entries_by_nid(Nid::COMMONNAME)
-            .next()
-            .expect("CN");
-        assert_eq!(cn.data().to_string().expect("utf-8"), "rove-11");
-        let mode = std::os::unix::fs::PermissionsExt::mode(
-            &std::fs::metadata(out.join("key.pem"))
-                .expect("key")
-                .permissions(),
-        );
-        assert_eq!(mode & 0o777, 0o600);
-        let signed = std::fs::read_to_string(out.join("permissions.p7s")).expect("p7s");
-        assert!(signed.contains("multipart/signed") && signed.contains("CN=rove-11,O=test fleet"));
-        assert!(
-            add(&dir, 11, Lifetime::DEVICE, false).is_err(),
-            "a device is issued once"
-        );
-        let fleet = check_device_dir(&out, 11, false).expect("complete");
-        assert_eq!(fleet.fleet(), "test fleet");
-        let e = check_device_dir(&out, 12, false).expect_err("another's");
-        assert!(format!("{e:#}").contains("not device 12's"), "{e:#}");
-        assert!(init(&dir, "again", 0).is_err(), "a fleet is created once");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    #[test]
-    fn the_web_certificate_verifies_against_the_fleet_ca_and_serves_tls() {
-        let dir = scratch("web");
-        init(&dir, "test fleet", 0).expect("init");
-        let hosts = ["rover-base.local".to_string(), "192.168.1.20".to_string()];
-        let out = web(&dir, &hosts, Lifetime::DEVICE).expect("issued");
-        let pem = |p: &Path| std::fs::read(p).expect("read");
-        let ca = X509::from_pem(&pem(&dir.join("ca.cert.pem"))).expect("ca");
-        let cert = X509::from_pem(&pem(&out.join("cert.pem"))).expect("cert");
-        assert!(cert.verify(&ca.public_key().expect("key")).expect("verify"));
-        let names: Vec<String> = (cert.subject_alt_names().expect("SAN").iter())
-            .map(|n| {
-                n.dnsname().map(str::to_string).unwrap_or_else(|| {
-                    let ip = n.ipaddress().unwrap_or_default();
-                    ip.iter().map(u8::to_string).collect::<Vec<_>>().join(".")
-                })
-            })
-            .collect();
-        assert_eq!(names, hosts);
-        let files = (out.join("cert.pem"), out.join("key.pem"));
-        let listen = "0.0.0.0:8443".parse().expect("addr");
-        let served = crate::web::tls::identity(Some(&files), listen).expect("rustls takes it");
-        assert!(served.origin.starts_with("loaded"), "{}", served.origin);
-        assert!(
-            web(&dir, &hosts, Lifetime::DEVICE).is_err(),
-            "never overwritten"
-        );
-        assert!(web(&dir, &[], Lifetime::DEVICE).is_err());
-    }
-
-    #[test]
-    fn the_guid_start_names_one_device() {
-        let fleet = FleetIdentity {
-            fleet: "test fleet".into(),
-            starts: Default::default(),
-        };
-        let a = fleet.guid_start(11).expect("hash");
-        let b = fleet.guid_start(12).expect("hash");
-        assert_ne!(a, b);
-        assert_eq!(a[0] & 0x80, 0x80, "the first bit is set");
-        let mut prefix = [0u8; 16];
-        prefix[4..10].copy_from_slice(&a);
-        let participant = ParticipantId(u128::from_be_bytes(prefix));
-        assert!(fleet.speaks_for(11, participant));
-        assert!(!fleet.speaks_for(12, participant));
-    }
-}
+mod tests;

@@ -182,7 +182,10 @@ impl Domain {
                         dir,
                         String::new(),
                     );
-                files.own_certificate_dates_unchecked = any_certificate;
+                files.own_certificate_unchecked = any_certificate;
+                // The fleet's revocation list, when the directory has one (`rove keys`).
+                let crl = dir.join("crl.pem");
+                files.certificate_revocation_list = crl.exists().then_some(crl);
                 builder.builtin_security(files)
             }
             #[cfg(not(feature = "security"))]

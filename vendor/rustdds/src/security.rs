@@ -5,6 +5,8 @@ pub mod config;
 pub mod cryptographic;
 pub mod logging;
 mod private_key;
+// rove patch (revocation list)
+mod revocation;
 pub mod security_plugins;
 pub mod types;
 

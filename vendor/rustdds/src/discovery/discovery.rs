@@ -1789,6 +1789,25 @@ impl Discovery {
   }
 
   pub fn participant_cleanup(&self) {
+    // rove patch (certificate lifetime, revocation list): an authenticated participant whose
+    // certificate has expired, or which a list read again now revokes, is dropped as if it had
+    // left (its proxies and keys go); authenticating again, it is refused.
+    #[cfg(feature = "security")]
+    if let Some(security) = &self.security_opt {
+      let unacceptable = security
+        .security_plugins
+        .get_plugins()
+        .unacceptable_remote_participants();
+      for (guid_prefix, why) in unacceptable {
+        error!("authenticated participant {guid_prefix:?} dropped: {why}");
+        discovery_db_write(&self.discovery_db).remove_participant(guid_prefix, true);
+        self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost { guid_prefix });
+        self.send_participant_status(DomainParticipantStatusEvent::ParticipantLost {
+          id: guid_prefix,
+          reason: LostReason::Disposed,
+        });
+      }
+    }
     let removed = discovery_db_write(&self.discovery_db).participant_cleanup();
     for (guid_prefix, reason) in removed {
       debug!("participant cleanup - timeout for {guid_prefix:?}");

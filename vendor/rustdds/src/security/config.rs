@@ -73,16 +73,18 @@ pub struct DomainParticipantSecurityConfigFiles {
   pub domain_governance_document: PathBuf,
   /// Access control rules for topics and participants.
   pub participant_permissions_document: PathBuf,
-  /// CRLs are not yet implemented.
+  /// The identity CA's certificate revocation list (PEM), if any (rove patch: revocation
+  /// list; upstream ignored it).
   pub certificate_revocation_list: Option<PathBuf>,
-  /// rove patch (certificate lifetime), a test hook: do not check the dates of our own
-  /// certificate, so that a test can see peers refuse an expired one.
-  pub own_certificate_dates_unchecked: bool,
+  /// rove patch (certificate lifetime, revocation list), a test hook: do not check our own
+  /// certificate's dates nor whether the list revokes it, so that a test can see peers refuse
+  /// an expired or revoked one.
+  pub own_certificate_unchecked: bool,
 }
 
-/// The property that carries [`DomainParticipantSecurityConfigFiles::own_certificate_dates_unchecked`].
-pub(crate) const ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME: &str =
-  "rove.test.own_certificate_dates_unchecked";
+/// The property that carries [`DomainParticipantSecurityConfigFiles::own_certificate_unchecked`].
+pub(crate) const ROVE_OWN_UNCHECKED_PROPERTY_NAME: &str =
+  "rove.test.own_certificate_unchecked";
 
 impl DomainParticipantSecurityConfigFiles {
   /// Assign some default names to security config files.
@@ -105,7 +107,7 @@ impl DomainParticipantSecurityConfigFiles {
       domain_governance_document: own_and_append(&d, "governance.p7s"),
       participant_permissions_document: own_and_append(&d, "permissions.p7s"),
       certificate_revocation_list: None, // "crl.pem"
-      own_certificate_dates_unchecked: false,
+      own_certificate_unchecked: false,
     }
   }
 
@@ -131,7 +133,7 @@ impl DomainParticipantSecurityConfigFiles {
       domain_governance_document: own_and_append(&d, "governance.p7s"),
       participant_permissions_document: own_and_append(&d, "permissions.p7s"),
       certificate_revocation_list: None, // "crl.pem"
-      own_certificate_dates_unchecked: false,
+      own_certificate_unchecked: false,
     }
   }
 
@@ -177,11 +179,18 @@ impl DomainParticipantSecurityConfigFiles {
         QOS_PERMISSIONS_DOCUMENT_PROPERTY_NAME,
         &self.participant_permissions_document,
       ),
-      mk_string_prop(
-        ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME,
-        self.own_certificate_dates_unchecked.to_string(),
-      ),
     ];
+    // rove patch (revocation list): the list, when there is one.
+    if let Some(crl) = &self.certificate_revocation_list {
+      value.push(mk_file_prop(
+        crate::security::revocation::QOS_CRL_PROPERTY_NAME,
+        crl,
+      ));
+    }
+    value.push(mk_string_prop(
+      ROVE_OWN_UNCHECKED_PROPERTY_NAME,
+      self.own_certificate_unchecked.to_string(),
+    ));
     if let PrivateSigningKey::Files { file_password, .. } = self.participant_identity_private_key {
       value.push(mk_string_prop(QOS_PASSWORD_PROPERTY_NAME, file_password));
     }

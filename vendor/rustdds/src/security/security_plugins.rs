@@ -915,6 +915,18 @@ impl SecurityPlugins {
       .map_or(Ok(()), |handle| self.crypto.unregister_datawriter(handle))
   }
 
+  /// rove patch (certificate lifetime, revocation list): the remote participants whose
+  /// identity is no longer acceptable (certificate expired, or revoked by a list read again
+  /// just now), with the reason.
+  pub fn unacceptable_remote_participants(&self) -> Vec<(GuidPrefix, String)> {
+    self.auth.refresh_revocation();
+    (self.identity_handle_cache.iter())
+      .filter_map(|(prefix, handle)| {
+        (self.auth.still_acceptable(*handle).err()).map(|e| (*prefix, e.msg))
+      })
+      .collect()
+  }
+
   pub fn unregister_remote_participant(
     &mut self,
     remote_participant_guid_prefix: &GuidPrefix,
@@ -1343,32 +1355,32 @@ impl SecurityPluginsHandle {
     }
   }
 
+  // rove patch (ROVE-PATCH.md §15): wait for the lock instead of retrying every 100 ms.
+  // Upstream polled `try_lock` and slept 100 ms whenever another thread held the plugins (an
+  // authentication handshake's signatures, a revocation check): the event loop, which takes
+  // this lock for every protected message, then stopped for 100 ms, and a vehicle timed its
+  // driving operator out (seen at every join in a secured fleet). Blocking waits only as long
+  // as the holder holds; a wait over a second is still logged, naming who held the lock.
   pub(crate) fn get_plugins(&self) -> MutexGuard<'_, SecurityPlugins> {
-    let mut count = 0;
-    loop {
-      match self.try_lock() {
-        Ok(guard) => {
-          *self.who_has_it.lock().unwrap() = std::thread::current().name().map(|s| s.to_owned());
-          return guard;
-        }
-        Err(std::sync::TryLockError::WouldBlock) => {
-          if count > 10 {
-            error!(
-              "I need my lock!! {:?} Looks like {:?} has it.",
-              count,
-              self.who_has_it.lock().unwrap()
-            );
-          }
-          count += 1;
-          std::thread::sleep(std::time::Duration::from_millis(100));
-        }
-        Err(poisoned) => {
-          create_security_error_and_log!("Security plugins are poisoned! {poisoned:?}");
-          panic!("RustDDS internal bug: SecurityPlugins mutex poisoned after a prior panic");
-        }
+    let started = std::time::Instant::now();
+    let guard = match self.inner.lock() {
+      Ok(guard) => guard,
+      Err(poisoned) => {
+        create_security_error_and_log!("Security plugins are poisoned! {poisoned:?}");
+        panic!("RustDDS internal bug: SecurityPlugins mutex poisoned after a prior panic");
       }
-    } // loop
-  } // fn
+    };
+    let waited = started.elapsed();
+    if waited > std::time::Duration::from_secs(1) {
+      error!(
+        "waited {waited:?} for the security plugins; {:?} had them",
+        self.who_has_it.lock().unwrap_or_else(|e| e.into_inner())
+      );
+    }
+    *self.who_has_it.lock().unwrap_or_else(|e| e.into_inner()) =
+      std::thread::current().name().map(|s| s.to_owned());
+    guard
+  }
 }
 
 impl fmt::Debug for SecurityPluginsHandle {

@@ -94,6 +94,8 @@ struct LocalParticipantInfo {
   identity_certificate: certificate::Certificate, // Certificate contains the public key also
   identity_ca: certificate::Certificate,        /* Certification Authority who has signed
                                                  * identity_certificate */
+  // rove patch (revocation list): the CA's list, when configured.
+  revocation: Option<crate::security::revocation::RevocationList>,
   signed_permissions_document_xml: Bytes, // We do not care about UTF-8:ness anymore
   local_permissions_token: Option<PermissionsToken>,
 }

@@ -18,6 +18,16 @@ use super::*;
 /// specification, the Ok-variant is interpreted as true and Err-variant as
 /// false.
 pub trait Authentication: Send {
+  /// rove patch (certificate lifetime, revocation list): `Err` with the reason if the identity
+  /// behind `handle`, once authenticated, is no longer acceptable (its certificate expired or
+  /// is revoked). Acceptable by default, and while its certificate is not known yet.
+  fn still_acceptable(&self, _handle: IdentityHandle) -> SecurityResult<()> {
+    Ok(())
+  }
+
+  /// rove patch (revocation list): reads the revocation list again if its file changed.
+  fn refresh_revocation(&self) {}
+
   /// validate_local_identity: section 8.3.2.11.2 of the Security
   /// specification
   ///

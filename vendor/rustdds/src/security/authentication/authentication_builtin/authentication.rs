@@ -80,6 +80,32 @@ fn validate_remote_guid(
 }
 
 impl Authentication for AuthenticationBuiltin {
+  // rove patch (certificate lifetime, revocation list)
+  fn still_acceptable(&self, handle: IdentityHandle) -> SecurityResult<()> {
+    let (Ok(local_info), Some(remote)) = (
+      self.get_local_participant_info(),
+      self.remote_participant_infos.get(&handle),
+    ) else {
+      return Ok(());
+    };
+    match &remote.identity_certificate_opt {
+      Some(cert) => cert
+        .check_validity(chrono::Utc::now(), CLOCK_SKEW)
+        .and_then(|()| {
+          (local_info.revocation.as_ref()).map_or(Ok(()), |list| list.check(cert))
+        }),
+      None => Ok(()),
+    }
+  }
+
+  // rove patch (revocation list)
+  fn refresh_revocation(&self) {
+    if let Some(list) = (self.get_local_participant_info().ok()).and_then(|i| i.revocation.as_ref())
+    {
+      list.refresh();
+    }
+  }
+
   fn validate_local_identity(
     &mut self,
     _domain_id: u16, //TODO: How this should be used?
@@ -181,7 +207,7 @@ impl Authentication for AuthenticationBuiltin {
     // rove patch (certificate lifetime): our own certificate and the CA's must be valid now;
     // a device whose certificate expired does not join (its log says why).
     let unchecked = participant_qos
-      .get_optional_property(ROVE_OWN_DATES_UNCHECKED_PROPERTY_NAME)
+      .get_optional_property(ROVE_OWN_UNCHECKED_PROPERTY_NAME)
       .is_some_and(|v| v == "true");
     if !unchecked {
       for (what, cert) in [("identity CA", &identity_ca), ("own identity", &identity_certificate)] {
@@ -191,7 +217,20 @@ impl Authentication for AuthenticationBuiltin {
       }
     }
 
-    // TODO: Check (somehow) that my identity has not been revoked.
+    // rove patch (revocation list): with a list configured, it must be the CA's, and it must
+    // not revoke us.
+    let revocation = participant_qos
+      .get_optional_property(crate::security::revocation::QOS_CRL_PROPERTY_NAME)
+      .map(|uri| crate::security::revocation::RevocationList::load(&uri, &identity_ca))
+      .transpose()?;
+    if let Some(list) = &revocation {
+      if !unchecked {
+        list
+          .check(&identity_certificate)
+          .map_err(|e| create_security_error_and_log!("own identity: {}", e.msg))?;
+      }
+      info!("revocation list read: {} certificates revoked", list.len());
+    }
 
     // Compute the new adjusted GUID. The start is computed from the hash of the
     // Subject Name in the identity certificate.
@@ -238,6 +277,7 @@ impl Authentication for AuthenticationBuiltin {
       identity_certificate,
       id_cert_private_key,
       identity_ca,
+      revocation,
       signed_permissions_document_xml: Bytes::new(), /* This is to filled in later by
                                                       * initialization calling
                                                       * .set_permissions_credential_and_token() */
@@ -547,8 +587,8 @@ impl Authentication for AuthenticationBuiltin {
 
     // Verify that 1's identity cert checks out against CA.
     cert1.verify_signed_by_certificate(&local_info.identity_ca)?;
-    // rove patch (certificate lifetime): and that it is valid now.
-    check_remote_validity(&cert1)?;
+    // rove patch (certificate lifetime, revocation list): and that it is valid now.
+    check_remote(local_info, &cert1)?;
 
     // Verify that the remote GUID is as specified by the spec
     let remote_pdata =
@@ -739,8 +779,8 @@ impl Authentication for AuthenticationBuiltin {
 
         // Verify that 2's identity cert checks out against CA.
         cert2.verify_signed_by_certificate(&local_info.identity_ca)?;
-        // rove patch (certificate lifetime): and that it is valid now.
-        check_remote_validity(&cert2)?;
+        // rove patch (certificate lifetime, revocation list): and that it is valid now.
+        check_remote(local_info, &cert2)?;
 
         // Verify that the remote GUID is as specified by the spec.
         // Note that spec does say that this check needs to be done here. But it seems
@@ -1122,11 +1162,19 @@ impl Authentication for AuthenticationBuiltin {
 /// lifetime): a certificate made on a machine a few minutes ahead is accepted at once.
 pub(crate) const CLOCK_SKEW: chrono::Duration = chrono::Duration::minutes(5);
 
-/// A remote identity certificate must be valid now (rove patch: certificate lifetime). The
-/// error is logged, naming the certificate's subject and dates.
-fn check_remote_validity(cert: &Certificate) -> SecurityResult<()> {
+/// A remote identity certificate must be valid now (rove patch: certificate lifetime) and not
+/// revoked (rove patch: revocation list; the list is read again first if its file changed).
+/// The error is logged, naming the certificate's subject and why.
+fn check_remote(local_info: &LocalParticipantInfo, cert: &Certificate) -> SecurityResult<()> {
   cert
     .check_validity(chrono::Utc::now(), CLOCK_SKEW)
+    .and_then(|()| match &local_info.revocation {
+      Some(list) => {
+        list.refresh();
+        list.check(cert)
+      }
+      None => Ok(()),
+    })
     .map_err(|e| create_security_error_and_log!("remote identity refused: {}", e.msg))
 }
 
