@@ -295,6 +295,16 @@ pub fn run_any_arch(bin: &Path) -> Command {
             };
             rove_testkit::require_tool(qemu, "qemu-user-static");
             let mut command = Command::new(qemu);
+            // The board's C library: the cross toolchain's (libc6-dev-*-cross), since nothing
+            // of the board's architecture is installed (scripts/board-deb).
+            let prefix = if arch == "arm64" {
+                "/usr/aarch64-linux-gnu"
+            } else {
+                "/usr/arm-linux-gnueabihf"
+            };
+            if Path::new(prefix).join("lib").is_dir() {
+                command.env("QEMU_LD_PREFIX", prefix);
+            }
             command.arg(bin);
             command
         }
