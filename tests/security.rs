@@ -122,6 +122,31 @@ fn a_certificate_for_one_device_cannot_speak_for_another() {
     assert!(log.contains("not device 12's"), "{log}");
 }
 
+/// Operator 12 (already started with the test hook) is refused by the running vehicle, whose
+/// log says `why`, and never applied while the laptop drives for 2 s; without the hook it does
+/// not start, saying `why` of its own certificate.
+fn refused_everywhere(rig: &mut Rig, record: &Path, sec: &str, why: &str) {
+    let needle = format!("remote identity refused: certificate of CN=rove-12,O=test fleet {why}");
+    crate::util::eventually("the vehicle refuses 12's certificate", || {
+        let log = rig.log_of("vehicle-100");
+        log.contains(&needle).then_some(()).ok_or("not yet")
+    });
+    let end = wall_us() + 2_000_000;
+    while wall_us() < end {
+        wait_for_output(record, Some(11), wall_us()).expect("the laptop still drives");
+    }
+    let refused = records(record).into_iter().find(|o| o.owner == Some(12));
+    assert!(refused.is_none(), "12 was applied: {refused:?}");
+    let own = rig.operator(12, "mobile", "phone", &[V], 2000, sec, &[]);
+    let status = rig.procs[own]
+        .wait_exit(crate::util::PATIENCE)
+        .expect("exits");
+    assert!(!status.success());
+    let log = std::fs::read_to_string(&rig.procs[own].log).unwrap_or_default();
+    let own_needle = format!("own identity: certificate of CN=rove-12,O=test fleet {why}");
+    assert!(log.contains(&own_needle), "{log}");
+}
+
 /// A stronger operator (12) whose certificate is valid from `starts_in_days` for `days` days
 /// joins a secured fleet where the laptop drives: the vehicle refuses it, saying `why` in its
 /// log, and never applies it. Without the test hook the operator does not even start.
@@ -146,28 +171,7 @@ fn dated_certificate_is_refused(name: &str, starts_in_days: i64, days: u32, why:
     let hook = ["--test-any-certificate"];
     let sec = security(&fleet, 12);
     rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &hook);
-    let needle = format!("remote identity refused: certificate of CN=rove-12,O=test fleet {why}");
-    crate::util::eventually("the vehicle refuses 12's certificate", || {
-        let log = rig.log_of("vehicle-100");
-        log.contains(&needle).then_some(()).ok_or("not yet")
-    });
-    // Two more seconds of the laptop driving: 12 (stronger) never drives.
-    let after = wall_us();
-    let end = after + 2_000_000;
-    while wall_us() < end {
-        wait_for_output(&record, Some(11), wall_us()).expect("the laptop still drives");
-    }
-    let refused = records(&record).into_iter().find(|o| o.owner == Some(12));
-    assert!(refused.is_none(), "12 was applied: {refused:?}");
-    // Without the hook the operator refuses to start, and says why.
-    let own = rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
-    let status = rig.procs[own]
-        .wait_exit(crate::util::PATIENCE)
-        .expect("exits");
-    assert!(!status.success());
-    let log = std::fs::read_to_string(&rig.procs[own].log).unwrap_or_default();
-    let own_needle = format!("own identity: certificate of CN=rove-12,O=test fleet {why}");
-    assert!(log.contains(&own_needle), "{log}");
+    refused_everywhere(&mut rig, &record, &sec, why);
 }
 
 #[test]
@@ -243,27 +247,7 @@ fn a_revoked_certificate_is_refused_by_a_running_vehicle_and_the_device_does_not
     let hook = ["--test-any-certificate"];
     let sec = security(&fleet, 12);
     rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &hook);
-    let needle = "remote identity refused: certificate of CN=rove-12,O=test fleet is revoked";
-    crate::util::eventually("the vehicle refuses 12's revoked certificate", || {
-        let log = rig.log_of("vehicle-100");
-        log.contains(needle).then_some(()).ok_or("not yet")
-    });
-    let end = wall_us() + 2_000_000;
-    while wall_us() < end {
-        wait_for_output(&record, Some(11), wall_us()).expect("the laptop still drives");
-    }
-    let refused = records(&record).into_iter().find(|o| o.owner == Some(12));
-    assert!(refused.is_none(), "12 was applied: {refused:?}");
-    let own = rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
-    let status = rig.procs[own]
-        .wait_exit(crate::util::PATIENCE)
-        .expect("exits");
-    assert!(!status.success());
-    let log = std::fs::read_to_string(&rig.procs[own].log).unwrap_or_default();
-    assert!(
-        log.contains("own identity: certificate of CN=rove-12,O=test fleet is revoked"),
-        "{log}"
-    );
+    refused_everywhere(&mut rig, &record, &sec, "is revoked");
     // The fleet's list says so too.
     let out = Command::new(ROVE)
         .args(["keys", "list", "--dir", d])
