@@ -21,6 +21,32 @@ fn keys(args: &[&str]) {
     );
 }
 
+/// `rove keys list --dir DIR`'s output.
+fn keys_list(dir: &str) -> String {
+    let out = Command::new(ROVE)
+        .args(["keys", "list", "--dir", dir])
+        .output()
+        .expect("rove keys list");
+    assert!(out.status.success(), "rove keys list");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The line of `rove keys list` for device `id` (empty if none).
+fn listed(text: &str, id: &str) -> String {
+    (text.lines())
+        .find(|l| l.split_whitespace().next() == Some(id))
+        .unwrap_or_default()
+        .to_string()
+}
+
+/// Waits until `owner` has kept driving for `ms` more milliseconds.
+fn keeps_driving(record: &Path, owner: i64, ms: u64) {
+    let end = wall_us() + ms * 1000;
+    while wall_us() < end {
+        wait_for_output(record, Some(owner), wall_us()).expect("keeps driving");
+    }
+}
+
 /// `rove keys init` in the rig's directory, then `rove keys add` for each id; returns the
 /// fleet's directory.
 fn fleet(rig: &Rig, ids: &[i64]) -> PathBuf {
@@ -131,10 +157,7 @@ fn refused_everywhere(rig: &mut Rig, record: &Path, sec: &str, why: &str) {
         let log = rig.log_of("vehicle-100");
         log.contains(&needle).then_some(()).ok_or("not yet")
     });
-    let end = wall_us() + 2_000_000;
-    while wall_us() < end {
-        wait_for_output(record, Some(11), wall_us()).expect("the laptop still drives");
-    }
+    keeps_driving(record, 11, 2000);
     let refused = records(record).into_iter().find(|o| o.owner == Some(12));
     assert!(refused.is_none(), "12 was applied: {refused:?}");
     let own = rig.operator(12, "mobile", "phone", &[V], 2000, sec, &[]);
@@ -200,25 +223,14 @@ fn rove_keys_list_shows_each_certificate_and_its_end() {
         "--starts-in-days",
         "-20",
     ]);
-    let out = Command::new(ROVE)
-        .args(["keys", "list", "--dir", d])
-        .output()
-        .expect("rove keys list");
-    assert!(out.status.success());
-    let text = String::from_utf8_lossy(&out.stdout);
-    let line = |id: &str| {
-        (text.lines())
-            .find(|l| l.split_whitespace().next() == Some(id))
-            .unwrap_or_default()
-            .to_string()
-    };
-    assert!(line("100").contains("valid until"), "{text}");
+    let text = keys_list(d);
+    assert!(listed(&text, "100").contains("valid until"), "{text}");
     let year = ["(364 days)", "(365 days)"];
     assert!(
-        year.iter().any(|y| line("100").contains(y)),
+        year.iter().any(|y| listed(&text, "100").contains(y)),
         "a year by default: {text}"
     );
-    assert!(line("12").contains("EXPIRED on"), "{text}");
+    assert!(listed(&text, "12").contains("EXPIRED on"), "{text}");
     assert!(text.contains("3 devices"), "{text}");
     // An existing device is renewed only when asked.
     let again = Command::new(ROVE)
@@ -228,11 +240,7 @@ fn rove_keys_list_shows_each_certificate_and_its_end() {
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("--renew"));
     keys(&["add", "--dir", d, "--id", "12", "--renew"]);
-    let out = Command::new(ROVE)
-        .args(["keys", "list", "--dir", d])
-        .output()
-        .expect("rove keys list");
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let text = keys_list(d);
     assert!(!text.contains("EXPIRED"), "renewed: {text}");
 }
 
@@ -249,15 +257,8 @@ fn a_revoked_certificate_is_refused_by_a_running_vehicle_and_the_device_does_not
     rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &hook);
     refused_everywhere(&mut rig, &record, &sec, "is revoked");
     // The fleet's list says so too.
-    let out = Command::new(ROVE)
-        .args(["keys", "list", "--dir", d])
-        .output()
-        .expect("rove keys list");
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
-    let line = (text.lines())
-        .find(|l| l.split_whitespace().next() == Some("12"))
-        .unwrap_or_default();
-    assert!(line.contains("REVOKED"), "{text}");
+    let text = keys_list(d);
+    assert!(listed(&text, "12").contains("REVOKED"), "{text}");
 }
 
 #[test]
@@ -270,10 +271,7 @@ fn revoking_a_driving_operator_drops_it_and_the_next_operator_drives() {
     rig.operator(12, "mobile", "phone", &[V], 2000, &sec, &[]);
     wait_for_output(&record, Some(12), 0).expect("the phone (stronger) drives");
     // Settled: the phone still drives a second later.
-    let settled = wall_us() + 1_000_000;
-    while wall_us() < settled {
-        wait_for_output(&record, Some(12), wall_us()).expect("the phone drives");
-    }
+    keeps_driving(&record, 12, 1000);
     let revoked = wall_us();
     keys(&["revoke", "--dir", d, "--id", "12"]);
     let needle = "dropped: certificate of CN=rove-12,O=test fleet is revoked";
@@ -288,10 +286,7 @@ fn revoking_a_driving_operator_drops_it_and_the_next_operator_drives() {
         (back.wall_us - revoked) as f64 / 1000.0
     );
     // The phone keeps running, and never drives again.
-    let end = wall_us() + 3_000_000;
-    while wall_us() < end {
-        wait_for_output(&record, Some(11), wall_us()).expect("the laptop drives");
-    }
+    keeps_driving(&record, 11, 3000);
     let again = (records(&record).into_iter()).find(|o| o.owner == Some(12) && o.wall_us > dropped);
     assert!(again.is_none(), "the revoked phone drove again: {again:?}");
 }

@@ -134,6 +134,7 @@ pub struct Issued {
 /// `dir` cannot be read, or a device's certificate cannot be.
 pub fn list(dir: &Path) -> anyhow::Result<Vec<Issued>> {
     let mut found = Vec::new();
+    let revoked = super::revocation::read_list(dir)?;
     let entries = std::fs::read_dir(dir).with_context(|| format!("read {}", dir.display()))?;
     for entry in entries {
         let entry = entry?;
@@ -146,11 +147,10 @@ pub fn list(dir: &Path) -> anyhow::Result<Vec<Issued>> {
         }
         let pem = std::fs::read(&path).with_context(|| format!("read {}", path.display()))?;
         let expiry = Expiry::of(&pem).with_context(|| path.display().to_string())?;
-        let revoked = super::is_revoked(dir, &pem)?;
         found.push(Issued {
             id,
             expiry,
-            revoked,
+            revoked: super::revocation::names(revoked.as_ref(), &pem)?,
         });
     }
     found.sort_by_key(|i| i.id);

@@ -46,7 +46,7 @@ mod lifetime;
 mod revocation;
 
 pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
-pub use revocation::{CRL_FILE, Revoked, is_revoked, revoke};
+pub use revocation::{CRL_FILE, Revoked, revoke};
 
 /// The topics every device may publish and subscribe.
 const TOPICS: [&str; 4] = [

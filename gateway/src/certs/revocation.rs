@@ -115,7 +115,7 @@ fn crl_number() -> anyhow::Result<Vec<u8>> {
 }
 
 /// The fleet's list, if it has one.
-fn read_list(dir: &Path) -> anyhow::Result<Option<X509Crl>> {
+pub(super) fn read_list(dir: &Path) -> anyhow::Result<Option<X509Crl>> {
     let path = dir.join(CRL_FILE);
     if !path.exists() {
         return Ok(None);
@@ -126,11 +126,13 @@ fn read_list(dir: &Path) -> anyhow::Result<Option<X509Crl>> {
 }
 
 /// Whether the fleet's list in `dir` names the certificate in `pem`.
-///
-/// # Errors
-/// The list or the certificate cannot be read.
-pub fn is_revoked(dir: &Path, pem: &[u8]) -> anyhow::Result<bool> {
-    let Some(crl) = read_list(dir)? else {
+fn is_revoked(dir: &Path, pem: &[u8]) -> anyhow::Result<bool> {
+    names(read_list(dir)?.as_ref(), pem)
+}
+
+/// Whether `list` (none: nothing is revoked) names the certificate in `pem`.
+pub(super) fn names(list: Option<&X509Crl>, pem: &[u8]) -> anyhow::Result<bool> {
+    let Some(crl) = list else {
         return Ok(false);
     };
     let cert = X509::from_pem(pem)?;

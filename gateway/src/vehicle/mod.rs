@@ -161,9 +161,10 @@ pub async fn run(
              (any operator id may drive it, at any strength inside the hierarchy)"
         );
     }
-    let mut vehicle = Vehicle::new(&config, options.stall_on_sigusr1, clock, net, output, log);
-    vehicle.notify = notify;
-    vehicle.serve(shutdown).await
+    let stall = options.stall_on_sigusr1;
+    (Vehicle::new(&config, stall, clock, net, output, log, notify))
+        .serve(shutdown)
+        .await
 }
 
 impl<N: Net, O: Outputs> Vehicle<N, O> {
@@ -175,6 +176,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         net: N,
         output: O,
         log: Option<OutputLog>,
+        notify: Notifier,
     ) -> Vehicle<N, O> {
         let me = config.common.id;
         let mut arbiter = Arbiter::new(me, config.arbiter).with_access(config.access.clone());
@@ -192,7 +194,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             status: StatusWatch::new(me),
             suspects: Suspects::default(),
             hung: HungWatch::new(config.output_hung_limit),
-            notify: Notifier::disabled(),
+            notify,
             shown: String::new(),
             heartbeat: config.common.heartbeat,
             stall,

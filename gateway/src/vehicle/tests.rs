@@ -130,7 +130,8 @@ impl Rig {
             journal: journal.clone(),
             clock,
         };
-        let vehicle = Vehicle::new(&config(), None, clock, net, output, None);
+        let notify = Notifier::disabled();
+        let vehicle = Vehicle::new(&config(), None, clock, net, output, None, notify);
         let task = tokio::spawn(vehicle.serve(async {
             let _ = stopped.await;
         }));

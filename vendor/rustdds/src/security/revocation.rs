@@ -34,6 +34,10 @@ pub(crate) struct RevocationList {
 struct State {
   modified: Option<SystemTime>,
   crl: X509Crl,
+  /// A new list was read since [`RevocationList::take_changed`] last said so. Peers were
+  /// checked against the list in use when they authenticated, so only a new list can revoke
+  /// one that is already matched.
+  changed: bool,
 }
 
 impl RevocationList {
@@ -48,7 +52,11 @@ impl RevocationList {
       uri: uri.to_string(),
       path,
       ca,
-      state: Mutex::new(State { modified, crl }),
+      state: Mutex::new(State {
+        modified,
+        crl,
+        changed: false,
+      }),
     })
   }
 
@@ -74,6 +82,7 @@ impl RevocationList {
         let n = crl.get_revoked().map_or(0, |r| r.len());
         log::info!("revocation list {} read again: {n} certificates revoked", self.uri);
         state.crl = crl;
+        state.changed = true;
       }
       Err(e) => log::error!(
         "revocation list {} changed but cannot be used, the previous one is kept: {}",
@@ -81,6 +90,13 @@ impl RevocationList {
         e.msg
       ),
     }
+  }
+
+  /// Whether a new list was read since the last call (whoever refreshed it: a handshake or
+  /// the periodic check of matched peers).
+  pub(crate) fn take_changed(&self) -> bool {
+    let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+    std::mem::take(&mut state.changed)
   }
 
   /// `Err` if the list revokes `cert`: the error names the subject and the date.

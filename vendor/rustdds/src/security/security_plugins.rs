@@ -916,13 +916,14 @@ impl SecurityPlugins {
   }
 
   /// rove patch (certificate lifetime, revocation list): the remote participants whose
-  /// identity is no longer acceptable (certificate expired, or revoked by a list read again
-  /// just now), with the reason.
+  /// identity is no longer acceptable (certificate expired, or revoked by a list read since
+  /// the last call), with the reason. The list is checked only when a new one was read: the
+  /// plugins' lock, which the event loop needs for every protected message, is held briefly.
   pub fn unacceptable_remote_participants(&self) -> Vec<(GuidPrefix, String)> {
-    self.auth.refresh_revocation();
+    let revocation = self.auth.refresh_revocation();
     (self.identity_handle_cache.iter())
       .filter_map(|(prefix, handle)| {
-        (self.auth.still_acceptable(*handle).err()).map(|e| (*prefix, e.msg))
+        (self.auth.still_acceptable(*handle, revocation).err()).map(|e| (*prefix, e.msg))
       })
       .collect()
   }

@@ -19,14 +19,19 @@ use super::*;
 /// false.
 pub trait Authentication: Send {
   /// rove patch (certificate lifetime, revocation list): `Err` with the reason if the identity
-  /// behind `handle`, once authenticated, is no longer acceptable (its certificate expired or
-  /// is revoked). Acceptable by default, and while its certificate is not known yet.
-  fn still_acceptable(&self, _handle: IdentityHandle) -> SecurityResult<()> {
+  /// behind `handle`, once authenticated, is no longer acceptable: its certificate expired, or
+  /// (with `revocation`) the revocation list names it. Acceptable by default, and while its
+  /// certificate is not known yet.
+  fn still_acceptable(&self, _handle: IdentityHandle, _revocation: bool) -> SecurityResult<()> {
     Ok(())
   }
 
-  /// rove patch (revocation list): reads the revocation list again if its file changed.
-  fn refresh_revocation(&self) {}
+  /// rove patch (revocation list): reads the revocation list again if its file changed;
+  /// `true` if a new list was read since the last call, so that matched peers are checked
+  /// against it.
+  fn refresh_revocation(&self) -> bool {
+    false
+  }
 
   /// validate_local_identity: section 8.3.2.11.2 of the Security
   /// specification

@@ -81,29 +81,31 @@ fn validate_remote_guid(
 
 impl Authentication for AuthenticationBuiltin {
   // rove patch (certificate lifetime, revocation list)
-  fn still_acceptable(&self, handle: IdentityHandle) -> SecurityResult<()> {
+  fn still_acceptable(&self, handle: IdentityHandle, revocation: bool) -> SecurityResult<()> {
     let (Ok(local_info), Some(remote)) = (
       self.get_local_participant_info(),
       self.remote_participant_infos.get(&handle),
     ) else {
       return Ok(());
     };
-    match &remote.identity_certificate_opt {
-      Some(cert) => cert
-        .check_validity(chrono::Utc::now(), CLOCK_SKEW)
-        .and_then(|()| {
-          (local_info.revocation.as_ref()).map_or(Ok(()), |list| list.check(cert))
-        }),
-      None => Ok(()),
+    let Some(cert) = &remote.identity_certificate_opt else {
+      return Ok(());
+    };
+    cert.check_validity(chrono::Utc::now(), CLOCK_SKEW)?;
+    match &local_info.revocation {
+      Some(list) if revocation => list.check(cert),
+      _ => Ok(()),
     }
   }
 
   // rove patch (revocation list)
-  fn refresh_revocation(&self) {
-    if let Some(list) = (self.get_local_participant_info().ok()).and_then(|i| i.revocation.as_ref())
-    {
-      list.refresh();
-    }
+  fn refresh_revocation(&self) -> bool {
+    (self.get_local_participant_info().ok())
+      .and_then(|i| i.revocation.as_ref())
+      .is_some_and(|list| {
+        list.refresh();
+        list.take_changed()
+      })
   }
 
   fn validate_local_identity(
