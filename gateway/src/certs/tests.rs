@@ -97,7 +97,7 @@ fn the_web_certificate_verifies_against_the_fleet_ca_and_serves_tls() {
         .collect();
     assert_eq!(names, hosts);
     let files = (out.join("cert.pem"), out.join("key.pem"));
-    let listen = "0.0.0.0:8443".parse().expect("addr");
+    let listen = "127.0.0.1:8443".parse().expect("addr");
     let served = crate::web::tls::identity(Some(&files), listen).expect("rustls takes it");
     assert!(served.origin.starts_with("loaded"), "{}", served.origin);
     assert!(
