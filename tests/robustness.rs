@@ -104,19 +104,23 @@ fn a_vehicle_stopped_and_continued_applies_no_backlog_and_hears_its_owner_again(
     });
 }
 
-/// `rove bench chaos`, short: faults, loss and partitions run, and what must hold on any machine
-/// holds. No operator's output is applied after its death (stale), and the operator behind a
-/// healed partition drives again. Wrong owners and failsafes while an operator runs are
-/// measured, not asserted: on a loaded 2-core machine a starved process may truly fall silent
-/// for a command timeout (the full bench's figures are in the closing notes and docs/bench/).
+/// `rove bench chaos`, short, and the ownership contract asserted (docs/design.md, Chaos): after
+/// 40 random faults, no wrong owner, no stale output and no failsafe while an operator runs
+/// (each judged after the documented grace); 20 s of 10 % UDP loss without a change of owner;
+/// three partitions, each healed operator driving again within 1 s.
+///
+/// A starved process may truly fall silent for a command timeout on a loaded 2-core machine,
+/// so this test runs alone: ignored in the parallel run, and run by `scripts/test` after it.
 #[test]
-fn the_chaos_bench_runs_and_no_output_outlives_its_operator() {
+#[ignore = "a timing contract: runs alone, after the other tests (scripts/test runs it)"]
+fn the_chaos_bench_holds_the_ownership_contract() {
     rove_testkit::require_tool("nft", "nftables");
     let scratch = Scratch::new("chaos");
     let json = scratch.dir.join("chaos.json");
     let out = Command::new(ROVE)
         .args(["bench", "chaos", "--events", "40", "--interval-ms", "200"])
-        .args(["--loss-s", "3", "--partition-s", "2", "--json"])
+        .args(["--loss-s", "20", "--loss-pct", "10", "--partition-s", "2"])
+        .arg("--json")
         .arg(&json)
         .output()
         .expect("run rove bench chaos");
@@ -134,13 +138,20 @@ fn the_chaos_bench_runs_and_no_output_outlives_its_operator() {
         .filter_map(serde_json::Value::as_u64)
         .sum();
     assert_eq!(faults, 40, "{report}");
-    assert_eq!(report["counts"]["stale"], 0, "{report}");
+    let counts = &report["counts"];
+    for count in ["wrong_owner", "stale", "failsafe_while_live"] {
+        assert_eq!(counts[count], 0, "{count}: {text}");
+    }
+    assert!(report["loss_s"].as_f64() >= Some(20.0), "{report}");
+    let under_loss = |what: &str| counts[what]["10"].as_u64().unwrap_or(0);
+    assert_eq!(under_loss("owner_changes_under_loss"), 0, "{text}");
+    assert_eq!(under_loss("failsafe_under_loss"), 0, "{text}");
     let recovery = report["recovery_ms"].as_array().expect("recovery_ms");
     assert_eq!(recovery.len(), 3, "{report}");
     assert!(
         recovery
             .iter()
-            .all(|r| r.as_f64().is_some_and(|ms| ms < 5000.0)),
-        "{report}"
+            .all(|r| r.as_f64().is_some_and(|ms| ms < 1000.0)),
+        "{text}"
     );
 }

@@ -463,7 +463,7 @@ impl Sim {
         for _ in 0..periods {
             self.w.advance(Duration::from_millis(STREAM_MS));
             self.periods += 1;
-            if self.periods % HEARTBEAT_PERIODS == 0 {
+            if self.periods.is_multiple_of(HEARTBEAT_PERIODS) {
                 self.presence()?;
             }
             self.vehicle_step(Event::Tick)?;

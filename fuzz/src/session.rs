@@ -232,7 +232,7 @@ fn command(input: &mut Bytes<'_>) -> Command {
         1 => i64::from_le_bytes(input.u64().to_le_bytes()),
         _ => VEHICLE,
     };
-    let all = input.u8() % 4 == 0;
+    let all = input.u8().is_multiple_of(4);
     match input.u8() % 8 {
         0 => Command::Select { vehicle },
         1 => Command::Drive { vehicle },

@@ -459,10 +459,10 @@ impl AxisSettings {
         };
         let (min, centre) = (raw("min", self.min), raw("centre", self.centre));
         let max = raw("max", self.max);
-        if let (Some(min), Some(max)) = (self.min, self.max) {
-            if min >= max {
-                errors.add("max", max, format!("must be greater than min ({min})"));
-            }
+        if let (Some(min), Some(max)) = (self.min, self.max)
+            && min >= max
+        {
+            errors.add("max", max, format!("must be greater than min ({min})"));
         }
         if let Some(centre) = self.centre {
             if let Some(min) = self.min.filter(|m| centre <= *m) {
@@ -499,11 +499,11 @@ impl AxisSettings {
         };
         let negative = key("negative", &self.negative);
         let positive = key("positive", &self.positive);
-        if let (Some(Some(n)), Some(Some(p))) = (negative, positive) {
-            if n == p {
-                let shown = format!("{:?}", self.positive.as_deref().unwrap_or_default());
-                errors.add("positive", shown, "must differ from negative");
-            }
+        if let (Some(Some(n)), Some(Some(p))) = (negative, positive)
+            && n == p
+        {
+            let shown = format!("{:?}", self.positive.as_deref().unwrap_or_default());
+            errors.add("positive", shown, "must differ from negative");
         }
         let mut ms = |field: &str, value: &mut Option<Int>, default: Int| {
             let v = *value.get_or_insert(default);

@@ -383,10 +383,10 @@ impl Reader {
     }
 
     fn wake(&self) {
-        if let Ok(slot) = self.waker.lock() {
-            if let Some(w) = slot.as_ref() {
-                w();
-            }
+        if let Ok(slot) = self.waker.lock()
+            && let Some(w) = slot.as_ref()
+        {
+            w();
         }
     }
 
@@ -430,10 +430,10 @@ impl Reader {
     /// Reads `dev` until it fails; returns why.
     fn serve(&self, path: &Path, mut dev: RawDevice) -> Result<String, Closed> {
         let name = dev.name().unwrap_or("unnamed").to_string();
-        if self.grab {
-            if let Err(e) = dev.grab() {
-                return Ok(format!("{} ({name}): cannot grab: {e}", path.display()));
-            }
+        if self.grab
+            && let Err(e) = dev.grab()
+        {
+            return Ok(format!("{} ({name}): cannot grab: {e}", path.display()));
         }
         self.send(Feed::Event(DeviceEvent::Connected { name: name.clone() }))?;
         if let Err(e) = self.snapshot(&dev) {

@@ -294,15 +294,16 @@ impl Mapper {
         if self.last_activity.is_none() {
             self.last_activity = Some(now);
         }
-        if let (Some(timeout), Some(last)) = (self.mapping.silence_timeout, self.last_activity) {
-            if !matches!(self.link, Link::Lost(..)) && now >= last + timeout {
-                let reason = format!(
-                    "{}: no events for {} ms",
-                    self.name(),
-                    now.saturating_since(last).as_millis()
-                );
-                self.lose(LostCause::Silent, reason);
-            }
+        if let (Some(timeout), Some(last)) = (self.mapping.silence_timeout, self.last_activity)
+            && !matches!(self.link, Link::Lost(..))
+            && now >= last + timeout
+        {
+            let reason = format!(
+                "{}: no events for {} ms",
+                self.name(),
+                now.saturating_since(last).as_millis()
+            );
+            self.lose(LostCause::Silent, reason);
         }
         let dt = self
             .ramp_at
@@ -618,14 +619,12 @@ impl Mapper {
         if let AxisInput::Keys {
             negative, positive, ..
         } = config.input
-        {
-            if [negative, positive]
+            && [negative, positive]
                 .iter()
                 .flatten()
                 .any(|k| self.keys.contains(k))
-            {
-                return false;
-            }
+        {
+            return false;
         }
         let Some((x, _)) = self.axis_value(slot) else {
             return false;

@@ -123,7 +123,7 @@ impl Recording {
     /// # Errors
     /// [`Error::RecordingLength`] if the length is not a multiple of 24.
     pub fn parse_binary(bytes: &[u8], path: &Path) -> Result<Recording> {
-        if bytes.len() % INPUT_EVENT_SIZE != 0 {
+        if !bytes.len().is_multiple_of(INPUT_EVENT_SIZE) {
             return Err(Error::RecordingLength {
                 path: path.to_path_buf(),
                 len: bytes.len(),

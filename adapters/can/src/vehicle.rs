@@ -191,10 +191,10 @@ impl CanVehicle {
             Err(e) => return Err(self.fail(now, e, true)),
             Ok(_) => {}
         }
-        if down.reopen {
-            if let Err(e) = self.bus.reopen() {
-                return Err(self.fail(now, e, true));
-            }
+        if down.reopen
+            && let Err(e) = self.bus.reopen()
+        {
+            return Err(self.fail(now, e, true));
         }
         self.down = None;
         self.drive = Drive::Failsafe;

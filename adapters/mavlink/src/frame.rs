@@ -316,7 +316,11 @@ mod tests {
                     x ^= x >> 17;
                     x ^= x << 5;
                     // Plenty of markers.
-                    if x % 5 == 0 { MAV_STX } else { (x >> 8) as u8 }
+                    if x.is_multiple_of(5) {
+                        MAV_STX
+                    } else {
+                        (x >> 8) as u8
+                    }
                 })
                 .collect();
             d.push(&chunk);

@@ -45,9 +45,13 @@ pub enum Bench {
         /// Mean time between faults, ms.
         #[arg(long, default_value_t = 300)]
         interval_ms: u64,
-        /// Length of each loss phase (10 %, then 30 % of UDP packets dropped), s; 0 skips them.
+        /// Length of each loss phase, s; 0 skips them.
         #[arg(long, default_value_t = 60)]
         loss_s: u64,
+        /// The loss phases, in order: the percentage of UDP packets dropped in each (1–99).
+        #[arg(long, value_delimiter = ',', default_values_t = [10u8, 30],
+              value_parser = clap::value_parser!(u8).range(1..=99))]
+        loss_pct: Vec<u8>,
         /// Seed of the fault sequence.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -148,6 +152,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             events,
             interval_ms,
             loss_s,
+            loss_pct,
             seed,
             partition_s,
             json,
@@ -157,6 +162,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 events,
                 interval: std::time::Duration::from_millis(interval_ms),
                 loss: std::time::Duration::from_secs(loss_s),
+                loss_pct,
                 seed,
                 partition: std::time::Duration::from_secs(partition_s),
             };

@@ -8,7 +8,7 @@
 //!    SIGTERMed under a supervisor that runs `rove failsafe` and restarts it, as systemd's
 //!    `ExecStopPost=` and `Restart=` do.
 //! 2. **Loss**: every operator running, then random loss of UDP packets on the namespace's
-//!    loopback (nftables), 10 % and then 30 %, each for `loss_secs`.
+//!    loopback (nftables), by default 10 % and then 30 %, each for `loss`.
 //! 3. **Partition** (with `--partition`): the strongest operator runs in a second namespace
 //!    joined by a veth pair; its link is cut (an nftables drop: a silent partition) and
 //!    restored, and the bench measures how long after the heal it drives again.
@@ -67,8 +67,10 @@ pub struct Options {
     pub events: usize,
     /// Mean time between faults.
     pub interval: Duration,
-    /// Length of each loss phase (10 %, then 30 %); 0 skips them.
+    /// Length of each loss phase; 0 skips them.
     pub loss: Duration,
+    /// The loss phases, in order: the percentage of UDP packets dropped in each.
+    pub loss_pct: Vec<u8>,
     /// Seed of the fault sequence (the same seed, the same sequence).
     pub seed: u64,
     /// How long each of the three partitions lasts; 0 skips them.
@@ -127,7 +129,7 @@ pub fn run(
     let chaos_start = Instant::now();
     let faults = chaos_phase(&mut started, options, progress)?;
     let chaos_s = chaos_start.elapsed().as_secs_f64();
-    if !options.loss.is_zero() {
+    if !options.loss.is_zero() && !options.loss_pct.is_empty() {
         loss_phase(&mut started, options, progress)?;
     }
     let recovery_ms = partition_phase(&mut started, options, progress)?;
@@ -138,8 +140,7 @@ pub fn run(
     let counts = analyse(&started.fleet.log, &outputs, &started.ranks);
     drop(started.far);
     let minutes = options.loss.as_secs_f64() / 60.0;
-    let owner_changes_per_min = [10u8, 30]
-        .into_iter()
+    let owner_changes_per_min = (options.loss_pct.iter().copied())
         .filter(|_| minutes > 0.0)
         .map(|pct| {
             let n = (counts.owner_changes_under_loss.get(&pct))
@@ -292,7 +293,7 @@ fn fault_kind(rng: &mut Rng, none_movable: bool, none_dead: bool) -> &'static st
     }
 }
 
-/// Every operator running, then 10 % and 30 % UDP loss, each for `options.loss`.
+/// Every operator running, then each of `options.loss_pct` % UDP loss for `options.loss`.
 fn loss_phase(
     started: &mut Started,
     options: &Options,
@@ -307,7 +308,7 @@ fn loss_phase(
     // Let every restarted operator be discovered and drive its turn… it never will: the
     // strongest drives. One heartbeat of quiet, then the loss.
     std::thread::sleep(Duration::from_secs(1));
-    for pct in [10, 30] {
+    for &pct in &options.loss_pct {
         progress(&format!("{pct} % UDP loss for {:?}", options.loss));
         let at = wall_us();
         set_loss(&fleet.rig, pct)?;
