@@ -27,6 +27,9 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
   trusts a stray start byte's length waits for the next burst.
 - A mode in --fail-modes (e.g. 10, Rover AUTO without a mission) is answered MAV_RESULT_FAILED
   with a STATUSTEXT, and the mode stays as it was.
+- SYS_STATUS with each HEARTBEAT: a 3S battery at --battery-pct (default 100) that drains by
+  --battery-drain percent a second (default 0), 12.6 V full to 10.5 V empty; --battery-pct -1
+  sends the autopilot's "unknown" values (UINT16_MAX mV, -1 %).
 
 Test knobs: --ignore-mode-commands N (drop the first N mode commands: no ACK), --deny-modes,
 --garbage (random bytes between messages), --foreign-sysid N (a second system that also sends
@@ -77,6 +80,9 @@ def main():
     p.add_argument("--garbage", action="store_true")
     p.add_argument("--foreign-sysid", type=int, default=0)
     p.add_argument("--duration", type=float, default=120.0, help="exit after this long (bounded)")
+    p.add_argument("--battery-pct", type=float, default=100.0,
+                   help="battery remaining at start, percent (-1: unknown)")
+    p.add_argument("--battery-drain", type=float, default=0.0, help="percent lost per second")
     p.add_argument("--tcp-tick", type=float, default=0.01,
                    help="tcpin: seconds between reads of the client's bytes")
     p.add_argument("--stop-reading-after", type=float, default=0.0,
@@ -185,6 +191,12 @@ def main():
             base = mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
             try:
                 m.mav.heartbeat_send(mav_type, ap, base, mode, mavutil.mavlink.MAV_STATE_ACTIVE)
+                if a.battery_pct < 0:
+                    mv, pct = 65535, -1
+                else:
+                    pct = max(0.0, a.battery_pct - a.battery_drain * (now - t0))
+                    mv = int(10500 + 2100 * pct / 100)
+                m.mav.sys_status_send(0, 0, 0, 500, mv, -1, int(pct), 0, 0, 0, 0, 0, 0)
                 if foreign is not None:
                     send_raw(foreign.heartbeat_encode(mav_type, ap, base, 99,
                                                       mavutil.mavlink.MAV_STATE_ACTIVE).pack(foreign))

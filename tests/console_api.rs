@@ -120,6 +120,17 @@ fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
             && v["failsafe"] == false
             && v["link"] == "ok"
     });
+    // Where it stands for B, in the words every console shows (B drives nothing).
+    b.wait("B's standing: A drives", |v| {
+        v["event"] == "standing"
+            && v["vehicle"] == V
+            && v["state"] == "standby"
+            && v["other"] == A
+            && v["safe"] == false
+            && v["text"]
+                .as_str()
+                .is_some_and(|t| t.starts_with("driven by ") && t.ends_with(&format!("({A})")))
+    });
     (rig, record, a, b)
 }
 

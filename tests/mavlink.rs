@@ -515,3 +515,57 @@ fn an_autopilot_that_stops_reading_times_sends_out_and_never_stalls_the_vehicle(
     rig.procs[op].crash();
     wait_for_output(&record, None, crash).expect("failsafe after the owner's crash");
 }
+
+/// What the autopilot says of the vehicle reaches `rove status --json` (issue 35): its mode,
+/// armed state and how long ago it was heard, and its battery as it drains, low at
+/// `[vehicle] battery_low_pct`; the vehicle's standing for a bystander.
+#[test]
+fn the_autopilots_battery_mode_and_link_age_reach_rove_status() {
+    let mut rig = Rig::new("mavlink-health");
+    let _ap = rig.autopilot(&[
+        "--connection",
+        "udpin:127.0.0.1:14552",
+        "--battery-pct",
+        "33",
+        "--battery-drain",
+        "1",
+    ]);
+    let output = format!("[vehicle]\nbattery_low_pct = 30\n{}", mavlink_output(14552));
+    rig.vehicle_with_output(V, &output);
+    let row = |what: &str, want: &dyn Fn(&Value) -> bool| {
+        rove_testkit::eventually(what, || {
+            let status = rig.status();
+            match Rig::device(&status, V) {
+                Some(d) if want(&d["health"]) => Ok(d),
+                _ => Err(status),
+            }
+        })
+    };
+    let first = row("the battery in rove status", &|h| h["battery_pct"].is_u64());
+    eprintln!("{first}");
+    let h = &first["health"];
+    assert_eq!(h["autopilot_mode"], "HOLD", "{first}");
+    assert_eq!(
+        h["autopilot"]
+            .as_str()
+            .map(|a| a.starts_with("HOLD disarmed")),
+        Some(true)
+    );
+    assert_eq!(h["armed"], false, "{first}");
+    // The autopilot speaks once a second; `rove status` saw a VehicleStatus of the last second.
+    let age = h["link_age_ms"].as_u64().unwrap_or(u64::MAX);
+    assert!(age < 3_000, "{first}");
+    // 3S: 10.5 V empty to 12.6 V full, as the test autopilot reports it.
+    let (pct, mv) = (h["battery_pct"].as_u64(), h["battery_mv"].as_u64());
+    let (pct, mv) = (pct.unwrap_or(999), mv.unwrap_or(0));
+    assert!(pct <= 33, "{first}");
+    assert!(mv.abs_diff(10_500 + 21 * pct) <= 21, "{first}");
+    assert_eq!(h["battery_low"], pct <= 30, "{first}");
+    assert_eq!(first["standing"], "failsafe", "{first}");
+    let low = row("the battery low", &|h| h["battery_low"] == true);
+    assert!(low["health"]["battery_pct"].as_u64() <= Some(30), "{low}");
+    assert!(
+        (low["health"]["battery"].as_str()).is_some_and(|b| b.contains("V ") && b.ends_with('%')),
+        "{low}"
+    );
+}

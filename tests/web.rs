@@ -402,7 +402,7 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
     let vehicle = format!("({VEHICLE})");
     let what = "the page lists the vehicle, driven by the laptop";
     browser.wait_text(what, "#banner", |b| {
-        b.contains("STANDING BY") && b.contains(&vehicle)
+        b.contains("paused · input not live") && b.contains(&vehicle)
     });
     // One-handed on a 360 px phone: nothing scrolls sideways, the sticks sit in the lower half
     // (the thumb's reach), every button is at least 44 px tall.
@@ -631,6 +631,94 @@ fn a_paired_phone_drives_hands_over_releases_when_hidden_or_closed_and_never_jum
         row.as_ref().is_none_or(|d| d["online"] == false),
         "the web device is still listed online: {row:?}"
     );
+}
+
+/// One state on every console (issue 35): in each standing of the vehicle, the page's banner
+/// and its list entry say the words the terminal console says (the `standing` event), and the
+/// vehicle's health is in view: the autopilot's mode and battery, a low battery as a warning.
+/// A MAVLink vehicle on the test autopilot, whose battery drains and which refuses AUTO.
+#[test]
+fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
+    let mut rig = Rig::new("web-standing");
+    let _ap = rig.autopilot(&[
+        "--connection",
+        "udpin:127.0.0.1:14560",
+        "--fail-modes",
+        "10",
+        "--battery-pct",
+        "45",
+        "--battery-drain",
+        "1",
+        "--duration",
+        "300",
+    ]);
+    let record = rig.vehicle_with_output(
+        VEHICLE,
+        "[vehicle]\nbattery_low_pct = 30\n[output]\nadapter = \"mavlink\"\n\
+         connection = \"udpout:127.0.0.1:14560\"\n",
+    );
+    web_host(
+        &mut rig,
+        "",
+        "name = \"phone-web\"\ndevice_class = \"tablet\"",
+    );
+    let browser = Browser::start(&rig, PHONE_VIEW, 9517);
+    pair(&browser, &rig, "phone-web");
+    // The banner names the vehicle and its standing; the list entry starts with the same words.
+    let says = |what: &str, words: &str| {
+        let banner = format!("v{VEHICLE} ({VEHICLE}): {words}");
+        browser.wait_text(what, "#banner", |b| b == banner);
+        let entry = browser.text(&format!("#devices li[data-id='{VEHICLE}'] .state"));
+        assert!(entry.starts_with(words), "{what}: the list says {entry:?}");
+    };
+    says("nobody drives", "failsafe: stopped, nobody drives");
+    browser.wait_text("the autopilot's mode and battery", "#health", |h| {
+        h.contains("autopilot HOLD disarmed") && h.contains("battery 1")
+    });
+    browser.screenshot("web-phone-state-failsafe.png");
+
+    let (x, y) = browser.centre("#left");
+    let since = wall_us();
+    browser.finger_down((x, y));
+    wait_for_output(&record, Some(PHONE), since).expect("a finger on a stick drives");
+    says("the phone drives", "YOU DRIVE");
+    browser.screenshot("web-phone-state-driving.png");
+
+    let strong = rig.operator(13, "mobile", "phone", &[VEHICLE], 0, "", &[]);
+    says("a stronger operator takes over", "outranked by op13 (13)");
+    browser.screenshot("web-phone-state-outranked.png");
+    browser.finger_up();
+    says(
+        "the finger lifts",
+        "paused · input not live · owner op13 (13)",
+    );
+    browser.screenshot("web-phone-state-paused.png");
+    rig.procs[strong].crash();
+    says(
+        "the stronger one is gone",
+        "failsafe: stopped, nobody drives",
+    );
+
+    // Driving again, then AUTO, which the autopilot refuses: the vehicle holds.
+    browser.finger_down((x, y));
+    says("the phone drives again", "YOU DRIVE");
+    for _ in 0..2 {
+        browser.tap_with_second_finger("#modes button[data-mode='auto']");
+    }
+    says(
+        "the autopilot refused AUTO",
+        &format!("held by autopilot · owner you ({PHONE})"),
+    );
+    browser.screenshot("web-phone-state-held.png");
+
+    // The battery drains below 30 %: a warning, whatever else the page shows.
+    browser.wait_text("a low battery", "#warn", |w| {
+        w.starts_with(&format!("LOW BATTERY v{VEHICLE} ({VEHICLE}): 1")) && w.ends_with('%')
+    });
+    let entry = browser.text(&format!("#devices li[data-id='{VEHICLE}'] .state"));
+    assert!(entry.contains(" · LOW 1"), "{entry}");
+    browser.screenshot("web-phone-low-battery.png");
+    browser.finger_up();
 }
 
 #[test]

@@ -8,9 +8,10 @@
 use crate::command::Command;
 use crate::error::{ApiError, Result};
 use crate::model::{Event, Stamped};
-use crate::view::mode_name;
+use crate::standing::Standing;
+use crate::view::{autopilot_text, battery_text, mode_name};
 use rove_core::MonoTime;
-use rove_core::msg::{DeviceId, Mode};
+use rove_core::msg::{DeviceId, Mode, VehicleHealth};
 use serde_json::{Map, Value, json};
 
 /// Protocol version, sent in the `hello` event. Bumped when a field changes meaning or goes
@@ -236,6 +237,34 @@ pub fn lagged_json(missed: u64) -> String {
     json!({ "event": "lagged", "missed": missed }).to_string()
 }
 
+/// A vehicle's health as the API gives it: the raw values (`null` where unknown) and the
+/// consoles' words for them (`battery`, `autopilot`: `null` where there is nothing to show).
+pub fn health_json(h: &VehicleHealth) -> Value {
+    let known = |v: i64| (v >= 0).then_some(v);
+    json!({
+        "battery_mv": known(i64::from(h.battery_mv)),
+        "battery_pct": known(i64::from(h.battery_pct)),
+        "battery_low": h.battery_low,
+        "autopilot_mode": (!h.autopilot_mode.is_empty()).then_some(&h.autopilot_mode),
+        "armed": (!h.autopilot_mode.is_empty()).then_some(h.armed),
+        "link_age_ms": known(i64::from(h.link_age_ms)),
+        "held": h.held,
+        "battery": battery_text(h),
+        "autopilot": autopilot_text(h),
+    })
+}
+
+/// The `standing` line: where `vehicle` stands for this operator (docs/api.md), in the words
+/// every console uses.
+pub fn standing_json(at: MonoTime, vehicle: DeviceId, standing: &Standing, text: &str) -> String {
+    json!({
+        "event": "standing", "vehicle": vehicle, "state": standing.kind(),
+        "other": standing.other(), "safe": standing.is_safe(), "text": text,
+        "t_ms": millis(at),
+    })
+    .to_string()
+}
+
 /// An event as a JSON line (no newline); `None` for [`Event::Tick`], which clients do not get.
 pub fn event_json(stamped: &Stamped) -> Option<String> {
     let t_ms = millis(stamped.at);
@@ -260,9 +289,12 @@ pub fn event_json(stamped: &Stamped) -> Option<String> {
             mode,
             failsafe,
             link,
+            output: _,
+            health,
         } => json!({
             "event": "vehicle_status", "vehicle": vehicle,
             "mode": mode.map(mode_name), "failsafe": failsafe, "link": link,
+            "health": health_json(health),
         }),
         Event::OwnerChanged {
             vehicle,

@@ -15,6 +15,8 @@
 //!
 //! # Layout
 //! - [`model`]: [`ConsoleState`] and [`Event`]: pure, time injected, no I/O.
+//! - [`standing`]: where a vehicle stands for this operator ([`Standing`]), derived once and
+//!   shown the same by every front end.
 //! - [`command`]: [`Command`], the single interface for keys, buttons and API clients.
 //! - [`keys`]: keys and joystick buttons → commands, with on-screen confirmation.
 //! - [`view`]: drawing; the device table shared with `rove status --watch`.
@@ -23,9 +25,9 @@
 //! - [`terminal`]: the interactive terminal loop.
 //! - [`error`]: [`ApiError`], the one error type.
 //!
-//! `model`, `keys`, `view` and `api` read no clock and do no I/O; only `server` and `terminal`
-//! touch sockets, threads and the terminal. The crate does not talk DDS and knows nothing of
-//! the operator's writers: what to do with a command is the operator's decision.
+//! `model`, `standing`, `keys`, `view` and `api` read no clock and do no I/O; only `server` and
+//! `terminal` touch sockets, threads and the terminal. The crate does not talk DDS and knows
+//! nothing of the operator's writers: what to do with a command is the operator's decision.
 
 #![deny(missing_docs)]
 
@@ -35,6 +37,7 @@ pub mod error;
 pub mod keys;
 pub mod model;
 pub mod server;
+pub mod standing;
 pub mod terminal;
 pub mod view;
 
@@ -44,5 +47,6 @@ pub use error::{ApiError, Result};
 pub use keys::{on_action, on_key};
 pub use model::{ConsoleState, Event, Identity, Stamped};
 pub use server::{ApiSocket, Hub, Joined};
+pub use standing::{Standing, standing};
 pub use terminal::run_terminal;
 pub use view::{DeviceRow, device_table, render, render_status};

@@ -8,7 +8,7 @@
 
 use rove_core::MonoTime;
 use rove_core::hierarchy::{DeviceClass, Level, Strength};
-use rove_core::msg::{DeviceId, DeviceType, Mode, MovementCommand};
+use rove_core::msg::{DeviceId, DeviceType, Mode, MovementCommand, OutputState, VehicleHealth};
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
@@ -147,6 +147,10 @@ pub enum Event {
         failsafe: bool,
         /// Output-link health, e.g. `"ok"` or `"down: /dev/ttyACM0 gone"`.
         link: String,
+        /// The output's state.
+        output: OutputState,
+        /// What its device says of the vehicle (battery, autopilot).
+        health: VehicleHealth,
     },
     /// The owner of a vehicle changed, with the reason the operator knows.
     OwnerChanged {
@@ -255,6 +259,10 @@ pub struct VehicleView {
     pub failsafe: bool,
     /// Output-link health, if a status report gave it.
     pub link: Option<String>,
+    /// The output's state, if a status report gave it.
+    pub output: Option<OutputState>,
+    /// What its device says of the vehicle (unknown until a status report says).
+    pub health: VehicleHealth,
 }
 
 impl VehicleView {
@@ -415,6 +423,8 @@ impl ConsoleState {
                 mode,
                 failsafe,
                 link,
+                output,
+                health,
             } => {
                 if let Some(v) = self
                     .devices
@@ -424,6 +434,8 @@ impl ConsoleState {
                     v.mode = mode;
                     v.failsafe = failsafe;
                     v.link = Some(link);
+                    v.output = Some(output);
+                    v.health = health;
                 }
             }
             Event::OwnerChanged {
@@ -540,6 +552,8 @@ impl ConsoleState {
                 mode: None,
                 failsafe: false,
                 link: None,
+                output: None,
+                health: VehicleHealth::UNKNOWN,
             }),
         };
         if self.selected.is_none() && kind == DeviceKind::Vehicle {
@@ -672,13 +686,15 @@ impl ConsoleState {
                 },
             });
             if let Some(v) = &d.vehicle
-                && let Some(link) = &v.link
+                && let (Some(link), Some(output)) = (&v.link, v.output)
             {
                 events.push(at_now(Event::VehicleStatus {
                     vehicle: d.id,
                     mode: v.mode,
                     failsafe: v.failsafe,
                     link: link.clone(),
+                    output,
+                    health: v.health.clone(),
                 }));
             }
             if !d.online {

@@ -14,10 +14,12 @@
 
 use crate::api::{
     ApiReply, MAX_LINE_BYTES, event_json, hello_json, lagged_json, parse_command_bytes,
+    standing_json,
 };
 use crate::command::{CommandRequest, Source};
 use crate::error::{ApiError, Result};
 use crate::model::{ConsoleState, Stamped};
+use rove_core::msg::DeviceId;
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -181,6 +183,8 @@ async fn hub_task(
 ) {
     let mut clients: Vec<Client> = Vec::new();
     let offline_after_ms = u64::try_from(mirror.offline_after.as_millis()).unwrap_or(u64::MAX);
+    // Each vehicle's standing as last sent: a change (from any event, or time) goes out once.
+    let mut standings = Standings::default();
     loop {
         tokio::select! {
             Some(join) = joins.recv() => {
@@ -197,6 +201,9 @@ async fn hub_task(
                         client.deliver(line);
                     }
                 }
+                for line in standings.all(&mirror) {
+                    client.deliver(line);
+                }
                 if join.send(Joined::Lines(rx)).is_ok() {
                     clients.push(client);
                 }
@@ -205,7 +212,8 @@ async fn hub_task(
                 Ok(stamped) => {
                     let line = event_json(&stamped);
                     mirror.apply(stamped.at, stamped.event);
-                    if let Some(line) = line {
+                    let changed = standings.changed(&mirror);
+                    for line in line.into_iter().chain(changed) {
                         clients.retain_mut(|c| c.deliver(line.clone()));
                     }
                 }
@@ -220,6 +228,39 @@ async fn hub_task(
                 Err(broadcast::error::RecvError::Closed) => return,
             },
         }
+    }
+}
+
+/// The `standing` of each vehicle as last sent to clients ([`crate::standing`]).
+#[derive(Default)]
+struct Standings {
+    sent: std::collections::BTreeMap<DeviceId, String>,
+}
+
+impl Standings {
+    /// Every vehicle's `standing` line now (for a client that just joined).
+    fn all(&self, state: &ConsoleState) -> Vec<String> {
+        (state.vehicles())
+            .filter_map(|d| Some((d.id, state.standing(d.id)?)))
+            .map(|(v, s)| standing_json(state.now, v, &s, &s.text(|id| state.label(id))))
+            .collect()
+    }
+
+    /// The `standing` lines of the vehicles whose standing changed since last sent.
+    fn changed(&mut self, state: &ConsoleState) -> Vec<String> {
+        let mut lines = Vec::new();
+        for d in state.vehicles() {
+            let Some(s) = state.standing(d.id) else {
+                continue;
+            };
+            let text = s.text(|id| state.label(id));
+            if self.sent.get(&d.id) != Some(&text) {
+                lines.push(standing_json(state.now, d.id, &s, &text));
+                self.sent.insert(d.id, text);
+            }
+        }
+        self.sent.retain(|id, _| state.devices.contains_key(id));
+        lines
     }
 }
 

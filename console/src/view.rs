@@ -4,7 +4,8 @@
 //! Pure functions of their arguments: the time shown (ages, countdowns) comes from `now`, so a
 //! test renders into ratatui's `TestBackend` and reads the text back with [`buffer_text`].
 
-use crate::model::{ConsoleState, DeviceKind, IncomingRequest, Logged, MyRole};
+use crate::model::{ConsoleState, DeviceKind, IncomingRequest, Logged};
+use crate::standing::Standing;
 use ratatui::Frame;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};
@@ -12,7 +13,7 @@ use ratatui::style::{Color, Modifier, Style};
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Cell, Clear, Paragraph, Row, Table, Wrap};
 use rove_core::MonoTime;
-use rove_core::msg::{DeviceId, Mode};
+use rove_core::msg::{DeviceId, Mode, VehicleHealth};
 use std::time::Duration;
 
 /// Lower-case mode name, as the API and the screen spell it.
@@ -24,24 +25,8 @@ pub fn mode_name(mode: Mode) -> &'static str {
     }
 }
 
-/// Who drives a vehicle, for the DRIVEN BY column.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum DrivenBy {
-    /// Not a vehicle: the column is empty.
-    NotAVehicle,
-    /// The vehicle's own failsafe (its `controller_id` is its own id).
-    Failsafe,
-    /// This operator (shown highlighted as "YOU DRIVE").
-    You {
-        /// With a priority grant.
-        grant: bool,
-    },
-    /// Another controller, as a label (`"op-b (7)"`, or the bare id when unknown).
-    Other(String),
-}
-
-/// One row of the device table: a plain struct that both the console and `rove status`
-/// (from its own `DeviceRow`, see [`DeviceRow::from_status`]) fill in.
+/// One row of the device table: a plain struct that both the console ([`rows`]) and
+/// `rove status` fill in.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceRow {
     /// Device id.
@@ -54,49 +39,17 @@ pub struct DeviceRow {
     pub online: bool,
     /// Time since its last announcement.
     pub age: Duration,
-    /// Who drives it.
-    pub driven_by: DrivenBy,
-    /// What this operator does with it, if anything (`None` in `rove status`).
-    pub you: Option<MyRole>,
+    /// Vehicles: where it stands (for this operator; for `rove status`, a bystander), with its
+    /// words ([`Standing::text`]).
+    pub standing: Option<(Standing, String)>,
     /// Mode, if known.
     pub mode: Option<Mode>,
-    /// Outputs in the safe state (vehicles), `None` if not a vehicle.
-    pub failsafe: Option<bool>,
+    /// Vehicles: what its device says (battery, autopilot), once a status report said.
+    pub health: Option<VehicleHealth>,
     /// Output-link health, if known.
     pub link: Option<String>,
     /// The selected vehicle (marked `>`).
     pub selected: bool,
-}
-
-impl DeviceRow {
-    /// A row from what `rove status` knows: a DeviceInfo's fields, presence and age.
-    pub fn from_status(
-        id: DeviceId,
-        name: &str,
-        kind: DeviceKind,
-        controller_id: DeviceId,
-        online: bool,
-        age: Duration,
-    ) -> DeviceRow {
-        let vehicle = kind == DeviceKind::Vehicle;
-        DeviceRow {
-            id,
-            name: name.to_string(),
-            kind,
-            online,
-            age,
-            driven_by: match (vehicle, controller_id == id) {
-                (false, _) => DrivenBy::NotAVehicle,
-                (true, true) => DrivenBy::Failsafe,
-                (true, false) => DrivenBy::Other(controller_id.to_string()),
-            },
-            you: None,
-            mode: None,
-            failsafe: vehicle.then_some(controller_id == id),
-            link: None,
-            selected: false,
-        }
-    }
 }
 
 impl DeviceKind {
@@ -112,30 +65,25 @@ impl DeviceKind {
 
 /// The console's device rows at `now`.
 pub fn rows(state: &ConsoleState, now: MonoTime) -> Vec<DeviceRow> {
-    let me = state.identity.id;
     state
         .devices
         .values()
         .map(|d| {
-            let you = state.mine.get(&d.id).copied();
-            let driven_by = match &d.vehicle {
-                None => DrivenBy::NotAVehicle,
-                Some(v) if v.owner == d.id => DrivenBy::Failsafe,
-                Some(v) if v.owner == me => DrivenBy::You {
-                    grant: you == Some(MyRole::Holding),
-                },
-                Some(v) => DrivenBy::Other(state.label(v.owner)),
-            };
+            let standing = (state.standing(d.id)).map(|s| {
+                let text = s.text(|id| state.label(id));
+                (s, text)
+            });
             DeviceRow {
                 id: d.id,
                 name: d.name.clone(),
                 kind: d.kind,
                 online: d.online,
                 age: now.saturating_since(d.last_seen),
-                driven_by,
-                you,
+                standing,
                 mode: d.vehicle.as_ref().and_then(|v| v.mode),
-                failsafe: d.vehicle.as_ref().map(|v| v.in_failsafe(d.id)),
+                health: (d.vehicle.as_ref())
+                    .filter(|v| v.link.is_some())
+                    .map(|v| v.health.clone()),
                 link: d.vehicle.as_ref().and_then(|v| v.link.clone()),
                 selected: state.selected == Some(d.id),
             }
@@ -154,6 +102,28 @@ fn age_text(age: Duration) -> String {
     }
 }
 
+/// The battery as the consoles show it, e.g. `"11.4V 62%"`; `None` when the vehicle's device
+/// does not know it. (Whether it is low is [`VehicleHealth::battery_low`], shown beside it.)
+pub fn battery_text(health: &VehicleHealth) -> Option<String> {
+    let volts =
+        (health.battery_mv >= 0).then(|| format!("{:.1}V", f64::from(health.battery_mv) / 1000.0));
+    let pct = (health.battery_pct >= 0).then(|| format!("{}%", health.battery_pct));
+    let known: Vec<String> = [volts, pct].into_iter().flatten().collect();
+    (!known.is_empty()).then(|| known.join(" "))
+}
+
+/// The autopilot as the consoles show it, e.g. `"HOLD armed 0.4s"`; `None` without one.
+pub fn autopilot_text(health: &VehicleHealth) -> Option<String> {
+    if health.autopilot_mode.is_empty() {
+        return None;
+    }
+    let armed = if health.armed { "armed" } else { "disarmed" };
+    let age = u64::try_from(health.link_age_ms)
+        .map(|ms| format!(" {}", age_text(Duration::from_millis(ms))))
+        .unwrap_or_default();
+    Some(format!("{} {armed}{age}", health.autopilot_mode))
+}
+
 fn you_drive_style() -> Style {
     Style::new()
         .fg(Color::Black)
@@ -161,29 +131,19 @@ fn you_drive_style() -> Style {
         .add_modifier(Modifier::BOLD)
 }
 
-fn driven_by_cell(row: &DeviceRow) -> Cell<'static> {
-    let aside = match (&row.driven_by, row.you) {
-        (DrivenBy::You { .. }, _) | (_, None) => None,
-        (_, Some(MyRole::Standby)) => Some(" · you stand by"),
-        (_, Some(MyRole::Paused)) => Some(" · you: paused"),
-        (_, Some(MyRole::Driving | MyRole::Holding)) => Some(" · you: outranked"),
-    };
-    let main = match &row.driven_by {
-        DrivenBy::NotAVehicle => Span::raw(""),
-        DrivenBy::Failsafe => Span::raw("failsafe"),
-        DrivenBy::You { grant: false } => Span::styled("YOU DRIVE", you_drive_style()),
-        DrivenBy::You { grant: true } => Span::styled("YOU DRIVE (grant)", you_drive_style()),
-        DrivenBy::Other(label) => Span::raw(label.clone()),
-    };
-    let mut spans = vec![main];
-    if let Some(aside) = aside {
-        spans.push(Span::styled(aside, Style::new().fg(Color::Yellow)));
+/// How a standing is drawn: driving highlighted, safe outputs and lost places in yellow.
+fn standing_style(standing: &Standing) -> Style {
+    match standing {
+        Standing::Driving { .. } => you_drive_style(),
+        Standing::Offline => Style::new().fg(Color::Red),
+        Standing::StandingBy { .. } => Style::new(),
+        _ => Style::new().fg(Color::Yellow),
     }
-    Cell::from(Line::from(spans))
 }
 
-/// The device table: one row per device, vehicles with who drives them, this operator's
-/// vehicles marked "YOU DRIVE". Shared by the console and `rove status --watch`.
+/// The device table: one row per device, vehicles with where they stand (this operator's
+/// vehicles highlighted "you drive"), battery and autopilot. Shared by the console and
+/// `rove status`.
 pub fn device_table(rows: &[DeviceRow]) -> Table<'static> {
     let header = Row::new([
         "",
@@ -192,9 +152,10 @@ pub fn device_table(rows: &[DeviceRow]) -> Table<'static> {
         "TYPE",
         "STATE",
         "SEEN",
-        "DRIVEN BY",
+        "STANDING",
         "MODE",
-        "FAILSAFE",
+        "BATTERY",
+        "AUTOPILOT",
         "LINK",
     ])
     .style(Style::new().add_modifier(Modifier::BOLD));
@@ -204,11 +165,27 @@ pub fn device_table(rows: &[DeviceRow]) -> Table<'static> {
         } else {
             Span::styled("offline", Style::new().fg(Color::Red))
         };
-        let failsafe = match r.failsafe {
+        let standing = match &r.standing {
             None => Span::raw(""),
-            Some(true) => Span::styled("yes", Style::new().fg(Color::Yellow)),
-            Some(false) => Span::raw("no"),
+            Some((s, text)) => Span::styled(text.clone(), standing_style(s)),
         };
+        let battery = match r
+            .health
+            .as_ref()
+            .and_then(|h| battery_text(h).map(|t| (t, h)))
+        {
+            None => Span::raw(""),
+            Some((text, h)) if h.battery_low => Span::styled(
+                format!("LOW {text}"),
+                Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+            ),
+            Some((text, _)) => Span::raw(text),
+        };
+        let autopilot = r
+            .health
+            .as_ref()
+            .and_then(autopilot_text)
+            .unwrap_or_default();
         let row = Row::new([
             Cell::from(if r.selected { ">" } else { "" }),
             Cell::from(r.id.to_string()),
@@ -216,9 +193,10 @@ pub fn device_table(rows: &[DeviceRow]) -> Table<'static> {
             Cell::from(r.kind.as_str()),
             Cell::from(state),
             Cell::from(age_text(r.age)),
-            driven_by_cell(r),
+            Cell::from(standing),
             Cell::from(r.mode.map(mode_name).unwrap_or("")),
-            Cell::from(failsafe),
+            Cell::from(battery),
+            Cell::from(autopilot),
             Cell::from(r.link.clone().unwrap_or_default()),
         ]);
         if r.selected {
@@ -231,14 +209,15 @@ pub fn device_table(rows: &[DeviceRow]) -> Table<'static> {
         body,
         [
             Constraint::Length(1),
-            Constraint::Length(6),
-            Constraint::Length(14),
+            Constraint::Length(5),
+            Constraint::Length(12),
             Constraint::Length(10),
             Constraint::Length(7),
             Constraint::Length(5),
-            Constraint::Length(28),
+            Constraint::Length(40),
             Constraint::Length(8),
-            Constraint::Length(8),
+            Constraint::Length(12),
+            Constraint::Length(17),
             Constraint::Min(4),
         ],
     )
@@ -344,25 +323,48 @@ fn header_widget(state: &ConsoleState, now: MonoTime) -> Paragraph<'static> {
             id.level, id.class, id.strength
         )),
     ]);
-    let list = |roles: &[MyRole]| -> String {
-        let names: Vec<String> = state
-            .mine
-            .iter()
-            .filter(|(_, r)| roles.contains(r))
-            .map(|(v, _)| state.label(*v))
-            .collect();
-        if names.is_empty() {
-            "nothing".into()
-        } else {
-            names.join(", ")
-        }
+    // What this operator drives, where the selected vehicle stands, and every low battery:
+    // from the same standings as the rows.
+    let driving: Vec<String> = (state.vehicles())
+        .filter(|d| matches!(state.standing(d.id), Some(Standing::Driving { .. })))
+        .map(|d| state.label(d.id))
+        .collect();
+    let driving = match driving.is_empty() {
+        true => "nothing".to_string(),
+        false => driving.join(", "),
+    };
+    let selected = match state.selected {
+        None => Span::raw("none"),
+        Some(v) => match state.standing(v) {
+            Some(standing) => Span::styled(
+                format!(
+                    "{}: {}",
+                    state.label(v),
+                    standing.text(|id| state.label(id))
+                ),
+                standing_style(&standing),
+            ),
+            None => Span::raw(state.label(v)),
+        },
     };
     let mut second = vec![
         Span::raw("you drive: "),
-        Span::raw(list(&[MyRole::Driving, MyRole::Holding])),
+        Span::raw(driving),
         Span::raw("   selected: "),
-        Span::raw(state.selected.map_or("none".into(), |v| state.label(v))),
+        selected,
     ];
+    for d in state.vehicles().filter(|d| d.online) {
+        if let Some(v) = d.vehicle.as_ref().filter(|v| v.health.battery_low) {
+            second.push(Span::styled(
+                format!(
+                    "   LOW BATTERY {}: {}",
+                    state.label(d.id),
+                    battery_text(&v.health).unwrap_or_default()
+                ),
+                Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+            ));
+        }
+    }
     for (&vehicle, req) in &state.outgoing {
         second.push(Span::styled(
             format!(
@@ -507,8 +509,11 @@ mod tests {
     use ratatui::backend::TestBackend;
     use rove_core::msg::MovementCommand;
 
+    /// Wide enough for every column at its width (a narrower terminal shrinks them).
+    const WIDTH: u16 = 150;
+
     fn screen(state: &ConsoleState, now: MonoTime) -> String {
-        let mut terminal = match Terminal::new(TestBackend::new(110, 30)) {
+        let mut terminal = match Terminal::new(TestBackend::new(WIDTH, 30)) {
             Ok(t) => t,
             Err(e) => panic!("test backend: {e}"),
         };
@@ -592,9 +597,8 @@ mod tests {
         assert!(rover1.contains("vehicle"), "{rover1}");
         assert!(rover1.contains("online"), "{rover1}");
         assert!(rover1.contains("YOU DRIVE"), "{rover1}");
-        assert!(rover1.contains("no"), "not in failsafe: {rover1}");
         let rover2 = row(&text, "rover-2");
-        assert!(rover2.contains("op-b (7)"), "{rover2}");
+        assert!(rover2.contains("driven by op-b (7)"), "{rover2}");
         assert!(!rover2.contains("YOU DRIVE"), "{rover2}");
         let op = row(&text, "op-b");
         assert!(op.contains("controller"), "{op}");
@@ -612,7 +616,7 @@ mod tests {
     #[test]
     fn the_you_drive_mark_is_highlighted() {
         let s = script();
-        let mut terminal = match Terminal::new(TestBackend::new(110, 30)) {
+        let mut terminal = match Terminal::new(TestBackend::new(WIDTH, 30)) {
             Ok(t) => t,
             Err(e) => panic!("{e}"),
         };
@@ -722,11 +726,11 @@ mod tests {
         );
         let text = screen(&s, ms(1_000));
         assert!(
-            row(&text, "rover-1").contains("op-b (7) · you stand by"),
+            row(&text, "rover-1").contains("yielded to op-b (7)"),
             "{text}"
         );
         assert!(
-            row(&text, "rover-2").contains("op-b (7) · you: outranked"),
+            row(&text, "rover-2").contains("outranked by op-b (7)"),
             "{text}"
         );
         s.apply(
@@ -752,43 +756,198 @@ mod tests {
 
     #[test]
     fn status_rows_render_like_rove_status() {
+        let vehicle = |id, name: &str, standing: Standing, online, age| DeviceRow {
+            id,
+            name: name.into(),
+            kind: DeviceKind::Vehicle,
+            online,
+            age,
+            standing: Some((standing.clone(), standing.text(|id| id.to_string()))),
+            mode: None,
+            health: Some(VehicleHealth {
+                battery_mv: 10_240,
+                battery_pct: 8,
+                battery_low: true,
+                autopilot_mode: "HOLD".into(),
+                armed: true,
+                link_age_ms: 400,
+                held: false,
+            }),
+            link: None,
+            selected: false,
+        };
         let rows = [
-            DeviceRow::from_status(
+            vehicle(
                 100,
                 "rover-1",
-                DeviceKind::Vehicle,
-                100,
+                Standing::Failsafe,
                 true,
                 Duration::from_millis(300),
             ),
-            DeviceRow::from_status(
+            vehicle(
                 101,
                 "rover-2",
-                DeviceKind::Vehicle,
-                7,
+                Standing::Offline,
                 false,
                 Duration::from_secs(15),
             ),
-            DeviceRow::from_status(
-                7,
-                "op-b",
-                DeviceKind::Controller,
-                7,
-                true,
-                Duration::from_secs(300),
-            ),
+            DeviceRow {
+                id: 7,
+                name: "op-b".into(),
+                kind: DeviceKind::Controller,
+                online: true,
+                age: Duration::from_secs(300),
+                standing: None,
+                mode: None,
+                health: None,
+                link: None,
+                selected: false,
+            },
         ];
-        let text = status_text(&rows, 100);
+        let text = status_text(&rows, WIDTH);
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 4, "{text}");
-        assert!(lines[0].contains("ID") && lines[0].contains("DRIVEN BY"));
+        assert!(lines[0].contains("ID") && lines[0].contains("STANDING"));
         assert!(lines[1].contains("rover-1") && lines[1].contains("failsafe"));
-        assert!(lines[1].contains("0.3s") && lines[1].contains("yes"));
-        assert!(lines[2].contains("offline") && lines[2].contains(" 7 "));
-        assert!(lines[2].contains("15s"));
+        assert!(lines[1].contains("0.3s"), "{text}");
+        assert!(lines[1].contains("LOW 10.2V 8%"), "{text}");
+        assert!(lines[1].contains("HOLD armed 0.4s"), "{text}");
+        assert!(lines[2].contains("offline") && lines[2].contains("15s"));
         assert!(lines[3].contains("controller") && lines[3].contains("5m"));
         assert_eq!(DeviceKind::from_name("vehicle"), Some(DeviceKind::Vehicle));
         assert_eq!(DeviceKind::from_name("boat"), None);
+    }
+
+    /// The vehicle `rover-1` (100) in `state`: the header's words for the selected vehicle
+    /// and its row's STANDING cell.
+    fn header_and_row(state: &ConsoleState, now: MonoTime) -> (String, String, String) {
+        let text = screen(state, now);
+        let header = line_with(&text, "selected:").to_string();
+        let row = row(&text, "rover-1").to_string();
+        (text, header, row)
+    }
+
+    /// One consistent state everywhere: in each standing, the header and the row say the same
+    /// words, and "you drive" lists the vehicle exactly when the row says YOU DRIVE.
+    #[test]
+    fn the_header_and_the_row_say_the_same_in_every_state() {
+        use crate::model::Event::{Driving, VehicleStatus};
+        let roles = |driving: Vec<DeviceId>, standby, paused| Driving {
+            driving,
+            holding: vec![],
+            standby,
+            paused,
+        };
+        let held = |mut health: VehicleHealth| {
+            health.held = true;
+            VehicleStatus {
+                vehicle: 100,
+                mode: Some(Mode::Auto),
+                failsafe: true,
+                link: "degraded: AUTO refused".into(),
+                output: rove_core::msg::OutputState::Degraded,
+                health,
+            }
+        };
+        let cases: Vec<(&str, Vec<Event>, &str)> = vec![
+            ("driving", vec![], "YOU DRIVE"),
+            (
+                "outranked",
+                vec![seen(100, "rover-1", DeviceKind::Vehicle, 7)],
+                "outranked by op-b (7)",
+            ),
+            (
+                "yielded",
+                vec![
+                    roles(vec![], vec![100], vec![]),
+                    seen(100, "rover-1", DeviceKind::Vehicle, 7),
+                ],
+                "yielded to op-b (7)",
+            ),
+            (
+                "paused",
+                vec![
+                    roles(vec![], vec![], vec![100]),
+                    seen(100, "rover-1", DeviceKind::Vehicle, 7),
+                ],
+                "paused · input not live · owner op-b (7)",
+            ),
+            (
+                "standing by",
+                vec![
+                    roles(vec![], vec![], vec![]),
+                    seen(100, "rover-1", DeviceKind::Vehicle, 7),
+                ],
+                "driven by op-b (7)",
+            ),
+            (
+                "failsafe",
+                vec![seen(100, "rover-1", DeviceKind::Vehicle, 100)],
+                "failsafe: stopped, nobody drives",
+            ),
+            (
+                "held",
+                vec![held(VehicleHealth::UNKNOWN)],
+                "held by autopilot · owner you (1)",
+            ),
+        ];
+        for (name, events, words) in cases {
+            let mut s = script();
+            for e in events {
+                s.apply(ms(800), e);
+            }
+            let (text, header, row) = header_and_row(&s, ms(1_000));
+            assert!(
+                header.contains(&format!("selected: rover-1 (100): {words}")),
+                "{name}: header\n{text}"
+            );
+            assert!(row.contains(words), "{name}: row\n{text}");
+            let drives = header.contains("you drive: rover-1 (100)");
+            assert_eq!(drives, words == "YOU DRIVE", "{name}\n{text}");
+            assert_eq!(s.standing_text(100).as_deref(), Some(words), "{name}");
+        }
+        // Offline, as time passes.
+        let mut s = script();
+        s.apply(ms(5_000), Event::Tick);
+        let (text, header, row) = header_and_row(&s, ms(5_000));
+        assert!(header.contains("rover-1 (100): offline"), "{text}");
+        assert!(row.contains("offline"), "{text}");
+        assert!(header.contains("you drive: nothing"), "{text}");
+    }
+
+    /// A low battery is a warning in the header, whichever vehicle is selected, and in the row.
+    #[test]
+    fn a_low_battery_is_a_warning_in_the_header_and_the_row() {
+        let mut s = script();
+        let health = VehicleHealth {
+            battery_mv: 10_240,
+            battery_pct: 8,
+            battery_low: true,
+            autopilot_mode: "HOLD".into(),
+            armed: true,
+            link_age_ms: 250,
+            held: false,
+        };
+        s.apply(
+            ms(800),
+            Event::VehicleStatus {
+                vehicle: 101,
+                mode: Some(Mode::Manual),
+                failsafe: false,
+                link: "ok".into(),
+                output: rove_core::msg::OutputState::Ok,
+                health,
+            },
+        );
+        let text = screen(&s, ms(1_000));
+        assert!(
+            line_with(&text, "selected:").contains("LOW BATTERY rover-2 (101): 10.2V 8%"),
+            "{text}"
+        );
+        let rover2 = row(&text, "rover-2");
+        assert!(rover2.contains("LOW 10.2V 8%"), "{rover2}");
+        assert!(rover2.contains("HOLD armed 0.2s"), "{rover2}");
+        assert!(!row(&text, "rover-1").contains("LOW"), "{text}");
     }
 
     #[test]

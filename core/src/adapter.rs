@@ -84,6 +84,27 @@ pub trait OutputAdapter {
     fn held_safe(&self) -> bool {
         false
     }
+
+    /// What the device reports about the vehicle (an autopilot's battery, mode, armed state and
+    /// how long ago it was heard); the default knows nothing.
+    fn telemetry(&self) -> Telemetry {
+        Telemetry::default()
+    }
+}
+
+/// What an output's device says about the vehicle, each part `None` when it cannot tell.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Telemetry {
+    /// Battery voltage, millivolts.
+    pub battery_mv: Option<u32>,
+    /// Battery remaining, percent (0–100).
+    pub battery_pct: Option<u8>,
+    /// The autopilot's mode, by name.
+    pub autopilot_mode: Option<String>,
+    /// The autopilot says it is armed.
+    pub armed: Option<bool>,
+    /// How long ago the autopilot was last heard.
+    pub link_age: Option<Duration>,
 }
 
 /// Operator actions bound to buttons or keys.

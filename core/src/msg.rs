@@ -99,6 +99,48 @@ pub struct VehicleStatus {
     pub output: OutputState,
     /// The output's own words: its error, or an autopilot's mode and armed state.
     pub detail: String,
+    /// The vehicle's health as its device reports it (battery, autopilot).
+    pub health: VehicleHealth,
+}
+
+/// `struct VehicleHealth` (inside VehicleStatus): what the vehicle's device says of the vehicle,
+/// for the people driving it. Each field has an "unknown" value, for outputs that cannot tell.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct VehicleHealth {
+    /// Battery voltage, millivolts; `-1` unknown.
+    pub battery_mv: i32,
+    /// Battery remaining, percent (0–100); `-1` unknown.
+    pub battery_pct: i16,
+    /// The battery is at or below the vehicle's warning level (`[vehicle] battery_low_pct`).
+    pub battery_low: bool,
+    /// The autopilot's own mode name (`"HOLD"`, `"LOITER"`); empty: no autopilot, or not heard.
+    pub autopilot_mode: String,
+    /// The autopilot says it is armed.
+    pub armed: bool,
+    /// Time since the autopilot was last heard, ms; `-1`: no autopilot link, or never heard.
+    pub link_age_ms: i32,
+    /// The output holds the vehicle safe by its own decision while an operator owns it (an
+    /// autopilot refused the operator's mode): `failsafe` is then set with the owner unchanged.
+    pub held: bool,
+}
+
+impl VehicleHealth {
+    /// Nothing known: what outputs without telemetry report.
+    pub const UNKNOWN: VehicleHealth = VehicleHealth {
+        battery_mv: -1,
+        battery_pct: -1,
+        battery_low: false,
+        autopilot_mode: String::new(),
+        armed: false,
+        link_age_ms: -1,
+        held: false,
+    };
+}
+
+impl Default for VehicleHealth {
+    fn default() -> Self {
+        VehicleHealth::UNKNOWN
+    }
 }
 
 /// `enum Command_type_t { PROBE, MOVEMENT, MODE }`.

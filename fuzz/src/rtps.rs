@@ -70,6 +70,7 @@ fn vehicle_endpoints() -> Vec<(Role, Endpoint)> {
         failsafe: true,
         output: rove_core::msg::OutputState::Ok,
         detail: "sim".to_string(),
+        health: rove_core::msg::VehicleHealth::UNKNOWN,
     });
     vec![
         (

@@ -53,6 +53,9 @@ rove_core::config_types! {
             longer counts as a hung output, ms (absent: 50).",
         output_hung_limit_ms: Option<Int> => "How long an output may stay hung before the \
             watchdog keep-alives stop and systemd restarts the unit, ms (absent: 2000).",
+        battery_low_pct: Option<Int> => "At or below this battery level (percent, as the \
+            output's device reports it: an autopilot's SYS_STATUS) every console that sees the \
+            vehicle warns (absent: 25).",
     }
 
     /// `[security]`: join as an authenticated participant (DDS Security, docs/security.md).
@@ -353,6 +356,7 @@ rove_core::config_types! {
         output: OutputConfig => "Output adapter.",
         output_deadline: Duration => "`[vehicle] output_deadline_ms`.",
         output_hung_limit: Duration => "`[vehicle] output_hung_limit_ms`.",
+        battery_low_pct: u8 => "`[vehicle] battery_low_pct`.",
     }
 
     /// A validated operator configuration.
@@ -633,6 +637,8 @@ impl RawVehicle<OutputSection> {
         let deadline = errors.int("vehicle.output_deadline_ms", deadline, 5..=10_000, " ms");
         let limit = *v.output_hung_limit_ms.get_or_insert(2000);
         let limit = errors.int("vehicle.output_hung_limit_ms", limit, 100..=600_000, " ms");
+        let low = *v.battery_low_pct.get_or_insert(25);
+        let low = errors.int::<u8>("vehicle.battery_low_pct", low, 0..=100, " %");
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let hierarchy = hierarchy.unwrap_or(Hierarchy::STANDARD);
         let access = match &self.access {
@@ -661,6 +667,7 @@ impl RawVehicle<OutputSection> {
             output,
             output_deadline: Duration::from_millis(deadline.unwrap_or_default()),
             output_hung_limit: Duration::from_millis(limit.unwrap_or_default()),
+            battery_low_pct: low.unwrap_or_default(),
         })
     }
 }

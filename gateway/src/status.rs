@@ -9,9 +9,13 @@
 
 use crate::dds::{self, Domain, KeyedDeviceInfo, KeyedVehicleStatus};
 use futures::StreamExt;
+use rove_console::model::VehicleView;
+use rove_console::standing::{Standing, standing};
 use rove_console::view::mode_name;
 use rove_core::arbiter::ParticipantId;
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, Mode, OutputState, VehicleStatus};
+use rove_core::msg::{
+    DeviceId, DeviceInfo, DeviceType, Mode, OutputState, VehicleHealth, VehicleStatus,
+};
 use rove_core::trust::{Identities, TrustConfig};
 use rustdds::with_key::Sample;
 use serde::Serialize;
@@ -44,6 +48,19 @@ pub struct DeviceRow {
     /// Vehicles, from their VehicleStatus: the outputs are in the safe state.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failsafe: Option<bool>,
+    /// Vehicles: where it stands for a bystander (`offline`, `failsafe`, `held`, `standby`:
+    /// someone drives), as every console derives it (rove_console::standing).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub standing: Option<&'static str>,
+    /// Vehicles: the same in words, e.g. `"held by autopilot · owner 11"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub standing_text: Option<String>,
+    /// Vehicles, from their VehicleStatus: battery and autopilot (as the local API gives them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub health: Option<serde_json::Value>,
+    /// The standing and health, for the table.
+    #[serde(skip)]
+    view: Option<(Standing, VehicleHealth)>,
 }
 
 /// A snapshot of the domain.
@@ -239,6 +256,14 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     }
 }
 
+/// `"name (id)"` for a device `rove status` knows, else the id.
+fn label(seen: &BTreeMap<DeviceId, Seen>, id: DeviceId) -> String {
+    match seen.get(&id) {
+        Some(s) => format!("{} ({id})", s.info.name),
+        None => id.to_string(),
+    }
+}
+
 fn snapshot(
     seen: &BTreeMap<DeviceId, Seen>,
     vehicles: &BTreeMap<DeviceId, VehicleStatus>,
@@ -246,20 +271,39 @@ fn snapshot(
 ) -> Snapshot {
     let devices = seen
         .values()
-        .map(|s| (s, vehicles.get(&s.info.device_id)))
-        .map(|(s, status)| DeviceRow {
-            id: s.info.device_id,
-            name: s.info.name.clone(),
-            kind: match s.info.device_type {
-                DeviceType::Vehicle => "vehicle",
-                DeviceType::Controller => "controller",
-            },
-            controller_id: s.info.controller_id,
-            online: !s.withdrawn && s.at.elapsed() < offline_after,
-            last_seen_ms: u64::try_from(s.at.elapsed().as_millis()).unwrap_or(u64::MAX),
-            mode: status.map(|v| mode_name(v.mode)),
-            output: status.map(output_text),
-            failsafe: status.map(|v| v.failsafe),
+        .map(|s| {
+            let status = vehicles.get(&s.info.device_id);
+            let online = !s.withdrawn && s.at.elapsed() < offline_after;
+            let view = (s.info.device_type == DeviceType::Vehicle).then(|| {
+                let id = s.info.device_id;
+                let view = VehicleView {
+                    owner: s.info.controller_id,
+                    mode: status.map(|v| v.mode),
+                    failsafe: status.is_some_and(|v| v.failsafe),
+                    link: status.map(output_text),
+                    output: status.map(|v| v.output),
+                    health: status.map(|v| v.health.clone()).unwrap_or_default(),
+                };
+                (standing(id, online, &view, None, None), view.health)
+            });
+            DeviceRow {
+                id: s.info.device_id,
+                name: s.info.name.clone(),
+                kind: match s.info.device_type {
+                    DeviceType::Vehicle => "vehicle",
+                    DeviceType::Controller => "controller",
+                },
+                controller_id: s.info.controller_id,
+                online,
+                last_seen_ms: u64::try_from(s.at.elapsed().as_millis()).unwrap_or(u64::MAX),
+                mode: status.map(|v| mode_name(v.mode)),
+                output: status.map(output_text),
+                failsafe: status.map(|v| v.failsafe),
+                standing: view.as_ref().map(|(st, _)| st.kind()),
+                standing_text: (view.as_ref()).map(|(st, _)| st.text(|id| label(seen, id))),
+                health: status.map(|v| rove_console::api::health_json(&v.health)),
+                view,
+            }
         })
         .collect();
     let claims: Vec<Claim> = seen
@@ -281,6 +325,9 @@ fn snapshot(
     }
 }
 
+/// Columns of `rove status`'s table (the console's widths).
+const TABLE_WIDTH: u16 = 140;
+
 /// The human table: one row per device, vehicles showing who drives them. The same rendering
 /// as the operator console's device table (rove-console), printed as text.
 pub fn table(snap: &Snapshot) -> String {
@@ -288,25 +335,21 @@ pub fn table(snap: &Snapshot) -> String {
     let rows: Vec<rove_console::DeviceRow> = snap
         .devices
         .iter()
-        .map(|d| {
-            let kind = DeviceKind::from_name(d.kind).unwrap_or(DeviceKind::Controller);
-            let mut row = rove_console::DeviceRow::from_status(
-                d.id,
-                &d.name,
-                kind,
-                d.controller_id,
-                d.online,
-                Duration::from_millis(d.last_seen_ms),
-            );
-            row.mode = d
-                .mode
-                .and_then(|m| Mode::ALL.into_iter().find(|x| mode_name(*x) == m));
-            row.link = d.output.clone();
-            row.failsafe = d.failsafe.or(row.failsafe);
-            row
+        .map(|d| rove_console::DeviceRow {
+            id: d.id,
+            name: d.name.clone(),
+            kind: DeviceKind::from_name(d.kind).unwrap_or(DeviceKind::Controller),
+            online: d.online,
+            age: Duration::from_millis(d.last_seen_ms),
+            standing: (d.view.as_ref())
+                .map(|(s, _)| (s.clone(), d.standing_text.clone().unwrap_or_default())),
+            mode: (d.mode).and_then(|m| Mode::ALL.into_iter().find(|x| mode_name(*x) == m)),
+            health: d.view.as_ref().map(|(_, h)| h.clone()),
+            link: d.output.clone(),
+            selected: false,
         })
         .collect();
-    let mut out = rove_console::view::status_text(&rows, 100);
+    let mut out = rove_console::view::status_text(&rows, TABLE_WIDTH);
     out.push('\n');
     for claim in &snap.claims {
         out.push_str(&format!(

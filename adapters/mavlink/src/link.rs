@@ -85,6 +85,17 @@ pub struct LinkStatus {
     pub garbage: u64,
     /// Times the transport was (re)opened.
     pub connects: u64,
+    /// The battery, from our autopilot's last SYS_STATUS.
+    pub battery: Option<Battery>,
+}
+
+/// A SYS_STATUS's battery: each part `None` where the autopilot says it does not know.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Battery {
+    /// Voltage, millivolts (`voltage_battery`; UINT16_MAX: unknown).
+    pub mv: Option<u32>,
+    /// Remaining, percent (`battery_remaining`; -1: unknown).
+    pub pct: Option<u8>,
 }
 
 /// The sending half of an open transport.
@@ -647,6 +658,19 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
             drop(acks);
             notify(shared);
         }
+        // The battery of the autopilot we drive (its component; before it is heard, nothing).
+        MavMessage::SYS_STATUS(st)
+            if s.autopilot.is_some_and(|a| {
+                a.system_id == system_id && a.component_id == header.component_id
+            }) =>
+        {
+            s.battery = Some(Battery {
+                mv: (st.voltage_battery != u16::MAX).then_some(u32::from(st.voltage_battery)),
+                pct: u8::try_from(st.battery_remaining)
+                    .ok()
+                    .filter(|p| *p <= 100),
+            });
+        }
         _ => {}
     }
 }
@@ -737,6 +761,49 @@ mod tests {
         );
         handle(&link.shared, header(3, 1), &heartbeat());
         assert_eq!(link.target(), Some((3, 1)));
+    }
+
+    /// The battery is our autopilot's: nobody's before it is heard, not another system's or
+    /// component's; the autopilot's "unknown" values stay unknown.
+    #[test]
+    fn the_battery_comes_from_our_autopilots_sys_status() {
+        use mavlink::dialects::ardupilotmega::SYS_STATUS_DATA;
+        let mut settings: crate::MavlinkSettings =
+            toml::from_str("connection = \"udpout:127.0.0.1:9\"").expect("parses");
+        let config = settings.validate().expect("valid");
+        let link = Link::start(&config).expect("link");
+        let status = |mv: u16, pct: i8| {
+            MavMessage::SYS_STATUS(SYS_STATUS_DATA {
+                voltage_battery: mv,
+                battery_remaining: pct,
+                ..SYS_STATUS_DATA::default()
+            })
+        };
+        let battery = || link.status().battery;
+        handle(&link.shared, header(1, 1), &status(12_100, 80));
+        assert_eq!(battery(), None, "before any autopilot is heard");
+        handle(&link.shared, header(1, 1), &heartbeat());
+        handle(&link.shared, header(1, 1), &status(12_100, 80));
+        let known = Battery {
+            mv: Some(12_100),
+            pct: Some(80),
+        };
+        assert_eq!(battery(), Some(known));
+        handle(&link.shared, header(2, 1), &status(9_000, 5));
+        handle(&link.shared, header(1, 191), &status(9_000, 5));
+        assert_eq!(battery(), Some(known), "another system's or component's");
+        handle(&link.shared, header(1, 1), &status(u16::MAX, -1));
+        let unknown = Battery {
+            mv: None,
+            pct: None,
+        };
+        assert_eq!(battery(), Some(unknown));
+        handle(&link.shared, header(1, 1), &status(11_000, 120));
+        assert_eq!(
+            battery().and_then(|b| b.pct),
+            None,
+            "over 100 % is not a level"
+        );
     }
 
     #[test]

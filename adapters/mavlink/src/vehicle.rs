@@ -30,7 +30,7 @@ use mavlink::dialects::ardupilotmega::{
     MavModeFlag, MavState, MavType, RC_CHANNELS_OVERRIDE_DATA,
 };
 use rove_core::MonoTime;
-use rove_core::adapter::{Health, OutputAdapter};
+use rove_core::adapter::{Health, OutputAdapter, Telemetry};
 use rove_core::arbiter::Setpoint;
 use rove_core::error::{Disposition, LinkError};
 use rove_core::msg::MovementCommand;
@@ -613,6 +613,20 @@ impl OutputAdapter for MavlinkVehicle {
         self.config.on_mode_refused == OnModeRefused::Hold && self.refused.is_some()
     }
 
+    fn telemetry(&self) -> Telemetry {
+        let status = self.link.status();
+        let Some(a) = status.autopilot else {
+            return Telemetry::default();
+        };
+        Telemetry {
+            battery_mv: status.battery.and_then(|b| b.mv),
+            battery_pct: status.battery.and_then(|b| b.pct),
+            autopilot_mode: Some(self.mode_name(a.custom_mode)),
+            armed: Some(a.armed),
+            link_age: status.last_heartbeat.map(|t| t.elapsed()),
+        }
+    }
+
     fn detail(&self) -> Option<String> {
         let summary = self.autopilot_summary();
         Some(match &self.refused {
@@ -623,16 +637,22 @@ impl OutputAdapter for MavlinkVehicle {
 }
 
 impl MavlinkVehicle {
+    /// The autopilot's name for `custom_mode` (`"HOLD"`), or `"mode N"` if it is not in the
+    /// table for this autopilot and vehicle.
+    fn mode_name(&self, custom_mode: u32) -> String {
+        crate::config::mode_table(self.config.autopilot, self.config.vehicle)
+            .into_iter()
+            .find(|&(_, m)| m == custom_mode)
+            .map_or_else(|| format!("mode {custom_mode}"), |(n, _)| n.to_string())
+    }
+
     /// A line for status displays: the autopilot, its mode and armed state.
     pub fn autopilot_summary(&self) -> String {
         let status = self.link.status();
         match status.autopilot {
             None => "no autopilot heard".into(),
             Some(a) => {
-                let mode = crate::config::mode_table(self.config.autopilot, self.config.vehicle)
-                    .into_iter()
-                    .find(|&(_, m)| m == a.custom_mode)
-                    .map_or_else(|| format!("mode {}", a.custom_mode), |(n, _)| n.to_string());
+                let mode = self.mode_name(a.custom_mode);
                 format!(
                     "system {} ({:?}), {mode}, {}",
                     a.system_id,

@@ -131,7 +131,8 @@ impl User<'_> {
     }
 
     /// Whether the user can read and write the device file at `path` (system path shown),
-    /// through the file's group or its mode for others.
+    /// through the file's group or its mode for others; if not, how to give it access without
+    /// handing it more than the device (see [`PRIVILEGED_GROUPS`]).
     fn access(&self, area: &str, shown: &str, path: &Path) -> Finding {
         let Ok(meta) = std::fs::metadata(path) else {
             return bad(Status::Missing, format!("{area}: {shown} not present"), "");
@@ -141,16 +142,69 @@ impl User<'_> {
         let by_group = mode & 0o060 == 0o060 && self.groups.contains(&group);
         let by_others = mode & 0o006 == 0o006;
         let what = format!("{area}: {shown} (group {group}, mode {:o})", mode & 0o777);
-        match by_group || by_others {
-            true => ok(what),
-            false => bad(
-                Status::Wrong,
-                what,
-                format!("usermod -aG {group} {}, then restart the unit", self.name),
-            ),
+        if by_group || by_others {
+            return ok(what);
         }
+        let fix = if PRIVILEGED_GROUPS.contains(&group.as_str()) {
+            self.udev_advice(area, &group, path)
+        } else if mode & 0o060 != 0o060 {
+            format!(
+                "its group {group} cannot read and write it (mode {:o}): a udev rule can set \
+                 MODE=\"0660\" (docs/deploy.md, udev rules); then usermod -aG {group} {}, \
+                 then restart the unit",
+                mode & 0o777,
+                self.name
+            )
+        } else {
+            format!("usermod -aG {group} {}, then restart the unit", self.name)
+        };
+        bad(Status::Wrong, what, fix)
+    }
+
+    /// The advice for a device only a privileged group can reach: never that group; a udev
+    /// rule that gives the device to the group made for its kind.
+    fn udev_advice(&self, area: &str, group: &str, path: &Path) -> String {
+        let kernel = (std::fs::canonicalize(path).ok())
+            .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_default();
+        let (subsystem, right) = match area {
+            "serial" => ("tty", "dialout"),
+            "gpio" => ("gpio", "gpio"),
+            _ => ("input", "input"),
+        };
+        let join = match self.groups.contains(right) {
+            true => String::new(),
+            false => format!("usermod -aG {right} {}, ", self.name),
+        };
+        format!(
+            "only {group}'s group can reach it, and {group} gives far more than a device: never \
+             add {} to it. Give the device to {right} with a udev rule, e.g. in \
+             /etc/udev/rules.d/90-rove.rules: SUBSYSTEM==\"{subsystem}\", KERNEL==\"{kernel}\", \
+             GROUP=\"{right}\", MODE=\"0660\"; then udevadm control --reload && udevadm \
+             trigger, {join}then restart the unit",
+            self.name
+        )
     }
 }
+
+/// Groups whose members can do far more than use one device (root's own, the administrators',
+/// raw disks and memory, the logs, container runtimes that start root processes): `rove
+/// doctor` never tells the service user to join one.
+const PRIVILEGED_GROUPS: [&str; 13] = [
+    "root",
+    "sudo",
+    "wheel",
+    "admin",
+    "adm",
+    "disk",
+    "kmem",
+    "shadow",
+    "staff",
+    "docker",
+    "lxd",
+    "libvirt",
+    "systemd-journal",
+];
 
 /// Every check for `user` on the computer under `roots`, and for `config` if given.
 pub fn check(roots: &Roots, user: &str, config: Option<&AnyConfig>) -> Vec<Finding> {

@@ -85,14 +85,18 @@ fn a_pi_with_pwm_serial_and_groups_is_reported_and_the_configs_needs_checked() {
         throttle.to_string().contains("has 2 channels"),
         "{throttle}"
     );
-    // Mode 0600: no access through the group; told, but not needed by this config.
+    // Only root reaches it: told how to give it to dialout, never to join root; not needed by
+    // this config.
     let serial = line(&found, "serial: /dev/ttyAMA0");
     assert_eq!(serial.status, Status::Ok);
+    let advice = serial.to_string();
+    assert!(advice.contains("not needed by the config"), "{advice}");
     assert!(
-        serial
-            .to_string()
-            .contains("not needed by the config; usermod -aG root rove")
+        advice.contains("GROUP=\"dialout\"") && advice.contains("KERNEL==\"ttyAMA0\""),
+        "{advice}"
     );
+    assert!(advice.contains("usermod -aG dialout rove"), "{advice}");
+    assert!(!advice.contains("-aG root"), "{advice}");
 
     assert_eq!(line(&found, "can: can0 (down)").status, Status::Ok);
     assert!(!found.iter().any(|f| f.what.starts_with("can: eth0")));
@@ -157,6 +161,45 @@ fn what_a_config_needs_and_the_computer_lacks_is_missing_or_wrong_with_the_fix()
     put(&roots, "/etc/group", "dialout:x:0:rove\n", 0o644);
     let found = check(&roots, "rove", Some(&serial));
     assert_eq!(line(&found, "serial: /dev/ttyACM0").status, Status::Ok);
+}
+
+/// `rove doctor` never advises joining a group that gives more than the device; where only
+/// such a group reaches the device, it points at a udev rule and the device's own group.
+#[test]
+fn advice_never_names_a_privileged_group() {
+    let roots = tree("privileged");
+    let serial = vehicle(
+        &roots,
+        "[output]\nadapter = \"mavlink\"\nconnection = \"serial:/dev/ttyUSB0:57600\"\n",
+    );
+    put(&roots, "/dev/ttyUSB0", "", 0o660);
+    for group in PRIVILEGED_GROUPS {
+        put(&roots, "/etc/group", &format!("{group}:x:0:\n"), 0o644);
+        let found = check(&roots, "rove", Some(&serial));
+        let port = line(&found, "serial: /dev/ttyUSB0");
+        let advice = port.to_string();
+        assert_eq!(port.status, Status::Wrong, "{advice}");
+        assert!(!advice.contains(&format!("-aG {group}")), "{advice}");
+        assert!(advice.contains("udev"), "{advice}");
+        assert!(advice.contains("usermod -aG dialout rove"), "{advice}");
+    }
+    // Already in dialout: the rule alone.
+    put(
+        &roots,
+        "/etc/group",
+        "root:x:0:\ndialout:x:20:rove\n",
+        0o644,
+    );
+    let found = check(&roots, "rove", Some(&serial));
+    let advice = line(&found, "serial: /dev/ttyUSB0").to_string();
+    assert!(advice.contains("GROUP=\"dialout\""), "{advice}");
+    assert!(!advice.contains("usermod"), "{advice}");
+    // A device group without group write: the mode, not only the membership.
+    put(&roots, "/etc/group", "dialout:x:0:\n", 0o644);
+    put(&roots, "/dev/ttyUSB0", "", 0o600);
+    let found = check(&roots, "rove", Some(&serial));
+    let advice = line(&found, "serial: /dev/ttyUSB0").to_string();
+    assert!(advice.contains("MODE=\"0660\""), "{advice}");
 }
 
 #[test]

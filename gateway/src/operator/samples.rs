@@ -68,6 +68,8 @@ impl<N: Net> Role<N> {
                 mode: Some(status.mode),
                 failsafe: status.failsafe,
                 link: crate::status::output_text(status),
+                output: status.output,
+                health: status.health.clone(),
             });
         }
     }

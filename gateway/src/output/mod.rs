@@ -127,6 +127,11 @@ impl ManagedOutput {
         self.adapter.as_ref().is_some_and(|a| a.held_safe())
     }
 
+    /// What the device says of the vehicle (nothing while the adapter is closed).
+    pub fn telemetry(&self) -> rove_core::adapter::Telemetry {
+        (self.adapter.as_ref()).map_or_else(Default::default, |a| a.telemetry())
+    }
+
     /// When [`ManagedOutput::tick`] has work: the end of a hold, or the adapter's keep-alive.
     pub fn next_deadline(&self) -> Option<MonoTime> {
         let keepalive = self.adapter.as_ref().and(self.next_keepalive);

@@ -37,6 +37,8 @@ pub struct OutputReport {
     pub stale: u64,
     /// The adapter holds the outputs safe by its own decision (an autopilot refused a mode).
     pub held_safe: bool,
+    /// What the device says of the vehicle (battery, autopilot), as of its last call.
+    pub telemetry: rove_core::adapter::Telemetry,
 }
 
 impl std::fmt::Display for OutputReport {
@@ -67,6 +69,7 @@ struct WorkerState {
     health: Health,
     detail: Option<String>,
     held_safe: bool,
+    telemetry: rove_core::adapter::Telemetry,
     stop: bool,
     done: bool,
 }
@@ -91,6 +94,7 @@ impl WorkerShared {
         state.health = output.health();
         state.detail = output.detail();
         state.held_safe = output.held_safe();
+        state.telemetry = output.telemetry();
     }
 }
 
@@ -139,6 +143,7 @@ impl OutputWorker {
                 health: Health::Down("opening".into()),
                 detail: None,
                 held_safe: false,
+                telemetry: Default::default(),
                 stop: false,
                 done: false,
             }),
@@ -203,6 +208,7 @@ impl OutputWorker {
             hung: running.filter(|r| *r > self.limits.deadline),
             stale: state.stale,
             held_safe: state.held_safe,
+            telemetry: state.telemetry.clone(),
         }
     }
 

@@ -191,7 +191,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             arbiter,
             output,
             log,
-            status: StatusWatch::new(me),
+            status: StatusWatch::new(me, config.battery_low_pct),
             suspects: Suspects::default(),
             hung: HungWatch::new(config.output_hung_limit),
             notify,
@@ -274,7 +274,8 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
     /// VehicleStatus, if it changed.
     fn publish_status(&mut self) {
         let report = self.output.report();
-        if let Some(status) = self.status.changed(&self.arbiter, &report) {
+        let now = self.clock.now();
+        if let Some(status) = self.status.changed(&self.arbiter, &report, now) {
             self.net.publish_status(status);
         }
     }

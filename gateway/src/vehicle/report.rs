@@ -16,36 +16,59 @@ pub(super) struct StatusWatch {
     me: i64,
     /// The mode last applied.
     pub(super) mode: rove_core::msg::Mode,
+    /// `[vehicle] battery_low_pct`.
+    battery_low_pct: u8,
     last: Option<VehicleStatus>,
+    /// When `last` was published.
+    last_at: rove_core::MonoTime,
 }
 
+/// Health-only changes (a battery that drains, a link age that grows) are published at most
+/// this often; anything else at once.
+pub(super) const HEALTH_PERIOD: Duration = Duration::from_secs(1);
+
 impl StatusWatch {
-    pub(super) fn new(me: i64) -> StatusWatch {
+    pub(super) fn new(me: i64, battery_low_pct: u8) -> StatusWatch {
         StatusWatch {
             me,
             mode: rove_core::msg::Mode::Manual,
+            battery_low_pct,
             last: None,
+            last_at: rove_core::MonoTime::ZERO,
         }
     }
 
-    /// The status to publish, if it changed.
+    /// The status to publish at `now`, if it changed: at once when more than its health
+    /// changed, else at most once per [`HEALTH_PERIOD`].
     pub(super) fn changed(
         &mut self,
         arbiter: &Arbiter,
         report: &OutputReport,
+        now: rove_core::MonoTime,
     ) -> Option<&VehicleStatus> {
-        let status = vehicle_status(self.me, arbiter, self.mode, report);
-        if self.last.as_ref() == Some(&status) {
-            return None;
+        let mut status = vehicle_status(self.me, arbiter, self.mode, report);
+        let pct = status.health.battery_pct;
+        status.health.battery_low = (0..=i16::from(self.battery_low_pct)).contains(&pct);
+        if let Some(last) = &self.last {
+            let health_only = VehicleStatus {
+                health: status.health.clone(),
+                ..last.clone()
+            } == status;
+            let recent = now.saturating_since(self.last_at) < HEALTH_PERIOD;
+            if *last == status || (health_only && recent) {
+                return None;
+            }
         }
         self.last = Some(status);
+        self.last_at = now;
         self.last.as_ref()
     }
 }
 
 /// What VehicleStatus says: the owner, the mode last applied, whether the outputs are safe
 /// (the failsafe owns them, the output is down, or the adapter holds them safe itself: an
-/// autopilot that refused the owner's mode; issue 30), and the output's health.
+/// autopilot that refused the owner's mode; issue 30), the output's health, and what its
+/// device says of the vehicle (battery, autopilot; `battery_low` is the caller's to judge).
 pub(super) fn vehicle_status(
     me: i64,
     arbiter: &Arbiter,
@@ -73,6 +96,22 @@ pub(super) fn vehicle_status(
             Some(hung) => format!("a device call has not returned for {} s", hung.as_secs()),
             None => report.to_string(),
         },
+        health: health(report),
+    }
+}
+
+/// The wire's health from the output's telemetry: unknown parts as the wire spells them.
+fn health(report: &OutputReport) -> rove_core::msg::VehicleHealth {
+    let t = &report.telemetry;
+    rove_core::msg::VehicleHealth {
+        battery_mv: (t.battery_mv).map_or(-1, |mv| i32::try_from(mv).unwrap_or(i32::MAX)),
+        battery_pct: t.battery_pct.map_or(-1, |p| i16::from(p.min(100))),
+        battery_low: false,
+        autopilot_mode: t.autopilot_mode.clone().unwrap_or_default(),
+        armed: t.armed.unwrap_or(false),
+        link_age_ms: (t.link_age)
+            .map_or(-1, |age| i32::try_from(age.as_millis()).unwrap_or(i32::MAX)),
+        held: report.held_safe,
     }
 }
 
@@ -244,6 +283,7 @@ mod tests {
             hung: None,
             stale: 0,
             held_safe: false,
+            telemetry: Default::default(),
         };
         let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
         let t = MonoTime::ZERO;
@@ -296,12 +336,77 @@ mod tests {
             hung: None,
             stale: 0,
             held_safe: false,
+            telemetry: Default::default(),
         };
         let driving = vehicle_status(100, &arbiter, rove_core::msg::Mode::Auto, &report);
         assert_eq!((driving.controller_id, driving.failsafe), (11, false));
         report.held_safe = true;
         let held = vehicle_status(100, &arbiter, rove_core::msg::Mode::Auto, &report);
         assert_eq!((held.controller_id, held.failsafe), (11, true));
+        assert!(held.health.held, "the hold is the output's own decision");
+    }
+
+    /// The autopilot's battery and mode go out in VehicleStatus; a change of health alone at
+    /// most once per [`HEALTH_PERIOD`], any other change at once; low at the configured level.
+    #[test]
+    fn health_is_published_on_change_at_most_once_a_second() {
+        use rove_core::adapter::Telemetry;
+        let mut arbiter = Arbiter::new(100, ArbiterConfig::default());
+        let mut watch = StatusWatch::new(100, 25);
+        let mut report = OutputReport {
+            describe: "mavlink".into(),
+            health: rove_core::adapter::Health::Ok,
+            detail: None,
+            hung: None,
+            stale: 0,
+            held_safe: false,
+            telemetry: Telemetry {
+                battery_mv: Some(11_400),
+                battery_pct: Some(26),
+                autopilot_mode: Some("HOLD".into()),
+                armed: Some(false),
+                link_age: Some(Duration::from_millis(300)),
+            },
+        };
+        let at = |ms| MonoTime::from_millis(ms);
+        let first = watch.changed(&arbiter, &report, at(0)).cloned();
+        let health = first.map(|s| s.health).expect("the first status goes out");
+        assert_eq!(
+            (health.battery_mv, health.battery_pct, health.battery_low),
+            (11_400, 26, false)
+        );
+        assert_eq!(
+            (health.autopilot_mode.as_str(), health.link_age_ms),
+            ("HOLD", 300)
+        );
+        // Health alone: held back until a second has passed, then sent with the newest values.
+        report.telemetry.battery_pct = Some(25);
+        assert!(watch.changed(&arbiter, &report, at(500)).is_none());
+        report.telemetry.link_age = Some(Duration::from_millis(800));
+        let later = watch.changed(&arbiter, &report, at(1_000)).cloned();
+        let health = later.map(|s| s.health).expect("a second later");
+        assert_eq!((health.battery_pct, health.battery_low), (25, true));
+        assert_eq!(health.link_age_ms, 800);
+        // An owner change goes out at once, with the health as it is.
+        let writer = WriterId {
+            participant: ParticipantId(1),
+            entity: 1,
+        };
+        report.telemetry.battery_pct = Some(24);
+        arbiter.step(at(1_100), sample(writer, 11, 220, at(1_100)));
+        let owned = watch.changed(&arbiter, &report, at(1_100)).cloned();
+        assert_eq!(
+            owned.map(|s| (s.controller_id, s.health.battery_pct)),
+            Some((11, 24))
+        );
+        assert!(
+            watch.changed(&arbiter, &report, at(1_200)).is_none(),
+            "unchanged"
+        );
+        // Nothing known: the wire's unknown values, never low.
+        report.telemetry = Telemetry::default();
+        let unknown = vehicle_status(100, &arbiter, rove_core::msg::Mode::Manual, &report);
+        assert_eq!(unknown.health, rove_core::msg::VehicleHealth::UNKNOWN);
     }
 
     #[test]
@@ -314,6 +419,7 @@ mod tests {
             hung: hung_ms.map(Duration::from_millis),
             stale: 0,
             held_safe: false,
+            telemetry: Default::default(),
         };
         assert!(watch.keepalive(&report(None)));
         assert!(watch.keepalive(&report(Some(60))));

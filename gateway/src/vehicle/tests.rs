@@ -87,6 +87,7 @@ impl Outputs for Recorder {
             hung: None,
             stale: 0,
             held_safe: false,
+            telemetry: Default::default(),
         }
     }
     fn stop(self, _: Duration) -> bool {

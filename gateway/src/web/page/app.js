@@ -10,8 +10,8 @@ const TOKEN_KEY = "rove.token";
 
 const $ = (id) => document.getElementById(id);
 const state = {
-  me: null, devices: new Map(), owner: new Map(), status: new Map(), streams: {},
-  selected: null, prompt: null, offlineAfter: 3000, tOffset: 0,
+  me: null, devices: new Map(), owner: new Map(), status: new Map(), standing: new Map(),
+  streams: {}, selected: null, prompt: null, offlineAfter: 3000, tOffset: 0,
 };
 // For tests and the curious: the socket's state and when a finger last moved a stick.
 // `drop()` closes the socket as a radio loss would (tests, diagnostics).
@@ -99,6 +99,7 @@ function onEvent(e) {
     case "device_gone": { const d = state.devices.get(e.id); if (d) d.gone = true; break; }
     case "owner": state.owner.set(e.vehicle, e.to); break;
     case "vehicle_status": state.status.set(e.vehicle, e); break;
+    case "standing": state.standing.set(e.vehicle, e); break;
     case "driving": state.streams = e; break;
     case "selected": state.selected = e.vehicle; break;
     case "request_incoming": state.prompt = { ...e, until: performance.now() + e.timeout_ms }; break;
@@ -135,6 +136,12 @@ function online(d) { return !d.gone && nowMs() - d.seen < state.offlineAfter; }
 
 function notice(text) { $("notice").textContent = text; }
 
+function batteryText(id) {
+  const h = (state.status.get(id) || {}).health;
+  if (!h || !h.battery) return "";
+  return h.battery_low ? `LOW ${h.battery}` : h.battery;
+}
+
 function banner(kind, text) {
   const b = $("banner");
   b.className = `banner ${kind}`;
@@ -157,9 +164,11 @@ function render() {
     st.className = "state";
     let text = online(d) ? "online" : "offline";
     if (d.kind === "vehicle") {
-      const owner = state.owner.get(id);
-      const fs = state.status.get(id);
-      text += owner === me ? " · you drive" : owner === id || (fs && fs.failsafe) ? " · failsafe" : ` · ${label(owner)}`;
+      // Where it stands, in the operator's words (the `standing` event; docs/api.md).
+      const where = state.standing.get(id);
+      if (where) { text = where.text; li.classList.toggle("offline", where.state === "offline"); }
+      const battery = batteryText(id);
+      if (battery) text += ` · ${battery}`;
       onTap(li, () => command("select", { vehicle: id }));
     } else if (id === me) {
       text += " · this device";
@@ -169,15 +178,18 @@ function render() {
     list.append(li);
   }
   const v = state.selected;
-  if (v == null) {
-    banner("standby", "STANDING BY · select a vehicle");
-  } else {
-    const owner = state.owner.get(v);
-    const fs = state.status.get(v);
-    if (owner === me && !(fs && fs.failsafe)) banner("drive", `YOU DRIVE ${label(v)}`);
-    else if (owner === v || (fs && fs.failsafe)) banner("failsafe", `FAILSAFE · ${label(v)} is stopped`);
-    else banner("standby", `STANDING BY · ${label(v)} is driven by ${label(owner)}`);
-  }
+  const where = v == null ? null : state.standing.get(v);
+  if (v == null) banner("standby", "select a vehicle");
+  else if (!where) banner("standby", `${label(v)}: …`);
+  else banner(where.state === "driving" ? "drive" : where.safe ? "failsafe" : "standby", `${label(v)}: ${where.text}`);
+  // Every low battery the operator can see, as the terminal's header says it.
+  const shown = (s) => (state.standing.get(s.vehicle) || {}).state !== "offline";
+  const low = [...state.status.values()].filter((s) => s.health && s.health.battery_low && shown(s))
+    .map((s) => `LOW BATTERY ${label(s.vehicle)}: ${s.health.battery}`);
+  $("warn").hidden = low.length === 0;
+  $("warn").textContent = low.join(" · ");
+  const h = v == null ? null : (state.status.get(v) || {}).health;
+  $("health").textContent = h ? [h.battery && `battery ${h.battery}`, h.autopilot && `autopilot ${h.autopilot}`].filter(Boolean).join(" · ") : "";
   if (!window.rove.connected) banner("standby", "connecting…");
   const p = state.prompt;
   $("prompt").hidden = !p;
