@@ -662,7 +662,15 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
         "",
         "name = \"phone-web\"\ndevice_class = \"tablet\"",
     );
-    let browser = Browser::start(&rig, PHONE_VIEW, 9517);
+    // ROVE_WEB_VIEW=tablet: the same story on a tablet (screenshots for the docs).
+    let tablet = std::env::var("ROVE_WEB_VIEW").is_ok_and(|v| v == "tablet");
+    let (view, shots) = if tablet {
+        (TABLET_VIEW, "tablet")
+    } else {
+        (PHONE_VIEW, "phone")
+    };
+    let browser = Browser::start(&rig, view, 9517);
+    let shot = |name: &str| browser.screenshot(&format!("web-{shots}-{name}.png"));
     pair(&browser, &rig, "phone-web");
     // The banner names the vehicle and its standing; the list entry starts with the same words.
     let says = |what: &str, words: &str| {
@@ -675,24 +683,24 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
     browser.wait_text("the autopilot's mode and battery", "#health", |h| {
         h.contains("autopilot HOLD disarmed") && h.contains("battery 1")
     });
-    browser.screenshot("web-phone-state-failsafe.png");
+    shot("state-failsafe");
 
     let (x, y) = browser.centre("#left");
     let since = wall_us();
     browser.finger_down((x, y));
     wait_for_output(&record, Some(PHONE), since).expect("a finger on a stick drives");
     says("the phone drives", "YOU DRIVE");
-    browser.screenshot("web-phone-state-driving.png");
+    shot("state-driving");
 
     let strong = rig.operator(13, "mobile", "phone", &[VEHICLE], 0, "", &[]);
     says("a stronger operator takes over", "outranked by op13 (13)");
-    browser.screenshot("web-phone-state-outranked.png");
+    shot("state-outranked");
     browser.finger_up();
     says(
         "the finger lifts",
         "paused · input not live · owner op13 (13)",
     );
-    browser.screenshot("web-phone-state-paused.png");
+    shot("state-paused");
     rig.procs[strong].crash();
     says(
         "the stronger one is gone",
@@ -709,7 +717,7 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
         "the autopilot refused AUTO",
         &format!("held by autopilot · owner you ({PHONE})"),
     );
-    browser.screenshot("web-phone-state-held.png");
+    shot("state-held");
 
     // The battery drains below 30 %: a warning, whatever else the page shows.
     browser.wait_text("a low battery", "#warn", |w| {
@@ -717,7 +725,7 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
     });
     let entry = browser.text(&format!("#devices li[data-id='{VEHICLE}'] .state"));
     assert!(entry.contains(" · LOW 1"), "{entry}");
-    browser.screenshot("web-phone-low-battery.png");
+    shot("low-battery");
     browser.finger_up();
 }
 

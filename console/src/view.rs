@@ -897,6 +897,11 @@ mod tests {
                 s.apply(ms(800), e);
             }
             let (text, header, row) = header_and_row(&s, ms(1_000));
+            // `--nocapture` shows each screen (docs/console.md has them).
+            eprintln!(
+                "== {name}\n{}",
+                text.lines().take(10).collect::<Vec<_>>().join("\n")
+            );
             assert!(
                 header.contains(&format!("selected: rover-1 (100): {words}")),
                 "{name}: header\n{text}"
@@ -940,6 +945,10 @@ mod tests {
             },
         );
         let text = screen(&s, ms(1_000));
+        eprintln!(
+            "== low battery\n{}",
+            text.lines().take(10).collect::<Vec<_>>().join("\n")
+        );
         assert!(
             line_with(&text, "selected:").contains("LOW BATTERY rover-2 (101): 10.2V 8%"),
             "{text}"
