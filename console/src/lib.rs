@@ -15,7 +15,7 @@
 //!
 //! # Layout
 //! - [`model`]: [`ConsoleState`] and [`Event`]: pure, time injected, no I/O.
-//! - [`standing`]: where a vehicle stands for this operator ([`Standing`]), derived once and
+//! - [`mod@standing`]: where a vehicle stands for this operator ([`Standing`]), derived once and
 //!   shown the same by every front end.
 //! - [`command`]: [`Command`], the single interface for keys, buttons and API clients.
 //! - [`keys`]: keys and joystick buttons → commands, with on-screen confirmation.

@@ -231,7 +231,7 @@ async fn hub_task(
     }
 }
 
-/// The `standing` of each vehicle as last sent to clients ([`crate::standing`]).
+/// The `standing` of each vehicle as last sent to clients ([`mod@crate::standing`]).
 #[derive(Default)]
 struct Standings {
     sent: std::collections::BTreeMap<DeviceId, String>,
