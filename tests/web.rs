@@ -718,6 +718,19 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
         &format!("held by autopilot · owner you ({PHONE})"),
     );
     shot("state-held");
+    // `rove status` says the same: held, with the autopilot's own mode (not the one asked for).
+    let row = rove_testkit::eventually("rove status says held", || {
+        let status = rig.status();
+        match Rig::device(&status, VEHICLE) {
+            Some(d) if d["standing"] == "held" => Ok(d),
+            _ => Err(status),
+        }
+    });
+    assert_eq!(row["failsafe"], true, "{row}");
+    assert_eq!(row["controller_id"], PHONE, "{row}");
+    assert_eq!(row["health"]["held"], true, "{row}");
+    assert_ne!(row["health"]["autopilot_mode"], "AUTO", "{row}");
+    eprintln!("rove status while held: {row}");
 
     // The battery drains below 30 %: a warning, whatever else the page shows.
     browser.wait_text("a low battery", "#warn", |w| {
