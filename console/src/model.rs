@@ -266,6 +266,18 @@ pub struct VehicleView {
 }
 
 impl VehicleView {
+    /// A vehicle whose DeviceInfo names `owner`, before any status report.
+    pub fn new(owner: DeviceId) -> VehicleView {
+        VehicleView {
+            owner,
+            mode: None,
+            failsafe: false,
+            link: None,
+            output: None,
+            health: VehicleHealth::UNKNOWN,
+        }
+    }
+
     /// The outputs are in the safe state: the vehicle's failsafe owns it (`owner` is its own
     /// id), or a status report says so (e.g. its output link is down).
     pub fn in_failsafe(&self, vehicle: DeviceId) -> bool {
@@ -547,14 +559,7 @@ impl ConsoleState {
         device.vehicle = match (kind, device.vehicle.take()) {
             (DeviceKind::Controller, _) => None,
             (DeviceKind::Vehicle, Some(v)) => Some(VehicleView { owner, ..v }),
-            (DeviceKind::Vehicle, None) => Some(VehicleView {
-                owner,
-                mode: None,
-                failsafe: false,
-                link: None,
-                output: None,
-                health: VehicleHealth::UNKNOWN,
-            }),
+            (DeviceKind::Vehicle, None) => Some(VehicleView::new(owner)),
         };
         if self.selected.is_none() && kind == DeviceKind::Vehicle {
             self.selected = Some(id);

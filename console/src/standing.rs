@@ -176,21 +176,13 @@ impl ConsoleState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rove_core::msg::VehicleHealth;
 
     const V: DeviceId = 100;
     const ME: DeviceId = 11;
     const PHONE: DeviceId = 12;
 
     fn view(owner: DeviceId) -> VehicleView {
-        VehicleView {
-            owner,
-            mode: None,
-            failsafe: false,
-            link: None,
-            output: None,
-            health: VehicleHealth::UNKNOWN,
-        }
+        VehicleView::new(owner)
     }
 
     /// Every combination of role, owner and vehicle state gives exactly one standing, and the
