@@ -563,7 +563,8 @@ fn the_autopilots_battery_mode_and_link_age_reach_rove_status() {
     assert_eq!(h["battery_low"], pct <= 30, "{first}");
     assert_eq!(first["standing"], "failsafe", "{first}");
     let low = row("the battery low", &|h| h["battery_low"] == true);
-    assert!(low["health"]["battery_pct"].as_u64() <= Some(30), "{low}");
+    let pct = low["health"]["battery_pct"].as_u64();
+    assert!(matches!(pct, Some(p) if p <= 30), "{low}");
     assert!(
         (low["health"]["battery"].as_str()).is_some_and(|b| b.contains("V ") && b.ends_with('%')),
         "{low}"

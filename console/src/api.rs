@@ -286,6 +286,7 @@ pub fn event_json(stamped: &Stamped) -> Option<String> {
         Event::DeviceGone { id } => json!({ "event": "device_gone", "id": id }),
         Event::VehicleStatus {
             vehicle,
+            owner: _,
             mode,
             failsafe,
             link,

@@ -141,6 +141,8 @@ pub enum Event {
     VehicleStatus {
         /// The vehicle.
         vehicle: DeviceId,
+        /// The owner this status was published under (VehicleStatus's `controller_id`).
+        owner: DeviceId,
         /// Its current mode, if known.
         mode: Option<Mode>,
         /// Its outputs are in the safe state.
@@ -259,6 +261,9 @@ pub struct VehicleView {
     pub failsafe: bool,
     /// Output-link health, if a status report gave it.
     pub link: Option<String>,
+    /// The owner the last status report was published under: its `failsafe` describes that
+    /// owner's time (DeviceInfo and VehicleStatus are two topics and arrive in either order).
+    pub status_owner: Option<DeviceId>,
     /// The output's state, if a status report gave it.
     pub output: Option<OutputState>,
     /// What its device says of the vehicle (unknown until a status report says).
@@ -273,6 +278,7 @@ impl VehicleView {
             mode: None,
             failsafe: false,
             link: None,
+            status_owner: None,
             output: None,
             health: VehicleHealth::UNKNOWN,
         }
@@ -432,6 +438,7 @@ impl ConsoleState {
             }
             Event::VehicleStatus {
                 vehicle,
+                owner,
                 mode,
                 failsafe,
                 link,
@@ -446,6 +453,7 @@ impl ConsoleState {
                     v.mode = mode;
                     v.failsafe = failsafe;
                     v.link = Some(link);
+                    v.status_owner = Some(owner);
                     v.output = Some(output);
                     v.health = health;
                 }
@@ -695,6 +703,7 @@ impl ConsoleState {
             {
                 events.push(at_now(Event::VehicleStatus {
                     vehicle: d.id,
+                    owner: v.status_owner.unwrap_or(v.owner),
                     mode: v.mode,
                     failsafe: v.failsafe,
                     link: link.clone(),

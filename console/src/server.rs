@@ -211,8 +211,10 @@ async fn hub_task(
             event = events.recv() => match event {
                 Ok(stamped) => {
                     let line = event_json(&stamped);
+                    // Input reports come at the stream rate and move no vehicle's standing.
+                    let input = matches!(stamped.event, crate::model::Event::Input(_));
                     mirror.apply(stamped.at, stamped.event);
-                    let changed = standings.changed(&mirror);
+                    let changed = if input { Vec::new() } else { standings.changed(&mirror) };
                     for line in line.into_iter().chain(changed) {
                         clients.retain_mut(|c| c.deliver(line.clone()));
                     }

@@ -54,7 +54,8 @@ pub enum Standing {
 pub enum Hold {
     /// The output holds them by its own decision: an autopilot refused the operator's mode.
     Autopilot,
-    /// The output is down (its device is gone) or hung (a call has not returned).
+    /// The output is down (its device is gone or does not answer). (A hung output is not
+    /// safe: its outputs cannot change at all; the LINK column says so.)
     Output,
 }
 
@@ -63,7 +64,9 @@ pub enum Hold {
 ///
 /// Order: an offline vehicle is offline; outputs that are safe are said first (the failsafe
 /// owns it, or something holds them), since that is what the vehicle does; then the owner
-/// against this operator's role.
+/// against this operator's role. A status's `failsafe` is believed only for the owner it was
+/// published under: the owner (DeviceInfo) and the status are two topics, and a takeover from
+/// the failsafe must not read as "held" until the new owner's status arrives.
 pub fn standing(
     vehicle: DeviceId,
     online: bool,
@@ -78,14 +81,15 @@ pub fn standing(
     if owner == vehicle {
         return Standing::Failsafe;
     }
-    if view.failsafe {
+    if view.failsafe && view.status_owner == Some(owner) {
         let by = match view.health.held && view.output != Some(OutputState::Down) {
             true => Hold::Autopilot,
             false => Hold::Output,
         };
         return Standing::Held { owner, by };
     }
-    if Some(owner) == me {
+    // Paused: the release is on its way, the vehicle still names us for a moment.
+    if Some(owner) == me && role != Some(MyRole::Paused) {
         return Standing::Driving {
             grant: role == Some(MyRole::Holding),
         };
@@ -203,6 +207,10 @@ mod tests {
             let mut held = view(PHONE);
             held.failsafe = true;
             held.health.held = true;
+            // A status of the previous owner's time says nothing of this one.
+            held.status_owner = Some(V);
+            assert_ne!(s(&held, true).kind(), "held");
+            held.status_owner = Some(PHONE);
             let autopilot = Standing::Held {
                 owner: PHONE,
                 by: Hold::Autopilot,
@@ -217,12 +225,13 @@ mod tests {
                 }
             );
             let mine = s(&view(ME), true);
-            assert_eq!(
-                mine,
-                Standing::Driving {
-                    grant: role == Some(MyRole::Holding)
-                }
-            );
+            let expected = match role {
+                Some(MyRole::Paused) => Standing::Paused { owner: ME },
+                _ => Standing::Driving {
+                    grant: role == Some(MyRole::Holding),
+                },
+            };
+            assert_eq!(mine, expected);
             let other = s(&view(PHONE), true);
             let expected = match role {
                 None => Standing::StandingBy { owner: PHONE },

@@ -842,6 +842,7 @@ mod tests {
             health.held = true;
             VehicleStatus {
                 vehicle: 100,
+                owner: 1,
                 mode: Some(Mode::Auto),
                 failsafe: true,
                 link: "degraded: AUTO refused".into(),
@@ -937,6 +938,7 @@ mod tests {
             ms(800),
             Event::VehicleStatus {
                 vehicle: 101,
+                owner: 7,
                 mode: Some(Mode::Manual),
                 failsafe: false,
                 link: "ok".into(),

@@ -281,6 +281,7 @@ fn snapshot(
                     mode: status.map(|v| v.mode),
                     failsafe: status.is_some_and(|v| v.failsafe),
                     link: status.map(output_text),
+                    status_owner: status.map(|v| v.controller_id),
                     output: status.map(|v| v.output),
                     health: status.map(|v| v.health.clone()).unwrap_or_default(),
                 };

@@ -617,6 +617,10 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                     .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
             };
             let known = s.autopilot.map(|a| (a.system_id, a.component_id));
+            if known != Some((info.system_id, info.component_id)) {
+                // Another autopilot: the last one's battery is not this one's.
+                s.battery = None;
+            }
             s.autopilot = Some(info);
             s.last_heartbeat = Some(Instant::now());
             drop(s);

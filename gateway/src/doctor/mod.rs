@@ -148,12 +148,14 @@ impl User<'_> {
         let fix = if PRIVILEGED_GROUPS.contains(&group.as_str()) {
             self.udev_advice(area, &group, path)
         } else if mode & 0o060 != 0o060 {
+            let join = match self.groups.contains(&group) {
+                true => String::new(),
+                false => format!("usermod -aG {group} {}, ", self.name),
+            };
             format!(
                 "its group {group} cannot read and write it (mode {:o}): a udev rule can set \
-                 MODE=\"0660\" (docs/deploy.md, udev rules); then usermod -aG {group} {}, \
-                 then restart the unit",
-                mode & 0o777,
-                self.name
+                 MODE=\"0660\" (docs/deploy.md, udev rules); then {join}restart the unit",
+                mode & 0o777
             )
         } else {
             format!("usermod -aG {group} {}, then restart the unit", self.name)
@@ -188,9 +190,10 @@ impl User<'_> {
 }
 
 /// Groups whose members can do far more than use one device (root's own, the administrators',
-/// raw disks and memory, the logs, container runtimes that start root processes): `rove
+/// raw disks and memory, every terminal (`tty`: a Pi's serial console is `root:tty`), the logs,
+/// container runtimes that start root processes): `rove
 /// doctor` never tells the service user to join one.
-const PRIVILEGED_GROUPS: [&str; 13] = [
+const PRIVILEGED_GROUPS: [&str; 14] = [
     "root",
     "sudo",
     "wheel",
@@ -200,6 +203,7 @@ const PRIVILEGED_GROUPS: [&str; 13] = [
     "kmem",
     "shadow",
     "staff",
+    "tty",
     "docker",
     "lxd",
     "libvirt",

@@ -65,6 +65,7 @@ impl<N: Net> Role<N> {
         if self.session.speaks_for(now, status.vehicle_id, from) {
             self.ui.emit(Event::VehicleStatus {
                 vehicle: status.vehicle_id,
+                owner: status.controller_id,
                 mode: Some(status.mode),
                 failsafe: status.failsafe,
                 link: crate::status::output_text(status),

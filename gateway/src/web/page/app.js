@@ -93,7 +93,10 @@ function onEvent(e) {
     return;
   }
   switch (e.event) {
-    case "hello": state.offlineAfter = e.offline_after_ms; state.tOffset = performance.now() - e.t_ms; break;
+    case "hello":
+      // A (re)connection: the snapshot that follows is the whole state.
+      for (const m of [state.devices, state.owner, state.status, state.standing]) m.clear();
+      state.offlineAfter = e.offline_after_ms; state.tOffset = performance.now() - e.t_ms; break;
     case "identity": state.me = e; $("me").textContent = `${e.name} (${e.id}) · ${e.level} ${e.class} · strength ${e.strength}`; break;
     case "device": state.devices.set(e.id, { ...e, seen: e.t_ms, gone: false }); if (e.kind === "vehicle") state.owner.set(e.id, e.owner); break;
     case "device_gone": { const d = state.devices.get(e.id); if (d) d.gone = true; break; }
@@ -165,7 +168,7 @@ function render() {
     let text = online(d) ? "online" : "offline";
     if (d.kind === "vehicle") {
       // Where it stands, in the operator's words (the `standing` event; docs/api.md).
-      const where = state.standing.get(id);
+      const where = online(d) ? state.standing.get(id) : null;
       if (where) { text = where.text; li.classList.toggle("offline", where.state === "offline"); }
       const battery = batteryText(id);
       if (battery) text += ` · ${battery}`;
@@ -183,7 +186,8 @@ function render() {
   else if (!where) banner("standby", `${label(v)}: …`);
   else banner(where.state === "driving" ? "drive" : where.safe ? "failsafe" : "standby", `${label(v)}: ${where.text}`);
   // Every low battery the operator can see, as the terminal's header says it.
-  const shown = (s) => (state.standing.get(s.vehicle) || {}).state !== "offline";
+  const shown = (s) => state.devices.has(s.vehicle) && online(state.devices.get(s.vehicle))
+    && (state.standing.get(s.vehicle) || {}).state !== "offline";
   const low = [...state.status.values()].filter((s) => s.health && s.health.battery_low && shown(s))
     .map((s) => `LOW BATTERY ${label(s.vehicle)}: ${s.health.battery}`);
   $("warn").hidden = low.length === 0;
