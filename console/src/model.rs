@@ -257,7 +257,8 @@ pub struct VehicleView {
     pub owner: DeviceId,
     /// Mode, if a status report gave one.
     pub mode: Option<Mode>,
-    /// A status report says its outputs are in the safe state (see [`VehicleView::in_failsafe`]).
+    /// A status report says its outputs are in the safe state (believed for `status_owner`'s
+    /// time only: [`crate::standing::standing`]).
     pub failsafe: bool,
     /// Output-link health, if a status report gave it.
     pub link: Option<String>,
@@ -282,12 +283,6 @@ impl VehicleView {
             output: None,
             health: VehicleHealth::UNKNOWN,
         }
-    }
-
-    /// The outputs are in the safe state: the vehicle's failsafe owns it (`owner` is its own
-    /// id), or a status report says so (e.g. its output link is down).
-    pub fn in_failsafe(&self, vehicle: DeviceId) -> bool {
-        self.failsafe || self.owner == vehicle
     }
 }
 
@@ -863,12 +858,7 @@ pub(crate) mod tests {
                 (1, 7, "reported by the vehicle")
             ]
         );
-        assert!(
-            !s.devices[&100]
-                .vehicle
-                .as_ref()
-                .is_some_and(|v| v.in_failsafe(100))
-        );
+        assert!(s.standing(100).is_some_and(|st| !st.is_safe()));
     }
 
     #[test]

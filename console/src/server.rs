@@ -243,8 +243,8 @@ impl Standings {
     /// Every vehicle's `standing` line now (for a client that just joined).
     fn all(&self, state: &ConsoleState) -> Vec<String> {
         (state.vehicles())
-            .filter_map(|d| Some((d.id, state.standing(d.id)?)))
-            .map(|(v, s)| standing_json(state.now, v, &s, &s.text(|id| state.label(id))))
+            .filter_map(|d| Some((d.id, state.standing_text(d.id)?)))
+            .map(|(v, (s, text))| standing_json(state.now, v, &s, &text))
             .collect()
     }
 
@@ -252,10 +252,9 @@ impl Standings {
     fn changed(&mut self, state: &ConsoleState) -> Vec<String> {
         let mut lines = Vec::new();
         for d in state.vehicles() {
-            let Some(s) = state.standing(d.id) else {
+            let Some((s, text)) = state.standing_text(d.id) else {
                 continue;
             };
-            let text = s.text(|id| state.label(id));
             if self.sent.get(&d.id) != Some(&text) {
                 lines.push(standing_json(state.now, d.id, &s, &text));
                 self.sent.insert(d.id, text);

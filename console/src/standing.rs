@@ -170,10 +170,11 @@ impl ConsoleState {
         Some(standing(vehicle, device.online, view, Some(me), role))
     }
 
-    /// [`ConsoleState::standing`] in words, as every console shows it.
-    pub fn standing_text(&self, vehicle: DeviceId) -> Option<String> {
+    /// [`ConsoleState::standing`] with its words, as every console shows them.
+    pub fn standing_text(&self, vehicle: DeviceId) -> Option<(Standing, String)> {
         let s = self.standing(vehicle)?;
-        Some(s.text(|id| self.label(id)))
+        let text = s.text(|id| self.label(id));
+        Some((s, text))
     }
 }
 

@@ -69,10 +69,7 @@ pub fn rows(state: &ConsoleState, now: MonoTime) -> Vec<DeviceRow> {
         .devices
         .values()
         .map(|d| {
-            let standing = (state.standing(d.id)).map(|s| {
-                let text = s.text(|id| state.label(id));
-                (s, text)
-            });
+            let standing = state.standing_text(d.id);
             DeviceRow {
                 id: d.id,
                 name: d.name.clone(),
@@ -335,13 +332,9 @@ fn header_widget(state: &ConsoleState, now: MonoTime) -> Paragraph<'static> {
     };
     let selected = match state.selected {
         None => Span::raw("none"),
-        Some(v) => match state.standing(v) {
-            Some(standing) => Span::styled(
-                format!(
-                    "{}: {}",
-                    state.label(v),
-                    standing.text(|id| state.label(id))
-                ),
+        Some(v) => match state.standing_text(v) {
+            Some((standing, text)) => Span::styled(
+                format!("{}: {text}", state.label(v)),
                 standing_style(&standing),
             ),
             None => Span::raw(state.label(v)),
@@ -910,7 +903,8 @@ mod tests {
             assert!(row.contains(words), "{name}: row\n{text}");
             let drives = header.contains("you drive: rover-1 (100)");
             assert_eq!(drives, words == "YOU DRIVE", "{name}\n{text}");
-            assert_eq!(s.standing_text(100).as_deref(), Some(words), "{name}");
+            let text = s.standing_text(100).map(|(_, text)| text);
+            assert_eq!(text.as_deref(), Some(words), "{name}");
         }
         // Offline, as time passes.
         let mut s = script();

@@ -273,6 +273,7 @@ fn snapshot(
         .values()
         .map(|s| {
             let status = vehicles.get(&s.info.device_id);
+            let output = status.map(output_text);
             let online = !s.withdrawn && s.at.elapsed() < offline_after;
             let view = (s.info.device_type == DeviceType::Vehicle).then(|| {
                 let id = s.info.device_id;
@@ -280,7 +281,7 @@ fn snapshot(
                     owner: s.info.controller_id,
                     mode: status.map(|v| v.mode),
                     failsafe: status.is_some_and(|v| v.failsafe),
-                    link: status.map(output_text),
+                    link: output.clone(),
                     status_owner: status.map(|v| v.controller_id),
                     output: status.map(|v| v.output),
                     health: status.map(|v| v.health.clone()).unwrap_or_default(),
@@ -298,7 +299,7 @@ fn snapshot(
                 online,
                 last_seen_ms: u64::try_from(s.at.elapsed().as_millis()).unwrap_or(u64::MAX),
                 mode: status.map(|v| mode_name(v.mode)),
-                output: status.map(output_text),
+                output,
                 failsafe: status.map(|v| v.failsafe),
                 standing: view.as_ref().map(|(st, _)| st.kind()),
                 standing_text: (view.as_ref()).map(|(st, _)| st.text(|id| label(seen, id))),
