@@ -533,13 +533,7 @@ fn the_autopilots_battery_mode_and_link_age_reach_rove_status() {
     let output = format!("[vehicle]\nbattery_low_pct = 30\n{}", mavlink_output(14552));
     rig.vehicle_with_output(V, &output);
     let row = |what: &str, want: &dyn Fn(&Value) -> bool| {
-        rove_testkit::eventually(what, || {
-            let status = rig.status();
-            match Rig::device(&status, V) {
-                Some(d) if want(&d["health"]) => Ok(d),
-                _ => Err(status),
-            }
-        })
+        rig.device_when(what, V, |d| want(&d["health"]))
     };
     let first = row("the battery in rove status", &|h| h["battery_pct"].is_u64());
     eprintln!("{first}");

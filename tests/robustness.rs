@@ -95,12 +95,8 @@ fn a_vehicle_stopped_and_continued_applies_no_backlog_and_hears_its_owner_again(
         );
     }
     // Its DDS is alive both ways: the network still sees it, driven by the laptop.
-    eventually("the vehicle seen driven by the laptop", || {
-        let status = rig.status();
-        match Rig::device(&status, V) {
-            Some(v) if v["controller_id"] == 11 => Ok(()),
-            _ => Err(status),
-        }
+    rig.device_when("the vehicle seen driven by the laptop", V, |v| {
+        v["controller_id"] == 11
     });
 }
 

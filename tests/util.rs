@@ -79,6 +79,18 @@ impl Rig {
         })
     }
 
+    /// `rove status --json`'s row of device `id`, once it satisfies `want` (`what` names the
+    /// wait if it never does).
+    pub fn device_when(&self, what: &str, id: i64, want: impl Fn(&Value) -> bool) -> Value {
+        eventually(what, || {
+            let status = self.status();
+            match Rig::device(&status, id) {
+                Some(d) if want(&d) => Ok(d),
+                _ => Err(status),
+            }
+        })
+    }
+
     /// The device row of `id` in a status snapshot.
     pub fn device(status: &Value, id: i64) -> Option<Value> {
         status["devices"]

@@ -719,12 +719,8 @@ fn the_page_says_where_the_vehicle_stands_and_warns_of_a_low_battery() {
     );
     shot("state-held");
     // `rove status` says the same: held, with the autopilot's own mode (not the one asked for).
-    let row = rove_testkit::eventually("rove status says held", || {
-        let status = rig.status();
-        match Rig::device(&status, VEHICLE) {
-            Some(d) if d["standing"] == "held" => Ok(d),
-            _ => Err(status),
-        }
+    let row = rig.device_when("rove status says held", VEHICLE, |d| {
+        d["standing"] == "held"
     });
     assert_eq!(row["failsafe"], true, "{row}");
     assert_eq!(row["controller_id"], PHONE, "{row}");
