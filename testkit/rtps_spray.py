@@ -7,6 +7,7 @@ on and sends to that namespace's `lo`, and nothing leaves it.
     rtps_spray.py capture --seconds S --out FILE [--max-datagrams N] [--max-bytes B]
     rtps_spray.py spray --capture FILE --rate R --seconds S [--mode MODE] [--seed N]
                         [--max-datagrams N]
+    rtps_spray.py forge --capture FILE --kind KIND [--count N] [--every S]
 
 `capture` reads every frame on `lo` through an AF_PACKET socket (needs root) and keeps the
 UDP/IPv4 datagrams whose payload starts with b"RTPS". On `lo` each datagram passes twice, as
@@ -34,6 +35,19 @@ up by the next ones rather than lost. Mutations, by --mode:
               0x80000000, 0 or 0x7FFFFFFF (little-endian, rove's and rustdds's wire order)
     truncate  a datagram cut short at a random length (sometimes inside the header)
     mixed     each datagram one of the four above, chosen at random (the default)
+
+`forge` sends, for every participant whose SPDP announcement (DATA(p)) is in the capture, a
+forged announcement to where the original went (`--count` times, `--every` seconds apart):
+
+    --kind lease0   the participant's own announcement with its lease set to 0 s: "forget me
+                    at once"
+    --kind goodbye  its announcement turned into a goodbye (no payload; inline QoS KEY_HASH of
+                    the participant, STATUS_INFO disposed and unregistered)
+    --sn same       under the announcement's own sequence number: a repeat of one already seen
+    --sn new        under a sequence number above it (1000 for lease0, 2000 for goodbye): as
+                    a real one looks
+
+It prints one JSON line {"forged": N, "participants": [PREFIX hex...], "kind": KIND, "sn": SN}.
 
 Everything random comes from --seed (default 29), so a run can be repeated. At the end it prints
 one JSON line {"sent": N, "errors": E, "seconds": S, "rate": N / S, "mode": MODE, "seed": SEED,
@@ -245,6 +259,123 @@ def spray(args) -> None:
     print(json.dumps(summary), flush=True)
 
 
+# ---------------------------------------------------------------------------------------------
+# forge
+
+SPDP_WRITER = bytes.fromhex("000100c2")
+DATA = 0x15
+PID_SENTINEL = 0x0001
+PID_PARTICIPANT_LEASE_DURATION = 0x0002
+PID_KEY_HASH = 0x0070
+PID_STATUS_INFO = 0x0071
+FORGE_KINDS = ("lease0", "goodbye")
+# How far above the announcement's a new sequence number is, by kind (each forgery a number
+# of its own, so that one does not repeat another's).
+NEW_SN_STEP = {"lease0": 1000, "goodbye": 2000}
+
+
+def spdp_announcements(records):
+    """{guid prefix: (destinations, datagram, offset of the DATA submessage)} for the SPDP
+    DATA(p) in little-endian datagrams of a capture (rustdds's; the last one per prefix)."""
+    found = {}
+    for address, payload in records:
+        at = RTPS_HEADER
+        while at + 4 <= len(payload):
+            kind, flags, length = payload[at], payload[at + 1], payload[at + 2 : at + 4]
+            if not flags & 1:
+                break  # big-endian: not what rustdds sends
+            length = struct.unpack("<H", length)[0]
+            body = at + 4
+            if kind == DATA and payload[body + 8 : body + 12] == SPDP_WRITER:
+                prefix = payload[8:20]
+                destinations, _, _ = found.get(prefix, (set(), None, None))
+                destinations.add(address)
+                found[prefix] = (destinations, payload, at)
+            if length == 0:
+                break
+            at = body + length
+    return found
+
+
+def forged(kind: str, new_sn: bool, payload: bytes, at: int) -> bytes:
+    """The forged datagram of `kind` from an SPDP announcement whose DATA starts at `at`, under
+    its sequence number or (`new_sn`) a new one."""
+    flags = payload[at + 1]
+    body = at + 4
+    to_inline_qos = struct.unpack_from("<H", payload, body + 2)[0]
+    sn_high, sn_low = struct.unpack_from("<iI", payload, body + 12)
+    if new_sn:
+        sn_low += NEW_SN_STEP[kind]
+    if kind == "lease0":
+        out = bytearray(payload)
+        struct.pack_into("<iI", out, body + 12, sn_high, sn_low)
+        if flags & 0x02:
+            raise SystemExit("forge: an announcement with inline QoS is not expected")
+        params = body + 4 + to_inline_qos + 4  # past the encapsulation header
+        end = body + struct.unpack_from("<H", payload, at + 2)[0]
+        while params + 4 <= end:
+            pid, plen = struct.unpack_from("<HH", out, params)
+            if pid == PID_SENTINEL:
+                break
+            if pid == PID_PARTICIPANT_LEASE_DURATION:
+                struct.pack_into("<iI", out, params + 4, 0, 0)
+                return bytes(out)
+            params += 4 + plen
+        raise SystemExit("forge: no lease in the announcement")
+    key_hash = payload[8:20] + bytes.fromhex("000001c1")
+    inline_qos = (
+        struct.pack("<HH", PID_KEY_HASH, 16)
+        + key_hash
+        + struct.pack("<HH", PID_STATUS_INFO, 4)
+        + bytes([0, 0, 0, 3])
+        + struct.pack("<HH", PID_SENTINEL, 0)
+    )
+    # extraFlags, octetsToInlineQos (16: reader id, writer id, sequence number), reader id,
+    # writer id, sequence number, inline QoS; flags: little-endian and inline QoS, no data.
+    data_body = (
+        struct.pack("<HH", 0, 16)
+        + payload[body + 4 : body + 12]
+        + struct.pack("<iI", sn_high, sn_low)
+        + inline_qos
+    )
+    submessage = bytes([DATA, 0x03]) + struct.pack("<H", len(data_body)) + data_body
+    return payload[:RTPS_HEADER] + submessage
+
+
+def forge(args) -> None:
+    records = read_capture(args.capture)
+    announcements = spdp_announcements(records)
+    if not announcements:
+        raise SystemExit(f"{args.capture}: no SPDP announcement to forge from")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+    datagrams = [
+        (forged(args.kind, args.sn == "new", payload, at), destinations)
+        for destinations, payload, at in announcements.values()
+    ]
+    sent = 0
+    for n in range(args.count):
+        if n:
+            time.sleep(args.every)
+        for datagram, destinations in datagrams:
+            for address in sorted(destinations):
+                sock.sendto(datagram, address)
+                sent += 1
+    print(
+        json.dumps(
+            {
+                "forged": sent,
+                "participants": sorted(p.hex() for p in announcements),
+                "kind": args.kind,
+                "sn": args.sn,
+            }
+        ),
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -260,7 +391,18 @@ def main() -> None:
     spr.add_argument("--mode", choices=MODES + ("mixed",), default="mixed")
     spr.add_argument("--seed", type=int, default=29)
     spr.add_argument("--max-datagrams", type=int, default=50_000_000)
+    frg = sub.add_parser("forge", help="send forged SPDP announcements of the captured peers")
+    frg.add_argument("--capture", required=True)
+    frg.add_argument("--kind", choices=FORGE_KINDS, required=True)
+    frg.add_argument("--sn", choices=("same", "new"), required=True)
+    frg.add_argument("--count", type=int, default=1)
+    frg.add_argument("--every", type=float, default=0.5)
     args = parser.parse_args()
+    if args.command == "forge":
+        if not 1 <= args.count <= 100 or not 0 <= args.every <= 10:
+            parser.error("--count must be in [1, 100] and --every in [0, 10]")
+        forge(args)
+        return
     if args.seconds <= 0 or args.seconds > 3600:
         parser.error("--seconds must be in (0, 3600]")
     if args.command == "capture":

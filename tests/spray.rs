@@ -231,9 +231,9 @@ fn outputs_between(record: &Path, from_us: u64, to_us: u64) -> (Vec<String>, u64
     (wrong, max_gap, inside.len())
 }
 
-fn spray_a_driving_fleet(test: &str, secured: bool) {
-    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
-    let mut rig = Rig::new(test);
+/// Laptop 11 driving vehicle 100 (sim output) in `rig`, their RTPS traffic captured from before
+/// they start (discovery included): the vehicle's output record and the capture.
+fn captured_driving_fleet(rig: &mut Rig, secured: bool) -> (PathBuf, PathBuf) {
     let fleet: Option<PathBuf> =
         secured.then(|| rig.fleet(&[V, LAPTOP]).expect("rove keys for 100 and 11"));
     let security = |id| rove_gateway::tools::harness::security_toml(fleet.as_deref(), id);
@@ -242,7 +242,7 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
     let capture = rig.dir.join("fleet.cap");
     let capture_arg = capture.to_str().expect("utf-8 path").to_string();
     let mut capturing = sprayer(
-        &rig,
+        rig,
         &[
             "capture",
             "--seconds",
@@ -259,12 +259,21 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
         "rtps_spray.py capture: {first:?}"
     );
 
-    let record = laptop_drives_sim(&mut rig, V, &security(V), &security(LAPTOP));
+    let record = laptop_drives_sim(rig, V, &security(V), &security(LAPTOP));
     let captured = summary(capturing, capture_out);
     assert!(
         captured["captured"].as_u64().unwrap_or(0) > 0,
         "nothing captured: {captured}"
     );
+    eprintln!("capture: {captured}");
+    (record, capture)
+}
+
+fn spray_a_driving_fleet(test: &str, secured: bool) {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    let mut rig = Rig::new(test);
+    let (record, capture) = captured_driving_fleet(&mut rig, secured);
+    let capture_arg = capture.to_str().expect("utf-8 path").to_string();
 
     let (vehicle_pid, laptop_pid) = (rig.procs[0].pid(), rig.procs[1].pid());
     limit_address_space("vehicle", vehicle_pid, HEADROOM_KIB);
@@ -339,8 +348,8 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
         .flatten();
     let (wrong, max_gap_us, outputs) = outputs_between(&record, spray_start, spray_end);
     let report = format!(
-        "{} fleet, capture {captured}; sprayed {sprayed}; {}; {}; {outputs} outputs during the \
-         spray, largest gap {:.1} ms, {} not from the laptop; the laptop drives after it: {}",
+        "{} fleet; sprayed {sprayed}; {}; {}; {outputs} outputs during the spray, largest gap \
+         {:.1} ms, {} not from the laptop; the laptop drives after it: {}",
         if secured { "secured" } else { "unsecured" },
         memory[0].describe(),
         memory[1].describe(),
@@ -377,4 +386,120 @@ fn spray_a_driving_fleet(test: &str, secured: bool) {
         max_gap_us as f64 / 1000.0
     );
     assert!(after.is_some(), "the laptop no longer drives: {report}");
+}
+
+/// `rtps_spray.py forge --kind KIND ARGS` against the capture, to its end; its JSON line.
+fn forge(rig: &Rig, capture: &Path, kind: &str, args: &[&str]) -> Value {
+    let capture = capture.to_str().expect("utf-8 path");
+    let mut all = vec!["forge", "--capture", capture, "--kind", kind];
+    all.extend_from_slice(args);
+    let mut child = sprayer(rig, &all);
+    let out = BufReader::new(child.stdout.take().expect("piped"));
+    let forged = summary(child, out);
+    assert!(
+        forged["forged"].as_u64().unwrap_or(0) > 0,
+        "nothing forged: {forged}"
+    );
+    forged
+}
+
+/// How long the test watches for a forged announcement's effect after the last one, µs: more
+/// than rustdds's participant cleanup period (2 s), the tick at which a lease believed to have
+/// run out drops the participant, and than the grace a goodbye waits (1 s).
+const WATCH_US: u64 = 5_000_000;
+
+/// A live peer's own SPDP announcement, forged with its lease set to 0 or as a goodbye, under
+/// its own or a new sequence number, must not drop that peer (ROVE-PATCH.md §16). A corrupt copy
+/// of an announcement is such a forgery, and they made the random spray fail now and then: the
+/// vehicle dropped the laptop's participant with its writers, went to the failsafe, and never
+/// matched the laptop again. Forged here for both participants, three times each, while the
+/// laptop streams, and it drives throughout. Before §16 the new sequence numbers did it: 0 s of
+/// lease believed, a goodbye taken at once.
+#[test]
+fn a_live_peers_announcement_forged_with_lease_0_or_as_a_goodbye_changes_nothing() {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    let mut rig = Rig::new("forged-spdp");
+    let (record, capture) = captured_driving_fleet(&mut rig, false);
+    for (kind, sn) in [
+        ("lease0", "same"),
+        ("lease0", "new"),
+        ("goodbye", "same"),
+        ("goodbye", "new"),
+    ] {
+        let start = wall_us();
+        let args = ["--sn", sn, "--count", "3", "--every", "0.5"];
+        let forged = forge(&rig, &capture, kind, &args);
+        let participants = forged["participants"].as_array().map_or(0, Vec::len);
+        assert!(participants >= 2, "forged for fewer than both: {forged}");
+        let watched = wall_us() + WATCH_US;
+        let _ = wait_for_output(&record, Some(LAPTOP), watched);
+        let (wrong, max_gap_us, outputs) = outputs_between(&record, start, watched);
+        eprintln!(
+            "{kind} under the {sn} sequence number: {forged}; {outputs} outputs in {:.1} s, \
+             largest gap {:.1} ms",
+            (watched - start) as f64 / 1e6,
+            max_gap_us as f64 / 1000.0
+        );
+        assert!(
+            wrong.is_empty(),
+            "after a forged {kind} ({sn} sequence number), outputs not from the laptop: {wrong:?}"
+        );
+        assert!(
+            max_gap_us <= MAX_GAP_US,
+            "after a forged {kind} ({sn} sequence number), a gap of {:.1} ms between outputs",
+            max_gap_us as f64 / 1000.0
+        );
+    }
+}
+
+/// How long a participant may take to announce itself again, µs: rustdds's SPDP period is 10 s.
+const ANNOUNCEMENT_US: u64 = 10_000_000;
+
+/// A goodbye from a peer that then stays silent is believed, forged or not: here the laptop is
+/// stopped (SIGSTOP, as an overloaded board might be) when its goodbye is forged, and the vehicle
+/// drops it. Continued, the laptop streams again, and when it next announces itself its
+/// endpoints come back (ROVE-PATCH.md §16) and it drives again. Before, they never did: the
+/// vehicle stayed in failsafe while its operator lived and streamed.
+#[test]
+fn an_operator_dropped_on_a_forged_goodbye_drives_again_at_its_next_announcement() {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    let mut rig = Rig::new("forged-goodbye");
+    let (record, capture) = captured_driving_fleet(&mut rig, false);
+    assert!(rig.procs[1].signal("-STOP"), "kill -STOP the laptop");
+    let forged = forge(&rig, &capture, "goodbye", &["--sn", "new"]);
+    let deadline = Instant::now() + PATIENCE;
+    while !rig
+        .log_of("vehicle-100")
+        .contains("participant of a command writer lost")
+    {
+        if Instant::now() > deadline {
+            let _ = rig.procs[1].signal("-CONT");
+            panic!("the vehicle did not believe the stopped laptop's forged goodbye ({forged})");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let continued = wall_us();
+    assert!(rig.procs[1].signal("-CONT"), "kill -CONT the laptop");
+    let deadline = Instant::now() + Duration::from_micros(ANNOUNCEMENT_US) + PATIENCE;
+    let again = loop {
+        if let Ok(out) = wait_for_output(&record, Some(LAPTOP), continued) {
+            break out;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the laptop never drove again after the forged goodbye ({forged}); last outputs: \
+             {:?}",
+            records(&record).iter().rev().take(3).collect::<Vec<_>>()
+        );
+    };
+    eprintln!(
+        "goodbye (new sequence number) forged while the laptop was stopped: {forged}; the laptop \
+         drove again {:.2} s after it was continued",
+        (again.wall_us - continued) as f64 / 1e6
+    );
+    let log = rig.log_of("vehicle-100");
+    assert!(
+        log.contains("found again"),
+        "no restored endpoints in the vehicle's log: {log}"
+    );
 }

@@ -123,11 +123,15 @@ pub enum Discovery {
     WriterLost {
         /// The writer.
         guid: GUID,
+        /// Why discovery says so, for the log.
+        why: String,
     },
     /// A participant left (goodbye, or its lease ran out).
     ParticipantLost {
         /// The participant.
         participant: ParticipantId,
+        /// Why discovery says so, for the log.
+        why: String,
     },
 }
 
@@ -143,16 +147,33 @@ impl Discovery {
                     strength: strength_of(writer.qos.ownership())?,
                 })
             }
-            DomainParticipantStatusEvent::WriterLost { guid, .. } => {
-                Some(Discovery::WriterLost { guid: *guid })
+            DomainParticipantStatusEvent::WriterLost { guid, reason } => {
+                Some(Discovery::WriterLost {
+                    guid: *guid,
+                    why: lost_why(reason),
+                })
             }
-            DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+            DomainParticipantStatusEvent::ParticipantLost { id, reason } => {
                 Some(Discovery::ParticipantLost {
                     participant: participant_id(id.as_ref()),
+                    why: lost_why(reason),
                 })
             }
             _ => None,
         }
+    }
+}
+
+/// Why discovery lost something, in words for the log.
+fn lost_why(reason: &rustdds::LostReason) -> String {
+    use rustdds::LostReason;
+    match reason {
+        LostReason::Disposed => "disposed by its participant".into(),
+        LostReason::Timeout { lease, elapsed } => format!(
+            "lease of {:?} ran out ({:?} since last heard)",
+            lease.to_std(),
+            elapsed.to_std()
+        ),
     }
 }
 

@@ -186,10 +186,12 @@ fn discovery_event(discovery: Discovery) -> SessionEvent {
             writer: dds::writer_id(guid),
             strength,
         },
-        Discovery::WriterLost { guid } => SessionEvent::WriterLost {
+        Discovery::WriterLost { guid, .. } => SessionEvent::WriterLost {
             writer: dds::writer_id(guid),
         },
-        Discovery::ParticipantLost { participant } => SessionEvent::ParticipantGone { participant },
+        Discovery::ParticipantLost { participant, .. } => {
+            SessionEvent::ParticipantGone { participant }
+        }
     }
 }
 

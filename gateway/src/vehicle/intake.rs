@@ -2,7 +2,7 @@
 
 use crate::dds::{self, Domain, KeyedControlCommand};
 use crate::runtime::RateLimited;
-use rove_core::arbiter::Event;
+use rove_core::arbiter::{Event, ParticipantId};
 use rove_core::freshness::Freshness;
 use rustdds::with_key::Sample;
 use std::collections::HashMap;
@@ -57,9 +57,15 @@ impl Intake {
         }
     }
 
-    pub(super) fn forget(&mut self, writer: rustdds::GUID) {
-        self.strengths.remove(&writer);
+    /// Forgets a writer; whether its strength was known (it was a command writer).
+    pub(super) fn forget(&mut self, writer: rustdds::GUID) -> bool {
         self.freshness.forget(dds::writer_id(writer));
+        self.strengths.remove(&writer).is_some()
+    }
+
+    /// Whether a command writer of `participant` is known.
+    pub(super) fn drives_from(&self, participant: ParticipantId) -> bool {
+        (self.strengths.keys()).any(|&w| dds::writer_id(w).participant == participant)
     }
 
     /// The events of a batch of samples, in order.

@@ -97,13 +97,18 @@ impl Dds {
                 self.intake.learn(guid, strength);
                 Vec::new()
             }
-            Some(Discovery::WriterLost { guid }) => {
-                self.intake.forget(guid);
+            Some(Discovery::WriterLost { guid, why }) => {
+                if self.intake.forget(guid) {
+                    tracing::info!(writer = %dds::writer_id(guid), why, "command writer lost");
+                }
                 vec![Event::WriterGone {
                     writer: dds::writer_id(guid),
                 }]
             }
-            Some(Discovery::ParticipantLost { participant }) => {
+            Some(Discovery::ParticipantLost { participant, why }) => {
+                if self.intake.drives_from(participant) {
+                    tracing::info!(%participant, why, "participant of a command writer lost");
+                }
                 vec![Event::ParticipantGone { participant }]
             }
         }

@@ -1,6 +1,7 @@
 use std::{
+  collections::HashMap,
   sync::{Arc, RwLock},
-  time::Duration as StdDuration,
+  time::{Duration as StdDuration, Instant},
 };
 
 #[allow(unused_imports)]
@@ -193,6 +194,8 @@ enum DiscoveryTimerEvent {
     reschedule: bool,
   },
   ParticipantCleanup,
+  // rove patch (ROVE-PATCH.md §16): the goodbyes heard GOODBYE_GRACE ago are due.
+  GoodbyeCheck,
   TopicCleanup,
   PublishParticipantMessage,
   #[cfg(feature = "security")]
@@ -228,6 +231,10 @@ pub(crate) struct Discovery {
 
   // rove patch (ROVE-PATCH.md §6): a quick SPDP response is scheduled and not sent yet.
   spdp_reply_pending: bool,
+
+  // rove patch (ROVE-PATCH.md §16): unsecured goodbyes waiting to be believed, and
+  // when each was heard.
+  pending_goodbyes: HashMap<GuidPrefix, Instant>,
 
   participant_status_sender: StatusChannelSender<DomainParticipantStatusEvent>,
 
@@ -675,6 +682,7 @@ impl Discovery {
 
       liveliness_state: LivelinessState::new(),
       spdp_reply_pending: false,
+      pending_goodbyes: HashMap::new(),
 
       // discovery_subscriber,
       // discovery_publisher,
@@ -887,6 +895,7 @@ impl Discovery {
                     DiscoveryTimerEvent::ParticipantCleanup,
                   );
                 }
+                DiscoveryTimerEvent::GoodbyeCheck => self.check_goodbyes(),
                 DiscoveryTimerEvent::TopicCleanup => {
                   self.topic_cleanup();
                   self.discovery_timer.borrow_mut().set_timeout(
@@ -1022,7 +1031,7 @@ impl Discovery {
               }
               // Sample::Dispose means that DomainParticipant was disposed
               Sample::Dispose(participant_guid) => {
-                self.process_participant_dispose(participant_guid.0.prefix);
+                self.participant_goodbye(participant_guid.0.prefix);
               }
             }
           } else {
@@ -1081,6 +1090,37 @@ impl Discovery {
         dpd: participant_data.into(),
       });
 
+      // rove patch (ROVE-PATCH.md §16): a participant found again (its loss was a
+      // lease we believed ran out, or a forged goodbye) gets back the endpoints
+      // the database restored from the attic; before, they went back into the
+      // database but no local endpoint matched them again, and the participant's
+      // reliable discovery writers do not resend what we had acknowledged. What
+      // changed meanwhile follows: our discovery readers ask it from the start,
+      // and its writers now serve such a request. Under DDS Security the
+      // endpoints wait for authentication and the secure discovery instead.
+      if !self.is_secured() {
+        let (writers, readers) =
+          discovery_db_read(&self.discovery_db).endpoints_of(guid_prefix);
+        if !writers.is_empty() || !readers.is_empty() {
+          warn!(
+            "participant {guid_prefix:?} found again after it was dropped: {} writers and {} \
+             readers restored (ROVE-PATCH.md §16)",
+            writers.len(),
+            readers.len()
+          );
+        }
+        for discovered_reader_data in readers {
+          self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
+            discovered_reader_data,
+          });
+        }
+        for discovered_writer_data in writers {
+          self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
+            discovered_writer_data,
+          });
+        }
+      }
+
       // Send a quick response to make discovery faster.
       //
       // RTPS spec v2.5 Section "8.5.3.1 General Approach" [to SPDP] says
@@ -1116,8 +1156,81 @@ impl Discovery {
     }
   }
 
+  /// rove patch (ROVE-PATCH.md §16): whether DDS Security is configured.
+  fn is_secured(&self) -> bool {
+    #[cfg(feature = "security")]
+    return self.security_opt.is_some();
+    #[cfg(not(feature = "security"))]
+    return false;
+  }
+
+  /// rove patch (ROVE-PATCH.md §16): how long an unsecured goodbye waits to be
+  /// believed, and how long after it the participant's own traffic in flight
+  /// may still arrive without making it a lie.
+  const GOODBYE_GRACE: StdDuration = StdDuration::from_secs(1);
+  const GOODBYE_ECHO: StdDuration = StdDuration::from_millis(50);
+  /// The most goodbyes waiting at once (one per known participant at most).
+  const MAX_PENDING_GOODBYES: usize = 1024;
+
+  /// rove patch (ROVE-PATCH.md §16): unsecured, a goodbye is anyone's to forge
+  /// (a peer's own announcement with one flag byte flipped reads as one), and
+  /// dropping a live participant drops every match with it. A participant that
+  /// leaves falls silent, so the goodbye is believed GOODBYE_GRACE later unless
+  /// the participant was heard after it (any message counts, see the message
+  /// receiver). Secured, goodbyes are authenticated and act at once.
+  fn participant_goodbye(&mut self, participant_guidp: GuidPrefix) {
+    if self.is_secured() {
+      self.process_participant_dispose(participant_guidp);
+      return;
+    }
+    if discovery_db_read(&self.discovery_db)
+      .find_participant_proxy(participant_guidp)
+      .is_none()
+      || self.pending_goodbyes.contains_key(&participant_guidp)
+      || self.pending_goodbyes.len() >= Self::MAX_PENDING_GOODBYES
+    {
+      return;
+    }
+    self.pending_goodbyes.insert(participant_guidp, Instant::now());
+    self
+      .discovery_timer
+      .borrow_mut()
+      .set_timeout(Self::GOODBYE_GRACE, DiscoveryTimerEvent::GoodbyeCheck);
+  }
+
+  /// rove patch (ROVE-PATCH.md §16): the goodbyes whose grace ended are believed,
+  /// unless their participant spoke after them.
+  fn check_goodbyes(&mut self) {
+    let now = Instant::now();
+    let due: Vec<(GuidPrefix, Instant)> = (self.pending_goodbyes.iter())
+      .filter(|(_, at)| now.duration_since(**at) >= Self::GOODBYE_GRACE)
+      .map(|(p, at)| (*p, *at))
+      .collect();
+    for (prefix, at) in due {
+      self.pending_goodbyes.remove(&prefix);
+      let heard = discovery_db_read(&self.discovery_db).last_heard(prefix);
+      match heard {
+        Some(heard) if heard > at + Self::GOODBYE_ECHO => {
+          info!(
+            "goodbye of participant {prefix:?} not believed: it spoke {:?} after it (ROVE-PATCH.md \
+             §16)",
+            heard.duration_since(at)
+          );
+        }
+        Some(_) => self.process_participant_dispose(prefix),
+        None => {} // gone meanwhile (its lease, or another goodbye)
+      }
+    }
+  }
+
   fn process_participant_dispose(&mut self, participant_guidp: GuidPrefix) {
-    discovery_db_write(&self.discovery_db).remove_participant(participant_guidp, true); // true = actively removed
+    // rove patch (ROVE-PATCH.md §16): unsecured, a goodbye may still be forged
+    // (while the participant is silent), so its endpoints go to the attic as after
+    // a timeout, and its next announcement restores them. One that truly left
+    // never announces its GUID prefix again. Secured, a goodbye is authenticated
+    // and removes them.
+    let removed_for_good = self.is_secured();
+    discovery_db_write(&self.discovery_db).remove_participant(participant_guidp, removed_for_good);
     self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost {
       guid_prefix: participant_guidp,
     });

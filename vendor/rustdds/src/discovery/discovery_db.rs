@@ -101,6 +101,15 @@ fn move_by_guid_prefix<D>(
   }
 }
 
+// rove patch (ROVE-PATCH.md §16): the attic holds at most MAX_REMOTE_ENDPOINTS of
+// a kind; beyond, the entries of the lowest GUIDs go (any will do: the attic only
+// speeds up the return of a participant whose loss was not real).
+fn trim_attic<D>(attic: &mut BTreeMap<GUID, D>) {
+  while attic.len() > MAX_REMOTE_ENDPOINTS {
+    attic.pop_first();
+  }
+}
+
 // rove patch (ROVE-PATCH.md §11): bounds on what remotes can make this database
 // remember. Far above a rove fleet (tens of participants, a handful of endpoints
 // each; `rove bench scale` runs 64 processes); far below what hurts a 1 GiB board
@@ -189,6 +198,20 @@ impl DiscoveryDB {
     {
       data.lease_duration = Some(Duration::from(StdDuration::from_secs(MAX_PARTICIPANT_LEASE_S)));
     }
+    // rove patch (ROVE-PATCH.md §16): a participant's lease is a constant of the
+    // participant, so a known participant keeps the lease it first announced. An
+    // unsecured announcement is anyone's to forge: one copy of a peer's own
+    // announcement with the lease set to 0 (the SPDP reader takes duplicates)
+    // made the next cleanup drop that live peer, its writers and their matches.
+    if let Some(known) = self.participant_proxies.get(&guid.prefix) {
+      if known.lease_duration != data.lease_duration {
+        debug!(
+          "{:?} announced lease {:?}, keeping {:?} (ROVE-PATCH.md §16)",
+          guid.prefix, data.lease_duration, known.lease_duration
+        );
+        data.lease_duration = known.lease_duration;
+      }
+    }
     let data = &data;
 
     // sanity check
@@ -243,6 +266,11 @@ impl DiscoveryDB {
     new_participant
   }
 
+  /// rove patch (ROVE-PATCH.md §16): when the participant was last heard from.
+  pub fn last_heard(&self, guid_prefix: GuidPrefix) -> Option<Instant> {
+    self.participant_last_life_signs.get(&guid_prefix).copied()
+  }
+
   pub fn participant_is_alive(&mut self, guid_prefix: GuidPrefix) {
     if let Some(ts) = self.participant_last_life_signs.get_mut(&guid_prefix) {
       let now = Instant::now();
@@ -283,7 +311,27 @@ impl DiscoveryDB {
         &mut self.external_topic_writers,
         &mut self.external_topic_writers_attic,
       );
+      // rove patch (ROVE-PATCH.md §16): bounded; before, every participant that
+      // timed out left its endpoints here for ever.
+      trim_attic(&mut self.external_topic_readers_attic);
+      trim_attic(&mut self.external_topic_writers_attic);
     }
+  }
+
+  /// rove patch (ROVE-PATCH.md §16): the endpoints known of a participant, as
+  /// discovery reports them to the event loop.
+  pub fn endpoints_of(
+    &self,
+    guid_prefix: GuidPrefix,
+  ) -> (Vec<DiscoveredWriterData>, Vec<DiscoveredReaderData>) {
+    (
+      (self.external_topic_writers.range(guid_prefix.range()))
+        .map(|(_, w)| w.clone())
+        .collect(),
+      (self.external_topic_readers.range(guid_prefix.range()))
+        .map(|(_, r)| r.clone())
+        .collect(),
+    )
   }
 
   /// rove patch (ROVE-PATCH.md §11): participants known (for the bound's test).
@@ -962,6 +1010,86 @@ mod tests {
     assert!(discoverydb.participant_proxies.is_empty());
 
     // TODO: more operations tests
+  }
+
+  // rove patch (ROVE-PATCH.md §16)
+  #[test]
+  fn a_known_participant_keeps_the_lease_it_first_announced() {
+    let (discovery_db_event_sender, _discovery_db_event_receiver) =
+      std::sync::mpsc::sync_channel::<()>(4);
+    let (status_sender, _status_receiver) = sync_status_channel(16).unwrap();
+    let mut discoverydb = DiscoveryDB::new(
+      GUID::new_participant_guid(),
+      discovery_db_event_sender,
+      status_sender,
+    );
+    let mut data = spdp_participant_data().unwrap();
+    let first = Some(Duration::from(StdDuration::from_secs(50)));
+    data.lease_duration = first;
+    discoverydb.update_participant(&data);
+
+    // A copy claiming 0 s, as a forged or corrupt announcement would.
+    data.lease_duration = Some(Duration::ZERO);
+    discoverydb.update_participant(&data);
+    let prefix = data.participant_guid.prefix;
+    assert_eq!(discoverydb.participant_proxies[&prefix].lease_duration, first);
+    assert!(discoverydb.participant_cleanup().is_empty());
+
+    // Once dropped (here: a goodbye), it is new again, and its claim stands.
+    discoverydb.remove_participant(prefix, false);
+    discoverydb.update_participant(&data);
+    assert_eq!(
+      discoverydb.participant_proxies[&prefix].lease_duration,
+      Some(Duration::ZERO)
+    );
+  }
+
+  // rove patch (ROVE-PATCH.md §16)
+  #[test]
+  fn a_participant_found_again_gets_its_endpoints_back_from_a_bounded_attic() {
+    let (discovery_db_event_sender, _discovery_db_event_receiver) =
+      std::sync::mpsc::sync_channel::<()>(4);
+    let (status_sender, _status_receiver) = sync_status_channel(16).unwrap();
+    let mut discoverydb = DiscoveryDB::new(
+      GUID::new_participant_guid(),
+      discovery_db_event_sender,
+      status_sender,
+    );
+    let data = spdp_participant_data().unwrap();
+    let prefix = data.participant_guid.prefix;
+    discoverydb.update_participant(&data);
+    let mut reader = DiscoveredReaderData::default("some_topic".into(), "RandomData".into());
+    reader.reader_proxy.remote_reader_guid =
+      GUID::new(prefix, EntityId::new([0, 0, 1], EntityKind::READER_WITH_KEY_USER_DEFINED));
+    assert!(discoverydb.update_subscription(&reader).is_some());
+    assert_eq!(discoverydb.endpoints_of(prefix).1.len(), 1);
+
+    discoverydb.remove_participant(prefix, false);
+    assert!(discoverydb.endpoints_of(prefix).1.is_empty());
+    discoverydb.update_participant(&data);
+    let (_, readers) = discoverydb.endpoints_of(prefix);
+    assert_eq!(
+      (readers.iter())
+        .map(|r| r.reader_proxy.remote_reader_guid)
+        .collect::<Vec<_>>(),
+      vec![reader.reader_proxy.remote_reader_guid]
+    );
+
+    // The attic holds at most MAX_REMOTE_ENDPOINTS of a kind.
+    for n in 0..(MAX_REMOTE_ENDPOINTS + 10) as u32 {
+      let mut bytes = [0u8; 12];
+      bytes[..4].copy_from_slice(&n.to_be_bytes());
+      let guid = GUID::new(
+        GuidPrefix::new(&bytes),
+        EntityId::new([0, 0, 1], EntityKind::READER_WITH_KEY_USER_DEFINED),
+      );
+      (discoverydb.external_topic_readers_attic).insert(guid, reader.clone());
+    }
+    discoverydb.remove_participant(prefix, false);
+    assert_eq!(
+      discoverydb.external_topic_readers_attic.len(),
+      MAX_REMOTE_ENDPOINTS
+    );
   }
 
   #[test]

@@ -1,8 +1,9 @@
 use std::{
   cell::RefCell,
-  collections::{btree_map::Entry, BTreeMap},
+  collections::{btree_map::Entry, BTreeMap, HashMap},
   rc::Rc,
   sync::mpsc::TrySendError,
+  time::Instant,
 };
 
 use enumflags2::BitFlags;
@@ -107,6 +108,11 @@ impl Default for MessageReceiverState<'_> {
 /// It calls the message/submessage deserializers to parse the sequence of
 /// submessages. Then it processes the instructions in the Interpreter
 /// SUbmessages and forwards data in Entity Submessages to the appropriate
+/// rove patch (ROVE-PATCH.md §16): how often a remote participant's traffic is
+/// reported alive to Discovery, and for how many participants at most.
+const LIVENESS_REPORT_PERIOD: std::time::Duration = std::time::Duration::from_millis(250);
+const MAX_LIVENESS_REPORTED: usize = 2048;
+
 /// Entities. (See RTPS spec Section 8.3.7)
 pub(crate) struct MessageReceiver {
   pub available_readers: BTreeMap<EntityId, Reader>,
@@ -133,6 +139,11 @@ pub(crate) struct MessageReceiver {
   pub multicast_reply_locator_list: Vec<Locator>,
   pub source_timestamp: Option<Timestamp>,
 
+  // rove patch (ROVE-PATCH.md §16): when each remote participant's traffic was
+  // last reported alive to Discovery (unsecured only), so that it is reported at
+  // most every LIVENESS_REPORT_PERIOD.
+  liveness_reported: HashMap<GuidPrefix, Instant>,
+
   submessage_count: usize, // Used in tests and error messages only?
   secure_receiver_state: Option<SecureReceiverState>,
   #[cfg(feature = "security")]
@@ -157,6 +168,7 @@ impl MessageReceiver {
       spdp_liveness_sender,
       security_plugins,
       interface_observations,
+      liveness_reported: HashMap::new(),
       own_guid_prefix: participant_guid_prefix,
 
       source_version: ProtocolVersion::THIS_IMPLEMENTATION,
@@ -304,11 +316,39 @@ impl MessageReceiver {
       .record(source_prefix, origin.local_if, source);
   }
 
+  /// rove patch (ROVE-PATCH.md §16): any message from a remote participant tells
+  /// Discovery that it lives, at most every LIVENESS_REPORT_PERIOD (before, only
+  /// its SPDP announcements did). Discovery believes a goodbye only from a
+  /// participant that then falls silent; unsecured, a goodbye may be forged. With
+  /// DDS Security, goodbyes are authenticated and unprotected traffic is not
+  /// evidence of anything, so only SPDP counts, as before.
+  fn report_liveness(&mut self, prefix: GuidPrefix) {
+    if self.security_plugins.is_some() || prefix == self.own_guid_prefix {
+      return;
+    }
+    let now = Instant::now();
+    if (self.liveness_reported.get(&prefix))
+      .is_some_and(|at| now.duration_since(*at) < LIVENESS_REPORT_PERIOD)
+    {
+      return;
+    }
+    if self.liveness_reported.len() >= MAX_LIVENESS_REPORTED {
+      // Invented prefixes (a spray) cannot grow the table; the real ones are
+      // reported again at their next message.
+      self.liveness_reported.clear();
+    }
+    self.liveness_reported.insert(prefix, now);
+    self.spdp_liveness_sender.try_send(prefix).unwrap_or_else(|e| {
+      trace!("spdp_liveness_sender.try_send(): {e:?}");
+    });
+  }
+
   // This is also called directly from dp_event_loop in case of loopback messages.
   pub fn handle_parsed_message(&mut self, rtps_message: Message) {
     self.reset();
     self.dest_guid_prefix = self.own_guid_prefix;
     self.source_guid_prefix = rtps_message.header.guid_prefix;
+    self.report_liveness(rtps_message.header.guid_prefix);
     self.source_version = rtps_message.header.protocol_version;
     self.source_vendor_id = rtps_message.header.vendor_id;
 

@@ -769,6 +769,17 @@ impl Reader {
         if writer_proxy.should_ignore_change(writer_sn) {
           // change already present
           trace!("handle_data_msg already have this seq={writer_sn:?}");
+          // rove patch (ROVE-PATCH.md §16): the workaround takes a repeated
+          // announcement, never a repeated goodbye. A participant leaves once, with
+          // a sequence number of its own; a dispose under a number already seen is
+          // a corrupt or forged copy of an announcement (one flipped flag byte of a
+          // peer's own DATA(p) read as "this participant left").
+          if my_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER
+            && !matches!(dds_data, DDSData::Data { .. })
+          {
+            debug!("Dropping a dispose to the participant reader under a seen sequence number.");
+            return;
+          }
           if my_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER {
             debug!("Accepting duplicate message to participant reader.");
             // This is an attempted workaround to eProsima FastRTPS not

@@ -451,21 +451,21 @@ impl RtpsReaderProxy {
           return;
         }
 
-        // RTPS ack state is monotonic for a matched reader. Other implementations
-        // (e.g. FastDDS) may send preemptive or reordered ACKNACK on discovery with
-        // a lower readerSNState.base — ignore rather than regress all_acked_before.
+        // rove patch (ROVE-PATCH.md §16): an ACKNACK below what the reader had
+        // acknowledged means it no longer holds what it acknowledged: it lost its
+        // proxy of us (it dropped our participant, after a lease it believed ran
+        // out or a forged goodbye, and found us again) and asks from the start, as
+        // a newly matched reader does. Before, such an ACKNACK was ignored, and a
+        // reader that lost our discovery data never got it back: we had no reason
+        // to send it again. Its acknowledged mark goes back, so that its request is
+        // served and the HEARTBEAT answering a request for nothing is sent. A
+        // reordered old ACKNACK costs a resend of what it names, which the reader
+        // drops as duplicates.
         if new_all_acked_before < self.all_acked_before {
           debug!(
-            "Ignoring ACKNACK that would move all_acked_before backwards: old={:?} new={:?} \
-             reader={:x?} count={}",
+            "ACKNACK moves all_acked_before backwards: old={:?} new={:?} reader={:x?} count={}",
             self.all_acked_before, new_all_acked_before, self.remote_reader_guid, acknack.count
           );
-          for nack_sn in acknack.reader_sn_state.iter() {
-            if nack_sn >= self.all_acked_before {
-              self.unsent_changes.insert(nack_sn);
-            }
-          }
-          return;
         }
         self.remove_from_unsent_set_all_before(new_all_acked_before);
         self.all_acked_before = new_all_acked_before;
@@ -751,22 +751,32 @@ mod acknack_tests {
     assert_eq!(rp.all_acked_before, SequenceNumber::from(50));
   }
 
+  // rove patch (ROVE-PATCH.md §16): a reader asking again for what it had
+  // acknowledged lost its state; it is served as a newly matched one.
   #[test]
-  fn acknack_with_backwards_base_does_not_regress_all_acked_before() {
+  fn acknack_with_backwards_base_is_served_as_a_reader_that_lost_its_state() {
     let guid = GUID::new(GuidPrefix::UNKNOWN, EntityId::UNKNOWN);
     let mut rp = RtpsReaderProxy::new(guid, QosPolicies::default(), false);
     rp.all_acked_before = SequenceNumber::from(4);
 
+    let requested = SequenceNumberSet::from_base_and_set(
+      SequenceNumber::from(1),
+      &[SequenceNumber::from(1), SequenceNumber::from(3)].into(),
+    );
     let ack = AckNack {
       reader_id: EntityId::UNKNOWN,
       writer_id: EntityId::UNKNOWN,
-      reader_sn_state: SequenceNumberSet::new_empty(SequenceNumber::from(2)),
-      count: 0,
+      reader_sn_state: requested,
+      count: 1,
     };
 
     rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(3));
 
-    assert_eq!(rp.all_acked_before, SequenceNumber::from(4));
+    assert_eq!(rp.all_acked_before, SequenceNumber::from(1));
+    assert_eq!(
+      rp.unsent_changes_iter().collect::<Vec<_>>(),
+      vec![SequenceNumber::from(1), SequenceNumber::from(3)]
+    );
   }
 }
 
