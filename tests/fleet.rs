@@ -74,3 +74,35 @@ fn each_vehicle_hears_only_its_own_commands_and_a_seed_vehicle_is_still_driven()
         "a reader in rove/vehicle/100 got other vehicles' commands"
     );
 }
+
+/// Twelve processes started at once, each vehicle with a laptop and a weaker desktop (the scale
+/// bench's fleet, `rove bench scale --vehicles 4 --operators 8`): every vehicle is driven by its
+/// laptop, a desktop restarting takes nothing, and no vehicle falls to failsafe. Before
+/// ROVE-PATCH.md §17, discovery and the event loop of one process or another deadlocked as the
+/// fleet joined (the discovery thread sent to the event loop's full channel while holding the
+/// database's lock, which the event loop was waiting for): that process never heard or spoke
+/// again, and its vehicle was driven by the desktop or by nobody (4 of 4 runs).
+#[test]
+fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
+    let options = rove_gateway::tools::fleet::Options {
+        vehicles: 4,
+        operators: 8,
+        idle: false,
+        window: std::time::Duration::from_secs(1),
+        handover_runs: 2,
+        restarts: 4,
+        latejoin_runs: 1,
+        heartbeat_ms: None,
+        vehicle_rt: None,
+    };
+    let rove = std::path::Path::new(crate::util::ROVE);
+    let report = rove_gateway::tools::fleet::run(rove, &options, &mut |line| eprintln!("{line}"))
+        .unwrap_or_else(|e| panic!("the fleet never became steady: {e:#}"));
+    eprintln!("{report:?}");
+    assert_eq!(
+        (report.wrong_owner, report.stale, report.restarts),
+        (0, 0, 4),
+        "wrong owners, stale failsafe entries, restarts: {report:?}"
+    );
+    assert!(report.outputs > 0);
+}

@@ -1,23 +1,31 @@
-//! `rove bench scale`: a fleet of real processes in a namespace the bench creates, each operator
-//! driving its own vehicle, measured for what one node and the whole fleet cost (docs/design.md,
-//! "Fleet scale").
+//! `rove bench scale`: a fleet of real processes in a namespace the bench creates, each vehicle
+//! with two operators of different strength, measured for what one node and the whole fleet cost
+//! (docs/design.md, "Fleet scale").
 //!
 //! Phases, in order:
-//! 1. **Fleet.** `V` sim vehicles (ids 100…) and `O` operators (ids 1000…); operator `i` drives
-//!    vehicle `100 + i % V` at its default stream rate (50 Hz). `--idle`: operators drive
-//!    nothing, which shows the fixed cost of a participant and its threads.
-//! 2. **Steady.** Once every vehicle applies its operator's commands (idle: once an observer
-//!    lists every device), the bench waits 2 s, then reads every process's CPU time
-//!    (`/proc/PID/stat`) over the window and its resident memory at the end.
-//! 3. **Handover.** While the fleet streams, a mobile phone takes vehicle 100 and quits
+//! 1. **Fleet.** `V` sim vehicles (ids 100…) and `O` operators (ids 1000…). The first half of the
+//!    operators (rounded up) are laptops, the rest desktops: weaker at the same level. Vehicle `k`
+//!    is driven by laptop `k mod L` and desktop `k mod D` (L, D: their counts), each at its default
+//!    stream rate (50 Hz); with one operator, by it alone. `--idle`: operators drive nothing, which
+//!    shows the fixed cost of a participant and its threads.
+//! 2. **Steady.** Once every vehicle applies its laptop's commands (idle: once an observer lists
+//!    every device), the bench waits 2 s, then reads every process's CPU time (`/proc/PID/stat`)
+//!    over the window and its resident memory at the end.
+//! 3. **Churn.** `--restarts` times, a desktop quits (SIGTERM) and starts again, one a second:
+//!    a weaker operator joining must not take a vehicle from its laptop.
+//! 4. **Handover.** While the fleet streams, a mobile phone takes vehicle 100 and quits
 //!    (SIGTERM), `--handover-runs` times: from the SIGTERM to the first command of vehicle
-//!    100's own operator applied again.
-//! 4. **Late joiner.** `rove status --events` starts `--latejoin-runs` times: from its start to
+//!    100's laptop applied again.
+//! 5. **Late joiner.** `rove status --events` starts `--latejoin-runs` times: from its start to
 //!    the moment it has listed every device of the fleet.
 //!
 //! Throughout, [`count`] reads every vehicle's record: an apply from anyone but the vehicle's
-//! operator (or the phone, on vehicle 100) is a wrong owner; a failsafe entry while its operator
-//! lives is stale (its stream fell silent past the command timeout).
+//! laptop (or the phone, on vehicle 100) is a wrong owner, chiefly its desktop while the laptop
+//! streams; a failsafe entry is stale, since every vehicle's laptop lives and streams throughout.
+//!
+//! `--idle-sweep 8,16,32,64` runs idle fleets of those many processes (half vehicles, half
+//! operators) one after the other instead, and reports each one's CPU per node and the growth
+//! from the smallest to the largest: what each peer adds to every node.
 
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Out, Rig, wall_us};
@@ -32,6 +40,8 @@ pub const FIRST_VEHICLE: i64 = 100;
 pub const FIRST_OPERATOR: i64 = 1000;
 /// The phone that takes vehicle 100 in the handover phase.
 pub const PHONE: i64 = 9000;
+/// How long the churn phase waits between two restarts of a weaker operator.
+const RESTART_EVERY: Duration = Duration::from_secs(1);
 
 /// Options of `rove bench scale`.
 #[derive(Debug, Clone)]
@@ -46,6 +56,8 @@ pub struct Options {
     pub window: Duration,
     /// Handovers measured on vehicle 100 (not with `idle`).
     pub handover_runs: usize,
+    /// Restarts of a weaker operator in the churn phase (not with `idle`).
+    pub restarts: usize,
     /// Late joiners measured.
     pub latejoin_runs: usize,
     /// The fleet's presence heartbeat (`[network] heartbeat_ms`), `None`: the default.
@@ -119,9 +131,11 @@ pub struct Report {
     pub latejoin_ms: Option<Percentiles>,
     /// Vehicle 100: the phone's SIGTERM → its own operator's command applied again, ms.
     pub handover_ms: Option<Percentiles>,
-    /// Applies from anyone but the vehicle's operator (or the phone, on vehicle 100).
+    /// Restarts of a weaker operator done in the churn phase.
+    pub restarts: usize,
+    /// Applies from anyone but the vehicle's laptop (or the phone, on vehicle 100).
     pub wrong_owner: usize,
-    /// Failsafe entries of a vehicle whose operator was alive.
+    /// Failsafe entries of a vehicle, all of whose laptops live and stream throughout.
     pub stale: usize,
     /// Outputs recorded by all vehicles after the fleet was steady.
     pub outputs: usize,
@@ -194,6 +208,32 @@ fn fleet_ids(options: &Options) -> (Vec<i64>, Vec<i64>) {
     (vehicles.collect(), operators.collect())
 }
 
+/// Who drives what: for each vehicle its laptop (the stronger) and its desktop (the weaker, none
+/// with a single operator). The first half of `operators` (rounded up) are the laptops.
+fn assign(vehicles: &[i64], operators: &[i64]) -> BTreeMap<i64, (i64, Option<i64>)> {
+    let (laptops, desktops) = operators.split_at(operators.len().div_ceil(2));
+    (vehicles.iter().enumerate())
+        .filter(|_| !laptops.is_empty())
+        .map(|(k, &v)| {
+            let desktop = (!desktops.is_empty()).then(|| desktops[k % desktops.len()]);
+            (v, (laptops[k % laptops.len()], desktop))
+        })
+        .collect()
+}
+
+/// The vehicles `operator` drives under `assignment`.
+fn drives_of(assignment: &BTreeMap<i64, (i64, Option<i64>)>, operator: i64) -> Vec<i64> {
+    (assignment.iter())
+        .filter(|(_, (laptop, desktop))| *laptop == operator || *desktop == Some(operator))
+        .map(|(&v, _)| v)
+        .collect()
+}
+
+/// Whether `operator` is a laptop (the stronger) under `assignment`.
+fn is_laptop(assignment: &BTreeMap<i64, (i64, Option<i64>)>, operator: i64) -> bool {
+    assignment.values().any(|(laptop, _)| *laptop == operator)
+}
+
 /// Starts `rove status --events` as `name`; its log is the event stream.
 fn observer(rig: &mut Rig, name: &str) -> PathBuf {
     let p = rig.spawn(name, &["status", "--events"]);
@@ -236,12 +276,22 @@ pub fn run(
             rig.vehicle_scheduled(v, &output, fifo)
         })
         .collect();
-    let mut drives = BTreeMap::new();
-    for (i, &id) in operators.iter().enumerate() {
-        let vehicle = vehicles[i % vehicles.len()];
-        let drive: &[i64] = if options.idle { &[] } else { &[vehicle] };
-        rig.operator(id, "stationary", "laptop", drive, 1000, &network, &[]);
-        drives.entry(vehicle).or_insert(id);
+    let assignment = assign(&vehicles, &operators);
+    // Each operator's process index in the rig, and what it is started with.
+    let mut started_as: BTreeMap<i64, (usize, &str, Vec<i64>)> = BTreeMap::new();
+    for &id in &operators {
+        let class = if is_laptop(&assignment, id) {
+            "laptop"
+        } else {
+            "desktop"
+        };
+        let drive = if options.idle {
+            Vec::new()
+        } else {
+            drives_of(&assignment, id)
+        };
+        let p = rig.operator(id, "stationary", class, &drive, 1000, &network, &[]);
+        started_as.insert(id, (p, class, drive));
     }
     let fleet: Vec<usize> = (0..rig.procs.len()).collect();
     progress(&format!(
@@ -256,8 +306,8 @@ pub fn run(
         stop_last(&mut rig);
     } else {
         for (&vehicle, record) in vehicles.iter().zip(&records) {
-            if let Some(&op) = drives.get(&vehicle) {
-                harness::wait_for_output(record, Some(op), 0).map_err(anyhow::Error::msg)?;
+            if let Some(&(laptop, _)) = assignment.get(&vehicle) {
+                harness::wait_for_output(record, Some(laptop), 0).map_err(anyhow::Error::msg)?;
             }
         }
     }
@@ -283,10 +333,33 @@ pub fn run(
         "a process of the fleet exited during the window"
     );
     let (v_usage, o_usage) = measured.split_at(vehicles.len());
+    let desktops: Vec<i64> = (assignment.values())
+        .filter_map(|(_, desktop)| *desktop)
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let mut restarts = 0;
+    if !options.idle && !desktops.is_empty() {
+        for run in 0..options.restarts {
+            let id = desktops[run % desktops.len()];
+            let (p, class, drive) = started_as[&id].clone();
+            rig.procs[p].stop();
+            let again = rig.operator(id, "stationary", class, &drive, 1000, &network, &[]);
+            started_as.insert(id, (again, class, drive));
+            restarts += 1;
+            progress(&format!(
+                "restart {}/{}: desktop {id} (drives {:?})",
+                run + 1,
+                options.restarts,
+                started_as[&id].2
+            ));
+            std::thread::sleep(RESTART_EVERY);
+        }
+    }
     let handover = if options.idle {
         Vec::new()
     } else {
-        let (record, owner) = (&records[0], drives[&vehicles[0]]);
+        let (record, owner) = (&records[0], assignment[&vehicles[0]].0);
         handovers(
             &mut rig,
             record,
@@ -300,7 +373,10 @@ pub fn run(
     let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
     for (&vehicle, record) in vehicles.iter().zip(&records) {
         let outs = harness::records(record);
-        let mut allowed: Vec<i64> = drives.get(&vehicle).copied().into_iter().collect();
+        let mut allowed: Vec<i64> = (assignment.get(&vehicle))
+            .map(|(laptop, _)| *laptop)
+            .into_iter()
+            .collect();
         if vehicle == vehicles[0] {
             allowed.push(PHONE);
         }
@@ -323,6 +399,7 @@ pub fn run(
         operator: usage(o_usage),
         latejoin_ms: Percentiles::of(&latejoin),
         handover_ms: Percentiles::of(&handover),
+        restarts,
         wrong_owner,
         stale,
         outputs,
@@ -397,7 +474,8 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
     println!(
         "scale {}×{}{}{}: CPU {:.1} % of a core in all ({:.1} s window)\n  vehicle: mean {:.2} %, \
          max {:.2} %, {} KiB\n  operator: mean {:.2} %, max {:.2} %, {} KiB\n  RSS max {} KiB, \
-         total {} KiB\n  handover {}\n  late joiner {}\n  wrong owner {}, stale {}, {} outputs",
+         total {} KiB\n  handover {}\n  late joiner {}\n  {} restarts of a weaker operator; wrong \
+         owner {}, stale {}, {} outputs",
         r.vehicles,
         r.operators,
         if r.idle { " idle" } else { "" },
@@ -415,10 +493,115 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         r.rss_total_kb,
         p(r.handover_ms),
         p(r.latejoin_ms),
+        r.restarts,
         r.wrong_owner,
         r.stale,
         r.outputs
     );
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&r)? + "\n")?;
+    }
+    Ok(())
+}
+
+/// One idle fleet of the sweep.
+#[derive(Debug, Serialize)]
+pub struct SweepPoint {
+    /// Processes (half vehicles, half operators; the odd one a vehicle).
+    pub processes: usize,
+    /// Mean CPU of a node, percent of one core.
+    pub cpu_per_node_pct: f64,
+    /// The busiest node's CPU, percent of one core.
+    pub cpu_max_pct: f64,
+    /// CPU of the fleet, percent of one core.
+    pub cpu_total_pct: f64,
+    /// Late joiner: start → every device listed, ms.
+    pub latejoin_ms: Option<Percentiles>,
+}
+
+/// `rove bench scale --idle-sweep` (`--json`).
+#[derive(Debug, Serialize)]
+pub struct Sweep {
+    /// The fleets, smallest first.
+    pub fleets: Vec<SweepPoint>,
+    /// CPU per node of the largest fleet over that of the smallest: 1.0 when a node's idle cost
+    /// does not depend on the number of its peers.
+    pub growth: Option<f64>,
+    /// The fleet's presence heartbeat, ms.
+    pub heartbeat_ms: u64,
+}
+
+/// Runs idle fleets of `sizes` processes, smallest first.
+///
+/// # Errors
+/// As [`run`], or a size below 2.
+pub fn sweep(
+    rove: &Path,
+    options: &Options,
+    sizes: &[usize],
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Sweep> {
+    let mut sizes = sizes.to_vec();
+    sizes.sort_unstable();
+    anyhow::ensure!(
+        sizes.first().is_some_and(|&n| n >= 2),
+        "each fleet of the sweep needs at least 2 processes"
+    );
+    let mut fleets = Vec::new();
+    for n in sizes {
+        progress(&format!("idle fleet of {n} processes"));
+        let fleet = Options {
+            vehicles: n.div_ceil(2),
+            operators: n / 2,
+            idle: true,
+            handover_runs: 0,
+            restarts: 0,
+            ..options.clone()
+        };
+        let r = run(rove, &fleet, progress)?;
+        let nodes = r.vehicle.processes + r.operator.processes;
+        fleets.push(SweepPoint {
+            processes: nodes,
+            cpu_per_node_pct: r.cpu_total_pct / nodes as f64,
+            cpu_max_pct: r.vehicle.cpu_max_pct.max(r.operator.cpu_max_pct),
+            cpu_total_pct: r.cpu_total_pct,
+            latejoin_ms: r.latejoin_ms,
+        });
+    }
+    let growth = match (fleets.first(), fleets.last()) {
+        (Some(a), Some(b)) if a.cpu_per_node_pct > 0.0 => {
+            Some(b.cpu_per_node_pct / a.cpu_per_node_pct)
+        }
+        _ => None,
+    };
+    Ok(Sweep {
+        fleets,
+        growth,
+        heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
+    })
+}
+
+/// `rove bench scale --idle-sweep`: runs, prints a line per fleet and optionally writes the
+/// JSON report.
+///
+/// # Errors
+/// As [`sweep`], or the JSON file cannot be written.
+pub fn sweep_cli(
+    rove: &Path,
+    options: &Options,
+    sizes: &[usize],
+    json: Option<&Path>,
+) -> anyhow::Result<()> {
+    let r = sweep(rove, options, sizes, &mut |line| eprintln!("{line}"))?;
+    for f in &r.fleets {
+        println!(
+            "idle {:>3} processes: {:.2} % of a core per node (max {:.2} %), {:.1} % in all",
+            f.processes, f.cpu_per_node_pct, f.cpu_max_pct, f.cpu_total_pct
+        );
+    }
+    if let Some(g) = r.growth {
+        println!("per-node idle CPU, largest fleet over smallest: {g:.2}×");
+    }
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&r)? + "\n")?;
     }
@@ -475,6 +658,7 @@ mod tests {
             idle: false,
             window: Duration::ZERO,
             handover_runs: 0,
+            restarts: 0,
             latejoin_runs: 0,
             heartbeat_ms: None,
             vehicle_rt: None,
@@ -483,6 +667,24 @@ mod tests {
             fleet_ids(&options),
             (vec![100, 101], vec![1000, 1001, 1002])
         );
+    }
+
+    #[test]
+    fn every_vehicle_gets_a_laptop_and_a_weaker_desktop() {
+        let vehicles = [100, 101, 102, 103];
+        let a = assign(&vehicles, &[1000, 1001, 1002, 1003]);
+        assert_eq!(a[&100], (1000, Some(1002)));
+        assert_eq!(a[&101], (1001, Some(1003)));
+        assert_eq!(a[&102], (1000, Some(1002)));
+        assert_eq!(drives_of(&a, 1003), vec![101, 103]);
+        assert!(is_laptop(&a, 1001) && !is_laptop(&a, 1002));
+        // Three operators: two laptops, one desktop behind every vehicle.
+        let a = assign(&vehicles, &[1000, 1001, 1002]);
+        assert_eq!(a[&103], (1001, Some(1002)));
+        assert_eq!(drives_of(&a, 1002), vec![100, 101, 102, 103]);
+        // One operator drives alone; none drives nothing.
+        assert_eq!(assign(&vehicles, &[1000])[&102], (1000, None));
+        assert!(assign(&vehicles, &[]).is_empty());
     }
 
     #[test]

@@ -82,9 +82,16 @@ pub enum Bench {
         /// Handovers measured on the first vehicle while the fleet streams.
         #[arg(long, default_value_t = 20)]
         handover_runs: usize,
+        /// Restarts of a weaker operator (a desktop) while the fleet streams.
+        #[arg(long, default_value_t = 8)]
+        restarts: usize,
         /// Late joiners measured.
         #[arg(long, default_value_t = 10)]
         latejoin_runs: usize,
+        /// Instead of one fleet: idle fleets of these many processes (half vehicles, half
+        /// operators), one after the other, for the CPU each node spends per peer.
+        #[arg(long, value_delimiter = ',')]
+        idle_sweep: Vec<usize>,
         /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
         #[arg(long)]
         heartbeat_ms: Option<u64>,
@@ -174,7 +181,9 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             idle,
             window_s,
             handover_runs,
+            restarts,
             latejoin_runs,
+            idle_sweep,
             heartbeat_ms,
             vehicle_rt,
             json,
@@ -185,11 +194,16 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 idle,
                 window: std::time::Duration::from_secs(window_s),
                 handover_runs: if idle { 0 } else { handover_runs },
+                restarts: if idle { 0 } else { restarts },
                 latejoin_runs,
                 heartbeat_ms,
                 vehicle_rt,
             };
-            fleet::cli(rove, &options, json.as_deref())
+            if idle_sweep.is_empty() {
+                fleet::cli(rove, &options, json.as_deref())
+            } else {
+                fleet::sweep_cli(rove, &options, &idle_sweep, json.as_deref())
+            }
         }
         Bench::Handover {
             scenario,

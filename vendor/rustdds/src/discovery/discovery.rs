@@ -1342,7 +1342,11 @@ impl Discovery {
           Sample::Value(d) => {
             trace!("sedp_receive_subscription - {d:?}");
             // rove patch (ROVE-PATCH.md §11): None when the table is full.
-            if let Some(drd) = discovery_db_write(&self.discovery_db).update_subscription(&d) {
+            // rove patch (ROVE-PATCH.md §17): the database's write guard is dropped
+            // before the notification, which blocks while the event loop's channel is
+            // full; the event loop, waiting for a read guard, never drained it.
+            let updated = discovery_db_write(&self.discovery_db).update_subscription(&d);
+            if let Some(drd) = updated {
               debug!(
                 "sedp_receive_subscription - send_discovery_notification ReaderUpdated  {:?}",
                 drd
@@ -1423,9 +1427,9 @@ impl Discovery {
           Sample::Value(dwd) => {
             trace!("sedp_receive_publication discovered {:?}", dwd);
             // rove patch (ROVE-PATCH.md §11): None when the table is full.
-            if let Some(discovered_writer_data) =
-              discovery_db_write(&self.discovery_db).update_publication(&dwd)
-            {
+            // rove patch (ROVE-PATCH.md §17): the write guard is dropped first.
+            let updated = discovery_db_write(&self.discovery_db).update_publication(&dwd);
+            if let Some(discovered_writer_data) = updated {
               self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
                 discovered_writer_data,
               });
@@ -1816,9 +1820,10 @@ impl Discovery {
           Sample::Value(sec_sub) => {
             // Currently we use only the DiscoveredReaderData field, no DataTag
             let drd_from_topic = sec_sub.discovered_reader_data;
-            if let Some(drd) =
-              discovery_db_write(&self.discovery_db).update_subscription(&drd_from_topic)
-            {
+            // rove patch (ROVE-PATCH.md §17): the write guard is dropped first.
+            let updated =
+              discovery_db_write(&self.discovery_db).update_subscription(&drd_from_topic);
+            if let Some(drd) = updated {
               self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
                 discovered_reader_data: drd,
               });
@@ -1866,9 +1871,9 @@ impl Discovery {
           Sample::Value(se_pub) => {
             // Currently we use only the DiscoveredWriterData field, no DataTag
             let dwd_from_topic = se_pub.discovered_writer_data;
-            if let Some(dwd) =
-              discovery_db_write(&self.discovery_db).update_publication(&dwd_from_topic)
-            {
+            // rove patch (ROVE-PATCH.md §17): the write guard is dropped first.
+            let updated = discovery_db_write(&self.discovery_db).update_publication(&dwd_from_topic);
+            if let Some(dwd) = updated {
               self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
                 discovered_writer_data: dwd,
               });
@@ -2005,10 +2010,17 @@ impl Discovery {
 
     // Send the ReaderUpdated notification on any existing readers on the writer's
     // topic This will result in matching the endpoints if possible
-    let existing_readers = db.readers_on_topic(writer_data.publication_topic_data.topic_name());
+    // rove patch (ROVE-PATCH.md §17): collected, and the read guard dropped before
+    // the notifications, which block while the event loop's channel is full.
+    let existing_readers: Vec<DiscoveredReaderData> = db
+      .readers_on_topic(writer_data.publication_topic_data.topic_name())
+      .into_iter()
+      .cloned()
+      .collect();
+    drop(db);
     for reader in existing_readers {
       self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
-        discovered_reader_data: reader.clone(),
+        discovered_reader_data: reader,
       });
     }
   }
@@ -2029,10 +2041,16 @@ impl Discovery {
 
     // Send the WriterUpdated notification on any existing writers on the readers's
     // topic This will result in matching the endpoints if possible
-    let existing_writers = db.writers_on_topic(reader_data.subscription_topic_data.topic_name());
+    // rove patch (ROVE-PATCH.md §17): as in add_local_writer.
+    let existing_writers: Vec<DiscoveredWriterData> = db
+      .writers_on_topic(reader_data.subscription_topic_data.topic_name())
+      .into_iter()
+      .cloned()
+      .collect();
+    drop(db);
     for writer in existing_writers {
       self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
-        discovered_writer_data: writer.clone(),
+        discovered_writer_data: writer,
       });
     }
   }
