@@ -7,7 +7,8 @@ on and sends to that namespace's `lo`, and nothing leaves it.
     rtps_spray.py capture --seconds S --out FILE [--max-datagrams N] [--max-bytes B]
     rtps_spray.py spray --capture FILE --rate R --seconds S [--mode MODE] [--seed N]
                         [--max-datagrams N]
-    rtps_spray.py forge --capture FILE --kind KIND [--count N] [--every S]
+    rtps_spray.py forge --capture FILE --kind KIND --sn same|new [--count N] [--every S]
+    rtps_spray.py census --capture FILE
 
 `capture` reads every frame on `lo` through an AF_PACKET socket (needs root) and keeps the
 UDP/IPv4 datagrams whose payload starts with b"RTPS". On `lo` each datagram passes twice, as
@@ -48,6 +49,11 @@ forged announcement to where the original went (`--count` times, `--every` secon
                     a real one looks
 
 It prints one JSON line {"forged": N, "participants": [PREFIX hex...], "kind": KIND, "sn": SN}.
+
+`census` reads a capture and prints one JSON line counting its DATA submessages by the writer's
+built-in role: {"spdp": N, "participant_message": N, "sedp": N, "user": N, "datagrams": N}
+(SPDP 0x000100c2, ParticipantMessage 0x000200c2, SEDP publications/subscriptions
+0x000003c2/0x000004c2; user: a user-defined writer, entity kind 0x02 or 0x03).
 
 Everything random comes from --seed (default 29), so a run can be repeated. At the end it prints
 one JSON line {"sent": N, "errors": E, "seconds": S, "rate": N / S, "mode": MODE, "seed": SEED,
@@ -376,6 +382,39 @@ def forge(args) -> None:
     )
 
 
+# ---------------------------------------------------------------------------------------------
+# census
+
+WRITER_ROLES = {
+    bytes.fromhex("000100c2"): "spdp",
+    bytes.fromhex("000200c2"): "participant_message",
+    bytes.fromhex("000003c2"): "sedp",
+    bytes.fromhex("000004c2"): "sedp",
+}
+
+
+def census(args) -> None:
+    records = read_capture(args.capture)
+    counts = {"spdp": 0, "participant_message": 0, "sedp": 0, "user": 0, "datagrams": len(records)}
+    for _, payload in records:
+        at = RTPS_HEADER
+        while at + 4 <= len(payload):
+            kind, flags = payload[at], payload[at + 1]
+            length = struct.unpack("<H" if flags & 1 else ">H", payload[at + 2 : at + 4])[0]
+            body = at + 4
+            if kind == DATA and body + 12 <= len(payload):
+                writer = payload[body + 8 : body + 12]
+                role = WRITER_ROLES.get(writer)
+                if role is None and writer[3] in (0x02, 0x03):
+                    role = "user"
+                if role is not None:
+                    counts[role] += 1
+            if length == 0:
+                break
+            at = body + length
+    print(json.dumps(counts), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -397,7 +436,12 @@ def main() -> None:
     frg.add_argument("--sn", choices=("same", "new"), required=True)
     frg.add_argument("--count", type=int, default=1)
     frg.add_argument("--every", type=float, default=0.5)
+    cen = sub.add_parser("census", help="count a capture's DATA by writer role")
+    cen.add_argument("--capture", required=True)
     args = parser.parse_args()
+    if args.command == "census":
+        census(args)
+        return
     if args.command == "forge":
         if not 1 <= args.count <= 100 or not 0 <= args.every <= 10:
             parser.error("--count must be in [1, 100] and --every in [0, 10]")

@@ -93,6 +93,7 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
         restarts: 4,
         latejoin_runs: 1,
         heartbeat_ms: None,
+        presence_ms: None,
         vehicle_rt: None,
     };
     let rove = std::path::Path::new(crate::util::ROVE);
@@ -105,4 +106,39 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
         "wrong owners, stale failsafe entries, restarts: {report:?}"
     );
     assert!(report.outputs > 0);
+}
+
+/// Presence by SPDP (issue 33, ROVE-PATCH.md §18): with `[network] presence_ms = 250` every
+/// participant announces itself every 250 ms, and since that is at most half the DeviceInfo
+/// writer's liveliness lease, no ParticipantMessage goes out: counted on the wire, in the first
+/// 3 s of a vehicle and a laptop (their own capture, `rtps_spray.py census`). Without it (rustdds's
+/// 10 s) each sends one a second to every peer, reliably: checked too, so that the census can
+/// tell.
+#[test]
+fn presence_by_spdp_sends_no_liveliness_messages() {
+    let census = |presence: &str| {
+        let mut rig = Rig::new("presence-census");
+        let extra = format!("[network]\n{presence}");
+        let (_record, capture) = crate::spray::captured_driving_fleet_with(&mut rig, false, &extra);
+        let mut child = crate::spray::sprayer(
+            &rig,
+            &["census", "--capture", capture.to_str().expect("utf-8 path")],
+        );
+        let out = std::io::BufReader::new(child.stdout.take().expect("piped"));
+        let census = crate::spray::summary(child, out);
+        eprintln!("census of the first 3 s with [network] {presence:?}: {census}");
+        census
+    };
+    let stock = census("");
+    assert!(
+        stock["participant_message"].as_u64().unwrap_or(0) > 0,
+        "{stock}"
+    );
+    let census = census("presence_ms = 250\n");
+    assert_eq!(census["participant_message"], 0, "{census}");
+    // Two participants for most of 3 s at 4 a second, each announcement to the multicast group
+    // and to the peers it knows: at least 2 × 2 s × 4.
+    let spdp = census["spdp"].as_u64().unwrap_or(0);
+    assert!(spdp >= 16, "{spdp} SPDP announcements in 3 s: {census}");
+    assert!(census["user"].as_u64().unwrap_or(0) > 0, "{census}");
 }

@@ -78,7 +78,7 @@ fn a_secured_fleet_sprayed_with_its_own_datagrams_mutated_keeps_driving() {
 }
 
 /// `rtps_spray.py ARGS` in the rig's namespace, its stdout piped.
-fn sprayer(rig: &Rig, args: &[&str]) -> Child {
+pub(crate) fn sprayer(rig: &Rig, args: &[&str]) -> Child {
     Command::new("ip")
         .args(["netns", "exec", &rig.ns])
         .arg(rove_testkit::python())
@@ -96,7 +96,7 @@ fn sprayer(rig: &Rig, args: &[&str]) -> Child {
 ///
 /// # Panics
 /// It does not end in time (it is killed) or fails, or its last line is not JSON.
-fn summary(mut child: Child, mut stdout: BufReader<std::process::ChildStdout>) -> Value {
+pub(crate) fn summary(mut child: Child, mut stdout: BufReader<std::process::ChildStdout>) -> Value {
     let deadline = Instant::now() + PATIENCE;
     let status = loop {
         if let Some(status) = child.try_wait().expect("wait for rtps_spray.py") {
@@ -233,10 +233,22 @@ fn outputs_between(record: &Path, from_us: u64, to_us: u64) -> (Vec<String>, u64
 
 /// Laptop 11 driving vehicle 100 (sim output) in `rig`, their RTPS traffic captured from before
 /// they start (discovery included): the vehicle's output record and the capture.
-fn captured_driving_fleet(rig: &mut Rig, secured: bool) -> (PathBuf, PathBuf) {
+pub(crate) fn captured_driving_fleet(rig: &mut Rig, secured: bool) -> (PathBuf, PathBuf) {
+    captured_driving_fleet_with(rig, secured, "")
+}
+
+/// As [`captured_driving_fleet`], with `extra_toml` in both devices' configs.
+pub(crate) fn captured_driving_fleet_with(
+    rig: &mut Rig,
+    secured: bool,
+    extra_toml: &str,
+) -> (PathBuf, PathBuf) {
     let fleet: Option<PathBuf> =
         secured.then(|| rig.fleet(&[V, LAPTOP]).expect("rove keys for 100 and 11"));
-    let security = |id| rove_gateway::tools::harness::security_toml(fleet.as_deref(), id);
+    let security = |id| {
+        let toml = rove_gateway::tools::harness::security_toml(fleet.as_deref(), id);
+        format!("{toml}{extra_toml}")
+    };
 
     // The capture listens before the fleet starts, so that it holds discovery too.
     let capture = rig.dir.join("fleet.cap");

@@ -36,6 +36,10 @@ rove_core::config_types! {
         heartbeat_ms: Option<Int> => "Presence heartbeat period, ms (absent: 500). Crashed devices \
             drop from device lists after three missed heartbeats, because rustdds's own \
             participant lease is ~50 s.",
+        presence_ms: Option<Int> => "SPDP announcement period, ms (absent: rustdds's 10 s). The \
+            participant lease announced is eight periods; at 500 ms or less the announcements \
+            also assert the DeviceInfo writer's liveliness, and no per-peer liveliness message \
+            is sent (docs/design.md, \"Fleet scale\").",
     }
 
     /// `[log]`.
@@ -318,6 +322,7 @@ rove_core::config_types! {
         domain_id: u16 => "DDS domain.",
         interfaces: Vec<Ipv4Addr> => "Interfaces DDS is confined to.",
         heartbeat: Duration => "Presence heartbeat period.",
+        presence: Option<Duration> => "`[network] presence_ms`: the SPDP period, if set.",
         log_filter: Option<String> => "The log filter from `[log] level`, if any.",
         security: Option<std::path::PathBuf> => "`[security] dir`: join authenticated, with the \
             DDS Security files there.",
@@ -566,6 +571,9 @@ fn validate_common(
 ) -> Common {
     let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
     let heartbeat = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
+    let presence = (network.presence_ms)
+        .and_then(|ms| errors.int("network.presence_ms", ms, 50..=10_000, ""))
+        .map(|ms: u64| Duration::from_millis(ms));
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
@@ -597,6 +605,7 @@ fn validate_common(
         domain_id: domain_id.unwrap_or(0),
         interfaces: interfaces.clone(),
         heartbeat: Duration::from_millis(heartbeat.unwrap_or(500)),
+        presence,
         log_filter: log.level.as_ref().map(log_filter),
         security: None,
     }

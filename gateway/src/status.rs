@@ -149,6 +149,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         &options.interfaces,
         options.security.as_deref(),
         false,
+        None,
     )?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
     let mut requests = domain.request_reader()?.async_sample_stream();

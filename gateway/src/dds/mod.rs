@@ -79,6 +79,12 @@ impl Keyed for KeyedControlCommand {
     }
 }
 
+/// The participant lease announced under `[network] presence_ms`, in SPDP periods: a peer
+/// that goes silent is dropped (`ParticipantLost`) within about 1.25 leases (rustdds checks
+/// leases every quarter lease, ROVE-PATCH.md §18), and a busy machine that delays a few
+/// announcements does not drop a live peer.
+pub const PRESENCE_LEASE_PERIODS: u32 = 8;
+
 /// How long a reliable write may block when the send window is full. Control samples are
 /// superseded 20 ms later, so waiting longer than a few ms only delays the next one.
 const MAX_BLOCKING_MS: i64 = 5;
@@ -158,7 +164,8 @@ impl std::fmt::Debug for Domain {
 
 impl Domain {
     /// Joins `domain_id`, confined to `interfaces`; with `security`, as the device whose DDS
-    /// Security files are in that directory (`rove keys`). `any_certificate` is a test hook:
+    /// Security files are in that directory (`rove keys`); with `presence`, announcing itself
+    /// by SPDP at that period (`[network] presence_ms`). `any_certificate` is a test hook:
     /// our own certificate's dates are not checked (peers still check them).
     ///
     /// # Errors
@@ -169,10 +176,15 @@ impl Domain {
         interfaces: &[Ipv4Addr],
         security: Option<&std::path::Path>,
         any_certificate: bool,
+        presence: Option<std::time::Duration>,
     ) -> anyhow::Result<Domain> {
         let builder = DomainParticipantBuilder::new(domain_id)
             .with_only_networks(interfaces.iter().copied())
             .same_host_loopback(true);
+        let builder = match presence {
+            Some(period) => builder.presence(period, period * PRESENCE_LEASE_PERIODS),
+            None => builder,
+        };
         let builder = match security {
             None => builder,
             #[cfg(feature = "security")]

@@ -49,6 +49,7 @@ impl Node {
             &common.interfaces,
             common.security.as_deref(),
             any_certificate,
+            common.presence,
         )?;
         let info = domain.device_info_writer()?;
         let participant = writer_id(domain.participant.guid()).participant;

@@ -10,13 +10,14 @@
 //! - [`bench`](mod@bench): `rove bench handover` (graceful, active, crash) and `rove bench input`.
 //! - [`chaos`]: `rove bench chaos`: random faults and packet loss, counted against the contract.
 //! - [`fleet`]: `rove bench scale`: a fleet of N vehicles and M operators, per-node cost,
-//!   handover and late-joiner times.
+//!   handover and late-joiner times; [`sweep`]: `--idle-sweep`, idle fleets of several sizes.
 
 pub mod bench;
 pub mod chaos;
 pub mod demo;
 pub mod fleet;
 pub mod harness;
+pub mod sweep;
 
 use std::path::Path;
 
@@ -95,6 +96,9 @@ pub enum Bench {
         /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
         #[arg(long)]
         heartbeat_ms: Option<u64>,
+        /// The fleet's SPDP period (`[network] presence_ms`; absent: rustdds's 10 s).
+        #[arg(long)]
+        presence_ms: Option<u64>,
         /// Run vehicle 100 (whose handovers are measured) under SCHED_FIFO at this priority
         /// (`chrt -f`), as the vehicle unit's real-time option does.
         #[arg(long)]
@@ -185,6 +189,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             latejoin_runs,
             idle_sweep,
             heartbeat_ms,
+            presence_ms,
             vehicle_rt,
             json,
         } => {
@@ -197,12 +202,13 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 restarts: if idle { 0 } else { restarts },
                 latejoin_runs,
                 heartbeat_ms,
+                presence_ms,
                 vehicle_rt,
             };
             if idle_sweep.is_empty() {
                 fleet::cli(rove, &options, json.as_deref())
             } else {
-                fleet::sweep_cli(rove, &options, &idle_sweep, json.as_deref())
+                sweep::cli(rove, &options, &idle_sweep, json.as_deref())
             }
         }
         Bench::Handover {

@@ -33,7 +33,7 @@ use crate::{
     typedesc::TypeDesc,
   },
   discovery::{
-    discovery::{Discovery, DiscoveryCommand},
+    discovery::{Discovery, DiscoveryCommand, PresenceTiming},
     discovery_db::DiscoveryDB,
     sedp_messages::{DiscoveredReaderData, DiscoveredTopicData, DiscoveredWriterData},
   },
@@ -81,6 +81,9 @@ pub struct DomainParticipantBuilder {
   socket_receive_buffer_size: usize,
   socket_send_buffer_size: usize,
 
+  // rove patch (ROVE-PATCH.md §18)
+  presence: PresenceTiming,
+
   #[cfg(feature = "security")]
   security_plugins: Option<SecurityPlugins>,
   #[cfg(feature = "security")]
@@ -95,6 +98,7 @@ impl DomainParticipantBuilder {
       same_host_loopback: true,
       socket_receive_buffer_size: Self::DEFAULT_SOCKET_RECEIVE_BUFFER_SIZE,
       socket_send_buffer_size: Self::DEFAULT_SOCKET_SEND_BUFFER_SIZE,
+      presence: PresenceTiming::default(),
       #[cfg(feature = "security")]
       security_plugins: None,
       #[cfg(feature = "security")]
@@ -126,6 +130,21 @@ impl DomainParticipantBuilder {
   /// `src/rtps/loopback_same_host_design.md`.
   pub fn same_host_loopback(mut self, enabled: bool) -> Self {
     self.same_host_loopback = enabled;
+    self
+  }
+
+  /// rove patch (ROVE-PATCH.md §18): announce this participant by SPDP every
+  /// `spdp_period`, with a participant lease of `lease` (default: every 10 s,
+  /// 50 s). A lease shorter than two periods is raised to two periods. When the
+  /// announcements come at least every half of the shortest AUTOMATIC writer
+  /// liveliness lease, they assert those writers' liveliness and no
+  /// ParticipantMessage is sent for them.
+  pub fn presence(mut self, spdp_period: std::time::Duration, lease: std::time::Duration) -> Self {
+    let spdp_period = spdp_period.max(std::time::Duration::from_millis(10));
+    self.presence = PresenceTiming {
+      spdp_period,
+      lease: lease.max(2 * spdp_period),
+    };
     self
   }
 
@@ -358,6 +377,7 @@ impl DomainParticipantBuilder {
     // Construct and start background thread
     let dp_clone = dp.weak_clone();
     let disc_db_clone = dp.discovery_db();
+    let presence = self.presence;
     let discovery_handle = thread::Builder::new()
       .name("RustDDS discovery thread".to_string())
       .spawn(move || {
@@ -372,6 +392,7 @@ impl DomainParticipantBuilder {
           security_plugins_handle,
           discovery_waker,
           discovery_sample_receiver,
+          presence,
         ) {
           discovery.discovery_event_loop(); // run the event loop
         }

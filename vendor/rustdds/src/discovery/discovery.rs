@@ -202,6 +202,35 @@ enum DiscoveryTimerEvent {
   CachedSecureMessageResend,
 }
 
+/// rove patch (ROVE-PATCH.md §18): how often a participant announces itself by
+/// SPDP, and the lease it announces (after which its peers drop it unless they
+/// heard from it). Stock rustdds: every 10 s, a lease of 50 s. Remote leases are
+/// checked every quarter lease (between 100 ms and 2 s), so that a peer that
+/// stops is dropped within about 1.25 leases.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PresenceTiming {
+  /// The SPDP announcement period.
+  pub spdp_period: StdDuration,
+  /// The participant lease announced.
+  pub lease: StdDuration,
+}
+
+impl Default for PresenceTiming {
+  fn default() -> Self {
+    Self {
+      spdp_period: StdDuration::from_secs(10),
+      lease: StdDuration::from_secs(50),
+    }
+  }
+}
+
+impl PresenceTiming {
+  /// How often remote participants' leases are checked.
+  pub fn cleanup_period(&self) -> StdDuration {
+    (self.lease / 4).clamp(StdDuration::from_millis(100), StdDuration::from_secs(2))
+  }
+}
+
 // Enum indicating if secure discovery allows normal discovery to process
 // something
 #[derive(PartialEq)]
@@ -235,6 +264,13 @@ pub(crate) struct Discovery {
   // rove patch (ROVE-PATCH.md §16): unsecured goodbyes waiting to be believed, and
   // when each was heard.
   pending_goodbyes: HashMap<GuidPrefix, Instant>,
+
+  // rove patch (ROVE-PATCH.md §18): how often we announce ourselves, the lease we
+  // announce, and how often remote leases are checked; when the secure
+  // announcement last went out.
+  presence: PresenceTiming,
+  #[cfg(feature = "security")]
+  last_secure_spdp: std::cell::Cell<Option<Instant>>,
 
   participant_status_sender: StatusChannelSender<DomainParticipantStatusEvent>,
 
@@ -309,10 +345,11 @@ pub(crate) struct Discovery {
 }
 
 impl Discovery {
-  const PARTICIPANT_CLEANUP_PERIOD: StdDuration = StdDuration::from_secs(2);
   const TOPIC_CLEANUP_PERIOD: StdDuration = StdDuration::from_secs(60); // timer for cleaning up inactive topics
-  const SPDP_PUBLISH_PERIOD: StdDuration = StdDuration::from_secs(10);
   const CHECK_PARTICIPANT_MESSAGES: StdDuration = StdDuration::from_secs(1);
+  // rove patch (ROVE-PATCH.md §18): the stock SPDP period.
+  #[cfg(feature = "security")]
+  const SECURE_SPDP_PERIOD: StdDuration = StdDuration::from_secs(10);
   #[cfg(feature = "security")]
   const CACHED_SECURE_DISCOVERY_MESSAGE_RESEND_PERIOD: StdDuration = StdDuration::from_secs(1);
 
@@ -328,6 +365,7 @@ impl Discovery {
     security_plugins_opt: Option<SecurityPluginsHandle>,
     waker: LoopWaker,
     discovery_samples: ReadyReceiver<Token>,
+    presence: PresenceTiming,
   ) -> CreateResult<Self> {
     // helper macro to handle initialization failures.
     macro_rules! try_construct {
@@ -635,7 +673,7 @@ impl Discovery {
         DiscoveryTimerEvent::SendParticipantInfo { reschedule: true },
       );
       t.set_timeout(
-        Self::PARTICIPANT_CLEANUP_PERIOD,
+        presence.cleanup_period(),
         DiscoveryTimerEvent::ParticipantCleanup,
       );
       t.set_timeout(
@@ -683,6 +721,9 @@ impl Discovery {
       liveliness_state: LivelinessState::new(),
       spdp_reply_pending: false,
       pending_goodbyes: HashMap::new(),
+      presence,
+      #[cfg(feature = "security")]
+      last_secure_spdp: std::cell::Cell::new(None),
 
       // discovery_subscriber,
       // discovery_publisher,
@@ -883,7 +924,7 @@ impl Discovery {
                   }
                   if reschedule {
                     self.discovery_timer.borrow_mut().set_timeout(
-                      Self::SPDP_PUBLISH_PERIOD,
+                      self.presence.spdp_period,
                       DiscoveryTimerEvent::SendParticipantInfo { reschedule: true },
                     );
                   }
@@ -891,7 +932,7 @@ impl Discovery {
                 DiscoveryTimerEvent::ParticipantCleanup => {
                   self.participant_cleanup();
                   self.discovery_timer.borrow_mut().set_timeout(
-                    Self::PARTICIPANT_CLEANUP_PERIOD,
+                    self.presence.cleanup_period(),
                     DiscoveryTimerEvent::ParticipantCleanup,
                   );
                 }
@@ -1076,13 +1117,22 @@ impl Discovery {
     &mut self,
     participant_data: &SpdpDiscoveredParticipantData,
   ) {
-    let was_new = discovery_db_write(&self.discovery_db).update_participant(participant_data);
+    let (was_new, changed) =
+      discovery_db_write(&self.discovery_db).update_participant_changed(participant_data);
     let guid_prefix = participant_data.participant_guid.prefix;
 
     // Send notification to dp_event_loop. It will update local reader/writer
     // proxies as the SpdpDiscoveredParticipantData contains a bitmap of the
     // available built-in endpoints.
-    self.send_discovery_notification(DiscoveryNotificationType::ParticipantUpdated { guid_prefix });
+    // rove patch (ROVE-PATCH.md §18): only when something changed. A periodic
+    // announcement of a known participant renews its lease (above) and nothing
+    // else; the event loop redid every built-in proxy and route for it, which at
+    // a short SPDP period and many peers was most of what presence cost.
+    if was_new || changed {
+      self.send_discovery_notification(DiscoveryNotificationType::ParticipantUpdated {
+        guid_prefix,
+      });
+    }
 
     if was_new {
       // Inform DDS Applications
@@ -1587,12 +1637,21 @@ impl Discovery {
     let data = SpdpDiscoveredParticipantData::from_local_participant(
       local_dp,
       &self.security_opt,
-      5.0 * Duration::from(Self::SPDP_PUBLISH_PERIOD),
+      Duration::from(self.presence.lease),
     );
 
+    // rove patch (ROVE-PATCH.md §18): the secure announcement is a reliable write to
+    // every authenticated peer; at a short SPDP period it would bring back the
+    // per-pair exchange the period replaces. It goes out at most every
+    // SECURE_SPDP_PERIOD; liveness comes from the plain announcements.
     #[cfg(feature = "security")]
     if let Some(security) = self.security_opt.as_ref() {
-      security.secure_spdp_publish(&self.dcps_participant_secure.writer, data.clone());
+      let due = (self.last_secure_spdp.get())
+        .is_none_or(|at| at.elapsed() >= Self::SECURE_SPDP_PERIOD);
+      if due {
+        self.last_secure_spdp.set(Some(Instant::now()));
+        security.secure_spdp_publish(&self.dcps_participant_secure.writer, data.clone());
+      }
     }
 
     self
@@ -1637,7 +1696,13 @@ impl Discovery {
 
       // We choose to send a new liveliness message if longer than half of the min
       // auto duration has elapsed since last message
-      if time_since_last_auto_update > min_auto_duration / 2 {
+      // rove patch (ROVE-PATCH.md §18): not when our SPDP announcements come at
+      // least that often: they assert the liveliness of our AUTOMATIC writers
+      // (RTPS 8.4.13: any message from the participant may; Cyclone DDS renews
+      // such writers' leases on SPDP), at one multicast per period instead of a
+      // reliable message to every peer.
+      let spdp_asserts = Duration::from(self.presence.spdp_period) <= min_auto_duration / 2;
+      if !spdp_asserts && time_since_last_auto_update > min_auto_duration / 2 {
         let msg = ParticipantMessageData {
           guid: self.domain_participant.guid_prefix(),
           kind: ParticipantMessageDataKind::AUTOMATIC_LIVELINESS_UPDATE,

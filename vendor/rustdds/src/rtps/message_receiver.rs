@@ -678,9 +678,21 @@ impl MessageReceiver {
         );
 
         // Notify discovery that the remote PArticipant seems to be alive
-        if writer_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER
+        // rove patch (ROVE-PATCH.md §18): at most every LIVENESS_REPORT_PERIOD per
+        // participant (the table `report_liveness` keeps): each report wakes the
+        // discovery thread, and announcements now come often, by multicast and by
+        // unicast.
+        let now = Instant::now();
+        let due = (self.liveness_reported.get(&source_guid_prefix))
+          .is_none_or(|at| now.duration_since(*at) >= LIVENESS_REPORT_PERIOD);
+        if due
+          && writer_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER
           && target_reader_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER
         {
+          if self.liveness_reported.len() >= MAX_LIVENESS_REPORTED {
+            self.liveness_reported.clear();
+          }
+          self.liveness_reported.insert(source_guid_prefix, now);
           self
             .spdp_liveness_sender
             .try_send(source_guid_prefix)

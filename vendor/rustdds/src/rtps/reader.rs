@@ -139,6 +139,10 @@ pub(crate) struct Reader {
   fragment_assemblers: BTreeMap<GUID, FragmentAssembler>,
   last_fragment_garbage_collect: Timestamp,
   matched_writers: BTreeMap<GUID, RtpsWriterProxy>,
+  // rove patch (ROVE-PATCH.md §18): the SPDP reader's last announcement from each
+  // matched participant, so that a periodic one that repeats it is not processed
+  // again (its lease is renewed by the message receiver's liveness report).
+  spdp_last_payload: BTreeMap<GUID, bytes::Bytes>,
   writer_match_count_total: i32, // total count, never decreases
 
   requested_deadline_missed_count: i32,
@@ -206,6 +210,7 @@ impl Reader {
       fragment_assemblers: BTreeMap::new(),
       last_fragment_garbage_collect: Timestamp::now(),
       matched_writers: BTreeMap::new(),
+      spdp_last_payload: BTreeMap::new(),
       writer_match_count_total: 0,
       requested_deadline_missed_count: 0,
       offered_incompatible_qos_count: 0,
@@ -508,6 +513,13 @@ impl Reader {
       .range(guid_prefix.range())
       .map(|(g, _)| *g)
       .collect();
+    // rove patch (ROVE-PATCH.md §18): found again, its announcement counts again.
+    let announced: Vec<GUID> = (self.spdp_last_payload.range(guid_prefix.range()))
+      .map(|(g, _)| *g)
+      .collect();
+    for writer in announced {
+      self.spdp_last_payload.remove(&writer);
+    }
     for writer in lost_writers {
       self.remove_writer_proxy(writer);
     }
@@ -791,6 +803,20 @@ impl Reader {
         }
         // Add the change and get the instant
         writer_proxy.received_changes_add(writer_sn, receive_timestamp);
+        // rove patch (ROVE-PATCH.md §18): a known participant's announcement that
+        // repeats its last one byte for byte changes nothing. At a short SPDP
+        // period, with every peer's announcement arriving by multicast and by
+        // unicast, processing each (cache, reader, discovery's deserialization and
+        // database) was most of what presence cost a node.
+        if my_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER {
+          if let DDSData::Data { serialized_payload } = &dds_data {
+            let value = &serialized_payload.value;
+            if self.spdp_last_payload.get(&writer_guid) == Some(value) {
+              return;
+            }
+            self.spdp_last_payload.insert(writer_guid, value.clone());
+          }
+        }
       } else {
         // no writer proxy found
         debug!(

@@ -118,6 +118,10 @@ pub(crate) enum TimedEvent {
   SendRepairFrags { to_reader: GUID },
 }
 
+/// rove patch (ROVE-PATCH.md §18): how often the fixed extra unicast destinations
+/// (SPDP's localhost peers) get a copy: rustdds's own SPDP period.
+const EXTRA_DESTINATIONS_PERIOD: std::time::Duration = std::time::Duration::from_secs(10);
+
 // This is used to construct an actual Writer.
 // Ingredients are sendable between threads, whereas the Writer is not.
 pub(crate) struct WriterIngredients {
@@ -199,6 +203,8 @@ pub(crate) struct Writer {
   // bootstrap same-host discovery in the first place). See
   // `src/rtps/loopback_same_host_design.md`.
   extra_unicast_destinations: Vec<Locator>,
+  // rove patch (ROVE-PATCH.md §18): when the extra destinations were last sent to.
+  extra_unicast_sent: std::cell::Cell<Option<std::time::Instant>>,
 
   // Whether route selection may prefer a same-host peer's loopback locator.
   // Mirrors the participant-builder `same_host_loopback` knob; `true` by
@@ -348,6 +354,7 @@ impl Writer {
       requested_incompatible_qos_count: 0,
       udp_sender,
       extra_unicast_destinations: Vec::new(),
+      extra_unicast_sent: std::cell::Cell::new(None),
       prefer_loopback_same_host: true,
       interface_observations,
       local_interfaces,
@@ -1916,7 +1923,19 @@ impl Writer {
 
         // Fixed extra unicast destinations (SPDP localhost peers): send the same
         // datagram unconditionally, deduplicated against everything already sent.
-        send_legacy!(self.extra_unicast_destinations);
+        // rove patch (ROVE-PATCH.md §18): at most every EXTRA_DESTINATIONS_PERIOD
+        // (the stock SPDP period). They find same-host peers where loopback has
+        // no multicast; a peer found is sent to as a reader proxy. At a short SPDP
+        // period, eleven fixed ports a time were most of the datagrams sent.
+        let now = std::time::Instant::now();
+        if (self.extra_unicast_sent.get())
+          .is_none_or(|at| now.duration_since(at) >= EXTRA_DESTINATIONS_PERIOD)
+        {
+          if !self.extra_unicast_destinations.is_empty() {
+            self.extra_unicast_sent.set(Some(now));
+          }
+          send_legacy!(self.extra_unicast_destinations);
+        }
       }
       Err(e) => error!("Failed to send message to readers. Encoding failed: {e:?}"),
     }

@@ -27,8 +27,12 @@
 //! operators) one after the other instead, and reports each one's CPU per node and the growth
 //! from the smallest to the largest: what each peer adds to every node.
 
+mod owners;
+
 use crate::tools::bench::Stats;
-use crate::tools::harness::{self, Out, Rig, wall_us};
+use crate::tools::harness::{self, Rig, wall_us};
+use owners::{Assignment, assign, drives_of, is_laptop, tally};
+pub use owners::{Incident, MAX_INCIDENTS, count};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -62,6 +66,8 @@ pub struct Options {
     pub latejoin_runs: usize,
     /// The fleet's presence heartbeat (`[network] heartbeat_ms`), `None`: the default.
     pub heartbeat_ms: Option<u64>,
+    /// The fleet's SPDP period (`[network] presence_ms`), `None`: rustdds's.
+    pub presence_ms: Option<u64>,
     /// Vehicle 100 (the one whose handovers are measured) runs under SCHED_FIFO at this
     /// priority (`chrt -f`), as the vehicle unit's real-time option does; `None`: the normal
     /// scheduler.
@@ -113,6 +119,8 @@ pub struct Report {
     pub idle: bool,
     /// The fleet's presence heartbeat, ms.
     pub heartbeat_ms: u64,
+    /// The fleet's SPDP period, ms (`None`: rustdds's 10 s).
+    pub presence_ms: Option<u64>,
     /// Vehicle 100's SCHED_FIFO priority, if it ran real-time.
     pub vehicle_rt: Option<u8>,
     /// The CPU window, s.
@@ -139,6 +147,9 @@ pub struct Report {
     pub stale: usize,
     /// Outputs recorded by all vehicles after the fleet was steady.
     pub outputs: usize,
+    /// The first wrong owners and failsafe entries, where and when (at most
+    /// [`MAX_INCIDENTS`]).
+    pub incidents: Vec<Incident>,
 }
 
 /// CPU ticks (user + system) and resident memory (KiB) of process `pid`.
@@ -177,28 +188,22 @@ fn usage(samples: &[(f64, u64)]) -> Usage {
     }
 }
 
-/// Wrong owners and stale failsafe entries in `outputs` (one vehicle's record) from `since_us`
-/// on: `allowed` may drive; the vehicle's operator lives throughout.
-pub fn count(outputs: &[Out], since_us: u64, allowed: &[i64]) -> (usize, usize) {
-    let (mut wrong, mut stale, mut safe) = (0, 0, false);
-    for o in outputs.iter().filter(|o| o.wall_us >= since_us) {
-        match (o.action.as_str(), o.owner) {
-            ("apply", Some(owner)) => {
-                safe = false;
-                if !allowed.contains(&owner) {
-                    wrong += 1;
-                }
-            }
-            ("safe", _) => {
-                if !safe {
-                    stale += 1;
-                }
-                safe = true;
-            }
-            _ => {}
-        }
+/// The fleet's `[network]` table: the heartbeat and presence the options ask for.
+fn network_toml(options: &Options) -> String {
+    let heartbeat = options
+        .heartbeat_ms
+        .map(|ms| format!("heartbeat_ms = {ms}\n"));
+    let presence = options
+        .presence_ms
+        .map(|ms| format!("presence_ms = {ms}\n"));
+    match (heartbeat, presence) {
+        (None, None) => String::new(),
+        (h, p) => format!(
+            "[network]\n{}{}",
+            h.unwrap_or_default(),
+            p.unwrap_or_default()
+        ),
     }
-    (wrong, stale)
 }
 
 /// The ids of the fleet.
@@ -206,32 +211,6 @@ fn fleet_ids(options: &Options) -> (Vec<i64>, Vec<i64>) {
     let vehicles = (0..options.vehicles as i64).map(|k| FIRST_VEHICLE + k);
     let operators = (0..options.operators as i64).map(|i| FIRST_OPERATOR + i);
     (vehicles.collect(), operators.collect())
-}
-
-/// Who drives what: for each vehicle its laptop (the stronger) and its desktop (the weaker, none
-/// with a single operator). The first half of `operators` (rounded up) are the laptops.
-fn assign(vehicles: &[i64], operators: &[i64]) -> BTreeMap<i64, (i64, Option<i64>)> {
-    let (laptops, desktops) = operators.split_at(operators.len().div_ceil(2));
-    (vehicles.iter().enumerate())
-        .filter(|_| !laptops.is_empty())
-        .map(|(k, &v)| {
-            let desktop = (!desktops.is_empty()).then(|| desktops[k % desktops.len()]);
-            (v, (laptops[k % laptops.len()], desktop))
-        })
-        .collect()
-}
-
-/// The vehicles `operator` drives under `assignment`.
-fn drives_of(assignment: &BTreeMap<i64, (i64, Option<i64>)>, operator: i64) -> Vec<i64> {
-    (assignment.iter())
-        .filter(|(_, (laptop, desktop))| *laptop == operator || *desktop == Some(operator))
-        .map(|(&v, _)| v)
-        .collect()
-}
-
-/// Whether `operator` is a laptop (the stronger) under `assignment`.
-fn is_laptop(assignment: &BTreeMap<i64, (i64, Option<i64>)>, operator: i64) -> bool {
-    assignment.values().any(|(laptop, _)| *laptop == operator)
 }
 
 /// Starts `rove status --events` as `name`; its log is the event stream.
@@ -263,9 +242,7 @@ pub fn run(
     anyhow::ensure!(options.vehicles >= 1, "needs at least one vehicle");
     let mut rig = Rig::new(rove, "scale")?;
     let (vehicles, operators) = fleet_ids(options);
-    let network = options.heartbeat_ms.map_or(String::new(), |ms| {
-        format!("[network]\nheartbeat_ms = {ms}\n")
-    });
+    let network = network_toml(options);
     let output = format!("{network}[output]\nadapter = \"sim\"\n");
     // Only the measured vehicle runs real-time: on a real board each vehicle has its own
     // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
@@ -278,7 +255,7 @@ pub fn run(
         .collect();
     let assignment = assign(&vehicles, &operators);
     // Each operator's process index in the rig, and what it is started with.
-    let mut started_as: BTreeMap<i64, (usize, &str, Vec<i64>)> = BTreeMap::new();
+    let mut started_as: BTreeMap<i64, (usize, &'static str, Vec<i64>)> = BTreeMap::new();
     for &id in &operators {
         let class = if is_laptop(&assignment, id) {
             "laptop"
@@ -313,49 +290,22 @@ pub fn run(
     }
     let steady = wall_us();
     progress("fleet steady; measuring CPU");
-    std::thread::sleep(Duration::from_secs(2));
-    let before: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
-    let started = Instant::now();
-    std::thread::sleep(options.window);
-    let elapsed = started.elapsed().as_secs_f64();
-    let after: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
-    let hz = clock_ticks();
-    let measured: Vec<(f64, u64)> = before
-        .iter()
-        .zip(&after)
-        .map(|(b, a)| match (b, a) {
-            (Some(b), Some(a)) => (a.0.saturating_sub(b.0) as f64 / hz / elapsed * 100.0, a.1),
-            _ => (0.0, 0),
-        })
-        .collect();
-    anyhow::ensure!(
-        after.iter().all(Option::is_some),
-        "a process of the fleet exited during the window"
-    );
+    let (measured, elapsed) = cpu_window(&rig, &fleet, options.window)?;
     let (v_usage, o_usage) = measured.split_at(vehicles.len());
-    let desktops: Vec<i64> = (assignment.values())
-        .filter_map(|(_, desktop)| *desktop)
-        .collect::<BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    let mut restarts = 0;
-    if !options.idle && !desktops.is_empty() {
-        for run in 0..options.restarts {
-            let id = desktops[run % desktops.len()];
-            let (p, class, drive) = started_as[&id].clone();
-            rig.procs[p].stop();
-            let again = rig.operator(id, "stationary", class, &drive, 1000, &network, &[]);
-            started_as.insert(id, (again, class, drive));
-            restarts += 1;
-            progress(&format!(
-                "restart {}/{}: desktop {id} (drives {:?})",
-                run + 1,
-                options.restarts,
-                started_as[&id].2
-            ));
-            std::thread::sleep(RESTART_EVERY);
-        }
-    }
+    let mut phases = vec![("steady", steady), ("churn", wall_us())];
+    let restarts = if options.idle {
+        0
+    } else {
+        churn(
+            &mut rig,
+            &assignment,
+            &mut started_as,
+            options.restarts,
+            &network,
+            progress,
+        )
+    };
+    phases.push(("handover", wall_us()));
     let handover = if options.idle {
         Vec::new()
     } else {
@@ -369,27 +319,16 @@ pub fn run(
             progress,
         )?
     };
+    phases.push(("late joiner", wall_us()));
     let latejoin = late_joiners(&mut rig, &everyone, options.latejoin_runs, progress)?;
-    let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
-    for (&vehicle, record) in vehicles.iter().zip(&records) {
-        let outs = harness::records(record);
-        let mut allowed: Vec<i64> = (assignment.get(&vehicle))
-            .map(|(laptop, _)| *laptop)
-            .into_iter()
-            .collect();
-        if vehicle == vehicles[0] {
-            allowed.push(PHONE);
-        }
-        let (w, s) = count(&outs, steady, &allowed);
-        wrong_owner += w;
-        stale += s;
-        outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
-    }
+    let (wrong_owner, stale, outputs, incidents) =
+        tally(&vehicles, &records, &assignment, steady, &phases);
     Ok(Report {
         vehicles: vehicles.len(),
         operators: operators.len(),
         idle: options.idle,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
+        presence_ms: options.presence_ms,
         vehicle_rt: options.vehicle_rt,
         window_s: elapsed,
         cpu_total_pct: measured.iter().map(|m| m.0).sum(),
@@ -403,7 +342,68 @@ pub fn run(
         wrong_owner,
         stale,
         outputs,
+        incidents,
     })
+}
+
+/// Every process's CPU (percent of a core) over `window`, 2 s from now, and its resident memory
+/// at the end (KiB); the window's length, s.
+fn cpu_window(
+    rig: &Rig,
+    fleet: &[usize],
+    window: Duration,
+) -> anyhow::Result<(Vec<(f64, u64)>, f64)> {
+    std::thread::sleep(Duration::from_secs(2));
+    let before: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
+    let started = Instant::now();
+    std::thread::sleep(window);
+    let elapsed = started.elapsed().as_secs_f64();
+    let after: Vec<_> = fleet.iter().map(|&p| sample(rig.procs[p].pid())).collect();
+    let hz = clock_ticks();
+    let measured = (before.iter().zip(&after))
+        .map(|(b, a)| match (b, a) {
+            (Some(b), Some(a)) => (a.0.saturating_sub(b.0) as f64 / hz / elapsed * 100.0, a.1),
+            _ => (0.0, 0),
+        })
+        .collect();
+    anyhow::ensure!(
+        after.iter().all(Option::is_some),
+        "a process of the fleet exited during the window"
+    );
+    Ok((measured, elapsed))
+}
+
+/// The churn phase: `restarts` times, a desktop quits (SIGTERM) and starts again with what it
+/// was started with (`started_as`: its process, class and vehicles), one a second; how many.
+fn churn(
+    rig: &mut Rig,
+    assignment: &Assignment,
+    started_as: &mut BTreeMap<i64, (usize, &'static str, Vec<i64>)>,
+    restarts: usize,
+    network: &str,
+    progress: &mut dyn FnMut(&str),
+) -> usize {
+    let desktops: Vec<i64> = (assignment.values())
+        .filter_map(|(_, desktop)| *desktop)
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    if desktops.is_empty() {
+        return 0;
+    }
+    for run in 0..restarts {
+        let id = desktops[run % desktops.len()];
+        let (p, class, drive) = started_as[&id].clone();
+        rig.procs[p].stop();
+        let again = rig.operator(id, "stationary", class, &drive, 1000, network, &[]);
+        progress(&format!(
+            "restart {}/{restarts}: desktop {id} (drives {drive:?})",
+            run + 1
+        ));
+        started_as.insert(id, (again, class, drive));
+        std::thread::sleep(RESTART_EVERY);
+    }
+    restarts
 }
 
 /// `runs` times: a mobile phone takes `vehicle` from `owner` and quits; from its SIGTERM to
@@ -498,109 +498,15 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         r.stale,
         r.outputs
     );
-    if let Some(path) = json {
-        std::fs::write(path, serde_json::to_string_pretty(&r)? + "\n")?;
-    }
-    Ok(())
-}
-
-/// One idle fleet of the sweep.
-#[derive(Debug, Serialize)]
-pub struct SweepPoint {
-    /// Processes (half vehicles, half operators; the odd one a vehicle).
-    pub processes: usize,
-    /// Mean CPU of a node, percent of one core.
-    pub cpu_per_node_pct: f64,
-    /// The busiest node's CPU, percent of one core.
-    pub cpu_max_pct: f64,
-    /// CPU of the fleet, percent of one core.
-    pub cpu_total_pct: f64,
-    /// Late joiner: start → every device listed, ms.
-    pub latejoin_ms: Option<Percentiles>,
-}
-
-/// `rove bench scale --idle-sweep` (`--json`).
-#[derive(Debug, Serialize)]
-pub struct Sweep {
-    /// The fleets, smallest first.
-    pub fleets: Vec<SweepPoint>,
-    /// CPU per node of the largest fleet over that of the smallest: 1.0 when a node's idle cost
-    /// does not depend on the number of its peers.
-    pub growth: Option<f64>,
-    /// The fleet's presence heartbeat, ms.
-    pub heartbeat_ms: u64,
-}
-
-/// Runs idle fleets of `sizes` processes, smallest first.
-///
-/// # Errors
-/// As [`run`], or a size below 2.
-pub fn sweep(
-    rove: &Path,
-    options: &Options,
-    sizes: &[usize],
-    progress: &mut dyn FnMut(&str),
-) -> anyhow::Result<Sweep> {
-    let mut sizes = sizes.to_vec();
-    sizes.sort_unstable();
-    anyhow::ensure!(
-        sizes.first().is_some_and(|&n| n >= 2),
-        "each fleet of the sweep needs at least 2 processes"
-    );
-    let mut fleets = Vec::new();
-    for n in sizes {
-        progress(&format!("idle fleet of {n} processes"));
-        let fleet = Options {
-            vehicles: n.div_ceil(2),
-            operators: n / 2,
-            idle: true,
-            handover_runs: 0,
-            restarts: 0,
-            ..options.clone()
-        };
-        let r = run(rove, &fleet, progress)?;
-        let nodes = r.vehicle.processes + r.operator.processes;
-        fleets.push(SweepPoint {
-            processes: nodes,
-            cpu_per_node_pct: r.cpu_total_pct / nodes as f64,
-            cpu_max_pct: r.vehicle.cpu_max_pct.max(r.operator.cpu_max_pct),
-            cpu_total_pct: r.cpu_total_pct,
-            latejoin_ms: r.latejoin_ms,
-        });
-    }
-    let growth = match (fleets.first(), fleets.last()) {
-        (Some(a), Some(b)) if a.cpu_per_node_pct > 0.0 => {
-            Some(b.cpu_per_node_pct / a.cpu_per_node_pct)
-        }
-        _ => None,
-    };
-    Ok(Sweep {
-        fleets,
-        growth,
-        heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
-    })
-}
-
-/// `rove bench scale --idle-sweep`: runs, prints a line per fleet and optionally writes the
-/// JSON report.
-///
-/// # Errors
-/// As [`sweep`], or the JSON file cannot be written.
-pub fn sweep_cli(
-    rove: &Path,
-    options: &Options,
-    sizes: &[usize],
-    json: Option<&Path>,
-) -> anyhow::Result<()> {
-    let r = sweep(rove, options, sizes, &mut |line| eprintln!("{line}"))?;
-    for f in &r.fleets {
+    for i in &r.incidents {
         println!(
-            "idle {:>3} processes: {:.2} % of a core per node (max {:.2} %), {:.1} % in all",
-            f.processes, f.cpu_per_node_pct, f.cpu_max_pct, f.cpu_total_pct
+            "  vehicle {} at {} ms ({}): {}",
+            i.vehicle,
+            i.at_ms,
+            i.phase,
+            i.owner
+                .map_or("failsafe".to_string(), |o| format!("applied {o}"))
         );
-    }
-    if let Some(g) = r.growth {
-        println!("per-node idle CPU, largest fleet over smallest: {g:.2}×");
     }
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&r)? + "\n")?;
@@ -611,34 +517,6 @@ pub fn sweep_cli(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn out(t: u64, action: &str, owner: Option<i64>) -> Out {
-        Out {
-            wall_us: t,
-            action: action.into(),
-            owner,
-            throttle: None,
-        }
-    }
-
-    #[test]
-    fn counts_strangers_and_each_failsafe_entry_after_the_start() {
-        let outs = [
-            out(1, "apply", Some(7)),
-            out(1, "safe", None),
-            out(10, "apply", Some(1000)),
-            out(11, "apply", Some(7)),
-            out(12, "safe", None),
-            out(13, "safe", None),
-            out(14, "apply", Some(9000)),
-            out(15, "safe", None),
-            out(16, "apply", Some(1000)),
-        ];
-        assert_eq!(count(&outs, 10, &[1000, 9000]), (1, 2));
-        assert_eq!(count(&outs, 10, &[1000]), (2, 2));
-        assert_eq!(count(&outs, 0, &[1000, 9000]), (2, 3));
-        assert_eq!(count(&outs, 17, &[1000]), (0, 0));
-    }
 
     #[test]
     fn usage_is_mean_and_max_per_role() {
@@ -661,30 +539,13 @@ mod tests {
             restarts: 0,
             latejoin_runs: 0,
             heartbeat_ms: None,
+            presence_ms: None,
             vehicle_rt: None,
         };
         assert_eq!(
             fleet_ids(&options),
             (vec![100, 101], vec![1000, 1001, 1002])
         );
-    }
-
-    #[test]
-    fn every_vehicle_gets_a_laptop_and_a_weaker_desktop() {
-        let vehicles = [100, 101, 102, 103];
-        let a = assign(&vehicles, &[1000, 1001, 1002, 1003]);
-        assert_eq!(a[&100], (1000, Some(1002)));
-        assert_eq!(a[&101], (1001, Some(1003)));
-        assert_eq!(a[&102], (1000, Some(1002)));
-        assert_eq!(drives_of(&a, 1003), vec![101, 103]);
-        assert!(is_laptop(&a, 1001) && !is_laptop(&a, 1002));
-        // Three operators: two laptops, one desktop behind every vehicle.
-        let a = assign(&vehicles, &[1000, 1001, 1002]);
-        assert_eq!(a[&103], (1001, Some(1002)));
-        assert_eq!(drives_of(&a, 1002), vec![100, 101, 102, 103]);
-        // One operator drives alone; none drives nothing.
-        assert_eq!(assign(&vehicles, &[1000])[&102], (1000, None));
-        assert!(assign(&vehicles, &[]).is_empty());
     }
 
     #[test]

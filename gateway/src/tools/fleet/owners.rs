@@ -1,0 +1,190 @@
+//! Who should drive each vehicle of the scale bench, and the outputs that say otherwise: a
+//! wrong owner (an apply from anyone but the vehicle's laptop) or a failsafe entry.
+
+use super::PHONE;
+use crate::tools::harness::{self, Out};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Incidents listed at most in a report.
+pub const MAX_INCIDENTS: usize = 20;
+
+/// A wrong owner or a failsafe entry, for the report.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Incident {
+    /// The vehicle.
+    pub vehicle: i64,
+    /// The bench's phase: `steady` (the CPU window), `churn`, `handover`, `late joiner`.
+    pub phase: &'static str,
+    /// Since the fleet was steady, ms.
+    pub at_ms: u64,
+    /// Who it applied (a wrong owner), or `None`: it went to the failsafe.
+    pub owner: Option<i64>,
+}
+
+/// The incidents of one vehicle's record from `since_us` on, as [`count`] counts them; each
+/// in the last phase (name, start) that began before it.
+fn incidents_of(
+    outputs: &[Out],
+    since_us: u64,
+    allowed: &[i64],
+    phases: &[(&'static str, u64)],
+    vehicle: i64,
+) -> Vec<Incident> {
+    let mut safe = false;
+    let mut found = Vec::new();
+    for o in outputs.iter().filter(|o| o.wall_us >= since_us) {
+        let incident = match (o.action.as_str(), o.owner) {
+            ("apply", Some(owner)) => {
+                safe = false;
+                (!allowed.contains(&owner)).then_some(Some(owner))
+            }
+            ("safe", _) => (!std::mem::replace(&mut safe, true)).then_some(None),
+            _ => None,
+        };
+        if let Some(owner) = incident {
+            let phase = (phases.iter().rev())
+                .find(|(_, start)| *start <= o.wall_us)
+                .map_or("steady", |(name, _)| name);
+            found.push(Incident {
+                vehicle,
+                phase,
+                at_ms: (o.wall_us - since_us) / 1000,
+                owner,
+            });
+        }
+    }
+    found
+}
+
+/// Wrong owners and stale failsafe entries in `outputs` (one vehicle's record) from `since_us`
+/// on: `allowed` may drive; the vehicle's operator lives throughout.
+pub fn count(outputs: &[Out], since_us: u64, allowed: &[i64]) -> (usize, usize) {
+    let found = incidents_of(outputs, since_us, allowed, &[], 0);
+    let wrong = found.iter().filter(|i| i.owner.is_some()).count();
+    (wrong, found.len() - wrong)
+}
+
+/// For each vehicle, its laptop and its desktop (if any).
+pub(super) type Assignment = BTreeMap<i64, (i64, Option<i64>)>;
+
+/// Who drives what: for each vehicle its laptop (the stronger) and its desktop (the weaker, none
+/// with a single operator). The first half of `operators` (rounded up) are the laptops.
+pub(super) fn assign(vehicles: &[i64], operators: &[i64]) -> Assignment {
+    let (laptops, desktops) = operators.split_at(operators.len().div_ceil(2));
+    (vehicles.iter().enumerate())
+        .filter(|_| !laptops.is_empty())
+        .map(|(k, &v)| {
+            let desktop = (!desktops.is_empty()).then(|| desktops[k % desktops.len()]);
+            (v, (laptops[k % laptops.len()], desktop))
+        })
+        .collect()
+}
+
+/// The vehicles `operator` drives under `assignment`.
+pub(super) fn drives_of(assignment: &Assignment, operator: i64) -> Vec<i64> {
+    (assignment.iter())
+        .filter(|(_, (laptop, desktop))| *laptop == operator || *desktop == Some(operator))
+        .map(|(&v, _)| v)
+        .collect()
+}
+
+/// Whether `operator` is a laptop (the stronger) under `assignment`.
+pub(super) fn is_laptop(assignment: &Assignment, operator: i64) -> bool {
+    assignment.values().any(|(laptop, _)| *laptop == operator)
+}
+
+/// Wrong owners, stale failsafe entries and outputs of every vehicle's record since `steady`,
+/// and the first [`MAX_INCIDENTS`] incidents.
+pub(super) fn tally(
+    vehicles: &[i64],
+    records: &[PathBuf],
+    assignment: &Assignment,
+    steady: u64,
+    phases: &[(&'static str, u64)],
+) -> (usize, usize, usize, Vec<Incident>) {
+    let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
+    let mut incidents = Vec::new();
+    for (&vehicle, record) in vehicles.iter().zip(records) {
+        let outs = harness::records(record);
+        let mut allowed: Vec<i64> = (assignment.get(&vehicle))
+            .map(|(laptop, _)| *laptop)
+            .into_iter()
+            .collect();
+        if vehicle == vehicles[0] {
+            allowed.push(PHONE);
+        }
+        let found = incidents_of(&outs, steady, &allowed, phases, vehicle);
+        let wrong = found.iter().filter(|i| i.owner.is_some()).count();
+        wrong_owner += wrong;
+        stale += found.len() - wrong;
+        let room = MAX_INCIDENTS.saturating_sub(incidents.len());
+        incidents.extend(found.into_iter().take(room));
+        outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
+    }
+    (wrong_owner, stale, outputs, incidents)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn out(t: u64, action: &str, owner: Option<i64>) -> Out {
+        Out {
+            wall_us: t,
+            action: action.into(),
+            owner,
+            throttle: None,
+        }
+    }
+
+    #[test]
+    fn counts_strangers_and_each_failsafe_entry_after_the_start() {
+        let outs = [
+            out(1, "apply", Some(7)),
+            out(1, "safe", None),
+            out(10, "apply", Some(1000)),
+            out(11, "apply", Some(7)),
+            out(12, "safe", None),
+            out(13, "safe", None),
+            out(14, "apply", Some(9000)),
+            out(15, "safe", None),
+            out(16, "apply", Some(1000)),
+        ];
+        assert_eq!(count(&outs, 10, &[1000, 9000]), (1, 2));
+        assert_eq!(count(&outs, 10, &[1000]), (2, 2));
+        assert_eq!(count(&outs, 0, &[1000, 9000]), (2, 3));
+        assert_eq!(count(&outs, 17, &[1000]), (0, 0));
+        let phases = [("steady", 10), ("churn", 13), ("handover", 14)];
+        let found = incidents_of(&outs, 10, &[1000, 9000], &phases, 100);
+        let brief: Vec<_> = found.iter().map(|i| (i.phase, i.at_ms, i.owner)).collect();
+        assert_eq!(
+            brief,
+            vec![
+                ("steady", 0, Some(7)),
+                ("steady", 0, None),
+                ("handover", 0, None)
+            ]
+        );
+        assert_eq!(found.len(), count(&outs, 10, &[1000, 9000]).0 + 2);
+    }
+
+    #[test]
+    fn every_vehicle_gets_a_laptop_and_a_weaker_desktop() {
+        let vehicles = [100, 101, 102, 103];
+        let a = assign(&vehicles, &[1000, 1001, 1002, 1003]);
+        assert_eq!(a[&100], (1000, Some(1002)));
+        assert_eq!(a[&101], (1001, Some(1003)));
+        assert_eq!(a[&102], (1000, Some(1002)));
+        assert_eq!(drives_of(&a, 1003), vec![101, 103]);
+        assert!(is_laptop(&a, 1001) && !is_laptop(&a, 1002));
+        // Three operators: two laptops, one desktop behind every vehicle.
+        let a = assign(&vehicles, &[1000, 1001, 1002]);
+        assert_eq!(a[&103], (1001, Some(1002)));
+        assert_eq!(drives_of(&a, 1002), vec![100, 101, 102, 103]);
+        // One operator drives alone; none drives nothing.
+        assert_eq!(assign(&vehicles, &[1000])[&102], (1000, None));
+        assert!(assign(&vehicles, &[]).is_empty());
+    }
+}
