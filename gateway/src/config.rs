@@ -36,8 +36,9 @@ rove_core::config_types! {
         heartbeat_ms: Option<Int> => "Presence heartbeat period, ms (absent: 500). Crashed devices \
             drop from device lists after three missed heartbeats, because rustdds's own \
             participant lease is ~50 s.",
-        presence_ms: Option<Int> => "SPDP announcement period, ms (absent: rustdds's 10 s). The \
-            participant lease announced is eight periods; at 500 ms or less the announcements \
+        presence_ms: Option<Int> => "SPDP announcement period, ms, 250 to 10000 (absent: \
+            rustdds's 10 s). The participant lease announced is eight periods; at 500 ms or less \
+            the announcements \
             also assert the DeviceInfo writer's liveliness, and no per-peer liveliness message \
             is sent (docs/design.md, \"Fleet scale\").",
     }
@@ -572,7 +573,10 @@ fn validate_common(
     let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
     let heartbeat = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
     let presence = (network.presence_ms)
-        .and_then(|ms| errors.int("network.presence_ms", ms, 50..=10_000, ""))
+        .and_then(|ms| {
+            let rule = " (liveness is reported at most every 250 ms)";
+            errors.int("network.presence_ms", ms, 250..=10_000, rule)
+        })
         .map(|ms: u64| Duration::from_millis(ms));
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");

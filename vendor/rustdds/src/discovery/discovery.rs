@@ -1117,22 +1117,15 @@ impl Discovery {
     &mut self,
     participant_data: &SpdpDiscoveredParticipantData,
   ) {
-    let (was_new, changed) =
-      discovery_db_write(&self.discovery_db).update_participant_changed(participant_data);
+    let was_new = discovery_db_write(&self.discovery_db).update_participant(participant_data);
     let guid_prefix = participant_data.participant_guid.prefix;
 
     // Send notification to dp_event_loop. It will update local reader/writer
     // proxies as the SpdpDiscoveredParticipantData contains a bitmap of the
     // available built-in endpoints.
-    // rove patch (ROVE-PATCH.md §18): only when something changed. A periodic
-    // announcement of a known participant renews its lease (above) and nothing
-    // else; the event loop redid every built-in proxy and route for it, which at
-    // a short SPDP period and many peers was most of what presence cost.
-    if was_new || changed {
-      self.send_discovery_notification(DiscoveryNotificationType::ParticipantUpdated {
-        guid_prefix,
-      });
-    }
+    // (rove patch, ROVE-PATCH.md §18: an announcement that repeats the last one
+    // reaches this point at most every 10 s; the SPDP reader drops the rest.)
+    self.send_discovery_notification(DiscoveryNotificationType::ParticipantUpdated { guid_prefix });
 
     if was_new {
       // Inform DDS Applications

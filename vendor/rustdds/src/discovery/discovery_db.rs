@@ -172,28 +172,6 @@ impl DiscoveryDB {
 
   // Returns if participant was previously unknown
   pub fn update_participant(&mut self, data: &SpdpDiscoveredParticipantData) -> bool {
-    self.update_participant_changed(data).0
-  }
-
-  /// rove patch (ROVE-PATCH.md §18): as `update_participant`, and also whether
-  /// what is known of the participant changed (a periodic announcement of a
-  /// known participant normally changes nothing but its time).
-  pub fn update_participant_changed(
-    &mut self,
-    data: &SpdpDiscoveredParticipantData,
-  ) -> (bool, bool) {
-    let before = self.participant_proxies.get(&data.participant_guid.prefix).cloned();
-    let new = self.update_participant_inner(data);
-    let changed = match (before, self.participant_proxies.get(&data.participant_guid.prefix)) {
-      (Some(before), Some(now)) => {
-        SpdpDiscoveredParticipantData { updated_time: now.updated_time, ..before } != *now
-      }
-      _ => true,
-    };
-    (new, changed)
-  }
-
-  fn update_participant_inner(&mut self, data: &SpdpDiscoveredParticipantData) -> bool {
     debug!("update_participant: {:?}", data);
     let guid = data.participant_guid;
 

@@ -1416,6 +1416,9 @@ impl SecureDiscovery {
   ) {
     let mut db = discovery_db_write(discovery_db);
     db.update_authentication_status(participant_guid_prefix, new_status);
+    // rove patch (ROVE-PATCH.md §17): the write guard is dropped before the
+    // notification, which blocks while the event loop's channel is full.
+    drop(db);
 
     send_discovery_notification(
       discovery_updated_sender,

@@ -337,10 +337,14 @@ impl MessageReceiver {
       // reported again at their next message.
       self.liveness_reported.clear();
     }
-    self.liveness_reported.insert(prefix, now);
-    self.spdp_liveness_sender.try_send(prefix).unwrap_or_else(|e| {
-      trace!("spdp_liveness_sender.try_send(): {e:?}");
-    });
+    // Recorded only when it went: a report dropped on a full channel is made
+    // again at the participant's next message.
+    match self.spdp_liveness_sender.try_send(prefix) {
+      Ok(()) => {
+        self.liveness_reported.insert(prefix, now);
+      }
+      Err(e) => trace!("spdp_liveness_sender.try_send(): {e:?}"),
+    }
   }
 
   // This is also called directly from dp_event_loop in case of loopback messages.
@@ -692,13 +696,13 @@ impl MessageReceiver {
           if self.liveness_reported.len() >= MAX_LIVENESS_REPORTED {
             self.liveness_reported.clear();
           }
-          self.liveness_reported.insert(source_guid_prefix, now);
-          self
-            .spdp_liveness_sender
-            .try_send(source_guid_prefix)
-            .unwrap_or_else(|e| {
-              debug!("spdp_liveness_sender.try_send(): {e:?}. Is Discovery alive?");
-            });
+          // Recorded only when it went (as in `report_liveness`).
+          match self.spdp_liveness_sender.try_send(source_guid_prefix) {
+            Ok(()) => {
+              self.liveness_reported.insert(source_guid_prefix, now);
+            }
+            Err(e) => debug!("spdp_liveness_sender.try_send(): {e:?}. Is Discovery alive?"),
+          }
         }
       }
 

@@ -71,6 +71,10 @@ pub(crate) enum TimedEvent {
   DeadlineMissedCheck,
 }
 
+/// rove patch (ROVE-PATCH.md §18): how often an SPDP announcement that repeats the
+/// last one is processed anyway.
+const SPDP_REPEAT_PERIOD: std::time::Duration = std::time::Duration::from_secs(10);
+
 // Some pieces necessary to construct a reader.
 // These can be sent between threads, whereas a Reader cannot.
 pub(crate) struct ReaderIngredients {
@@ -142,7 +146,7 @@ pub(crate) struct Reader {
   // rove patch (ROVE-PATCH.md §18): the SPDP reader's last announcement from each
   // matched participant, so that a periodic one that repeats it is not processed
   // again (its lease is renewed by the message receiver's liveness report).
-  spdp_last_payload: BTreeMap<GUID, bytes::Bytes>,
+  spdp_last_payload: BTreeMap<GUID, (bytes::Bytes, std::time::Instant)>,
   writer_match_count_total: i32, // total count, never decreases
 
   requested_deadline_missed_count: i32,
@@ -808,13 +812,21 @@ impl Reader {
         // period, with every peer's announcement arriving by multicast and by
         // unicast, processing each (cache, reader, discovery's deserialization and
         // database) was most of what presence cost a node.
+        // One repeat goes through every SPDP_REPEAT_PERIOD (the stock SPDP period),
+        // so that the event loop still refreshes the peer's proxies and routes as
+        // often as before. The payload is copied: a slice would keep its whole
+        // receive buffer alive.
         if my_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER {
           if let DDSData::Data { serialized_payload } = &dds_data {
             let value = &serialized_payload.value;
-            if self.spdp_last_payload.get(&writer_guid) == Some(value) {
+            let now = std::time::Instant::now();
+            if (self.spdp_last_payload.get(&writer_guid)).is_some_and(|(last, at)| {
+              last == value && now.duration_since(*at) < SPDP_REPEAT_PERIOD
+            }) {
               return;
             }
-            self.spdp_last_payload.insert(writer_guid, value.clone());
+            let copy = bytes::Bytes::copy_from_slice(value);
+            self.spdp_last_payload.insert(writer_guid, (copy, now));
           }
         }
       } else {

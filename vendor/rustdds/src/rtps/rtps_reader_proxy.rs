@@ -413,10 +413,14 @@ impl RtpsReaderProxy {
     self.max_datagram_payload = budget.unwrap_or(FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE);
   }
 
+  /// `reader_may_restart` (rove patch, ROVE-PATCH.md §16): an ACKNACK below what
+  /// the reader had acknowledged is served as from a reader that lost its state
+  /// (built-in discovery writers); else it is ignored, as before.
   pub fn handle_ack_nack(
     &mut self,
     ack_submessage: &AckSubmessage,
     last_available: SequenceNumber,
+    reader_may_restart: bool,
   ) {
     match ack_submessage {
       AckSubmessage::AckNack(acknack) => {
@@ -461,11 +465,22 @@ impl RtpsReaderProxy {
         // served and the HEARTBEAT answering a request for nothing is sent. A
         // reordered old ACKNACK costs a resend of what it names, which the reader
         // drops as duplicates.
+        // Only built-in (discovery) writers do this: their readers need the history
+        // to match anything, while a user writer's regressed mark would also lower
+        // its send window and make writes wait.
         if new_all_acked_before < self.all_acked_before {
           debug!(
             "ACKNACK moves all_acked_before backwards: old={:?} new={:?} reader={:x?} count={}",
             self.all_acked_before, new_all_acked_before, self.remote_reader_guid, acknack.count
           );
+          if !reader_may_restart {
+            for nack_sn in acknack.reader_sn_state.iter() {
+              if nack_sn >= self.all_acked_before {
+                self.unsent_changes.insert(nack_sn);
+              }
+            }
+            return;
+          }
         }
         self.remove_from_unsent_set_all_before(new_all_acked_before);
         self.all_acked_before = new_all_acked_before;
@@ -729,7 +744,7 @@ mod acknack_tests {
       count: 1,
     };
 
-    rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(100));
+    rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(100), true);
 
     assert_eq!(rp.all_acked_before, SequenceNumber::from(10));
   }
@@ -746,7 +761,7 @@ mod acknack_tests {
       count: 1,
     };
 
-    rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(100));
+    rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(100), true);
 
     assert_eq!(rp.all_acked_before, SequenceNumber::from(50));
   }
@@ -770,13 +785,19 @@ mod acknack_tests {
       count: 1,
     };
 
-    rp.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(3));
+    let mut user = rp.clone();
+    rp.handle_ack_nack(&AckSubmessage::AckNack(ack.clone()), SequenceNumber::from(3), true);
 
     assert_eq!(rp.all_acked_before, SequenceNumber::from(1));
     assert_eq!(
       rp.unsent_changes_iter().collect::<Vec<_>>(),
       vec![SequenceNumber::from(1), SequenceNumber::from(3)]
     );
+
+    // A user writer's reader proxy keeps its mark, as before.
+    user.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(3), false);
+    assert_eq!(user.all_acked_before, SequenceNumber::from(4));
+    assert_eq!(user.unsent_changes_iter().count(), 0);
   }
 }
 

@@ -1195,6 +1195,9 @@ impl Writer {
         let my_topic = self.my_topic_name.clone(); // for debugging
 
         let mut start_repair = false;
+        // rove patch (ROVE-PATCH.md §16): discovery writers serve a reader that
+        // lost its state.
+        let may_restart = self.my_guid.entity_id.entity_kind.is_built_in();
 
         if let Some(reader_proxy) = self.lookup_reader_proxy_mut(reader_guid) {
           if reader_proxy.last_acknack_count == Some(an.count) {
@@ -1211,7 +1214,7 @@ impl Writer {
           // Mark requested SNs as "unsent changes"
 
           //TODO: We should drop SNs in "pending gap" from unsent changes
-          reader_proxy.handle_ack_nack(ack_submessage, last_seq);
+          reader_proxy.handle_ack_nack(ack_submessage, last_seq, may_restart);
 
           // Sanity Check: if the reader asked for something we did not even advertise
           // yet. TODO: This
