@@ -479,31 +479,22 @@ fn an_operator_dropped_on_a_forged_goodbye_drives_again_at_its_next_announcement
     let (record, capture) = captured_driving_fleet(&mut rig, false);
     assert!(rig.procs[1].signal("-STOP"), "kill -STOP the laptop");
     let forged = forge(&rig, &capture, "goodbye", &["--sn", "new"]);
-    let deadline = Instant::now() + PATIENCE;
-    while !rig
-        .log_of("vehicle-100")
-        .contains("participant of a command writer lost")
-    {
-        if Instant::now() > deadline {
-            let _ = rig.procs[1].signal("-CONT");
-            panic!("the vehicle did not believe the stopped laptop's forged goodbye ({forged})");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    eventually(
+        "the vehicle believes the stopped laptop's forged goodbye",
+        || {
+            let log = rig.log_of("vehicle-100");
+            match log.contains("participant of a command writer lost") {
+                true => Ok(()),
+                false => Err(format!("forged {forged}")),
+            }
+        },
+    );
     let continued = wall_us();
     assert!(rig.procs[1].signal("-CONT"), "kill -CONT the laptop");
-    let deadline = Instant::now() + Duration::from_micros(ANNOUNCEMENT_US) + PATIENCE;
-    let again = loop {
-        if let Ok(out) = wait_for_output(&record, Some(LAPTOP), continued) {
-            break out;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the laptop never drove again after the forged goodbye ({forged}); last outputs: \
-             {:?}",
-            records(&record).iter().rev().take(3).collect::<Vec<_>>()
-        );
-    };
+    let patience = Duration::from_micros(ANNOUNCEMENT_US) + PATIENCE;
+    let again = rove_testkit::eventually_within(patience, "the laptop drives again", || {
+        wait_for_output(&record, Some(LAPTOP), continued).map_err(|e| format!("{forged}: {e}"))
+    });
     eprintln!(
         "goodbye (new sequence number) forged while the laptop was stopped: {forged}; the laptop \
          drove again {:.2} s after it was continued",

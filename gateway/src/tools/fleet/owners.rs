@@ -61,9 +61,13 @@ fn incidents_of(
 /// Wrong owners and stale failsafe entries in `outputs` (one vehicle's record) from `since_us`
 /// on: `allowed` may drive; the vehicle's operator lives throughout.
 pub fn count(outputs: &[Out], since_us: u64, allowed: &[i64]) -> (usize, usize) {
-    let found = incidents_of(outputs, since_us, allowed, &[], 0);
-    let wrong = found.iter().filter(|i| i.owner.is_some()).count();
-    (wrong, found.len() - wrong)
+    wrong_and_stale(&incidents_of(outputs, since_us, allowed, &[], 0))
+}
+
+/// Of `incidents`, how many are wrong owners and how many failsafe entries.
+fn wrong_and_stale(incidents: &[Incident]) -> (usize, usize) {
+    let wrong = incidents.iter().filter(|i| i.owner.is_some()).count();
+    (wrong, incidents.len() - wrong)
 }
 
 /// For each vehicle, its laptop and its desktop (if any).
@@ -116,9 +120,9 @@ pub(super) fn tally(
             allowed.push(PHONE);
         }
         let found = incidents_of(&outs, steady, &allowed, phases, vehicle);
-        let wrong = found.iter().filter(|i| i.owner.is_some()).count();
+        let (wrong, failsafe) = wrong_and_stale(&found);
         wrong_owner += wrong;
-        stale += found.len() - wrong;
+        stale += failsafe;
         let room = MAX_INCIDENTS.saturating_sub(incidents.len());
         incidents.extend(found.into_iter().take(room));
         outputs += outs.iter().filter(|o| o.wall_us >= steady).count();

@@ -113,6 +113,37 @@ impl Default for MessageReceiverState<'_> {
 const LIVENESS_REPORT_PERIOD: std::time::Duration = std::time::Duration::from_millis(250);
 const MAX_LIVENESS_REPORTED: usize = 2048;
 
+/// rove patch (ROVE-PATCH.md §16, §18): reports that a remote participant lives,
+/// to Discovery, at most every LIVENESS_REPORT_PERIOD per participant.
+struct LivenessReports {
+  sender: WakeSender<GuidPrefix>,
+  // When each participant was last reported (at most MAX_LIVENESS_REPORTED).
+  reported: HashMap<GuidPrefix, Instant>,
+}
+
+impl LivenessReports {
+  fn report(&mut self, prefix: GuidPrefix) {
+    let now = Instant::now();
+    if (self.reported.get(&prefix)).is_some_and(|at| now.duration_since(*at) < LIVENESS_REPORT_PERIOD)
+    {
+      return;
+    }
+    if self.reported.len() >= MAX_LIVENESS_REPORTED {
+      // Invented prefixes (a spray) cannot grow the table; the real ones are
+      // reported again at their next message.
+      self.reported.clear();
+    }
+    // Recorded only when it went: a report dropped on a full channel is made
+    // again at the participant's next message.
+    match self.sender.try_send(prefix) {
+      Ok(()) => {
+        self.reported.insert(prefix, now);
+      }
+      Err(e) => debug!("spdp_liveness_sender.try_send(): {e:?}. Is Discovery alive?"),
+    }
+  }
+}
+
 /// Entities. (See RTPS spec Section 8.3.7)
 pub(crate) struct MessageReceiver {
   pub available_readers: BTreeMap<EntityId, Reader>,
@@ -122,7 +153,8 @@ pub(crate) struct MessageReceiver {
   // We send notification of remote DomainParticipant liveness to Discovery to
   // bypass Reader, DDSCache, DatasampleCache, and DataReader, because these will drop
   // repeated messages with duplicate SequenceNumbers, but Discovery needs to see them.
-  spdp_liveness_sender: WakeSender<GuidPrefix>,
+  // rove patch (ROVE-PATCH.md §16, §18): rate-limited per participant.
+  liveness: LivenessReports,
   security_plugins: Option<SecurityPluginsHandle>,
 
   // Per-remote-participant record of which local interface / source address we
@@ -138,11 +170,6 @@ pub(crate) struct MessageReceiver {
   pub unicast_reply_locator_list: Vec<Locator>,
   pub multicast_reply_locator_list: Vec<Locator>,
   pub source_timestamp: Option<Timestamp>,
-
-  // rove patch (ROVE-PATCH.md §16): when each remote participant's traffic was
-  // last reported alive to Discovery (unsecured only), so that it is reported at
-  // most every LIVENESS_REPORT_PERIOD.
-  liveness_reported: HashMap<GuidPrefix, Instant>,
 
   submessage_count: usize, // Used in tests and error messages only?
   secure_receiver_state: Option<SecureReceiverState>,
@@ -165,10 +192,12 @@ impl MessageReceiver {
     Self {
       available_readers: BTreeMap::new(),
       acknack_sender,
-      spdp_liveness_sender,
+      liveness: LivenessReports {
+        sender: spdp_liveness_sender,
+        reported: HashMap::new(),
+      },
       security_plugins,
       interface_observations,
-      liveness_reported: HashMap::new(),
       own_guid_prefix: participant_guid_prefix,
 
       source_version: ProtocolVersion::THIS_IMPLEMENTATION,
@@ -326,25 +355,7 @@ impl MessageReceiver {
     if self.security_plugins.is_some() || prefix == self.own_guid_prefix {
       return;
     }
-    let now = Instant::now();
-    if (self.liveness_reported.get(&prefix))
-      .is_some_and(|at| now.duration_since(*at) < LIVENESS_REPORT_PERIOD)
-    {
-      return;
-    }
-    if self.liveness_reported.len() >= MAX_LIVENESS_REPORTED {
-      // Invented prefixes (a spray) cannot grow the table; the real ones are
-      // reported again at their next message.
-      self.liveness_reported.clear();
-    }
-    // Recorded only when it went: a report dropped on a full channel is made
-    // again at the participant's next message.
-    match self.spdp_liveness_sender.try_send(prefix) {
-      Ok(()) => {
-        self.liveness_reported.insert(prefix, now);
-      }
-      Err(e) => trace!("spdp_liveness_sender.try_send(): {e:?}"),
-    }
+    self.liveness.report(prefix);
   }
 
   // This is also called directly from dp_event_loop in case of loopback messages.
@@ -682,27 +693,13 @@ impl MessageReceiver {
         );
 
         // Notify discovery that the remote PArticipant seems to be alive
-        // rove patch (ROVE-PATCH.md §18): at most every LIVENESS_REPORT_PERIOD per
-        // participant (the table `report_liveness` keeps): each report wakes the
-        // discovery thread, and announcements now come often, by multicast and by
-        // unicast.
-        let now = Instant::now();
-        let due = (self.liveness_reported.get(&source_guid_prefix))
-          .is_none_or(|at| now.duration_since(*at) >= LIVENESS_REPORT_PERIOD);
-        if due
-          && writer_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER
+        // rove patch (ROVE-PATCH.md §18): rate-limited, as any message's report
+        // is: each report wakes the discovery thread, and announcements now come
+        // often, by multicast and by unicast.
+        if writer_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER
           && target_reader_entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_READER
         {
-          if self.liveness_reported.len() >= MAX_LIVENESS_REPORTED {
-            self.liveness_reported.clear();
-          }
-          // Recorded only when it went (as in `report_liveness`).
-          match self.spdp_liveness_sender.try_send(source_guid_prefix) {
-            Ok(()) => {
-              self.liveness_reported.insert(source_guid_prefix, now);
-            }
-            Err(e) => debug!("spdp_liveness_sender.try_send(): {e:?}. Is Discovery alive?"),
-          }
+          self.liveness.report(source_guid_prefix);
         }
       }
 
