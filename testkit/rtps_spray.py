@@ -396,7 +396,9 @@ WRITER_ROLES = {
 def census(args) -> None:
     records = read_capture(args.capture)
     counts = {"spdp": 0, "participant_message": 0, "sedp": 0, "user": 0, "datagrams": len(records)}
-    for _, payload in records:
+    counts.update({"spdp_multicast": 0, "spdp_unicast": 0})
+    for (dst, _port), payload in records:
+        to_group = 224 <= int(dst.split(".")[0]) <= 239
         at = RTPS_HEADER
         while at + 4 <= len(payload):
             kind, flags = payload[at], payload[at + 1]
@@ -409,6 +411,8 @@ def census(args) -> None:
                     role = "user"
                 if role is not None:
                     counts[role] += 1
+                if role == "spdp":
+                    counts["spdp_multicast" if to_group else "spdp_unicast"] += 1
             if length == 0:
                 break
             at = body + length

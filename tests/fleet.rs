@@ -108,37 +108,35 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
     assert!(report.outputs > 0);
 }
 
-/// Presence by SPDP (issue 33, ROVE-PATCH.md §18): with `[network] presence_ms = 250` every
-/// participant announces itself every 250 ms, and since that is at most half the DeviceInfo
-/// writer's liveliness lease, no ParticipantMessage goes out: counted on the wire, in the first
-/// 3 s of a vehicle and a laptop (their own capture, `rtps_spray.py census`). Without it (rustdds's
-/// 10 s) each sends one a second to every peer, reliably: checked too, so that the census can
-/// tell.
+/// Presence by SPDP (issue 33, ROVE-PATCH.md §18, §19): every participant announces itself
+/// every 250 ms (the default `presence_ms`), which is at most half the DeviceInfo writer's
+/// liveliness lease, so no ParticipantMessage goes out; and a peer whose own announcements
+/// arrive by multicast gets ours by multicast alone, not once more by unicast. Counted on the
+/// wire, in the first 3 s of a vehicle and a laptop (their own capture, `rtps_spray.py
+/// census`). Before, each sent a reliable ParticipantMessage a second to every peer, and each
+/// announcement went to the group and to every known peer (73 SPDP datagrams, 24 by
+/// multicast, in this census).
 #[test]
-fn presence_by_spdp_sends_no_liveliness_messages() {
-    let census = |presence: &str| {
-        let mut rig = Rig::new("presence-census");
-        let extra = format!("[network]\n{presence}");
-        let (_record, capture) = crate::spray::captured_driving_fleet_with(&mut rig, false, &extra);
-        let mut child = crate::spray::sprayer(
-            &rig,
-            &["census", "--capture", capture.to_str().expect("utf-8 path")],
-        );
-        let out = std::io::BufReader::new(child.stdout.take().expect("piped"));
-        let census = crate::spray::summary(child, out);
-        eprintln!("census of the first 3 s with [network] {presence:?}: {census}");
-        census
-    };
-    let stock = census("");
-    assert!(
-        stock["participant_message"].as_u64().unwrap_or(0) > 0,
-        "{stock}"
+fn presence_by_spdp_sends_no_liveliness_messages_and_announces_by_multicast() {
+    let mut rig = Rig::new("presence-census");
+    let (_record, capture) = crate::spray::captured_driving_fleet_with(&mut rig, false, "");
+    let mut child = crate::spray::sprayer(
+        &rig,
+        &["census", "--capture", capture.to_str().expect("utf-8 path")],
     );
-    let census = census("presence_ms = 250\n");
-    assert_eq!(census["participant_message"], 0, "{census}");
-    // Two participants for most of 3 s at 4 a second, each announcement to the multicast group
-    // and to the peers it knows: at least 2 × 2 s × 4.
-    let spdp = census["spdp"].as_u64().unwrap_or(0);
-    assert!(spdp >= 16, "{spdp} SPDP announcements in 3 s: {census}");
-    assert!(census["user"].as_u64().unwrap_or(0) > 0, "{census}");
+    let out = std::io::BufReader::new(child.stdout.take().expect("piped"));
+    let census = crate::spray::summary(child, out);
+    eprintln!("census of the first 3 s: {census}");
+    let count = |key: &str| census[key].as_u64().unwrap_or(0);
+    assert_eq!(count("participant_message"), 0, "{census}");
+    // Two participants for most of 3 s at 4 a second: at least 2 × 2 s × 4 by multicast.
+    assert!(count("spdp_multicast") >= 16, "{census}");
+    // By unicast: the eleven fixed localhost ports once each (every 10 s) and a few before the
+    // peer was heard by multicast; not one per peer and period (before: 46 in this census, 24
+    // of them to the peer).
+    assert!(
+        count("spdp_unicast") <= 2 * 11 + 4,
+        "announcements by unicast to a peer heard by multicast: {census}"
+    );
+    assert!(count("user") > 0, "{census}");
 }

@@ -761,6 +761,12 @@ impl OperatorSession {
             .is_none_or(|p| p == participant)
     }
 
+    /// The devices `participant` speaks for at `now` (their ids pinned to it): what leaves the
+    /// device lists when it leaves the domain.
+    pub fn devices_of(&self, now: MonoTime, participant: ParticipantId) -> Vec<DeviceId> {
+        self.identities.ids_of(now, participant)
+    }
+
     /// The handover state (for tests and status).
     pub fn handover(&self) -> &Handover {
         &self.handover

@@ -33,8 +33,8 @@ use std::time::Duration;
 /// How long pins hold, and how many ids are tracked.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TrustConfig {
-    /// A pin lapses this long after its participant last spoke as the id. Default 3 s: three
-    /// missed DeviceInfo heartbeats at the slowest default, like the device lists.
+    /// A pin lapses this long after its participant last spoke as the id: a backstop, for a
+    /// participant whose loss is never reported (rove sets three DeviceInfo refreshes).
     pub hold: Duration,
     /// A pin lapses this long after its participant left the domain. Default 500 ms.
     pub grace: Duration,
@@ -252,6 +252,14 @@ impl Identities {
         }
     }
 
+    /// The ids pinned to `participant` at `now` (the devices it speaks for).
+    pub fn ids_of(&self, now: MonoTime, participant: ParticipantId) -> Vec<DeviceId> {
+        (self.pins.iter())
+            .filter(|(_, pin)| pin.participant == participant && now < pin.until)
+            .map(|(&id, _)| id)
+            .collect()
+    }
+
     /// How many ids are pinned (lapsed pins included until they are replaced or evicted).
     pub fn len(&self) -> usize {
         self.pins.len()
@@ -399,6 +407,24 @@ mod tests {
         ids.participant_gone(at(4100), A);
         assert!(ids.claim(at(4599), 12, B).is_err());
         assert_eq!(ids.claim(at(4600), 12, B), Ok(()));
+    }
+
+    #[test]
+    fn the_ids_of_a_participant_are_those_pinned_to_it_while_the_pins_hold() {
+        let mut ids = ids();
+        ids.claim(at(0), 11, A).expect("first sight");
+        ids.claim(at(0), 12, A).expect("first sight");
+        ids.claim(at(0), 13, B).expect("first sight");
+        assert_eq!(ids.ids_of(at(1), A), vec![11, 12]);
+        assert_eq!(ids.ids_of(at(1), B), vec![13]);
+        // B takes 12 once A's pin lapsed; A no longer speaks for it.
+        ids.claim(at(2000), 11, A).expect("A's own");
+        ids.claim(at(2000), 13, B).expect("B's own");
+        ids.claim(at(3000), 12, B).expect("lapsed");
+        assert_eq!(ids.ids_of(at(3000), A), vec![11]);
+        assert_eq!(ids.ids_of(at(3000), B), vec![12, 13]);
+        ids.participant_gone(at(3000), A);
+        assert_eq!(ids.ids_of(at(3500), A), Vec::<DeviceId>::new(), "gone after the grace");
     }
 
     #[test]

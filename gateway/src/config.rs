@@ -33,14 +33,13 @@ rove_core::config_types! {
         domain_id: Option<Int> => "DDS domain id (absent: 0).",
         interfaces: Option<Vec<Ipv4Addr>> => "IPv4 addresses of the interfaces DDS may use \
             (absent: loopback only).",
-        heartbeat_ms: Option<Int> => "Presence heartbeat period, ms (absent: 500). Crashed devices \
-            drop from device lists after three missed heartbeats, because rustdds's own \
-            participant lease is ~50 s.",
-        presence_ms: Option<Int> => "SPDP announcement period, ms, 250 to 10000 (absent: \
-            rustdds's 10 s). The participant lease announced is eight periods; at 500 ms or less \
-            the announcements \
-            also assert the DeviceInfo writer's liveliness, and no per-peer liveliness message \
-            is sent (docs/design.md, \"Fleet scale\").",
+        heartbeat_ms: Option<Int> => "How often the role checks its state (`STATUS=`, \
+            VehicleStatus, DeviceInfo changes), ms (absent: 500). DeviceInfo goes out on a change \
+            and otherwise every 5 s.",
+        presence_ms: Option<Int> => "SPDP announcement period, ms, 250 to 500 (absent: 250). \
+            The participant lease announced is four periods: a crashed device leaves every list \
+            within five periods. The announcements also assert the DeviceInfo writer's 1 s \
+            liveliness for foreign readers (docs/design.md, \"Fleet scale\").",
     }
 
     /// `[log]`.
@@ -323,7 +322,7 @@ rove_core::config_types! {
         domain_id: u16 => "DDS domain.",
         interfaces: Vec<Ipv4Addr> => "Interfaces DDS is confined to.",
         heartbeat: Duration => "Presence heartbeat period.",
-        presence: Option<Duration> => "`[network] presence_ms`: the SPDP period, if set.",
+        presence: Duration => "`[network] presence_ms`: the SPDP period.",
         log_filter: Option<String> => "The log filter from `[log] level`, if any.",
         security: Option<std::path::PathBuf> => "`[security] dir`: join authenticated, with the \
             DDS Security files there.",
@@ -340,12 +339,12 @@ impl Common {
         }
     }
 
-    /// How long device ids stay pinned to their participants: three heartbeats after a
-    /// device's last message (it leaves the device lists then too), one after its participant
-    /// left the domain.
+    /// How long device ids stay pinned to their participants: until one heartbeat after the
+    /// participant left the domain (its lease ran out or it said goodbye), and at most three
+    /// DeviceInfo refreshes after the device's last message (a backstop, as in the lists).
     pub fn trust(&self) -> TrustConfig {
         TrustConfig {
-            hold: self.heartbeat * 3,
+            hold: crate::dds::OFFLINE_AFTER,
             grace: self.heartbeat,
             ..TrustConfig::default()
         }
@@ -572,12 +571,13 @@ fn validate_common(
 ) -> Common {
     let heartbeat_ms = *network.heartbeat_ms.get_or_insert(DEFAULT_HEARTBEAT_MS);
     let heartbeat = errors.int("network.heartbeat_ms", heartbeat_ms, 50..=10_000, "");
-    let presence = (network.presence_ms)
-        .and_then(|ms| {
-            let rule = " (liveness is reported at most every 250 ms)";
-            errors.int("network.presence_ms", ms, 250..=10_000, rule)
-        })
-        .map(|ms: u64| Duration::from_millis(ms));
+    // At most half the DeviceInfo writer's 1 s lease, which the announcements assert for
+    // foreign readers; at least the 250 ms at which liveness is reported.
+    let default_presence = crate::dds::DEFAULT_PRESENCE.as_millis() as Int;
+    let presence_ms = *network.presence_ms.get_or_insert(default_presence);
+    let rule = " (at least the 250 ms liveness report period, at most half the DeviceInfo \
+                writer's 1 s lease)";
+    let presence = errors.int("network.presence_ms", presence_ms, 250..=500, rule);
     if device.id <= 0 {
         errors.add("device.id", device.id, "must be a positive device id");
     }
@@ -609,7 +609,7 @@ fn validate_common(
         domain_id: domain_id.unwrap_or(0),
         interfaces: interfaces.clone(),
         heartbeat: Duration::from_millis(heartbeat.unwrap_or(500)),
-        presence,
+        presence: presence.map_or(crate::dds::DEFAULT_PRESENCE, Duration::from_millis),
         log_filter: log.level.as_ref().map(log_filter),
         security: None,
     }
@@ -1110,7 +1110,7 @@ mod tests {
         );
         // Out-of-range integers are reported against their key, all at once.
         let text = "[device]\nid = 7\n[network]\ndomain_id = 70000\nheartbeat_ms = -1\n\
-                    [output]\nadapter = \"sim\"\n";
+                    presence_ms = 10000\n[output]\nadapter = \"sim\"\n";
         let path = write("ints.toml", text);
         let message = format!("{:#}", load_vehicle(&path).expect_err("ranges"));
         assert!(
@@ -1119,6 +1119,10 @@ mod tests {
         );
         assert!(
             message.contains("ints.toml:5: network.heartbeat_ms = -1: must be 50..=10000"),
+            "{message}"
+        );
+        assert!(
+            message.contains("ints.toml:6: network.presence_ms = 10000: must be 250..=500"),
             "{message}"
         );
         let text = "[device]\nid = 5\n[operator]\nlevel = \"mobile\"\ndevice_class = \"phone\"\n\
@@ -1207,6 +1211,7 @@ mod tests {
         assert_eq!(v.common.interfaces, [Ipv4Addr::LOCALHOST]);
         assert_eq!(v.arbiter.command_timeout, CommandTimeout::DEFAULT);
         assert_eq!(v.common.name, "rove-100");
+        assert_eq!(v.common.presence, crate::dds::DEFAULT_PRESENCE);
         let path = write(
             "vehicle-bad.toml",
             "[device]\nid = 100\n[vehicle]\ncommand_timeout_ms = 0\n[output]\nadapter = \"sim\"\n",

@@ -298,7 +298,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             domain_id: domain,
             interfaces,
             listen: std::time::Duration::from_millis(listen_ms),
-            heartbeat: std::time::Duration::from_millis(500),
             json,
             watch,
             events,

@@ -1,9 +1,10 @@
 //! `rove status`: joins the domain read-only and shows the devices and who drives what.
 //!
-//! Presence comes from DeviceInfo: TRANSIENT_LOCAL gives a late joiner every live device's last
-//! sample at once, devices re-publish it as a heartbeat, a graceful exit disposes it, and a
-//! device not heard for three heartbeats is shown offline (rustdds's own participant lease is
-//! ~50 s, far too slow for a crash). The same device id from two processes is reported as a
+//! Devices come from DeviceInfo: TRANSIENT_LOCAL gives a late joiner every live device's last
+//! sample at once, and a graceful exit disposes it. Presence is the participant's: one whose
+//! SPDP lease runs out (a crash, a lost link) takes its devices offline (`ParticipantLost`,
+//! within about 1.25 s at the default `presence_ms`); a device not heard for three DeviceInfo
+//! refreshes is shown offline too, a backstop. The same device id from two processes is reported as a
 //! duplicate, never merged: the row shows what the participant the id is pinned to says
 //! (docs/design.md §4b), and the warning names every participant that claimed it.
 
@@ -35,7 +36,7 @@ pub struct DeviceRow {
     pub kind: &'static str,
     /// Vehicles: who drives it (its own id = failsafe).
     pub controller_id: DeviceId,
-    /// Heard within three heartbeats and not withdrawn.
+    /// Not withdrawn, its participant present, heard within three DeviceInfo refreshes.
     pub online: bool,
     /// Milliseconds since its last DeviceInfo.
     pub last_seen_ms: u64,
@@ -126,8 +127,6 @@ pub struct Options {
     pub interfaces: Vec<Ipv4Addr>,
     /// How long to listen before a snapshot.
     pub listen: Duration,
-    /// Presence heartbeat period of the devices.
-    pub heartbeat: Duration,
     /// Print JSON instead of a table.
     pub json: bool,
     /// Keep printing.
@@ -149,7 +148,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         &options.interfaces,
         options.security.as_deref(),
         false,
-        None,
+        dds::DEFAULT_PRESENCE,
     )?;
     let mut samples = domain.device_info_reader()?.async_sample_stream();
     let mut requests = domain.request_reader()?.async_sample_stream();
@@ -158,10 +157,11 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     let clock = crate::runtime::Clock::start();
     let mut seen: BTreeMap<DeviceId, Seen> = BTreeMap::new();
     let mut ids = Identities::new(TrustConfig {
-        hold: options.heartbeat * 3,
-        grace: options.heartbeat,
+        hold: dds::OFFLINE_AFTER,
         ..TrustConfig::default()
     });
+    let discovery = domain.participant.status_listener();
+    let mut discovery = rustdds::StatusEvented::as_async_status_stream(&discovery);
     let mut next_print = tokio::time::Instant::now() + options.listen;
     // SIGTERM or SIGINT ends the watch with the participant dropped, which tells every peer it
     // left (a killed one stays matched, and heartbeated, for rustdds's 50 s lease).
@@ -176,7 +176,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                     match s.into_value() {
                         Sample::Value(KeyedDeviceInfo(info)) => {
                             let believed = ids.claim(clock.now(), info.device_id, from).is_ok();
-                            if !has_room(&mut seen, info.device_id, options.heartbeat * 3) {
+                            if !has_room(&mut seen, info.device_id, dds::OFFLINE_AFTER) {
                                 continue;
                             }
                             let entry = seen.entry(info.device_id).or_insert_with(|| Seen {
@@ -233,6 +233,19 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 Some(Err(_)) => {} // malformed sample
                 None => anyhow::bail!("VehicleStatus stream ended"),
             },
+            Some(event) = discovery.next() => {
+                // A participant that left takes the devices it spoke for offline.
+                if let rustdds::DomainParticipantStatusEvent::ParticipantLost { id, .. } = event {
+                    let gone = dds::participant_id(id.as_ref());
+                    ids.participant_gone(clock.now(), gone);
+                    for entry in seen.values_mut() {
+                        entry.participants.remove(&gone);
+                        if entry.believed == gone {
+                            entry.withdrawn = true;
+                        }
+                    }
+                }
+            }
             request = requests.next() => match request {
                 Some(Ok(s)) if options.events => {
                     let rc = s.value();
@@ -242,7 +255,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 None => anyhow::bail!("RequestControl stream ended"),
             },
             _ = tokio::time::sleep_until(next_print), if !options.events => {
-                let snap = snapshot(&seen, &vehicles, options.heartbeat * 3);
+                let snap = snapshot(&seen, &vehicles, dds::OFFLINE_AFTER);
                 if options.json {
                     println!("{}", serde_json::to_string(&snap)?);
                 } else {

@@ -79,11 +79,25 @@ impl Keyed for KeyedControlCommand {
     }
 }
 
-/// The participant lease announced under `[network] presence_ms`, in SPDP periods: a peer
-/// that goes silent is dropped (`ParticipantLost`) within about 1.25 leases (rustdds checks
-/// leases every quarter lease, ROVE-PATCH.md §18), and a busy machine that delays a few
-/// announcements does not drop a live peer.
-pub const PRESENCE_LEASE_PERIODS: u32 = 8;
+/// The participant lease announced, in SPDP periods (`[network] presence_ms`): a peer that goes
+/// silent is dropped (`ParticipantLost`) within 1.25 leases (rustdds checks leases every
+/// quarter lease, ROVE-PATCH.md §18): 1.25 s at the default 250 ms, so that a crashed device
+/// leaves every list within 1.5 s. Three announcements in a row must be lost or late for a
+/// live peer to be dropped, and any message from it counts as one (a streaming operator is
+/// heard 50 times a second).
+pub const PRESENCE_LEASE_PERIODS: u32 = 4;
+
+/// The SPDP period when `[network] presence_ms` is absent.
+pub const DEFAULT_PRESENCE: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// How often a device publishes its DeviceInfo when nothing in it changed. Presence comes from
+/// the participant (its SPDP lease), so this is a slow refresh for a reader that lost the
+/// sample; a change goes out at once. Device lists and id pins also drop a device not heard
+/// for three refreshes, a backstop for a participant whose loss is never reported.
+pub const DEVICE_INFO_REFRESH: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// How long a device stays listed without a DeviceInfo or a message: three refreshes.
+pub const OFFLINE_AFTER: std::time::Duration = DEVICE_INFO_REFRESH.saturating_mul(3);
 
 /// How long a reliable write may block when the send window is full. Control samples are
 /// superseded 20 ms later, so waiting longer than a few ms only delays the next one.
@@ -164,8 +178,8 @@ impl std::fmt::Debug for Domain {
 
 impl Domain {
     /// Joins `domain_id`, confined to `interfaces`; with `security`, as the device whose DDS
-    /// Security files are in that directory (`rove keys`); with `presence`, announcing itself
-    /// by SPDP at that period (`[network] presence_ms`). `any_certificate` is a test hook:
+    /// Security files are in that directory (`rove keys`); announcing itself by SPDP every
+    /// `presence` (`[network] presence_ms`) with a lease of [`PRESENCE_LEASE_PERIODS`]. `any_certificate` is a test hook:
     /// our own certificate's dates are not checked (peers still check them).
     ///
     /// # Errors
@@ -176,15 +190,12 @@ impl Domain {
         interfaces: &[Ipv4Addr],
         security: Option<&std::path::Path>,
         any_certificate: bool,
-        presence: Option<std::time::Duration>,
+        presence: std::time::Duration,
     ) -> anyhow::Result<Domain> {
         let builder = DomainParticipantBuilder::new(domain_id)
             .with_only_networks(interfaces.iter().copied())
-            .same_host_loopback(true);
-        let builder = match presence {
-            Some(period) => builder.presence(period, period * PRESENCE_LEASE_PERIODS),
-            None => builder,
-        };
+            .same_host_loopback(true)
+            .presence(presence, presence * PRESENCE_LEASE_PERIODS);
         let builder = match security {
             None => builder,
             #[cfg(feature = "security")]

@@ -9,6 +9,8 @@ use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, topic_names};
 use rove_core::trust::Certifier;
 use rustdds::{DomainParticipantStatusEvent, GUID, RTPSEntity};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 use tracing::warn;
 
 /// This device on the DDS network.
@@ -23,6 +25,37 @@ pub struct Node {
     id: DeviceId,
     name: String,
     kind: DeviceType,
+    refresh: Mutex<Refresh>,
+}
+
+/// When our DeviceInfo goes out: at once when `controller_id` changed, else once every
+/// `every` ([`super::DEVICE_INFO_REFRESH`]). Presence is the participant's (its SPDP lease), so
+/// an unchanged DeviceInfo is only refreshed for a reader that lost it.
+#[derive(Debug)]
+struct Refresh {
+    every: Duration,
+    /// What was last written, and when.
+    last: Option<(DeviceId, Instant)>,
+}
+
+impl Refresh {
+    /// Whether `controller_id` should be written at `now`.
+    fn due(&self, controller_id: DeviceId, now: Instant) -> bool {
+        self.last.is_none_or(|(last, at)| {
+            last != controller_id || now.saturating_duration_since(at) >= self.every
+        })
+    }
+
+    /// `controller_id` was written at `now` (a failed write is not recorded: tried again at
+    /// the next check).
+    fn written(&mut self, controller_id: DeviceId, now: Instant) {
+        self.last = Some((controller_id, now));
+    }
+
+    /// After a withdrawal the next publish goes out whatever it says.
+    fn forget(&mut self) {
+        self.last = None;
+    }
 }
 
 impl std::fmt::Debug for Node {
@@ -61,6 +94,10 @@ impl Node {
             id: common.id,
             name: common.name.clone(),
             kind,
+            refresh: Mutex::new(Refresh {
+                every: super::DEVICE_INFO_REFRESH,
+                last: None,
+            }),
         })
     }
 
@@ -69,23 +106,37 @@ impl Node {
         self.id
     }
 
-    /// Publishes our DeviceInfo with `controller_id` (a vehicle's owner; an operator's own id).
+    /// Publishes our DeviceInfo with `controller_id` (a vehicle's owner; an operator's own id)
+    /// if it changed or the refresh is due; the roles call it on every change and heartbeat.
     /// A failed write is logged: the next heartbeat publishes again.
     pub fn publish(&self, controller_id: DeviceId) {
+        let mut refresh = match self.refresh.lock() {
+            Ok(guard) => guard,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        let now = Instant::now();
+        if !refresh.due(controller_id, now) {
+            return;
+        }
         let info = DeviceInfo {
             device_id: self.id,
             name: self.name.clone(),
             device_type: self.kind,
             controller_id,
         };
-        if let Err(e) = self.info.write(KeyedDeviceInfo(info), None) {
-            warn!(cause = ?e, "cannot publish DeviceInfo");
+        match self.info.write(KeyedDeviceInfo(info), None) {
+            Ok(()) => refresh.written(controller_id, now),
+            Err(e) => warn!(cause = ?e, "cannot publish DeviceInfo"),
         }
     }
 
     /// Leaves the device lists at once (a dispose of our DeviceInfo) rather than after missed
     /// heartbeats.
     pub fn withdraw(&self) {
+        match self.refresh.lock() {
+            Ok(mut refresh) => refresh.forget(),
+            Err(poisoned) => poisoned.into_inner().forget(),
+        }
         if let Err(e) = self.info.dispose(&self.id, None) {
             warn!(cause = ?e, "cannot withdraw DeviceInfo");
         }
@@ -217,5 +268,31 @@ pub fn certifier(common: &Common, any_id: bool) -> anyhow::Result<Option<Certifi
             "[security] {}: this rove was built without the `security` feature",
             dir.display()
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Refresh;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn device_info_goes_out_on_a_change_at_once_and_else_once_a_refresh() {
+        let t0 = Instant::now();
+        let at = |ms| t0 + Duration::from_millis(ms);
+        let mut refresh = Refresh {
+            every: Duration::from_secs(5),
+            last: None,
+        };
+        assert!(refresh.due(7, at(0)), "the first");
+        refresh.written(7, at(0));
+        assert!(!refresh.due(7, at(500)), "unchanged, within the refresh");
+        assert!(refresh.due(8, at(500)), "a change, at once");
+        refresh.written(8, at(500));
+        assert!(!refresh.due(8, at(5499)));
+        assert!(refresh.due(8, at(5500)), "unchanged, the refresh");
+        assert!(refresh.due(7, at(600)), "back to the old owner is a change");
+        refresh.forget();
+        assert!(refresh.due(8, at(600)), "after a withdrawal, whatever it says");
     }
 }

@@ -155,8 +155,9 @@ pub fn open_sticks(
 }
 
 /// The front ends' view of an operator before its first event: its identity, and devices
-/// offline after three missed heartbeats. The host's console and API, and each web device's
-/// page, start from it.
+/// offline when their participant leaves (events) or, as a backstop, three DeviceInfo refreshes
+/// after they were last heard. The host's console and API, and each web device's page, start
+/// from it.
 pub fn console_state(config: &OperatorConfig) -> ConsoleState {
     let identity = Identity {
         id: config.common.id,
@@ -165,7 +166,7 @@ pub fn console_state(config: &OperatorConfig) -> ConsoleState {
         class: config.device_class,
         strength: config.strength,
     };
-    ConsoleState::new(identity, config.common.heartbeat * 3)
+    ConsoleState::new(identity, crate::dds::OFFLINE_AFTER)
 }
 
 /// The operator as the loop holds it.

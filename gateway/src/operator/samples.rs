@@ -28,7 +28,17 @@ impl<N: Net> Role<N> {
                 self.on_vehicle_status(&status, from);
                 Vec::new()
             }
-            Heard::Discovery(event) => self.step(event),
+            Heard::Discovery(event) => {
+                // A participant that left (quit, crashed, lost its link: its SPDP lease ran
+                // out) takes the devices it spoke for off the lists at once.
+                if let SessionEvent::ParticipantGone { participant } = event {
+                    let now = self.edges.clock.now();
+                    for id in self.session.devices_of(now, participant) {
+                        self.ui.emit(Event::DeviceGone { id });
+                    }
+                }
+                self.step(event)
+            }
             Heard::Nothing => Vec::new(),
         }
     }

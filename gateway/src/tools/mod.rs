@@ -93,10 +93,10 @@ pub enum Bench {
         /// operators), one after the other, for the CPU each node spends per peer.
         #[arg(long, value_delimiter = ',')]
         idle_sweep: Vec<usize>,
-        /// The fleet's presence heartbeat (`[network] heartbeat_ms`; absent: the default).
+        /// The fleet's check period (`[network] heartbeat_ms`; absent: the default).
         #[arg(long)]
         heartbeat_ms: Option<u64>,
-        /// The fleet's SPDP period (`[network] presence_ms`; absent: rustdds's 10 s).
+        /// The fleet's SPDP period (`[network] presence_ms`; absent: the default, 250 ms).
         #[arg(long)]
         presence_ms: Option<u64>,
         /// Run vehicle 100 (whose handovers are measured) under SCHED_FIFO at this priority

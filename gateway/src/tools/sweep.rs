@@ -30,10 +30,10 @@ pub struct Sweep {
     /// CPU per node of the largest fleet over that of the smallest: 1.0 when a node's idle cost
     /// does not depend on the number of its peers.
     pub growth: Option<f64>,
-    /// The fleet's presence heartbeat, ms.
+    /// The fleet's check period, ms.
     pub heartbeat_ms: u64,
-    /// The fleet's SPDP period, ms (`None`: rustdds's 10 s).
-    pub presence_ms: Option<u64>,
+    /// The fleet's SPDP period, ms.
+    pub presence_ms: u64,
 }
 
 /// Runs idle fleets of `sizes` processes, smallest first.
@@ -83,7 +83,9 @@ pub fn run(
         fleets,
         growth,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
-        presence_ms: options.presence_ms,
+        presence_ms: options
+            .presence_ms
+            .unwrap_or(crate::dds::DEFAULT_PRESENCE.as_millis() as u64),
     })
 }
 

@@ -181,6 +181,7 @@ impl Participant {
       Some(Arc::from([std::net::IpAddr::V4(Ipv4Addr::LOCALHOST)])),
       0,
       false,
+      None,
       reader_ready,
       writer_ready,
       waker,

@@ -64,9 +64,9 @@ pub struct Options {
     pub restarts: usize,
     /// Late joiners measured.
     pub latejoin_runs: usize,
-    /// The fleet's presence heartbeat (`[network] heartbeat_ms`), `None`: the default.
+    /// The fleet's check period (`[network] heartbeat_ms`), `None`: the default.
     pub heartbeat_ms: Option<u64>,
-    /// The fleet's SPDP period (`[network] presence_ms`), `None`: rustdds's.
+    /// The fleet's SPDP period (`[network] presence_ms`), `None`: the default (250 ms).
     pub presence_ms: Option<u64>,
     /// Vehicle 100 (the one whose handovers are measured) runs under SCHED_FIFO at this
     /// priority (`chrt -f`), as the vehicle unit's real-time option does; `None`: the normal
@@ -117,10 +117,10 @@ pub struct Report {
     pub operators: usize,
     /// Operators drove nothing.
     pub idle: bool,
-    /// The fleet's presence heartbeat, ms.
+    /// The fleet's check period, ms.
     pub heartbeat_ms: u64,
-    /// The fleet's SPDP period, ms (`None`: rustdds's 10 s).
-    pub presence_ms: Option<u64>,
+    /// The fleet's SPDP period, ms.
+    pub presence_ms: u64,
     /// Vehicle 100's SCHED_FIFO priority, if it ran real-time.
     pub vehicle_rt: Option<u8>,
     /// The CPU window, s.
@@ -328,7 +328,9 @@ pub fn run(
         operators: operators.len(),
         idle: options.idle,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
-        presence_ms: options.presence_ms,
+        presence_ms: options
+            .presence_ms
+            .unwrap_or(crate::dds::DEFAULT_PRESENCE.as_millis() as u64),
         vehicle_rt: options.vehicle_rt,
         window_s: elapsed,
         cpu_total_pct: measured.iter().map(|m| m.0).sum(),

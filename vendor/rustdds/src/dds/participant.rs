@@ -83,6 +83,8 @@ pub struct DomainParticipantBuilder {
 
   // rove patch (ROVE-PATCH.md §18)
   presence: PresenceTiming,
+  // rove patch (ROVE-PATCH.md §19): set by `presence`.
+  multicast_alone: bool,
 
   #[cfg(feature = "security")]
   security_plugins: Option<SecurityPlugins>,
@@ -99,6 +101,7 @@ impl DomainParticipantBuilder {
       socket_receive_buffer_size: Self::DEFAULT_SOCKET_RECEIVE_BUFFER_SIZE,
       socket_send_buffer_size: Self::DEFAULT_SOCKET_SEND_BUFFER_SIZE,
       presence: PresenceTiming::default(),
+      multicast_alone: false,
       #[cfg(feature = "security")]
       security_plugins: None,
       #[cfg(feature = "security")]
@@ -145,6 +148,7 @@ impl DomainParticipantBuilder {
       spdp_period,
       lease: lease.max(2 * spdp_period),
     };
+    self.multicast_alone = true;
     self
   }
 
@@ -363,6 +367,9 @@ impl DomainParticipantBuilder {
       self.socket_send_buffer_size,
       self.only_networks,
       self.same_host_loopback,
+      // rove patch (ROVE-PATCH.md §19): a peer heard by multicast within half
+      // its lease is sent our announcements by multicast alone.
+      self.multicast_alone.then_some(self.presence.lease / 2),
       dp_waker,
       discovery_sample_sender,
     )?;
@@ -998,6 +1005,7 @@ impl DomainParticipantDisc {
     socket_send_buffer_size: usize,
     only_networks: Option<Vec<IpAddr>>,
     same_host_loopback: bool,
+    multicast_alone: Option<std::time::Duration>,
     dp_waker: LoopWaker,
     discovery_sample_sender: ReadySender<mio1::Token>,
   ) -> CreateResult<Self> {
@@ -1015,6 +1023,7 @@ impl DomainParticipantDisc {
       socket_send_buffer_size,
       only_networks,
       same_host_loopback,
+      multicast_alone,
       dp_waker,
       discovery_sample_sender,
     )?;
@@ -1257,6 +1266,7 @@ impl DomainParticipantInner {
     socket_send_buffer_size: usize,
     only_networks: Option<Vec<IpAddr>>,
     same_host_loopback: bool,
+    multicast_alone: Option<std::time::Duration>,
     dp_waker: LoopWaker,
     discovery_sample_sender: ReadySender<mio1::Token>,
   ) -> CreateResult<Self> {
@@ -1433,6 +1443,7 @@ impl DomainParticipantInner {
           only_networks_for_ev_loop,
           socket_send_buffer_size,
           same_host_loopback,
+          multicast_alone,
           reader_ready_rx,
           writer_ready_rx,
           dp_waker,

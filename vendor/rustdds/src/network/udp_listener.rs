@@ -28,6 +28,10 @@ pub struct PacketOrigin {
   /// (requires `IP_PKTINFO`; `None` on platforms/paths where it is
   /// unavailable).
   pub local_if: Option<InterfaceSelector>,
+  /// rove patch (ROVE-PATCH.md §19): the datagram was sent to a multicast group
+  /// (its destination address, from `IP_PKTINFO`; else: received on a
+  /// multicast listener).
+  pub multicast: bool,
 }
 
 impl PacketOrigin {
@@ -36,6 +40,7 @@ impl PacketOrigin {
   pub const UNKNOWN: Self = Self {
     source: None,
     local_if: None,
+    multicast: false,
   };
 }
 
@@ -406,7 +411,7 @@ impl UDPListener {
 
     // Read the datagram and pull out the Copy metadata; the borrow of
     // `receive_buffer` (through `iov`) ends when this block ends.
-    let (nbytes, source, ifindex, spec_dst) = {
+    let (nbytes, source, ifindex, spec_dst, multicast) = {
       let mut iov = [IoSliceMut::new(
         &mut self.receive_buffer[..MAX_MESSAGE_SIZE],
       )];
@@ -422,6 +427,7 @@ impl UDPListener {
 
       let mut ifindex = 0u32;
       let mut spec_dst: Option<IpAddr> = None;
+      let mut multicast = self.multicast_group.is_some();
       for cmsg in msg.cmsgs()? {
         if let ControlMessageOwned::Ipv4PacketInfo(info) = cmsg {
           // libc::in_pktinfo.ipi_ifindex is i32 on older libc (MSRV 1.88) and
@@ -434,9 +440,10 @@ impl UDPListener {
           if !addr.is_unspecified() {
             spec_dst = Some(IpAddr::V4(addr));
           }
+          multicast = Ipv4Addr::from(u32::from_be(info.ipi_addr.s_addr)).is_multicast();
         }
       }
-      (nbytes, source, ifindex, spec_dst)
+      (nbytes, source, ifindex, spec_dst, multicast)
     };
 
     // Prefer the exact local destination address (matches sender interface
@@ -445,7 +452,14 @@ impl UDPListener {
       .map(InterfaceSelector::Ip)
       .or_else(|| self.ifindex_map.get(&ifindex).copied());
 
-    Ok(Some((nbytes, PacketOrigin { source, local_if })))
+    Ok(Some((
+      nbytes,
+      PacketOrigin {
+        source,
+        local_if,
+        multicast,
+      },
+    )))
   }
 
   /// Non-Unix fallback: capture the source address only (no interface info).
@@ -460,6 +474,7 @@ impl UDPListener {
         PacketOrigin {
           source: Some(source),
           local_if: None,
+          multicast: self.multicast_group.is_some(),
         },
       ))),
       Err(e) if e.kind() == io::ErrorKind::WouldBlock => Ok(None),

@@ -140,6 +140,8 @@ pub struct DPEventLoop {
   // route same-host peers over loopback. See
   // `src/rtps/loopback_same_host_design.md`.
   same_host_loopback: bool,
+  // rove patch (ROVE-PATCH.md §19): the SPDP writer's multicast-alone window.
+  multicast_alone: Option<std::time::Duration>,
 }
 
 impl DPEventLoop {
@@ -164,6 +166,7 @@ impl DPEventLoop {
     only_networks: Option<Arc<[IpAddr]>>,
     socket_send_buffer_size: usize,
     same_host_loopback: bool,
+    multicast_alone: Option<std::time::Duration>,
     reader_ready: ReadyReceiver<EntityId>,
     writer_ready: ReadyReceiver<EntityId>,
     waker: LoopWaker,
@@ -257,6 +260,7 @@ impl DPEventLoop {
       participant_status_sender,
       discovery_command_sender,
       same_host_loopback,
+      multicast_alone,
     })
   }
 
@@ -1124,6 +1128,9 @@ impl DPEventLoop {
         SPDP_LOCALHOST_PEER_COUNT,
       ));
     }
+    if new_writer.guid().entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER {
+      new_writer.set_multicast_alone(self.multicast_alone);
+    }
 
     // The doorbell is a shared ready-queue plus the poll waker, not a
     // registration under the writer token.
@@ -1237,6 +1244,7 @@ impl DPEventLoop {
     let origin = crate::network::udp_listener::PacketOrigin {
       source: Some(from),
       local_if: None,
+      multicast: false,
     };
     self.message_receiver.handle_received_packet(datagram, origin);
     self.fuzz_settle();
@@ -1405,6 +1413,7 @@ mod tests {
         None,
         0,
         true,
+        None,
         reader_ready,
         writer_ready,
         waker,

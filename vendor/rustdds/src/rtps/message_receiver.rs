@@ -342,7 +342,7 @@ impl MessageReceiver {
     self
       .interface_observations
       .borrow_mut()
-      .record(source_prefix, origin.local_if, source);
+      .record_origin(source_prefix, origin.local_if, source, origin.multicast);
   }
 
   /// rove patch (ROVE-PATCH.md §16): any message from a remote participant tells

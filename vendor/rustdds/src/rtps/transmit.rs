@@ -114,6 +114,10 @@ pub struct ObservedRoutes {
   /// Used to authorize sending to the peer's loopback locators (see
   /// `src/rtps/loopback_same_host_design.md`).
   seen_from_loopback: bool,
+  /// rove patch (ROVE-PATCH.md §19): when this participant's traffic last
+  /// arrived sent to a multicast group: the group reaches us from it, and (links
+  /// being symmetric) our multicast reaches it.
+  last_multicast: Option<Instant>,
 }
 
 impl ObservedRoutes {
@@ -170,6 +174,14 @@ impl ObservedRoutes {
     }
   }
 
+  /// rove patch (ROVE-PATCH.md §19): whether a datagram this participant sent
+  /// to a multicast group reached us within `window` before `now`.
+  pub fn heard_by_multicast_within(&self, now: Instant, window: Duration) -> bool {
+    self
+      .last_multicast
+      .is_some_and(|at| now.saturating_duration_since(at) < window)
+  }
+
   /// The most recently observed source address, if any.
   pub fn last_source(&self) -> Option<SocketAddr> {
     self.last_source
@@ -213,17 +225,30 @@ impl InterfaceObservations {
 
   /// Record that a packet from `prefix` arrived from `source`, on local
   /// interface `iface` (if it could be determined).
+  #[cfg(test)]
   pub fn record(
     &mut self,
     prefix: GuidPrefix,
     iface: Option<InterfaceSelector>,
     source: SocketAddr,
   ) {
-    self
-      .by_participant
-      .entry(prefix)
-      .or_default()
-      .record(iface, source);
+    self.record_origin(prefix, iface, source, false);
+  }
+
+  /// [`Self::record`], and whether the packet was sent to a multicast group
+  /// (rove patch, ROVE-PATCH.md §19).
+  pub fn record_origin(
+    &mut self,
+    prefix: GuidPrefix,
+    iface: Option<InterfaceSelector>,
+    source: SocketAddr,
+    multicast: bool,
+  ) {
+    let routes = self.by_participant.entry(prefix).or_default();
+    routes.record(iface, source);
+    if multicast {
+      routes.last_multicast = Some(Instant::now());
+    }
   }
 
   pub fn get(&self, prefix: GuidPrefix) -> Option<&ObservedRoutes> {

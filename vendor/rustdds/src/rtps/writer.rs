@@ -205,6 +205,11 @@ pub(crate) struct Writer {
   extra_unicast_destinations: Vec<Locator>,
   // rove patch (ROVE-PATCH.md §18): when the extra destinations were last sent to.
   extra_unicast_sent: std::cell::Cell<Option<std::time::Instant>>,
+  // rove patch (ROVE-PATCH.md §19): the built-in SPDP writer under a presence
+  // setting sends its announcements by multicast alone to a peer whose own
+  // multicast reached us within this window, instead of once more by unicast to
+  // each such peer (on one host: loopback unicast to every peer).
+  multicast_alone: Option<std::time::Duration>,
 
   // Whether route selection may prefer a same-host peer's loopback locator.
   // Mirrors the participant-builder `same_host_loopback` knob; `true` by
@@ -355,6 +360,7 @@ impl Writer {
       udp_sender,
       extra_unicast_destinations: Vec::new(),
       extra_unicast_sent: std::cell::Cell::new(None),
+      multicast_alone: None,
       prefer_loopback_same_host: true,
       interface_observations,
       local_interfaces,
@@ -1886,7 +1892,21 @@ impl Writer {
           };
         }
 
+        // rove patch (ROVE-PATCH.md §19): where a multicast-preferring send may
+        // reach a peer by the group alone. Sent as the announcement to peers not
+        // yet discovered is (to the group, from every multicast interface), so
+        // that both are one datagram.
+        let multicast_alone = (self.multicast_alone)
+          .filter(|_| preferred_mode == DeliveryMode::Multicast)
+          .map(|window| (window, std::time::Instant::now()));
+
         for reader in readers {
+          if let Some((window, now)) = multicast_alone {
+            if let Some(group) = self.multicast_alone_group(reader, window, now) {
+              send_legacy!([group]);
+              continue;
+            }
+          }
           let route = reader.send_route();
 
           if route.fallback {
@@ -1945,6 +1965,25 @@ impl Writer {
     blocked
   }
 
+  /// rove patch (ROVE-PATCH.md §19): the multicast group that reaches
+  /// `reader` alone, if its participant's multicast reached us within `window`
+  /// and it listens to a group. `None`: the route as resolved.
+  fn multicast_alone_group(
+    &self,
+    reader: &RtpsReaderProxy,
+    window: std::time::Duration,
+    now: std::time::Instant,
+  ) -> Option<Locator> {
+    let observations = self.interface_observations.borrow();
+    let observed = observations.get(reader.remote_reader_guid.prefix)?;
+    if !observed.heard_by_multicast_within(now, window) {
+      return None;
+    }
+    (reader.multicast_locator_list.iter())
+      .find(|l| l.is_udp())
+      .copied()
+  }
+
   // Kept for readability at call sites that fire a single control message and
   // do not care about back-pressure (heartbeats, GAPs, repair control).
   fn send_control_to_readers(
@@ -1993,6 +2032,11 @@ impl Writer {
 
   /// Enable/disable preferring a same-host peer's loopback locator during route
   /// selection. See the participant-builder `same_host_loopback` knob.
+  /// rove patch (ROVE-PATCH.md §19): see [`Self::multicast_alone`].
+  pub fn set_multicast_alone(&mut self, window: Option<std::time::Duration>) {
+    self.multicast_alone = window;
+  }
+
   pub fn set_prefer_loopback_same_host(&mut self, enabled: bool) {
     self.prefer_loopback_same_host = enabled;
   }
@@ -2984,6 +3028,45 @@ mod tests {
         self.writer.handle_timed_event(event);
         before - self.unsent()
       }
+    }
+
+    // rove patch (ROVE-PATCH.md §19): a peer whose multicast reached us within
+    // the window is reached by the group alone; otherwise its resolved route is
+    // used.
+    #[test]
+    fn a_peer_heard_by_multicast_is_reached_by_the_group_alone() {
+      let mut f = Fixture::user(1, 8, Some("127.0.0.1:7411".parse().unwrap()));
+      let group = Locator::from(SocketAddr::from(([239, 255, 0, 1], 7400)));
+      let lo = crate::rtps::transmit::InterfaceSelector::Ip(std::net::IpAddr::from([127, 0, 0, 1]));
+      let from: SocketAddr = "127.0.0.1:40000".parse().unwrap();
+      let window = StdDuration::from_millis(500);
+      let route = |f: &Fixture, now: Instant| {
+        f.writer
+          .multicast_alone_group(f.reader_proxy(), window, now)
+      };
+      let prefix = f.reader_guid.prefix;
+      let observations = Rc::clone(&f.writer.interface_observations);
+      observations
+        .borrow_mut()
+        .record_origin(prefix, Some(lo), from, false);
+      assert_eq!(route(&f, Instant::now()), None, "heard by unicast only");
+      observations
+        .borrow_mut()
+        .record_origin(prefix, Some(lo), from, true);
+      let heard = Instant::now();
+      assert_eq!(route(&f, heard), None, "the reader listens to no group");
+      f.writer
+        .readers
+        .get_mut(&f.reader_guid)
+        .unwrap()
+        .multicast_locator_list
+        .push(group);
+      assert_eq!(route(&f, heard), Some(group));
+      assert_eq!(
+        route(&f, heard + window),
+        None,
+        "not heard by multicast within the window: its route again"
+      );
     }
 
     // Built-in and user Writers alike answer an ACKNACK only after
