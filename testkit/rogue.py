@@ -28,6 +28,12 @@ Attacks:
                   ControlCommand (reliable, exclusive) in --partition (absent: none, the
                   default partition) and, with --vehicle-info, publishes DeviceInfo for --id as
                   a vehicle. Prints how many samples it got for --id and for other vehicles.
+  observe         not an attack: a foreign observer that joins late, with the seed's DeviceInfo
+                  reader QoS (reliable, transient local, liveliness lease 3 s). For --seconds
+                  it takes every DeviceInfo sample and prints the devices it lists (type and
+                  controller_id, by id), when each was first heard (ms after its reader was
+                  made), how many instance changes it saw (disposals, writers gone), and how
+                  many times a writer's liveliness was lost.
 
 Every command the rogue streams carries throttle --throttle (default 31111), so a test can tell
 from the vehicle's record whether any rogue sample was applied. Runs for --seconds, then prints
@@ -232,6 +238,33 @@ def flood(commands, requests, ids, rids, a):
     return sent, asked, time.monotonic() - start
 
 
+def observe(dp, infos, seconds):
+    """A late-joining foreign observer of DeviceInfo (the seed's reader QoS); see the docs."""
+    qos = Qos(
+        *reliable(),
+        Policy.Durability.TransientLocal,
+        Policy.History.KeepLast(1),
+        Policy.Liveliness.Automatic(lease_duration=duration(seconds=3)),
+    )
+    reader = DataReader(dp, infos, qos=qos)
+    start = time.monotonic()
+    devices, first_ms, changes, lost = {}, {}, 0, 0
+    while time.monotonic() < start + seconds:
+        for s in reader.take(N=256):
+            if isinstance(s, DeviceInfo):
+                key = str(s.device_id)
+                first_ms.setdefault(key, round((time.monotonic() - start) * 1000))
+                devices[key] = {"type": s.device_type, "controller_id": s.controller_id}
+            else:
+                changes += 1  # an invalid sample: an instance disposed or without writers
+        lost += reader.get_liveliness_changed_status().not_alive_count_change
+        time.sleep(0.01)
+    print(json.dumps({"attack": "observe", "devices": devices, "first_ms": first_ms,
+                      "instance_changes": changes, "liveliness_lost": lost,
+                      "matched": bool(reader.get_matched_publications())}), flush=True)
+    return 0
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("attack")
@@ -352,6 +385,8 @@ def main():
         print(json.dumps({"attack": a.attack, "samples": samples, "others": others,
                           "matched": matched}), flush=True)
         return 0
+    elif a.attack == "observe":
+        return observe(dp, infos, a.seconds)
     else:
         p.error(f"unknown attack {a.attack!r}")
     print(json.dumps({"attack": a.attack, "samples": samples, "matched": matched}), flush=True)

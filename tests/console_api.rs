@@ -134,6 +134,27 @@ fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
     (rig, record, a, b)
 }
 
+/// One meaning of "online" (issue 33): a crashed operator leaves the other operator's device
+/// list (its console, API and web page share that state) when its participant is lost: its
+/// SPDP lease (1 s at the default `presence_ms`) runs out, checked every quarter lease. Not
+/// the backstop, three DeviceInfo refreshes (15 s). Measured from the SIGKILL.
+#[test]
+fn a_crashed_operator_leaves_the_other_operators_list_when_its_participant_is_lost() {
+    let (mut rig, _record, _a, mut b) = rig("api-crash");
+    // The rig's processes in start order: the vehicle, then A.
+    let crashed = wall_us();
+    rig.procs[1].crash();
+    b.wait("A leaves B's list", |v| {
+        v["event"] == "device_gone" && v["id"] == A
+    });
+    let after_ms = (wall_us() - crashed) / 1000;
+    eprintln!("A left B's list {after_ms} ms after it was killed");
+    assert!(
+        after_ms < 5_000,
+        "A left B's list {after_ms} ms after the crash: the backstop, not the participant's loss"
+    );
+}
+
 #[test]
 fn b_requests_a_accepts_b_drives_then_finish_gives_it_back() {
     let (_rig, record, mut a, mut b) = rig("api-accept");

@@ -140,3 +140,49 @@ fn presence_by_spdp_sends_no_liveliness_messages_and_announces_by_multicast() {
     );
     assert!(count("user") > 0, "{census}");
 }
+
+/// Issue 33, item 3: a foreign observer (Cyclone DDS, the seed's DeviceInfo reader QoS: liveliness
+/// lease 3 s) that joins late lists every device and owner at once, from the transient-local
+/// history, and sees no writer lose its liveliness and no instance change over 8 s although an
+/// unchanged DeviceInfo is refreshed only every 5 s: the SPDP announcements (every 250 ms)
+/// assert the DeviceInfo writers' 1 s liveliness (Cyclone renews a proxy participant's
+/// automatic writers on any message from it). Every device is listed within 1 s of the
+/// observer's start (measured and printed).
+#[test]
+fn a_late_foreign_observer_lists_every_device_and_owner_and_none_lapses() {
+    let mut rig = Rig::new("fleet-observer");
+    let driven = rig.vehicle(100);
+    rig.vehicle(101);
+    rig.operator(OPERATOR, "stationary", "laptop", &[100], 1000, "", &[]);
+    wait_for_output(&driven, Some(OPERATOR), 0).expect("the laptop drives 100");
+    let observer = (rig.foreign_peer(&["observe", "--seconds", "8"]))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start the observer");
+    let out = observer.wait_with_output().expect("the observer ends");
+    let v = foreign_summary(out, &["observe"]);
+    eprintln!("the late observer: {v}");
+    let device = |id: i64| v["devices"][id.to_string()].clone();
+    let owner = |id: i64| device(id)["controller_id"].as_i64();
+    assert_eq!(owner(100), Some(OPERATOR), "{v}");
+    assert_eq!(
+        owner(101),
+        Some(101),
+        "an undriven vehicle names itself: {v}"
+    );
+    assert_eq!(device(OPERATOR)["type"], 1, "the laptop, a controller: {v}");
+    assert_eq!(device(100)["type"], 0, "{v}");
+    for id in [100, 101, OPERATOR] {
+        let first = v["first_ms"][id.to_string()].as_u64().unwrap_or(u64::MAX);
+        assert!(
+            first < 1_000,
+            "device {id} listed {first} ms after the start: {v}"
+        );
+    }
+    assert_eq!(v["liveliness_lost"], 0, "a writer's liveliness lapsed: {v}");
+    assert_eq!(
+        v["instance_changes"], 0,
+        "an instance lost its writers: {v}"
+    );
+}

@@ -424,7 +424,11 @@ mod tests {
         assert_eq!(ids.ids_of(at(3000), A), vec![11]);
         assert_eq!(ids.ids_of(at(3000), B), vec![12, 13]);
         ids.participant_gone(at(3000), A);
-        assert_eq!(ids.ids_of(at(3500), A), Vec::<DeviceId>::new(), "gone after the grace");
+        assert_eq!(
+            ids.ids_of(at(3500), A),
+            Vec::<DeviceId>::new(),
+            "gone after the grace"
+        );
     }
 
     #[test]

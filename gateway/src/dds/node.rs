@@ -293,6 +293,9 @@ mod tests {
         assert!(refresh.due(8, at(5500)), "unchanged, the refresh");
         assert!(refresh.due(7, at(600)), "back to the old owner is a change");
         refresh.forget();
-        assert!(refresh.due(8, at(600)), "after a withdrawal, whatever it says");
+        assert!(
+            refresh.due(8, at(600)),
+            "after a withdrawal, whatever it says"
+        );
     }
 }
