@@ -679,6 +679,7 @@ impl OperatorSession {
             SessionEvent::Tick => {
                 let actions = self.handover.tick(now);
                 self.carry_out(stamp, actions, &mut out);
+                self.consider_request(now, stamp, &mut out);
             }
         }
         out.0
@@ -712,9 +713,11 @@ impl OperatorSession {
         out.0
     }
 
-    /// When [`SessionEvent::Tick`] next has work (a handover resend or timeout).
+    /// When [`SessionEvent::Tick`] next has work (a handover resend or timeout, the `--request`
+    /// decision).
     pub fn next_deadline(&self) -> Option<MonoTime> {
-        self.handover.next_deadline()
+        let deadlines = [self.handover.next_deadline(), self.request_deadline()];
+        deadlines.into_iter().flatten().min()
     }
 
     /// The sticks and mode we send, and whether the input is live.
@@ -1129,7 +1132,29 @@ impl OperatorSession {
             }
             self.carry_out(stamp, actions, out);
         }
-        // `--request`: ask once the vehicle and its owner are known from a live sample.
+        self.consider_request(now, stamp, out);
+    }
+
+    /// When the `--request` decision may next be made without a new DeviceInfo: a heartbeat
+    /// after start and after the vehicle's first sample, and for a vehicle that looks free, when
+    /// it counts as free. `None` when it waits for a sample (or there is none to make).
+    fn request_deadline(&self) -> Option<MonoTime> {
+        let (wanted, free_after) = self.pending_request?;
+        let v = self.vehicles.get(&wanted)?;
+        let decide = self.ask_after.max(self.request_seen? + self.heartbeat);
+        if v.controller_id == wanted {
+            Some(decide.max(free_after))
+        } else if v.controller_id == self.me {
+            None // waits for a fresher sample (see `consider_request`)
+        } else {
+            Some(decide)
+        }
+    }
+
+    /// `--request`: ask once the vehicle and its owner are known from a live sample, on a
+    /// DeviceInfo or at [`Self::request_deadline`]. An unchanged DeviceInfo is published only
+    /// every few seconds, so the decision is not left to the next sample.
+    fn consider_request(&mut self, now: MonoTime, stamp: TimeT, out: &mut Out) {
         let Some((wanted, free_after)) = self.pending_request else {
             return;
         };

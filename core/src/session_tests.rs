@@ -534,6 +534,32 @@ fn request_when_seen_waits_for_live_info_then_asks_or_drives_a_free_vehicle() {
     assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
 }
 
+/// An unchanged DeviceInfo is published only every few seconds (presence is the participant's),
+/// so the `--request` decision falls due on a Tick at its deadline, not at the next sample.
+#[test]
+fn request_when_seen_decides_at_its_deadline_without_another_sample() {
+    let mut c = config(SessionInput::Constant(sticks(1), Mode::Manual));
+    c.drive = vec![];
+    c.request = Some(W);
+    // Owned by another: asked a heartbeat after the first sample.
+    let mut s = OperatorSession::new(c.clone(), ms(0));
+    assert!(sent(&step(&mut s, 100, vehicle(W, OTHER))).is_empty());
+    assert_eq!(s.next_deadline(), Some(ms(600)));
+    let out = s.step(ms(600), stamp(600), SessionEvent::Tick);
+    assert_eq!(sent(&out).first().map(|m| m.ack), Some(Ack::Request));
+    // Ownerless: driven when it counts as free, a heartbeat after it was first seen.
+    let mut s = OperatorSession::new(c.clone(), ms(0));
+    assert!(step(&mut s, 600, vehicle(W, W)).is_empty());
+    assert_eq!(s.next_deadline(), Some(ms(1100)));
+    s.step(ms(1100), stamp(1100), SessionEvent::Tick);
+    assert!(s.streams_to(W));
+    assert_eq!(s.next_deadline(), None, "decided: nothing left to wait for");
+    // Names us without our stream: an old sample; no deadline, it waits for a fresher one.
+    let mut s = OperatorSession::new(c, ms(0));
+    step(&mut s, 600, vehicle(W, ME));
+    assert_eq!(s.next_deadline(), None);
+}
+
 #[test]
 fn buttons_cycle_the_selected_vehicle_through_those_seen() {
     let mut s = constant();

@@ -468,6 +468,11 @@ impl RtpsReaderProxy {
         // Only built-in (discovery) writers do this: their readers need the history
         // to match anything, while a user writer's regressed mark would also lower
         // its send window and make writes wait.
+        // rove patch (ROVE-PATCH.md §20): a user writer serves what such a reader
+        // asks for but keeps its mark. Before, it ignored the request below the
+        // mark, and the reader, which cannot acknowledge past a sample it lacks,
+        // asked again at every HEARTBEAT, for good: a HEARTBEAT and an ACKNACK a
+        // second per such pair (most of an idle 32 × 32 fleet's traffic).
         if new_all_acked_before < self.all_acked_before {
           debug!(
             "ACKNACK moves all_acked_before backwards: old={:?} new={:?} reader={:x?} count={}",
@@ -475,7 +480,7 @@ impl RtpsReaderProxy {
           );
           if !reader_may_restart {
             for nack_sn in acknack.reader_sn_state.iter() {
-              if nack_sn >= self.all_acked_before {
+              if nack_sn <= last_available {
                 self.unsent_changes.insert(nack_sn);
               }
             }
@@ -794,10 +799,14 @@ mod acknack_tests {
       vec![SequenceNumber::from(1), SequenceNumber::from(3)]
     );
 
-    // A user writer's reader proxy keeps its mark, as before.
+    // A user writer's reader proxy keeps its mark, and serves the request
+    // (§20): the reader cannot acknowledge past what it lacks.
     user.handle_ack_nack(&AckSubmessage::AckNack(ack), SequenceNumber::from(3), false);
     assert_eq!(user.all_acked_before, SequenceNumber::from(4));
-    assert_eq!(user.unsent_changes_iter().count(), 0);
+    assert_eq!(
+      user.unsent_changes_iter().collect::<Vec<_>>(),
+      vec![SequenceNumber::from(1), SequenceNumber::from(3)]
+    );
   }
 }
 

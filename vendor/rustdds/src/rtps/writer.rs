@@ -1258,7 +1258,10 @@ impl Writer {
 
           // if we cannot send more data, we are done.
           // This is to prevent empty "repair data" messages from being sent.
-          if reader_proxy.all_acked_before > last_seq {
+          // rove patch (ROVE-PATCH.md §20): unless the reader asked again for
+          // something below its mark.
+          if reader_proxy.all_acked_before > last_seq && reader_proxy.first_unsent_change().is_none()
+          {
             reader_proxy.repair_mode = false;
           } else {
             reader_proxy.repair_mode = true;
@@ -3028,6 +3031,31 @@ mod tests {
         self.writer.handle_timed_event(event);
         before - self.unsent()
       }
+    }
+
+    // rove patch (ROVE-PATCH.md §20): a reader of a user writer that asks again
+    // for a sample it had acknowledged (it lost its proxy of us) is sent it; the
+    // mark that bounds the send window stays.
+    #[test]
+    fn a_user_writer_serves_a_reader_that_asks_again_for_what_it_acknowledged() {
+      let mut f = Fixture::user(3, 8, None);
+      f.writer.nack_response_delay = StdDuration::ZERO;
+      let all_acked = AckNack {
+        reader_id: f.reader_guid.entity_id,
+        writer_id: f.writer.my_guid.entity_id,
+        reader_sn_state: SequenceNumberSet::from_base_and_set(
+          SequenceNumber::new(4),
+          &BTreeSet::new(),
+        ),
+        count: 1,
+      };
+      f.writer
+        .handle_ack_nack(f.reader_guid.prefix, &AckSubmessage::AckNack(all_acked));
+      assert_eq!(f.reader_proxy().all_acked_before, SequenceNumber::new(4));
+      assert_eq!(f.unsent(), 0);
+      f.ack_nack([1], 2);
+      assert_eq!(f.repair_round(), 1, "the sample asked for again is sent");
+      assert_eq!(f.reader_proxy().all_acked_before, SequenceNumber::new(4));
     }
 
     // rove patch (ROVE-PATCH.md §19): a peer whose multicast reached us within
