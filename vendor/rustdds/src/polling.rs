@@ -88,6 +88,17 @@ impl<T> WakeSender<T> {
     }
   }
 
+  /// rove patch (ROVE-PATCH.md §21): queues without waking the receiver's poll;
+  /// [`Self::wake`] later wakes it once for everything queued.
+  pub(crate) fn try_send_quiet(&self, value: T) -> Result<(), mpsc::TrySendError<T>> {
+    self.tx.try_send(value)
+  }
+
+  /// Wakes the receiver's poll (after [`Self::try_send_quiet`]).
+  pub(crate) fn wake(&self) {
+    self.waker.wake();
+  }
+
   /// Retry a full bounded send for a short time. Wakes the poll on success.
   pub(crate) fn try_send_timeout(
     &self,

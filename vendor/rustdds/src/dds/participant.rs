@@ -311,7 +311,10 @@ impl DomainParticipantBuilder {
 
     // Channel is used to notify Discovery of (duplicate) SPDP messages from the
     // wire.
-    let (spdp_liveness_sender, spdp_liveness_receiver) = wake_channel(8, &discovery_waker);
+    let (spdp_liveness_sender, spdp_liveness_receiver) = wake_channel(
+      crate::rtps::message_receiver::LIVENESS_QUEUE,
+      &discovery_waker,
+    );
 
     // Discovery thread receives and decodes updates from the wire.
     // It updates data to DiscoveryDB, and sends notifications to dp_event_loop,

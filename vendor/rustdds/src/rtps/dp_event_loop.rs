@@ -377,6 +377,8 @@ impl DPEventLoop {
       }
 
       ev_wrapper.drain_timers(preparing_to_stop);
+      // rove patch (ROVE-PATCH.md §21): liveness reports queued this turn.
+      ev_wrapper.message_receiver.wake_discovery_if_due();
       if ev_wrapper.drain_queues(
         &mut readers_to_remove,
         &mut writers_to_remove,
@@ -1357,7 +1359,10 @@ mod tests {
     let discovery_waker = LoopWaker::new();
     let (discovery_command_sender, _discovery_command_receiver) =
       wake_channel::<DiscoveryCommand>(64, &discovery_waker);
-    let (spdp_liveness_sender, _spdp_liveness_receiver) = wake_channel(8, &discovery_waker);
+    let (spdp_liveness_sender, _spdp_liveness_receiver) = wake_channel(
+      crate::rtps::message_receiver::LIVENESS_QUEUE,
+      &discovery_waker,
+    );
     let (_reader_ready_tx, reader_ready) = ready_channel(&waker);
     let (_writer_ready_tx, writer_ready) = ready_channel(&waker);
     let (participant_status_sender, _participant_status_receiver) =

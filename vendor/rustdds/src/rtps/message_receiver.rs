@@ -112,18 +112,43 @@ impl Default for MessageReceiverState<'_> {
 /// reported alive to Discovery, and for how many participants at most.
 const LIVENESS_REPORT_PERIOD: std::time::Duration = std::time::Duration::from_millis(250);
 const MAX_LIVENESS_REPORTED: usize = 2048;
+/// rove patch (ROVE-PATCH.md §21): how often Discovery is woken for the reports
+/// queued meanwhile, and how many it may have queued (the channel's capacity).
+pub(crate) const LIVENESS_WAKE_PERIOD: std::time::Duration = std::time::Duration::from_millis(100);
+pub(crate) const LIVENESS_QUEUE: usize = 1024;
 
-/// rove patch (ROVE-PATCH.md §16, §18): reports that a remote participant lives,
-/// to Discovery, at most every LIVENESS_REPORT_PERIOD per participant.
+/// rove patch (ROVE-PATCH.md §16, §18, §21): reports that a remote participant
+/// lives, to Discovery, at most every LIVENESS_REPORT_PERIOD per participant,
+/// and wakes Discovery for them at most every LIVENESS_WAKE_PERIOD: one wake for
+/// every peer heard meanwhile, instead of one per report (among 64 processes
+/// announcing every 250 ms, 250 wakes a second per process).
 struct LivenessReports {
   sender: WakeSender<GuidPrefix>,
   // When each participant was last reported (at most MAX_LIVENESS_REPORTED).
   reported: HashMap<GuidPrefix, Instant>,
+  // Reports queued since Discovery was last woken, and when that was.
+  queued: usize,
+  woken: Option<Instant>,
+  // How many times Discovery was woken (for tests and debugging).
+  wakes: u64,
 }
 
 impl LivenessReports {
+  fn new(sender: WakeSender<GuidPrefix>) -> Self {
+    Self {
+      sender,
+      reported: HashMap::new(),
+      queued: 0,
+      woken: None,
+      wakes: 0,
+    }
+  }
+
   fn report(&mut self, prefix: GuidPrefix) {
-    let now = Instant::now();
+    self.report_at(prefix, Instant::now());
+  }
+
+  fn report_at(&mut self, prefix: GuidPrefix, now: Instant) {
     if (self.reported.get(&prefix)).is_some_and(|at| now.duration_since(*at) < LIVENESS_REPORT_PERIOD)
     {
       return;
@@ -135,11 +160,28 @@ impl LivenessReports {
     }
     // Recorded only when it went: a report dropped on a full channel is made
     // again at the participant's next message.
-    match self.sender.try_send(prefix) {
+    match self.sender.try_send_quiet(prefix) {
       Ok(()) => {
         self.reported.insert(prefix, now);
+        self.queued += 1;
       }
       Err(e) => debug!("spdp_liveness_sender.try_send(): {e:?}. Is Discovery alive?"),
+    }
+    self.wake_if_due(now);
+  }
+
+  /// Wakes Discovery if reports are queued and it was not woken within
+  /// LIVENESS_WAKE_PERIOD (or half the queue is used). Also called by the event
+  /// loop on every turn, so that queued reports wait at most until its next
+  /// event.
+  fn wake_if_due(&mut self, now: Instant) {
+    let due = (self.woken).is_none_or(|at| now.duration_since(at) >= LIVENESS_WAKE_PERIOD)
+      || self.queued >= LIVENESS_QUEUE / 2;
+    if self.queued > 0 && due {
+      self.sender.wake();
+      self.queued = 0;
+      self.woken = Some(now);
+      self.wakes += 1;
     }
   }
 }
@@ -192,10 +234,7 @@ impl MessageReceiver {
     Self {
       available_readers: BTreeMap::new(),
       acknack_sender,
-      liveness: LivenessReports {
-        sender: spdp_liveness_sender,
-        reported: HashMap::new(),
-      },
+      liveness: LivenessReports::new(spdp_liveness_sender),
       security_plugins,
       interface_observations,
       own_guid_prefix: participant_guid_prefix,
@@ -343,6 +382,12 @@ impl MessageReceiver {
       .interface_observations
       .borrow_mut()
       .record_origin(source_prefix, origin.local_if, source, origin.multicast);
+  }
+
+  /// rove patch (ROVE-PATCH.md §21): wakes Discovery for liveness reports queued
+  /// since it was last woken, if that was at least LIVENESS_WAKE_PERIOD ago.
+  pub fn wake_discovery_if_due(&mut self) {
+    self.liveness.wake_if_due(Instant::now());
   }
 
   /// rove patch (ROVE-PATCH.md §16): any message from a remote participant tells
@@ -1397,5 +1442,40 @@ mod tests {
     let bytes = header.write_to_vec().unwrap();
     let new_header = Header::read_from_buffer(&bytes).unwrap();
     assert_eq!(header, new_header);
+  }
+}
+
+#[cfg(test)]
+mod liveness_tests {
+  use std::time::{Duration, Instant};
+
+  use super::{LivenessReports, LIVENESS_QUEUE, LIVENESS_WAKE_PERIOD};
+  use crate::{
+    polling::{wake_channel, LoopWaker},
+    structure::guid::GuidPrefix,
+  };
+
+  // rove patch (ROVE-PATCH.md §21): reports of many peers heard within the wake
+  // period are queued and Discovery is woken once for them.
+  #[test]
+  fn liveness_reports_of_many_peers_wake_discovery_once_a_period() {
+    let (sender, receiver) = wake_channel(LIVENESS_QUEUE, &LoopWaker::new());
+    let mut reports = LivenessReports::new(sender);
+    let t0 = Instant::now();
+    let peer = |i: u8| GuidPrefix::new(&[i; 12]);
+    reports.report_at(peer(1), t0);
+    assert_eq!(reports.wakes, 1, "the first report wakes at once");
+    for i in 2..=20 {
+      reports.report_at(peer(i), t0 + Duration::from_millis(u64::from(i)));
+    }
+    assert_eq!(reports.wakes, 1, "queued, not woken, within the period");
+    reports.report_at(peer(1), t0 + Duration::from_millis(50));
+    assert_eq!(reports.queued, 19, "a peer reported within 250 ms is not again");
+    reports.wake_if_due(t0 + LIVENESS_WAKE_PERIOD);
+    assert_eq!(reports.wakes, 2);
+    reports.wake_if_due(t0 + 3 * LIVENESS_WAKE_PERIOD);
+    assert_eq!(reports.wakes, 2, "nothing queued: no wake");
+    let got: Vec<GuidPrefix> = std::iter::from_fn(|| receiver.try_recv().ok()).collect();
+    assert_eq!(got, (1..=20).map(peer).collect::<Vec<_>>());
   }
 }
