@@ -736,6 +736,12 @@ impl OperatorSession {
         }
     }
 
+    /// Whether a [`SessionEvent::StreamTick`] has anything to send: a vehicle we drive, hold a
+    /// grant for, or stand by for. An operator that streams nothing need not tick.
+    pub fn streams_anything(&self) -> bool {
+        !(self.driving.is_empty() && self.priority.is_empty() && self.standby.is_empty())
+    }
+
     /// Whether we send samples to `vehicle` (regular or priority writer).
     pub fn streams_to(&self, vehicle: DeviceId) -> bool {
         self.driving.contains(&vehicle) || self.priority.contains(&vehicle)

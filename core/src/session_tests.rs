@@ -561,6 +561,22 @@ fn request_when_seen_decides_at_its_deadline_without_another_sample() {
 }
 
 #[test]
+fn a_stream_tick_has_work_only_while_something_is_driven_held_or_stood_by_for() {
+    let mut c = config(SessionInput::Constant(sticks(1), Mode::Manual));
+    c.drive = vec![];
+    let mut s = OperatorSession::new(c, ms(0));
+    assert!(!s.streams_anything());
+    assert!(step(&mut s, 1, SessionEvent::StreamTick).is_empty());
+    step(&mut s, 2, vehicle(W, W));
+    step(&mut s, 3, SessionEvent::Command(Command::Drive { vehicle: W }));
+    assert!(s.streams_to(W) && s.streams_anything());
+    assert!(!step(&mut s, 4, SessionEvent::StreamTick).is_empty());
+    let release = Command::Release { vehicle: Some(W) };
+    step(&mut s, 5, SessionEvent::Command(release));
+    assert!(!s.streams_anything());
+}
+
+#[test]
 fn buttons_cycle_the_selected_vehicle_through_those_seen() {
     let mut s = constant();
     step(&mut s, 1, vehicle(V, V));

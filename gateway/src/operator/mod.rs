@@ -321,12 +321,14 @@ impl<N: Net> Role<N> {
             // recomputed when a step did more than write samples (the hot path: sticks,
             // keep-alives), and on each heartbeat.
             let mut heartbeat_due = false;
+            // An operator that streams nothing does not wake 50 times a second for it.
+            let streaming = self.session.streams_anything();
             let wake = tokio::select! {
                 () = &mut shutdown => break,
                 Some(req) = self.edges.commands.recv() => Wake::Command(req),
                 () = news.notified(), if self.edges.sticks.is_some() => Wake::Sticks,
                 () = sleep_until(input_deadline), if input_deadline.is_some() => Wake::Sticks,
-                _ = stream_timer.tick() => Wake::Stream,
+                _ = stream_timer.tick(), if streaming => Wake::Stream,
                 _ = heartbeat.tick() => Wake::Heartbeat,
                 // From this loop, so that a hung loop stops the keep-alives.
                 _ = keepalive.tick() => Wake::Keepalive,
