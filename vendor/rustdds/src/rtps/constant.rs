@@ -16,6 +16,12 @@ use crate::{
 
 pub const PREEMPTIVE_ACKNACK_PERIOD: Duration = Duration::from_secs(5);
 
+/// rove patch (ROVE-PATCH.md §22): under a presence setting, how often the SPDP
+/// multicast socket is read. Not on readiness: among 64 processes announcing
+/// every 250 ms, each datagram woke every process's event loop on its own, 250
+/// wakes a second each; read every 50 ms, they cost 20, whatever the fleet.
+pub const DISCOVERY_MULTICAST_READ_PERIOD: Duration = Duration::from_millis(50);
+
 pub const CACHE_CLEAN_PERIOD: Duration = Duration::from_secs(4);
 
 // RTPS spec Section 8.4.7.1.1 "Default Timing-Related Values" suggests 200 ms,

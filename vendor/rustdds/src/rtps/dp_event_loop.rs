@@ -187,8 +187,13 @@ impl DPEventLoop {
     let poll = try_init!(Poll::new(), "Unable to create new poll");
     // Listeners are edge-triggered. The loop reads each one until WouldBlock,
     // so a datagram left in the socket cannot sit unreported.
+    // rove patch (ROVE-PATCH.md §22): under a presence setting the SPDP multicast
+    // socket is not registered: it is read every DISCOVERY_MULTICAST_READ_PERIOD.
     let mut udp_listeners = udp_listeners;
     for (token, listener) in &mut udp_listeners {
+      if *token == DISCOVERY_MUL_LISTENER_TOKEN && multicast_alone.is_some() {
+        continue;
+      }
       try_init!(
         poll
           .registry()
@@ -211,6 +216,12 @@ impl DPEventLoop {
       let mut t = shared_timer.borrow_mut();
       t.set_timeout(PREEMPTIVE_ACKNACK_PERIOD, DpTimerEvent::PreemptiveAcknack);
       t.set_timeout(CACHE_CLEAN_PERIOD, DpTimerEvent::CacheGc);
+      if multicast_alone.is_some() {
+        t.set_timeout(
+          DISCOVERY_MULTICAST_READ_PERIOD,
+          DpTimerEvent::DiscoveryMulticast,
+        );
+      }
     }
 
     // port number 0 means OS chooses an available port number.
@@ -335,20 +346,7 @@ impl DPEventLoop {
               | DISCOVERY_MUL_LISTENER_TOKEN
               | USER_TRAFFIC_LISTENER_TOKEN
               | USER_TRAFFIC_MUL_LISTENER_TOKEN => {
-                // Edge-triggered: read until WouldBlock. A cap would leave
-                // datagrams sitting with no further readiness event.
-                let udp_messages = ev_wrapper.udp_listeners.get_mut(&token).map_or_else(
-                  || {
-                    error!("No listener with token {:?}", token);
-                    vec![]
-                  },
-                  |l| l.messages_bounded(usize::MAX),
-                );
-                for (packet, origin) in udp_messages {
-                  ev_wrapper
-                    .message_receiver
-                    .handle_received_packet(&packet, origin);
-                }
+                ev_wrapper.receive_from(token);
               }
               LOOP_WAKE_TOKEN => {
                 // Queues are drained below, once, for this whole iteration.
@@ -487,6 +485,22 @@ impl DPEventLoop {
     false
   }
 
+  /// Reads every datagram waiting on the listener `token` and handles it.
+  /// Edge-triggered: read until WouldBlock. A cap would leave datagrams sitting
+  /// with no further readiness event.
+  fn receive_from(&mut self, token: Token) {
+    let udp_messages = self.udp_listeners.get_mut(&token).map_or_else(
+      || {
+        error!("No listener with token {:?}", token);
+        vec![]
+      },
+      |l| l.messages_bounded(usize::MAX),
+    );
+    for (packet, origin) in udp_messages {
+      self.message_receiver.handle_received_packet(&packet, origin);
+    }
+  }
+
   fn drain_timers(&mut self, preparing_to_stop: bool) {
     let expired: Vec<DpTimerEvent> = {
       let mut timer = self.shared_timer.borrow_mut();
@@ -504,6 +518,13 @@ impl DPEventLoop {
             .shared_timer
             .borrow_mut()
             .set_timeout(PREEMPTIVE_ACKNACK_PERIOD, DpTimerEvent::PreemptiveAcknack);
+        }
+        DpTimerEvent::DiscoveryMulticast => {
+          self.receive_from(DISCOVERY_MUL_LISTENER_TOKEN);
+          self.shared_timer.borrow_mut().set_timeout(
+            DISCOVERY_MULTICAST_READ_PERIOD,
+            DpTimerEvent::DiscoveryMulticast,
+          );
         }
         DpTimerEvent::CacheGc => {
           debug!("Clean DDSCache on timer");

@@ -21,4 +21,6 @@ pub(crate) enum DpTimerEvent {
   },
   PreemptiveAcknack,
   CacheGc,
+  // rove patch (ROVE-PATCH.md §22): read the SPDP multicast socket.
+  DiscoveryMulticast,
 }
