@@ -32,7 +32,7 @@ mod owners;
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Rig, wall_us};
 use owners::{Assignment, assign, drives_of, is_laptop, tally};
-pub use owners::{Incident, MAX_INCIDENTS, count};
+pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -150,6 +150,36 @@ pub struct Report {
     /// The first wrong owners and failsafe entries, where and when (at most
     /// [`MAX_INCIDENTS`]).
     pub incidents: Vec<Incident>,
+    /// All of them, by phase (`start`, `steady`, `churn`, `handover`, `late joiner`); the
+    /// totals above leave out the start.
+    pub incidents_by_phase: std::collections::BTreeMap<&'static str, PhaseCount>,
+    /// From the first process started until every vehicle was driven by its laptop and no
+    /// vehicle had a wrong owner or a failsafe entry for [`SETTLE_QUIET`], ms.
+    pub settle_ms: u64,
+}
+
+/// Waits until the fleet settled: no wrong owner and no failsafe entry for [`SETTLE_QUIET`]
+/// (checked once a second: reading every record costs the fleet CPU).
+fn settle(
+    vehicles: &[i64],
+    records: &[PathBuf],
+    assignment: &Assignment,
+    started: u64,
+) -> anyhow::Result<()> {
+    let give_up = std::time::Instant::now() + SETTLE_PATIENCE;
+    let phases = [(owners::START, started)];
+    loop {
+        let last = tally(vehicles, records, assignment, started, &phases).last_at_ms;
+        let quiet_since_us = started + last.map_or(0, |ms| ms * 1000);
+        if wall_us().saturating_sub(quiet_since_us) >= SETTLE_QUIET.as_micros() as u64 {
+            return Ok(());
+        }
+        anyhow::ensure!(
+            std::time::Instant::now() < give_up,
+            "the fleet did not settle within {SETTLE_PATIENCE:?}"
+        );
+        std::thread::sleep(Duration::from_secs(1));
+    }
 }
 
 /// CPU ticks (user + system) and resident memory (KiB) of process `pid`.
@@ -223,6 +253,13 @@ fn observer(rig: &mut Rig, name: &str) -> PathBuf {
 /// once on two cores.
 const LISTING_PATIENCE: Duration = Duration::from_secs(60);
 
+/// A streaming fleet has settled after this long without a wrong owner or a failsafe entry:
+/// the start of every process at once (discovery of every pair) is over.
+const SETTLE_QUIET: Duration = Duration::from_secs(2);
+
+/// How long a streaming fleet may take to settle.
+const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
+
 /// Stops the process started last (an observer) gracefully ([`harness::Proc::stop`]).
 fn stop_last(rig: &mut Rig) {
     if let Some(p) = rig.procs.last_mut() {
@@ -241,6 +278,7 @@ pub fn run(
 ) -> anyhow::Result<Report> {
     anyhow::ensure!(options.vehicles >= 1, "needs at least one vehicle");
     let mut rig = Rig::new(rove, "scale")?;
+    let started = wall_us();
     let (vehicles, operators) = fleet_ids(options);
     let network = network_toml(options);
     let output = format!("{network}[output]\nadapter = \"sim\"\n");
@@ -287,12 +325,14 @@ pub fn run(
                 harness::wait_for_output(record, Some(laptop), 0).map_err(anyhow::Error::msg)?;
             }
         }
+        settle(&vehicles, &records, &assignment, started)?;
     }
     let steady = wall_us();
-    progress("fleet steady; measuring CPU");
+    let settle_ms = (steady - started) / 1000;
+    progress(&format!("fleet steady {settle_ms} ms after the start; measuring CPU"));
     let (measured, elapsed) = cpu_window(&rig, &fleet, options.window)?;
     let (v_usage, o_usage) = measured.split_at(vehicles.len());
-    let mut phases = vec![("steady", steady), ("churn", wall_us())];
+    let mut phases = vec![(owners::START, started), ("steady", steady), ("churn", wall_us())];
     let restarts = if options.idle {
         0
     } else {
@@ -321,8 +361,7 @@ pub fn run(
     };
     phases.push(("late joiner", wall_us()));
     let latejoin = late_joiners(&mut rig, &everyone, options.latejoin_runs, progress)?;
-    let (wrong_owner, stale, outputs, incidents) =
-        tally(&vehicles, &records, &assignment, steady, &phases);
+    let tally = tally(&vehicles, &records, &assignment, started, &phases);
     Ok(Report {
         vehicles: vehicles.len(),
         operators: operators.len(),
@@ -341,10 +380,12 @@ pub fn run(
         latejoin_ms: Percentiles::of(&latejoin),
         handover_ms: Percentiles::of(&handover),
         restarts,
-        wrong_owner,
-        stale,
-        outputs,
-        incidents,
+        wrong_owner: tally.wrong_owner,
+        stale: tally.stale,
+        outputs: tally.outputs,
+        incidents: tally.incidents,
+        incidents_by_phase: tally.by_phase,
+        settle_ms,
     })
 }
 
@@ -500,6 +541,12 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         r.stale,
         r.outputs
     );
+    for (phase, n) in &r.incidents_by_phase {
+        println!(
+            "  {phase}: wrong owner {}, stale {}",
+            n.wrong_owner, n.stale
+        );
+    }
     for i in &r.incidents {
         println!(
             "  vehicle {} at {} ms ({}): {}",

@@ -7,6 +7,10 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+/// The phase from the first process started until the fleet settled: its incidents are
+/// counted by phase, not in the totals.
+pub const START: &str = "start";
+
 /// Incidents listed at most in a report.
 pub const MAX_INCIDENTS: usize = 20;
 
@@ -17,7 +21,7 @@ pub struct Incident {
     pub vehicle: i64,
     /// The bench's phase: `steady` (the CPU window), `churn`, `handover`, `late joiner`.
     pub phase: &'static str,
-    /// Since the fleet was steady, ms.
+    /// Since the first process of the fleet started, ms.
     pub at_ms: u64,
     /// Who it applied (a wrong owner), or `None`: it went to the failsafe.
     pub owner: Option<i64>,
@@ -99,17 +103,39 @@ pub(super) fn is_laptop(assignment: &Assignment, operator: i64) -> bool {
     assignment.values().any(|(laptop, _)| *laptop == operator)
 }
 
+/// Wrong owners and failsafe entries of one phase.
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq, Eq)]
+pub struct PhaseCount {
+    /// Applies from anyone but the vehicle's laptop (or the phone).
+    pub wrong_owner: usize,
+    /// Failsafe entries.
+    pub stale: usize,
+}
+
+/// What [`tally`] finds in every vehicle's record since the fleet was steady.
+#[derive(Debug, Default)]
+pub(super) struct Tally {
+    pub wrong_owner: usize,
+    pub stale: usize,
+    pub outputs: usize,
+    /// The first [`MAX_INCIDENTS`] incidents after the start.
+    pub incidents: Vec<Incident>,
+    /// All of them, counted by phase.
+    pub by_phase: BTreeMap<&'static str, PhaseCount>,
+    /// When the last one happened (ms after `since`).
+    pub last_at_ms: Option<u64>,
+}
+
 /// Wrong owners, stale failsafe entries and outputs of every vehicle's record since `steady`,
-/// and the first [`MAX_INCIDENTS`] incidents.
+/// by phase, and the first [`MAX_INCIDENTS`] incidents.
 pub(super) fn tally(
     vehicles: &[i64],
     records: &[PathBuf],
     assignment: &Assignment,
     steady: u64,
     phases: &[(&'static str, u64)],
-) -> (usize, usize, usize, Vec<Incident>) {
-    let (mut wrong_owner, mut stale, mut outputs) = (0, 0, 0);
-    let mut incidents = Vec::new();
+) -> Tally {
+    let mut t = Tally::default();
     for (&vehicle, record) in vehicles.iter().zip(records) {
         let outs = harness::records(record);
         let mut allowed: Vec<i64> = (assignment.get(&vehicle))
@@ -120,14 +146,27 @@ pub(super) fn tally(
             allowed.push(PHONE);
         }
         let found = incidents_of(&outs, steady, &allowed, phases, vehicle);
-        let (wrong, failsafe) = wrong_and_stale(&found);
-        wrong_owner += wrong;
-        stale += failsafe;
-        let room = MAX_INCIDENTS.saturating_sub(incidents.len());
-        incidents.extend(found.into_iter().take(room));
-        outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
+        for i in &found {
+            t.last_at_ms = t.last_at_ms.max(Some(i.at_ms));
+            let phase = t.by_phase.entry(i.phase).or_default();
+            match i.owner {
+                Some(_) => phase.wrong_owner += 1,
+                None => phase.stale += 1,
+            }
+        }
+        // The start (the fleet joining at once) is counted by phase only.
+        let after_start: Vec<Incident> = (found.iter())
+            .filter(|i| i.phase != START)
+            .cloned()
+            .collect();
+        let (wrong, failsafe) = wrong_and_stale(&after_start);
+        t.wrong_owner += wrong;
+        t.stale += failsafe;
+        let room = MAX_INCIDENTS.saturating_sub(t.incidents.len());
+        t.incidents.extend(after_start.into_iter().take(room));
+        t.outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
     }
-    (wrong_owner, stale, outputs, incidents)
+    t
 }
 
 #[cfg(test)]

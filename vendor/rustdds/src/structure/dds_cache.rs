@@ -131,6 +131,9 @@ pub(crate) struct TopicCache {
   max_keep_samples: i32, // from QoS, for quick, repeated access
   // rove patch (ROVE-PATCH.md §12): samples added since the last garbage collection.
   added_since_collection: usize,
+  // rove patch (ROVE-PATCH.md §23): bumped by every change to what readers may
+  // read, so that a reader that found nothing need not look again until it moves.
+  generation: u64,
   // TODO: Change this to Option<u32>, where None means "no limit".
 
   // The main content of the cache is in this map.
@@ -176,6 +179,7 @@ impl TopicCache {
                                                          * this */
       max_keep_samples: 1, // dummy value, next call will overwrite this
       added_since_collection: 0,
+      generation: 0,
       changes: BTreeMap::new(),
       changes_reallocated_up_to: Timestamp::ZERO,
       last_added_instant: Timestamp::ZERO,
@@ -189,6 +193,7 @@ impl TopicCache {
   }
 
   pub fn update_keep_limits(&mut self, qos: &QosPolicies) {
+    self.generation = self.generation.wrapping_add(1);
     let min_keep_samples = qos
       .history()
       // default history setting from DDS spec v1.4 Section 2.2.3 "Supported QoS",
@@ -226,6 +231,7 @@ impl TopicCache {
   // forward and false if not. The marker never moves backwards: the cache may
   // have given up on a missing sample that the Reader is still waiting for.
   pub fn mark_reliably_received_before(&mut self, writer: GUID, sn: SequenceNumber) -> bool {
+    self.generation = self.generation.wrapping_add(1);
     let prev_sn = self.reliable_before(writer);
     // The entry must exist even at the initial value: withheld samples are
     // protected only for Writers that have one.
@@ -254,6 +260,7 @@ impl TopicCache {
 
   // The Writer is gone, so samples it never completed are no longer awaited.
   pub fn forget_reliable_writer(&mut self, writer: GUID) {
+    self.generation = self.generation.wrapping_add(1);
     self.received_reliably_before.remove(&writer);
   }
 
@@ -317,7 +324,15 @@ impl TopicCache {
     self.changes.get(instant)
   }
 
+  /// rove patch (ROVE-PATCH.md §23): changes whenever what a reader may read
+  /// could have changed (a sample added or removed, a writer's reliable marker
+  /// moved, the limits changed).
+  pub fn generation(&self) -> u64 {
+    self.generation
+  }
+
   pub fn add_change(&mut self, instant: &Timestamp, cache_change: CacheChange) {
+    self.generation = self.generation.wrapping_add(1);
     self
       .add_change_internal(instant, cache_change)
       .map(|cc_back| {
@@ -518,6 +533,7 @@ impl TopicCache {
   /// Then, if the topic has more than `topic_limit()` in all, remove the oldest
   /// samples, whoever wrote them, until it has no more.
   pub fn remove_changes_before(&mut self, remove_before: Timestamp) {
+    self.generation = self.generation.wrapping_add(1);
     // TODO: Currently, TopicCache does not know about Keys is Samples/CacheChanges,
     // because they are opaque binary blobs at this point. Therefore, we cannot
     // distinguish between instances, so cannot observe max instance counts.
@@ -907,6 +923,38 @@ mod tests {
     assert!(topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(10)));
     assert!(!topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(5)));
     assert_eq!(topic_cache.reliable_before(writer), SequenceNumber::new(10));
+  }
+
+  // rove patch (ROVE-PATCH.md §23): whatever can change what a reader may read
+  // moves the generation; reading does not.
+  #[test]
+  fn the_generation_moves_with_what_readers_may_read() {
+    let mut topic_cache = keep_all_topic_cache();
+    let writer = user_writer();
+    let mut seen = topic_cache.generation();
+    let mut moved = |cache: &TopicCache| {
+      let now = cache.generation();
+      std::mem::replace(&mut seen, now) != now
+    };
+    let sample = CacheChange::new(
+      writer,
+      SequenceNumber::new(1),
+      WriteOptions::default(),
+      DDSData::new(SerializedPayload::default()),
+    );
+    topic_cache.add_change(&Timestamp::now(), sample);
+    assert!(moved(&topic_cache), "a sample added");
+    let read: Vec<_> = topic_cache
+      .get_changes_in_range_reliable(&BTreeMap::new())
+      .collect();
+    drop(read);
+    assert!(!moved(&topic_cache), "reading changes nothing");
+    topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(2));
+    assert!(moved(&topic_cache), "a reliable marker moved");
+    topic_cache.forget_reliable_writer(writer);
+    assert!(moved(&topic_cache), "a writer forgotten");
+    topic_cache.remove_changes_before(Timestamp::ZERO);
+    assert!(moved(&topic_cache), "a collection");
   }
 
   // E.g. Fast DDS sends its first HEARTBEAT 3 s after matching, so a late joiner

@@ -55,6 +55,9 @@ pub(crate) struct ReadState<K: Key> {
   /// key values. This is needed when we receive a dispose message via hash
   /// only.
   hash_to_key_map: BTreeMap<KeyHash, K>, // TODO: garbage collect this somehow
+  /// rove patch (ROVE-PATCH.md §23): the topic cache's generation when a take
+  /// last found nothing: until it changes, nothing new can be found.
+  nothing_new_at: Option<u64>,
 }
 
 impl<K: Key> ReadState<K> {
@@ -63,6 +66,7 @@ impl<K: Key> ReadState<K> {
       latest_instant: Timestamp::ZERO,
       last_read_sn: BTreeMap::new(),
       hash_to_key_map: BTreeMap::<KeyHash, K>::new(),
+      nothing_new_at: None,
     }
   }
 
@@ -351,6 +355,14 @@ where
     let topic_cache = self.acquire_the_topic_cache_guard();
 
     let mut read_state_ref = self.read_state.lock().unwrap();
+    // rove patch (ROVE-PATCH.md §23): a reader polled without news does not
+    // walk every writer's sequence numbers again (among 64 peers, most of a
+    // streaming process's own work).
+    let generation = topic_cache.generation();
+    if read_state_ref.nothing_new_at == Some(generation) {
+      return Ok(None);
+    }
+    read_state_ref.nothing_new_at = None;
     let latest_instant = read_state_ref.latest_instant;
     let (last_read_sn, hash_to_key_map) = read_state_ref.get_sn_map_and_hash_map();
 
@@ -360,7 +372,12 @@ where
     // loop in case we get a sample that should be ignored, so we try next.
     loop {
       let (timestamp, cc) = match changes.next() {
-        None => return Ok(None), // no more data available right now
+        None => {
+          // no more data available right now
+          drop(changes);
+          read_state_ref.nothing_new_at = Some(generation);
+          return Ok(None);
+        }
         Some((ts, cc)) => (ts, cc),
       };
 
