@@ -279,12 +279,14 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
             let after: Vec<Value> = (ap.events().into_iter())
                 .filter(|e| wall(e) > start)
                 .collect();
-            let released = (after.iter())
-                .any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0));
+            let released =
+                (after.iter()).any(|e| e["event"] == "rc_override" && raw(e).first() == Some(&0));
             let held = after.iter().any(|e| {
                 e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true
             });
-            (released && held).then_some(()).ok_or(format!("{after:#?}"))
+            (released && held)
+                .then_some(())
+                .ok_or(format!("{after:#?}"))
         });
         times.push(took);
     }

@@ -568,7 +568,11 @@ fn a_stream_tick_has_work_only_while_something_is_driven_held_or_stood_by_for() 
     assert!(!s.streams_anything());
     assert!(step(&mut s, 1, SessionEvent::StreamTick).is_empty());
     step(&mut s, 2, vehicle(W, W));
-    step(&mut s, 3, SessionEvent::Command(Command::Drive { vehicle: W }));
+    step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Drive { vehicle: W }),
+    );
     assert!(s.streams_to(W) && s.streams_anything());
     assert!(!step(&mut s, 4, SessionEvent::StreamTick).is_empty());
     let release = Command::Release { vehicle: Some(W) };

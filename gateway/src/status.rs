@@ -234,16 +234,9 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 None => anyhow::bail!("VehicleStatus stream ended"),
             },
             Some(event) = discovery.next() => {
-                // A participant that left takes the devices it spoke for offline.
                 if let rustdds::DomainParticipantStatusEvent::ParticipantLost { id, .. } = event {
                     let gone = dds::participant_id(id.as_ref());
-                    ids.participant_gone(clock.now(), gone);
-                    for entry in seen.values_mut() {
-                        entry.participants.remove(&gone);
-                        if entry.believed == gone {
-                            entry.withdrawn = true;
-                        }
-                    }
+                    participant_left(&mut seen, &mut ids, clock.now(), gone);
                 }
             }
             request = requests.next() => match request {
@@ -266,6 +259,23 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                 }
                 next_print += Duration::from_secs(1);
             }
+        }
+    }
+}
+
+/// A participant that left (its lease ran out, or it said goodbye) takes the devices it spoke
+/// for offline, and its pins lapse after the grace.
+fn participant_left(
+    seen: &mut BTreeMap<DeviceId, Seen>,
+    ids: &mut Identities,
+    now: rove_core::MonoTime,
+    gone: ParticipantId,
+) {
+    ids.participant_gone(now, gone);
+    for entry in seen.values_mut() {
+        entry.participants.remove(&gone);
+        if entry.believed == gone {
+            entry.withdrawn = true;
         }
     }
 }

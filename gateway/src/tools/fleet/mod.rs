@@ -31,7 +31,7 @@ mod owners;
 
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Rig, wall_us};
-use owners::{Assignment, assign, drives_of, is_laptop, tally};
+use owners::{Assignment, assign, drives_of, is_laptop, settle, tally};
 pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -154,32 +154,8 @@ pub struct Report {
     /// totals above leave out the start.
     pub incidents_by_phase: std::collections::BTreeMap<&'static str, PhaseCount>,
     /// From the first process started until every vehicle was driven by its laptop and no
-    /// vehicle had a wrong owner or a failsafe entry for [`SETTLE_QUIET`], ms.
+    /// vehicle had a wrong owner or a failsafe entry for 2 s, ms.
     pub settle_ms: u64,
-}
-
-/// Waits until the fleet settled: no wrong owner and no failsafe entry for [`SETTLE_QUIET`]
-/// (checked once a second: reading every record costs the fleet CPU).
-fn settle(
-    vehicles: &[i64],
-    records: &[PathBuf],
-    assignment: &Assignment,
-    started: u64,
-) -> anyhow::Result<()> {
-    let give_up = std::time::Instant::now() + SETTLE_PATIENCE;
-    let phases = [(owners::START, started)];
-    loop {
-        let last = tally(vehicles, records, assignment, started, &phases).last_at_ms;
-        let quiet_since_us = started + last.map_or(0, |ms| ms * 1000);
-        if wall_us().saturating_sub(quiet_since_us) >= SETTLE_QUIET.as_micros() as u64 {
-            return Ok(());
-        }
-        anyhow::ensure!(
-            std::time::Instant::now() < give_up,
-            "the fleet did not settle within {SETTLE_PATIENCE:?}"
-        );
-        std::thread::sleep(Duration::from_secs(1));
-    }
 }
 
 /// CPU ticks (user + system) and resident memory (KiB) of process `pid`.
@@ -253,13 +229,6 @@ fn observer(rig: &mut Rig, name: &str) -> PathBuf {
 /// once on two cores.
 const LISTING_PATIENCE: Duration = Duration::from_secs(60);
 
-/// A streaming fleet has settled after this long without a wrong owner or a failsafe entry:
-/// the start of every process at once (discovery of every pair) is over.
-const SETTLE_QUIET: Duration = Duration::from_secs(2);
-
-/// How long a streaming fleet may take to settle.
-const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
-
 /// Stops the process started last (an observer) gracefully ([`harness::Proc::stop`]).
 fn stop_last(rig: &mut Rig) {
     if let Some(p) = rig.procs.last_mut() {
@@ -329,10 +298,16 @@ pub fn run(
     }
     let steady = wall_us();
     let settle_ms = (steady - started) / 1000;
-    progress(&format!("fleet steady {settle_ms} ms after the start; measuring CPU"));
+    progress(&format!(
+        "fleet steady {settle_ms} ms after the start; measuring CPU"
+    ));
     let (measured, elapsed) = cpu_window(&rig, &fleet, options.window)?;
     let (v_usage, o_usage) = measured.split_at(vehicles.len());
-    let mut phases = vec![(owners::START, started), ("steady", steady), ("churn", wall_us())];
+    let mut phases = vec![
+        (owners::START, started),
+        ("steady", steady),
+        ("churn", wall_us()),
+    ];
     let restarts = if options.idle {
         0
     } else {

@@ -2,10 +2,11 @@
 //! wrong owner (an apply from anyone but the vehicle's laptop) or a failsafe entry.
 
 use super::PHONE;
-use crate::tools::harness::{self, Out};
+use crate::tools::harness::{self, Out, wall_us};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// The phase from the first process started until the fleet settled: its incidents are
 /// counted by phase, not in the totals.
@@ -167,6 +168,37 @@ pub(super) fn tally(
         t.outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
     }
     t
+}
+
+/// A streaming fleet has settled after this long without a wrong owner or a failsafe entry:
+/// the start of every process at once (discovery of every pair) is over.
+pub const SETTLE_QUIET: Duration = Duration::from_secs(2);
+
+/// How long a streaming fleet may take to settle.
+const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
+
+/// Waits until the fleet settled: no wrong owner and no failsafe entry for [`SETTLE_QUIET`]
+/// (checked once a second: reading every record costs the fleet CPU).
+pub(super) fn settle(
+    vehicles: &[i64],
+    records: &[PathBuf],
+    assignment: &Assignment,
+    started: u64,
+) -> anyhow::Result<()> {
+    let give_up = std::time::Instant::now() + SETTLE_PATIENCE;
+    let phases = [(START, started)];
+    loop {
+        let last = tally(vehicles, records, assignment, started, &phases).last_at_ms;
+        let quiet_since_us = started + last.map_or(0, |ms| ms * 1000);
+        if wall_us().saturating_sub(quiet_since_us) >= SETTLE_QUIET.as_micros() as u64 {
+            return Ok(());
+        }
+        anyhow::ensure!(
+            std::time::Instant::now() < give_up,
+            "the fleet did not settle within {SETTLE_PATIENCE:?}"
+        );
+        std::thread::sleep(Duration::from_secs(1));
+    }
 }
 
 #[cfg(test)]
