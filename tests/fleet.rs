@@ -186,3 +186,32 @@ fn a_late_foreign_observer_lists_every_device_and_owner_and_none_lapses() {
         "an instance lost its writers: {v}"
     );
 }
+
+/// Issue 33, item 3: a foreign controller (Cyclone DDS on the seed's IDL and QoS, at a stationary
+/// laptop's strength) still drives a rove vehicle under SPDP presence, and when it stops, the
+/// vehicle falls to its failsafe at the command timeout.
+#[test]
+fn a_foreign_controller_drives_a_rove_vehicle_and_its_stop_brings_the_failsafe() {
+    let mut rig = Rig::new("fleet-foreign-controller");
+    let record = rig.vehicle(100);
+    let args = [
+        "inflate",
+        "--id",
+        "13",
+        "--dest",
+        "100",
+        "--strength",
+        "220",
+        "--seconds",
+        "3",
+    ];
+    let out = rig
+        .foreign_peer(&args)
+        .output()
+        .expect("run the foreign controller");
+    let v = foreign_summary(out, &args);
+    assert!(v["samples"].as_i64().unwrap_or(0) > 0, "{v}");
+    let driven = wait_for_output(&record, Some(13), 0).expect("the foreign controller drives");
+    assert_eq!(driven.throttle, Some(31111), "its sticks: {driven:?}");
+    wait_for_output(&record, None, driven.wall_us).expect("the failsafe after it stopped");
+}

@@ -177,14 +177,20 @@ pub const SETTLE_QUIET: Duration = Duration::from_secs(2);
 /// How long a streaming fleet may take to settle.
 const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
 
-/// Waits until the fleet settled: no wrong owner and no failsafe entry for [`SETTLE_QUIET`]
-/// (checked once a second: reading every record costs the fleet CPU).
+/// Waits until every vehicle was driven by its laptop and the fleet settled: no wrong owner
+/// and no failsafe entry for [`SETTLE_QUIET`] (checked once a second: reading every record
+/// costs the fleet CPU).
 pub(super) fn settle(
     vehicles: &[i64],
     records: &[PathBuf],
     assignment: &Assignment,
     started: u64,
 ) -> anyhow::Result<()> {
+    for (&vehicle, record) in vehicles.iter().zip(records) {
+        if let Some(&(laptop, _)) = assignment.get(&vehicle) {
+            harness::wait_for_output(record, Some(laptop), 0).map_err(anyhow::Error::msg)?;
+        }
+    }
     let give_up = std::time::Instant::now() + SETTLE_PATIENCE;
     let phases = [(START, started)];
     loop {
