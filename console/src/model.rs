@@ -353,7 +353,8 @@ pub struct Confirmation {
 pub struct ConsoleState {
     /// Who we are.
     pub identity: Identity,
-    /// A device not announced for this long is shown offline (three heartbeats, as
+    /// A device not announced for this long is shown offline (a backstop: the operator sends
+    /// [`Event::DeviceGone`] when a device's participant leaves; three DeviceInfo refreshes, as
     /// `rove status` does).
     pub offline_after: Duration,
     /// Every device seen, by id (vehicles and controllers, including ourselves).

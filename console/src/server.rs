@@ -221,7 +221,8 @@ async fn hub_task(
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
                     // The hub itself fell behind: every client missed these, and the
-                    // mirror may be stale until the next heartbeats.
+                    // mirror may be stale until the next DeviceInfo refreshes (5 s; a missed
+                    // `device_gone` until the 15 s backstop).
                     warn!(missed = n, "API hub lagged behind the operator's events");
                     for c in &mut clients {
                         c.missed = c.missed.saturating_add(n);

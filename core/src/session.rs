@@ -1167,6 +1167,11 @@ impl OperatorSession {
         let Some(v) = self.vehicles.get(&wanted) else {
             return;
         };
+        if self.identities.owner(now, wanted).is_none() {
+            // Its participant left since: wait for a live sample (no deadline until then).
+            self.request_seen = None;
+            return;
+        }
         let first_seen = *self.request_seen.get_or_insert(now);
         if now < self.ask_after || now < first_seen + self.heartbeat {
             return;

@@ -555,8 +555,19 @@ fn request_when_seen_decides_at_its_deadline_without_another_sample() {
     assert!(s.streams_to(W));
     assert_eq!(s.next_deadline(), None, "decided: nothing left to wait for");
     // Names us without our stream: an old sample; no deadline, it waits for a fresher one.
-    let mut s = OperatorSession::new(c, ms(0));
+    let mut s = OperatorSession::new(c.clone(), ms(0));
     step(&mut s, 600, vehicle(W, ME));
+    assert_eq!(s.next_deadline(), None);
+    // The vehicle's participant left before the decision (its pin lapsed after the grace):
+    // nothing is decided on its last sample, and nothing waits for a deadline.
+    let mut s = OperatorSession::new(c, ms(0));
+    step(&mut s, 100, vehicle(W, OTHER));
+    let gone = SessionEvent::ParticipantGone {
+        participant: participant(W),
+    };
+    step(&mut s, 200, gone);
+    let out = s.step(ms(1000), stamp(1000), SessionEvent::Tick);
+    assert!(sent(&out).is_empty(), "asked a vehicle that left: {out:?}");
     assert_eq!(s.next_deadline(), None);
 }
 

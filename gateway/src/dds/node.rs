@@ -130,6 +130,19 @@ impl Node {
         }
     }
 
+    /// A discovery event: a participant found (again) gets our DeviceInfo at the next check
+    /// rather than at the next refresh. One that had dropped us and found us again (a lease it
+    /// believed ran out) already holds our last sample, so a resend of it would be a duplicate
+    /// there; a new write is not.
+    pub fn observe(&self, event: &DomainParticipantStatusEvent) {
+        if let DomainParticipantStatusEvent::ParticipantDiscovered { .. } = event {
+            match self.refresh.lock() {
+                Ok(mut refresh) => refresh.forget(),
+                Err(poisoned) => poisoned.into_inner().forget(),
+            }
+        }
+    }
+
     /// Leaves the device lists at once (a dispose of our DeviceInfo) rather than after missed
     /// heartbeats.
     pub fn withdraw(&self) {

@@ -255,6 +255,7 @@ impl Net for Dds {
                 Some(event) => {
                     // Routes are learnt here; the session is told what it needs.
                     self.writers.routes_learn(&event);
+                    self.node.observe(&event);
                     Discovery::of(&event).map_or(Heard::Nothing, |d| {
                         Heard::Discovery(discovery_event(d))
                     })

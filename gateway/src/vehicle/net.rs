@@ -175,7 +175,12 @@ impl Net for Dds {
                 }
                 None => anyhow::bail!("DeviceInfo stream ended"),
             },
-            ev = status.next() => ev.as_ref().and_then(Discovery::of),
+            ev = status.next() => {
+                if let Some(event) = &ev {
+                    self.node.observe(event);
+                }
+                ev.as_ref().and_then(Discovery::of)
+            }
         };
         Ok(self.on_discovery(discovery))
     }

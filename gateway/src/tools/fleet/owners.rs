@@ -127,16 +127,21 @@ pub(super) struct Tally {
     pub last_at_ms: Option<u64>,
 }
 
-/// Wrong owners, stale failsafe entries and outputs of every vehicle's record since `steady`,
-/// by phase, and the first [`MAX_INCIDENTS`] incidents.
+/// Wrong owners, stale failsafe entries and outputs of every vehicle's record since `since`,
+/// by phase (the start's incidents apart, its outputs not counted), and the first
+/// [`MAX_INCIDENTS`] incidents after the start.
 pub(super) fn tally(
     vehicles: &[i64],
     records: &[PathBuf],
     assignment: &Assignment,
-    steady: u64,
+    since: u64,
     phases: &[(&'static str, u64)],
 ) -> Tally {
     let mut t = Tally::default();
+    // Outputs are counted from the end of the start (the first other phase).
+    let counted_from = (phases.iter())
+        .find(|(name, _)| *name != START)
+        .map_or(since, |(_, at)| *at);
     for (&vehicle, record) in vehicles.iter().zip(records) {
         let outs = harness::records(record);
         let mut allowed: Vec<i64> = (assignment.get(&vehicle))
@@ -146,7 +151,7 @@ pub(super) fn tally(
         if vehicle == vehicles[0] {
             allowed.push(PHONE);
         }
-        let found = incidents_of(&outs, steady, &allowed, phases, vehicle);
+        let found = incidents_of(&outs, since, &allowed, phases, vehicle);
         for i in &found {
             t.last_at_ms = t.last_at_ms.max(Some(i.at_ms));
             let phase = t.by_phase.entry(i.phase).or_default();
@@ -165,7 +170,7 @@ pub(super) fn tally(
         t.stale += failsafe;
         let room = MAX_INCIDENTS.saturating_sub(t.incidents.len());
         t.incidents.extend(after_start.into_iter().take(room));
-        t.outputs += outs.iter().filter(|o| o.wall_us >= steady).count();
+        t.outputs += outs.iter().filter(|o| o.wall_us >= counted_from).count();
     }
     t
 }

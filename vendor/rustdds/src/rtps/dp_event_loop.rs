@@ -216,7 +216,7 @@ impl DPEventLoop {
       let mut t = shared_timer.borrow_mut();
       t.set_timeout(PREEMPTIVE_ACKNACK_PERIOD, DpTimerEvent::PreemptiveAcknack);
       t.set_timeout(CACHE_CLEAN_PERIOD, DpTimerEvent::CacheGc);
-      if multicast_alone.is_some() {
+      if multicast_alone.is_some() && udp_listeners.contains_key(&DISCOVERY_MUL_LISTENER_TOKEN) {
         t.set_timeout(
           DISCOVERY_MULTICAST_READ_PERIOD,
           DpTimerEvent::DiscoveryMulticast,

@@ -210,6 +210,10 @@ pub(crate) struct Writer {
   // multicast reached us within this window, instead of once more by unicast to
   // each such peer (on one host: loopback unicast to every peer).
   multicast_alone: Option<std::time::Duration>,
+  // When the last full round went out: every EXTRA_DESTINATIONS_PERIOD an
+  // announcement goes to every peer by its route as well, so that a peer our
+  // multicast does not reach (links are not always symmetric) finds us again.
+  multicast_alone_full_round: std::cell::Cell<Option<std::time::Instant>>,
 
   // Whether route selection may prefer a same-host peer's loopback locator.
   // Mirrors the participant-builder `same_host_loopback` knob; `true` by
@@ -361,6 +365,7 @@ impl Writer {
       extra_unicast_destinations: Vec::new(),
       extra_unicast_sent: std::cell::Cell::new(None),
       multicast_alone: None,
+      multicast_alone_full_round: std::cell::Cell::new(None),
       prefer_loopback_same_host: true,
       interface_observations,
       local_interfaces,
@@ -1299,8 +1304,9 @@ impl Writer {
           // everything means the reader does not know what we have, typically a
           // preemptive ACKNACK from a reader that matched us after our HEARTBEAT.
           // Answer now instead of at the next heartbeat period.
-          if an.reader_sn_state.iter().next().is_none() && reader_proxy.all_acked_before <= last_seq
-          {
+          // rove patch (ROVE-PATCH.md §20): by what the reader says it has, not by
+          // the mark it had acknowledged: one that lost its state needs the HEARTBEAT.
+          if an.reader_sn_state.iter().next().is_none() && an.reader_sn_state.base() <= last_seq {
             let hb_message = MessageBuilder::new()
               .ts_msg(self.endianness, Some(Timestamp::now()))
               .heartbeat_msg(
@@ -1899,9 +1905,17 @@ impl Writer {
         // reach a peer by the group alone. Sent as the announcement to peers not
         // yet discovered is (to the group, from every multicast interface), so
         // that both are one datagram.
+        let now = std::time::Instant::now();
         let multicast_alone = (self.multicast_alone)
           .filter(|_| preferred_mode == DeliveryMode::Multicast)
-          .map(|window| (window, std::time::Instant::now()));
+          .filter(|_| match self.multicast_alone_full_round.get() {
+            Some(at) if now.duration_since(at) < EXTRA_DESTINATIONS_PERIOD => true,
+            _ => {
+              self.multicast_alone_full_round.set(Some(now));
+              false
+            }
+          })
+          .map(|window| (window, now));
 
         for reader in readers {
           if let Some((window, now)) = multicast_alone {

@@ -375,7 +375,11 @@ where
         None => {
           // no more data available right now
           drop(changes);
-          read_state_ref.nothing_new_at = Some(generation);
+          // Best effort reads up to now: a sample stored with a later timestamp
+          // (the clock stepped back) becomes readable without a new generation.
+          if is_reliable {
+            read_state_ref.nothing_new_at = Some(generation);
+          }
           return Ok(None);
         }
         Some((ts, cc)) => (ts, cc),
