@@ -249,6 +249,11 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
     ap.wait_for("driving", |e| {
         e["event"] == "rc_override" && raw(e).get(2) == Some(&1805)
     });
+    // The autopilot starts in HOLD; the failsafe's HOLD is a change only once the vehicle's
+    // MANUAL has landed (it may still be on its way while the first overrides arrive).
+    ap.wait_for("the autopilot in MANUAL", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 0 && e["answered"] == true
+    });
     let name = format!("vehicle-{V}");
     crate::util::eventually("the vehicle heard the autopilot", || {
         match rig.log_of(&name).contains("mavlink: autopilot found") {

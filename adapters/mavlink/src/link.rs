@@ -416,6 +416,13 @@ fn open(
                 .timeout(READ_TIMEOUT)
                 .open_native()
                 .map_err(io::Error::from)?;
+            // What the port received before we opened it is another process's (the vehicle
+            // before `rove failsafe`, or before a restart): an old HEARTBEAT read now would say
+            // the autopilot is in a mode it has since left, and "confirm" a safe mode it is not
+            // in (seen: `rove failsafe` asked nothing of an autopilot 20 ms into MANUAL).
+            if let Err(e) = serialport::SerialPort::clear(&port, serialport::ClearBuffer::Input) {
+                warn!(device = %device, cause = %e, "mavlink: cannot discard stale serial input");
+            }
             let writer = port.try_clone_native().map_err(io::Error::from)?;
             (Reader::Serial(port), Writer::Serial(Mutex::new(writer)))
         }

@@ -481,6 +481,59 @@ fn drives_over_a_serial_pty_pair() {
     });
 }
 
+/// `rove failsafe` over serial reads nothing the port received before it opened. A HEARTBEAT
+/// in HOLD left unread by the vehicle that died, read after the failsafe's SET_MODE went out,
+/// "confirmed" HOLD of an autopilot that had since gone to MANUAL, and the failsafe ended
+/// before its SET_MODE was delivered (seen in CI on 2026-11-27). Whether the old HEARTBEAT is
+/// read before or after the SET_MODE goes out is the reader thread's timing, not forced here:
+/// without the fix this passed 5 of 5 runs on an idle machine; it guards the outcome.
+#[test]
+fn failsafe_over_serial_ignores_a_heartbeat_sent_before_it_opened() {
+    use mavlink::dialects::ardupilotmega::{HEARTBEAT_DATA, MavMessage, MavModeFlag, MavType};
+    use std::io::Write;
+    let pty = rove_testkit::PtyPair::start();
+    let (a, b) = (&pty.a, &pty.b);
+    // The stale HEARTBEAT: HOLD (4), written at the autopilot's end, waiting at ours.
+    let stale = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 4,
+        mavtype: MavType::MAV_TYPE_GROUND_ROVER,
+        base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        ..HEARTBEAT_DATA::default()
+    });
+    let header = mavlink::MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let bytes = rove_mavlink::frame::encode(mavlink::MavlinkVersion::V2, header, &stale).unwrap();
+    let mut end = std::fs::OpenOptions::new().write(true).open(a).unwrap();
+    for _ in 0..3 {
+        end.write_all(&bytes).unwrap();
+    }
+    drop(end);
+    // The autopilot in MANUAL (0), its next HEARTBEAT 5 s away.
+    let peer = Peer::start(&[
+        "--connection",
+        a.to_str().unwrap(),
+        "--baud",
+        "57600",
+        "--mode",
+        "0",
+        "--heartbeat-hz",
+        "0.2",
+    ]);
+    let mut settings: MavlinkSettings = toml::from_str(&format!(
+        "connection = \"serial:{}:57600\"\ntarget_system = 1",
+        b.display()
+    ))
+    .unwrap();
+    let config = settings.validate().unwrap();
+    rove_mavlink::failsafe(&config).unwrap();
+    peer.wait_for("HOLD commanded and answered", |e| {
+        e["event"] == "set_mode" && e["custom_mode"] == 4 && e["answered"] == true
+    });
+}
+
 // Regressions (against ArduPilot SITL): the adapter against an autopilot with ArduPilot's default telemetry (ardupilotmega
 // messages in bursts once a second, a stray 0xFE inside SIMSTATE, an unknown message), on TCP.
 // See: docs/mavlink.md, "ArduPilot as a GCS sees it".
