@@ -21,6 +21,11 @@ pub const LOG_CAPACITY: usize = 200;
 /// none offline, is not shown: a flood of invented ids cannot grow the table.
 pub const MAX_DEVICES: usize = 1024;
 
+/// Most statuses kept of vehicles not seen yet (a status can arrive before the vehicle's
+/// DeviceInfo: the topics are matched and repaired apart). Beyond it, one of an unseen vehicle
+/// is dropped: a flood of invented ids cannot grow the table.
+pub const MAX_EARLY_STATUSES: usize = 64;
+
 /// How long a confirmation prompt stays open: long enough to read it, short enough that a
 /// forgotten prompt cannot be confirmed by a stray key much later, when the situation on
 /// screen has changed.
@@ -377,6 +382,10 @@ pub struct ConsoleState {
     pub quit: bool,
     /// The latest `now` applied.
     pub now: MonoTime,
+    /// The last status of each vehicle whose DeviceInfo has not come yet, applied when it
+    /// does. A vehicle publishes its status only when it changes, so one dropped here would be
+    /// missing until the next change (seen: a console that never showed a vehicle's status).
+    pub early_status: BTreeMap<DeviceId, Event>,
 }
 
 impl ConsoleState {
@@ -412,12 +421,16 @@ impl ConsoleState {
             confirm: None,
             quit: false,
             now: MonoTime::ZERO,
+            early_status: BTreeMap::new(),
         }
     }
 
     /// Folds `event`, which happened at `now`, into the state.
     pub fn apply(&mut self, now: MonoTime, event: Event) {
         self.now = self.now.max(now);
+        let Some(event) = self.unless_early_status(event) else {
+            return;
+        };
         match event {
             Event::Identity(identity) => self.identity = identity,
             Event::DeviceSeen { id, .. } if !self.has_room_for(id, now) => {}
@@ -532,6 +545,22 @@ impl ConsoleState {
     }
 
     /// A device's DeviceInfo: listed (or updated), its owner change logged.
+    /// A VehicleStatus of a vehicle not seen yet is kept for when it is (`early_status`);
+    /// any other event is handed back.
+    fn unless_early_status(&mut self, event: Event) -> Option<Event> {
+        let Event::VehicleStatus { vehicle, .. } = event else {
+            return Some(event);
+        };
+        if (self.devices.get(&vehicle)).is_some_and(|d| d.vehicle.is_some()) {
+            return Some(event);
+        }
+        if self.early_status.contains_key(&vehicle) || self.early_status.len() < MAX_EARLY_STATUSES
+        {
+            self.early_status.insert(vehicle, event);
+        }
+        None
+    }
+
     fn device_seen(
         &mut self,
         now: MonoTime,
@@ -567,6 +596,11 @@ impl ConsoleState {
         };
         if self.selected.is_none() && kind == DeviceKind::Vehicle {
             self.selected = Some(id);
+        }
+        if kind == DeviceKind::Vehicle
+            && let Some(status) = self.early_status.remove(&id)
+        {
+            self.apply(now, status);
         }
     }
 
@@ -904,6 +938,41 @@ pub(crate) mod tests {
             },
         );
         assert_eq!(s.prompt(), None);
+    }
+
+    #[test]
+    fn a_status_that_comes_before_its_vehicle_is_shown_once_the_vehicle_is_seen() {
+        let mut s = ConsoleState::new(me(), Duration::from_secs(3));
+        let status_of = |vehicle: DeviceId, link: &str| Event::VehicleStatus {
+            vehicle,
+            owner: 7,
+            mode: Some(Mode::Manual),
+            failsafe: false,
+            link: link.into(),
+            output: OutputState::Ok,
+            health: VehicleHealth::UNKNOWN,
+        };
+        let status = |link: &str| status_of(100, link);
+        s.apply(ms(0), status("first"));
+        s.apply(ms(1), status("ok"));
+        assert!(
+            !s.devices.contains_key(&100),
+            "not shown before its DeviceInfo"
+        );
+        s.apply(ms(2), seen(100, "rover-1", DeviceKind::Vehicle, 7));
+        let v = s.devices[&100].vehicle.clone().expect("a vehicle");
+        assert_eq!(v.link.as_deref(), Some("ok"), "the latest early status");
+        assert!(s.early_status.is_empty());
+        let replayed = s
+            .snapshot()
+            .into_iter()
+            .any(|e| matches!(e.event, Event::VehicleStatus { ref link, .. } if link == "ok"));
+        assert!(replayed, "a late API client gets it in the snapshot");
+        // Invented vehicles cannot grow the table.
+        for id in 1000..1000 + 2 * MAX_EARLY_STATUSES as DeviceId {
+            s.apply(ms(3), status_of(id, "x"));
+        }
+        assert_eq!(s.early_status.len(), MAX_EARLY_STATUSES);
     }
 
     #[test]
