@@ -26,7 +26,12 @@ pub struct Node {
     name: String,
     kind: DeviceType,
     refresh: Mutex<Refresh>,
+    /// Participants lost (at most [`MAX_LOST`]): one found again gets our DeviceInfo at once.
+    lost: Mutex<std::collections::BTreeSet<ParticipantId>>,
 }
+
+/// Most lost participants remembered for [`Node::observe`].
+const MAX_LOST: usize = 1024;
 
 /// When our DeviceInfo goes out: at once when `controller_id` changed, else once every
 /// `every` ([`super::DEVICE_INFO_REFRESH`]). Presence is the participant's (its SPDP lease), so
@@ -98,6 +103,7 @@ impl Node {
                 every: super::DEVICE_INFO_REFRESH,
                 last: None,
             }),
+            lost: Mutex::new(std::collections::BTreeSet::new()),
         })
     }
 
@@ -130,16 +136,33 @@ impl Node {
         }
     }
 
-    /// A discovery event: a participant found (again) gets our DeviceInfo at the next check
-    /// rather than at the next refresh. One that had dropped us and found us again (a lease it
-    /// believed ran out) already holds our last sample, so a resend of it would be a duplicate
-    /// there; a new write is not.
+    /// A discovery event: a participant found again after it was lost gets our DeviceInfo at
+    /// the next check rather than at the next refresh. Lost both ways (a lease believed run
+    /// out), it already holds our last sample, so a resend of it would be a duplicate there; a
+    /// new write is not. A new participant gets the sample from the history: republishing for
+    /// every newcomer cost every node a write to every peer per join (measured: late joiners
+    /// of 64 devices p99 0.2 → 0.4 s).
     pub fn observe(&self, event: &DomainParticipantStatusEvent) {
-        if let DomainParticipantStatusEvent::ParticipantDiscovered { .. } = event {
-            match self.refresh.lock() {
-                Ok(mut refresh) => refresh.forget(),
-                Err(poisoned) => poisoned.into_inner().forget(),
+        let mut lost = match self.lost.lock() {
+            Ok(guard) => guard,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        match event {
+            DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+                if lost.len() >= MAX_LOST {
+                    lost.clear();
+                }
+                lost.insert(participant_id(id.as_ref()));
             }
+            DomainParticipantStatusEvent::ParticipantDiscovered { dpd }
+                if lost.remove(&participant_id(dpd.guid.prefix.as_ref())) =>
+            {
+                match self.refresh.lock() {
+                    Ok(mut refresh) => refresh.forget(),
+                    Err(poisoned) => poisoned.into_inner().forget(),
+                }
+            }
+            _ => {}
         }
     }
 
