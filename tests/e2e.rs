@@ -19,6 +19,8 @@ mod package;
 mod robustness;
 mod security;
 mod service;
+#[cfg(feature = "remote")]
+mod sites;
 mod spray;
 mod trust;
 mod web;

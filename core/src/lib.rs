@@ -22,6 +22,8 @@
 //! - [`mapping`]: axis → µs (min/centre/max, trim, reverse, deadband, expo, slew), mode levels.
 //! - [`adapter`]: output-adapter and input-source traits.
 //! - [`sim`]: a recording output and a scripted input.
+//! - [`site`]: sites joined over a wide-area link: the bridges' key space and what another
+//!   site may say.
 //! - [`time`]: monotonic instants.
 //! - [`sender`]: who sent a message (participant, writer), as the binding names them.
 //! - [`trust`]: device ids pinned to participants, and the strengths a vehicle believes.
@@ -47,6 +49,7 @@ pub mod remote;
 pub mod sender;
 pub mod session;
 pub mod sim;
+pub mod site;
 pub mod time;
 pub mod trust;
 pub mod watchdog;

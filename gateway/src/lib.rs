@@ -10,6 +10,8 @@
 //!   (clock, shutdown, front ends); [`host`] assembles them on this machine for `main.rs`.
 //! - [`output`]: the output adapter on its own thread behind the gateway's failure policy
 //!   (hold, reopen, hung-device watch); `rove failsafe`.
+//! - `bridge` (with the `remote` feature): `rove bridge`, a site's link to other sites over
+//!   Zenoh, each remote device a participant of its own here.
 //! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
 //! - [`tools`]: apart from the roles: the demo, the benches (`handover`, `input`, `chaos`,
@@ -22,6 +24,8 @@
 
 #![deny(missing_docs)]
 
+#[cfg(feature = "remote")]
+pub mod bridge;
 #[cfg(feature = "security")]
 pub mod certs;
 pub mod config;

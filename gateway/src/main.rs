@@ -42,6 +42,14 @@ enum Command {
         #[arg(long, hide = true, value_name = "MS")]
         test_stall_on_sigusr1: Option<u64>,
     },
+    /// Run a site's bridge: carry its devices to the other sites it is configured to meet,
+    /// over Zenoh with mutual TLS, and theirs here (docs/remote.md).
+    #[cfg(feature = "remote")]
+    Bridge {
+        /// The bridge's config file.
+        #[arg(short, long, default_value = "/etc/rove/bridge.toml")]
+        config: std::path::PathBuf,
+    },
     /// Input devices for operators: list them, or show a device's mapped values live.
     Inputs {
         #[command(subcommand)]
@@ -205,6 +213,22 @@ enum KeysCommand {
         #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
         days: u32,
     },
+    /// Issue a site bridge's certificate for the link between sites (CN=rove-site-NAME), in
+    /// DIR/site-NAME/ (docs/remote.md).
+    Site {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The site's name (lowercase letters, digits, '-').
+        #[arg(long)]
+        name: String,
+        /// A name or address the site's bridge is reached by (repeat for more; optional).
+        #[arg(long = "host")]
+        hosts: Vec<String>,
+        /// Days the certificate is valid.
+        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
+        days: u32,
+    },
 }
 
 #[derive(Debug, Subcommand)]
@@ -266,6 +290,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             test_stall_on_sigusr1,
         } => vehicle_cmd(config, record, test_stall_on_sigusr1),
         Command::Failsafe { config } => failsafe_cmd(&config),
+        #[cfg(feature = "remote")]
+        Command::Bridge { config } => bridge_cmd(&config),
         Command::Operator {
             config,
             request,
@@ -340,6 +366,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let role = match &loaded {
                 config::AnyConfig::Vehicle(_) => "vehicle",
                 config::AnyConfig::Operator(_) => "operator",
+                config::AnyConfig::Bridge(_) => "bridge",
             };
             // With --print, stdout is the effective TOML alone (`> file` loads again); the
             // verdict goes to stderr.
@@ -377,6 +404,27 @@ fn load_vehicle(path: &std::path::Path) -> anyhow::Result<config::VehicleConfig>
     runtime::init_logging(config.common.log_filter.as_deref());
     output::keep_learned(&mut config.output, config.common.id);
     Ok(config)
+}
+
+/// `rove bridge`: on a multi-thread runtime of one worker (Zenoh refuses a current-thread
+/// runtime; it runs its own threads besides).
+#[cfg(feature = "remote")]
+fn bridge_cmd(path: &std::path::Path) -> anyhow::Result<()> {
+    let config = config::load_bridge(path).map_err(bad_config)?;
+    let filter = match config.common.log_filter.as_deref() {
+        Some(f) if f.contains("zenoh") => f.to_string(),
+        Some(f) => format!("{f},zenoh=warn"),
+        None => format!("{},zenoh=warn", runtime::DEFAULT_LOG_FILTER),
+    };
+    runtime::init_logging(Some(&filter));
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()?;
+    runtime.block_on(async {
+        let shutdown = runtime::shutdown_signal()?;
+        rove_gateway::bridge::run(config, shutdown).await
+    })
 }
 
 /// `rove failsafe`: for systemd's `ExecStopPost`.
@@ -520,6 +568,21 @@ fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
                 println!("{:>8}  {revoked}{}", device.id, device.expiry.describe());
             }
             println!("{} devices in {}", issued.len(), dir.display());
+            Ok(())
+        }
+        KeysCommand::Site {
+            dir,
+            name,
+            hosts,
+            days,
+        } => {
+            let site = rove_core::site::SiteName::new(&name)
+                .map_err(|rule| anyhow::anyhow!("--name {name:?}: {rule}"))?;
+            let out = certs::site(&dir, &site, &hosts, certs::Lifetime::days(days))?;
+            println!(
+                "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
+                out.display()
+            );
             Ok(())
         }
         KeysCommand::Web { dir, hosts, days } => {

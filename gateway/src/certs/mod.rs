@@ -206,6 +206,54 @@ pub fn web(dir: &Path, hosts: &[String], lifetime: Lifetime) -> anyhow::Result<P
     Ok(out)
 }
 
+/// Issues a site bridge's certificate for the link between sites (docs/remote.md), signed by
+/// the fleet CA, subject `O=<fleet>, CN=rove-site-NAME`, for both ends of a TLS link (server
+/// and client authentication), with the names and addresses in `hosts` as subject alternative
+/// names. Writes `DIR/site-NAME/` (`cert.pem`, `key.pem`, and the fleet's `ca.cert.pem`): point
+/// `[zenoh] certificate`, `key` and `ca` there. The other sites' bridges let the common name
+/// speak only under the site's own name, and for the ids configured for it.
+///
+/// # Errors
+/// `dir` holds no fleet, the files exist, or OpenSSL fails.
+pub fn site(
+    dir: &Path,
+    name: &rove_core::site::SiteName,
+    hosts: &[String],
+    lifetime: Lifetime,
+) -> anyhow::Result<PathBuf> {
+    use openssl::x509::extension::{ExtendedKeyUsage, SubjectAlternativeName};
+    let (ca, ca_key) = fleet_ca(dir)?;
+    let out = dir.join(format!("site-{name}"));
+    if out.join("cert.pem").exists() {
+        bail!("{} exists already", out.join("cert.pem").display());
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
+    let key = new_key()?;
+    let subject_name = subject(&fleet_of(&ca)?, &name.common_name())?;
+    let mut cert = builder(&subject_name, ca.subject_name(), &key, lifetime)?;
+    if !hosts.is_empty() {
+        let mut names = SubjectAlternativeName::new();
+        for host in hosts {
+            if host.parse::<std::net::IpAddr>().is_ok() {
+                names.ip(host);
+            } else {
+                names.dns(host);
+            }
+        }
+        let names = names.build(&cert.x509v3_context(Some(&ca), None))?;
+        cert.append_extension(names)?;
+    }
+    cert.append_extension(BasicConstraints::new().critical().build()?)?;
+    cert.append_extension(KeyUsage::new().critical().digital_signature().build()?)?;
+    let usage = ExtendedKeyUsage::new().server_auth().client_auth().build()?;
+    cert.append_extension(usage)?;
+    cert.sign(&ca_key, MessageDigest::sha256())?;
+    write(&out.join("cert.pem"), &cert.build().to_pem()?, false)?;
+    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
+    write(&out.join("ca.cert.pem"), &ca.to_pem()?, false)?;
+    Ok(out)
+}
+
 /// The files of a device directory (`[security] dir`), as rustdds reads them.
 pub const DEVICE_FILES: [&str; 6] = [
     "identity_ca.cert.pem",

@@ -472,6 +472,7 @@ fn network(roots: &Roots, config: Option<&AnyConfig>) -> Vec<Finding> {
     let common = match config {
         Some(AnyConfig::Vehicle(v)) => &v.common,
         Some(AnyConfig::Operator(o)) => &o.common,
+        Some(AnyConfig::Bridge(b)) => &b.common,
         None => return Vec::new(),
     };
     let local = local_addresses(roots);
@@ -498,6 +499,7 @@ fn certificate(config: Option<&AnyConfig>) -> Vec<Finding> {
     let common = match config {
         Some(AnyConfig::Vehicle(v)) => &v.common,
         Some(AnyConfig::Operator(o)) => &o.common,
+        Some(AnyConfig::Bridge(b)) => &b.common,
         None => return Vec::new(),
     };
     let Some(dir) = &common.security else {

@@ -306,6 +306,44 @@ impl Drop for Rig {
     }
 }
 
+/// Joins two rigs' namespaces by a veth pair, `near_addr` (with its prefix length, such as
+/// `10.77.0.1/24`) on `near`'s end and `far_addr` on `far`'s. With `multicast`, `far`'s
+/// multicast is routed over the pair (one DDS network over two hosts); without, each keeps
+/// its own (two sites that meet only through what is sent to the other's address). Returns
+/// the two interface names (near, far).
+///
+/// # Errors
+/// iproute2 refuses a step.
+pub fn veth(
+    near: &Rig,
+    far: &Rig,
+    near_addr: &str,
+    far_addr: &str,
+    multicast: bool,
+) -> anyhow::Result<(String, String)> {
+    let tag = NEXT.fetch_add(1, Ordering::SeqCst) % 1000;
+    let pid = std::process::id() % 100_000;
+    let (a, b) = (format!("rv{pid}n{tag}"), format!("rv{pid}f{tag}"));
+    let mut steps: Vec<Vec<&str>> = vec![
+        vec![
+            "ip", "link", "add", &a, "netns", &near.ns, "type", "veth", "peer", "name", &b,
+            "netns", &far.ns,
+        ],
+        vec!["ip", "-n", &near.ns, "addr", "add", near_addr, "dev", &a],
+        vec!["ip", "-n", &far.ns, "addr", "add", far_addr, "dev", &b],
+        vec!["ip", "-n", &near.ns, "link", "set", &a, "up", "multicast", "on"],
+        vec!["ip", "-n", &far.ns, "link", "set", &b, "up", "multicast", "on"],
+    ];
+    if multicast {
+        // The far host's multicast goes over the veth, not its own loopback.
+        steps.push(vec!["ip", "-n", &far.ns, "route", "replace", "224.0.0.0/4", "dev", &b]);
+    }
+    for step in steps {
+        run(&step).map_err(anyhow::Error::msg)?;
+    }
+    Ok((a, b))
+}
+
 /// The `[security]` table of device `id` in `fleet` (a [`Rig::fleet`]), empty without one.
 pub fn security_toml(fleet: Option<&Path>, id: i64) -> String {
     fleet.map_or_else(String::new, |f| {

@@ -137,53 +137,8 @@ pub(super) const VETH_FAR: &str = "10.77.0.2";
 /// multicast routed over it: a host of its own on a link the bench can cut.
 pub(super) fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
     let far = Rig::new(rove, "bench-chaos-far")?;
-    let tag = std::process::id() % 100_000;
-    let (a, b) = (format!("rc{tag}a"), format!("rc{tag}b"));
     let (near_addr, far_addr) = (format!("{VETH_NEAR}/24"), format!("{VETH_FAR}/24"));
-    let steps: [&[&str]; 6] = [
-        &[
-            "ip", "link", "add", &a, "netns", &near.ns, "type", "veth", "peer", "name", &b,
-            "netns", &far.ns,
-        ],
-        &["ip", "-n", &near.ns, "addr", "add", &near_addr, "dev", &a],
-        &["ip", "-n", &far.ns, "addr", "add", &far_addr, "dev", &b],
-        &[
-            "ip",
-            "-n",
-            &near.ns,
-            "link",
-            "set",
-            &a,
-            "up",
-            "multicast",
-            "on",
-        ],
-        &[
-            "ip",
-            "-n",
-            &far.ns,
-            "link",
-            "set",
-            &b,
-            "up",
-            "multicast",
-            "on",
-        ],
-        // The far host's multicast goes over the veth, not its own loopback.
-        &[
-            "ip",
-            "-n",
-            &far.ns,
-            "route",
-            "replace",
-            "224.0.0.0/4",
-            "dev",
-            &b,
-        ],
-    ];
-    for step in steps {
-        crate::tools::harness::run(step).map_err(anyhow::Error::msg)?;
-    }
+    crate::tools::harness::veth(near, &far, &near_addr, &far_addr, true)?;
     Ok(far)
 }
 

@@ -1,0 +1,534 @@
+//! `rove bridge`: a site's link to other sites (docs/remote.md, docs/design.md "Remote sites").
+//!
+//! One bridge per site joins the site's DDS network and a Zenoh link to the bridges of the
+//! sites it is configured to meet. It carries its devices' DeviceInfo, VehicleStatus,
+//! ControlCommand streams (with their strength and releases) and RequestControl to the sites
+//! concerned, and gives every device of another site a participant of its own here
+//! ([`proxy::Proxy`]), so vehicles, operators, the trust rules and the handover see it as any
+//! device: a remote operator drives with its own strength, quits with a release, and one that
+//! crashes or whose link dies leaves as a local one does. Identity is never a payload's: a
+//! local device is who its DeviceInfo's participant is, and another site speaks only under
+//! its certificate's name (the link's access control) and for the ids configured for it
+//! ([`rove_core::site::Policy`]).
+
+mod link;
+mod local;
+mod proxy;
+mod wire;
+
+use crate::config::{BridgeConfig, Common};
+use crate::runtime::RateLimited;
+use link::{Arrived, Link};
+use local::{Heard, Local};
+use proxy::{Proxy, Read};
+use rove_core::arbiter::ParticipantId;
+use rove_core::hierarchy::Strength;
+use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, RequestControl, VehicleStatus};
+use rove_core::site::{Key, Policy, SiteName, Subject};
+use rustdds::GUID;
+use rustdds::with_key::Sample;
+use std::collections::{BTreeSet, HashMap};
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+use tracing::{info, warn};
+
+/// How often proxies' DeviceInfo refreshes are checked and stale proxies dropped.
+const TICK: Duration = Duration::from_millis(500);
+
+/// Most devices of other sites proxied here, and most local devices followed.
+const MAX_DEVICES: usize = 1024;
+
+/// Runs the bridge until `shutdown`. Needs a multi-thread runtime (Zenoh's rule).
+///
+/// # Errors
+/// The DDS participant or the link cannot be opened, or a DDS stream ended.
+pub async fn run(
+    config: BridgeConfig,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
+    let mut local = Local::join(&config.common)?;
+    let (link, mut arrived) = Link::open(&config.policy, &config.link).await?;
+    let (read_tx, mut read) = mpsc::channel(4096);
+    let policy = &config.policy;
+    let peers: Vec<String> = (policy.peers.iter())
+        .map(|p| format!("{} (ids {:?}, offered {:?}, up to {:?})", p.name, p.ids, p.offer, p.level))
+        .collect();
+    info!(
+        site = %policy.me,
+        listen = ?config.link.listen,
+        connect = ?config.link.connect,
+        ?peers,
+        domain = config.common.domain_id,
+        interfaces = ?config.common.interfaces,
+        "bridge started"
+    );
+    let mut bridge = Bridge::new(config.common.clone(), config.policy.clone(), link, read_tx);
+    let mut tick = tokio::time::interval(TICK);
+    tokio::pin!(shutdown);
+    let result = loop {
+        tokio::select! {
+            () = &mut shutdown => break Ok(()),
+            heard = local.heard() => match heard {
+                Ok(heard) => bridge.local(heard).await,
+                Err(e) => break Err(e),
+            },
+            Some(arrived) = arrived.recv() => bridge.arrived(arrived).await,
+            Some(one) = read.recv() => bridge.read(one).await,
+            _ = tick.tick() => bridge.tick().await,
+        }
+    };
+    bridge.leave().await;
+    result
+}
+
+/// A local device: its participant and what it last said.
+#[derive(Debug)]
+struct LocalDevice {
+    participant: ParticipantId,
+    info: DeviceInfo,
+    status: Option<VehicleStatus>,
+}
+
+/// The bridge's state.
+struct Bridge {
+    common: Common,
+    policy: Policy,
+    link: Link,
+    read_tx: mpsc::Sender<Read>,
+    /// This site's devices, by id (pinned to the participant first heard).
+    devices: HashMap<DeviceId, LocalDevice>,
+    /// Other sites' devices here.
+    proxies: HashMap<DeviceId, Proxy>,
+    /// The proxies' participants (what the bridge hears from them is not this site's).
+    ours: HashMap<ParticipantId, DeviceId>,
+    /// Sites whose bridge is up.
+    up: BTreeSet<SiteName>,
+    /// Local command writers the vehicles' proxies heard: their operator and strength (a
+    /// release names neither).
+    writers: HashMap<GUID, (DeviceId, Strength)>,
+    /// When this site's DeviceInfo was last sent again to every site.
+    refreshed: Instant,
+    refused: RateLimited,
+    ignored: RateLimited,
+    dropped_seen: u64,
+    /// When configured sites not connected were last reported.
+    missing: Instant,
+}
+
+/// How often configured sites that are not connected are reported (first after one period).
+const MISSING_REPORT: Duration = Duration::from_secs(5);
+
+impl Bridge {
+    fn new(common: Common, policy: Policy, link: Link, read_tx: mpsc::Sender<Read>) -> Bridge {
+        Bridge {
+            common,
+            policy,
+            link,
+            read_tx,
+            devices: HashMap::new(),
+            proxies: HashMap::new(),
+            ours: HashMap::new(),
+            up: BTreeSet::new(),
+            writers: HashMap::new(),
+            refreshed: Instant::now(),
+            refused: RateLimited::new("refused a message of another site"),
+            ignored: RateLimited::new("ignored a local message"),
+            dropped_seen: 0,
+            missing: Instant::now(),
+        }
+    }
+
+    fn key(&self, to: &SiteName, subject: Subject) -> Key {
+        Key {
+            to: to.clone(),
+            from: self.policy.me.clone(),
+            subject,
+        }
+    }
+
+    /// The sites up that see our device `info`.
+    fn audience(&self, info: &DeviceInfo) -> Vec<SiteName> {
+        (self.policy.peers.iter())
+            .filter(|p| self.up.contains(&p.name) && self.policy.shows(p, info))
+            .map(|p| p.name.clone())
+            .collect()
+    }
+
+    // ---- this site's network -------------------------------------------------------------
+
+    async fn local(&mut self, heard: Heard) {
+        match heard {
+            Heard::Info { from, .. }
+            | Heard::InfoGone { from, .. }
+            | Heard::Status { from, .. }
+            | Heard::Request { from, .. }
+                if self.ours.contains_key(&from) => {}
+            Heard::Info { info, from } => self.local_info(info, from).await,
+            Heard::InfoGone { id, from } => {
+                if self.devices.get(&id).is_some_and(|d| d.participant == from) {
+                    self.local_gone(id).await;
+                }
+            }
+            Heard::Status { status, from } => {
+                let id = status.vehicle_id;
+                let Some(device) = self.devices.get_mut(&id) else {
+                    return;
+                };
+                if device.participant != from || device.status.as_ref() == Some(&status) {
+                    return;
+                }
+                device.status = Some(status.clone());
+                let info = device.info.clone();
+                let payload = wire::encode(&status);
+                for to in self.audience(&info) {
+                    let key = self.key(&to, Subject::Status(id));
+                    self.link.send(&key, Some(payload.clone())).await;
+                }
+            }
+            Heard::Request { msg, from } => self.local_request(msg, from).await,
+            Heard::Lost(participant) => {
+                let gone: Vec<DeviceId> = (self.devices.iter())
+                    .filter(|(_, d)| d.participant == participant)
+                    .map(|(id, _)| *id)
+                    .collect();
+                for id in gone {
+                    self.local_gone(id).await;
+                }
+                self.writers
+                    .retain(|w, _| crate::dds::writer_id(*w).participant != participant);
+            }
+            Heard::Nothing => {}
+        }
+    }
+
+    async fn local_info(&mut self, info: DeviceInfo, from: ParticipantId) {
+        let id = info.device_id;
+        if self.proxies.contains_key(&id) {
+            self.ignored.warn(&format!("device {id} here has the id of another site's device"));
+            return;
+        }
+        let full = self.devices.len() >= MAX_DEVICES;
+        let changed = match self.devices.get_mut(&id) {
+            Some(d) if d.participant != from => {
+                self.ignored.warn(&format!("device {id} claimed by a second participant"));
+                return;
+            }
+            Some(d) => {
+                let changed = d.info != info;
+                d.info = info.clone();
+                changed
+            }
+            None if full => return,
+            None => {
+                info!(id, name = %info.name, kind = ?info.device_type, "device on this site");
+                let device = LocalDevice {
+                    participant: from,
+                    info: info.clone(),
+                    status: None,
+                };
+                self.devices.insert(id, device);
+                true
+            }
+        };
+        if changed {
+            let payload = wire::encode(&info);
+            for to in self.audience(&info) {
+                let key = self.key(&to, Subject::Info(id));
+                self.link.send(&key, Some(payload.clone())).await;
+            }
+        }
+    }
+
+    async fn local_gone(&mut self, id: DeviceId) {
+        let Some(device) = self.devices.remove(&id) else {
+            return;
+        };
+        info!(id, "device left this site");
+        for to in self.audience(&device.info) {
+            let key = self.key(&to, Subject::Info(id));
+            self.link.send(&key, None).await;
+        }
+    }
+
+    /// A local RequestControl goes to the sites of the devices it names.
+    async fn local_request(&mut self, msg: RequestControl, from: ParticipantId) {
+        let sender = msg.sender_id();
+        if !self.devices.get(&sender).is_some_and(|d| d.participant == from) {
+            self.ignored.warn(&format!("RequestControl for {sender} from another participant"));
+            return;
+        }
+        let mut sites = BTreeSet::new();
+        for id in [msg.src_id, msg.dest_id, msg.current_controller_id] {
+            if let Some(p) = self.proxies.get(&id) {
+                sites.insert(p.site.clone());
+            }
+        }
+        let payload = wire::encode(&msg);
+        for to in sites {
+            let key = self.key(&to, Subject::Request(sender));
+            self.link.send(&key, Some(payload.clone())).await;
+        }
+    }
+
+    /// A command a vehicle's proxy read: from one of our operators, to that vehicle's site.
+    async fn read(&mut self, read: Read) {
+        let participant = crate::dds::writer_id(read.writer).participant;
+        if self.ours.contains_key(&participant) {
+            return;
+        }
+        let Some(proxy) = self.proxies.get_mut(&read.vehicle) else {
+            return;
+        };
+        let (src, strength, payload) = match read.sample {
+            Sample::Value(crate::dds::KeyedControlCommand(command)) => {
+                let src = command.src_id;
+                let pinned = self.devices.get(&src).is_some_and(|d| d.participant == participant);
+                if !pinned || command.dest_id != read.vehicle {
+                    self.ignored.warn(&format!("command as {src} from another participant"));
+                    return;
+                }
+                let Some(strength) = proxy.strength_of(read.writer) else {
+                    self.ignored.warn(&"command of a writer whose strength is not known yet");
+                    return;
+                };
+                if self.writers.len() < MAX_DEVICES || self.writers.contains_key(&read.writer) {
+                    self.writers.insert(read.writer, (src, strength));
+                }
+                let payload = wire::encode(&wire::Command {
+                    command,
+                    stamp: read.stamp,
+                });
+                (src, strength, Some(payload))
+            }
+            Sample::Dispose(_) => match self.writers.get(&read.writer) {
+                Some(&(src, strength)) => (src, strength, None),
+                None => return,
+            },
+        };
+        let subject = Subject::Command {
+            src,
+            dest: read.vehicle,
+            strength,
+        };
+        let site = proxy.site.clone();
+        let key = self.key(&site, subject);
+        self.link.send(&key, payload).await;
+    }
+
+    // ---- the link ------------------------------------------------------------------------
+
+    async fn arrived(&mut self, arrived: Arrived) {
+        match arrived {
+            Arrived::Message { key, put } => {
+                if let Err(why) = self.message(&key, put) {
+                    self.refused.warn(&format!("{key}: {why}"));
+                }
+            }
+            Arrived::Site { site, up } if self.policy.peer(&site).is_some() => {
+                if up {
+                    info!(%site, "site up");
+                    self.up.insert(site.clone());
+                    self.show_all(&site).await;
+                } else {
+                    info!(%site, "site gone: its devices leave this site");
+                    self.up.remove(&site);
+                    let gone: Vec<DeviceId> = (self.proxies.iter())
+                        .filter(|(_, p)| p.site == site)
+                        .map(|(id, _)| *id)
+                        .collect();
+                    for id in gone {
+                        self.drop_proxy(id);
+                    }
+                }
+            }
+            Arrived::Site { .. } => {}
+        }
+    }
+
+    /// Sends `site` everything of ours it may see.
+    async fn show_all(&mut self, site: &SiteName) {
+        let Some(peer) = self.policy.peer(site) else {
+            return;
+        };
+        let mut messages = Vec::new();
+        for (id, device) in &self.devices {
+            if self.policy.shows(peer, &device.info) {
+                messages.push((Subject::Info(*id), wire::encode(&device.info)));
+                if let Some(status) = &device.status {
+                    messages.push((Subject::Status(*id), wire::encode(status)));
+                }
+            }
+        }
+        for (subject, payload) in messages {
+            let key = self.key(site, subject);
+            self.link.send(&key, Some(payload)).await;
+        }
+    }
+
+    /// A message from another site; `Err` says why it was refused.
+    fn message(&mut self, key: &str, put: Option<Vec<u8>>) -> Result<(), String> {
+        let key = Key::parse(key).ok_or("not a rove key")?;
+        let peer = self.policy.admit(&key).map_err(|e| e.to_string())?.clone();
+        let site = &key.from;
+        let subject = key.subject;
+        let payload = || put.as_deref().ok_or("no payload");
+        let from_site = |proxies: &HashMap<DeviceId, Proxy>, id| match proxies.get(&id) {
+            Some(p) if &p.site == site => Ok(()),
+            Some(_) => Err(format!("device {id} is another site's")),
+            None => Err(format!("device {id} is not known yet")),
+        };
+        match subject {
+            Subject::Info(id) => match &put {
+                Some(bytes) => {
+                    let info: DeviceInfo = wire::decode(bytes).ok_or("malformed DeviceInfo")?;
+                    self.policy.info(subject, &info).map_err(|e| e.to_string())?;
+                    self.import(site, info)?;
+                }
+                None => {
+                    from_site(&self.proxies, id)?;
+                    self.drop_proxy(id);
+                }
+            },
+            Subject::Status(id) => {
+                from_site(&self.proxies, id)?;
+                let status: VehicleStatus = wire::decode(payload()?).ok_or("malformed status")?;
+                let proxy = self.proxies.get_mut(&id).ok_or("gone")?;
+                if status.vehicle_id != id || proxy.info.device_type != DeviceType::Vehicle {
+                    return Err("status of another device".into());
+                }
+                proxy.status(status);
+            }
+            Subject::Command { src, dest, .. } => {
+                from_site(&self.proxies, src)?;
+                if !self.is_local_vehicle(dest) {
+                    return Err(format!("vehicle {dest} is not on this site"));
+                }
+                let proxy = self.proxies.get_mut(&src).ok_or("gone")?;
+                if proxy.info.device_type != DeviceType::Controller {
+                    return Err(format!("device {src} is not an operator"));
+                }
+                match put {
+                    Some(bytes) => {
+                        let sent: wire::Command = wire::decode(&bytes).ok_or("malformed command")?;
+                        let strength = (self.policy.command(&peer, subject, &sent.command))
+                            .map_err(|e| e.to_string())?;
+                        proxy.command(strength, sent.command, sent.stamp);
+                    }
+                    None => {
+                        let Subject::Command { strength, .. } = subject else {
+                            return Ok(());
+                        };
+                        let strength =
+                            self.policy.strength(&peer, strength).map_err(|e| e.to_string())?;
+                        proxy.release(dest, strength);
+                    }
+                }
+            }
+            Subject::Request(sender) => {
+                from_site(&self.proxies, sender)?;
+                let msg: RequestControl = wire::decode(payload()?).ok_or("malformed request")?;
+                let ours = |v| self.is_local_vehicle(v);
+                let msg = (self.policy.request(&peer, subject, ours, msg))
+                    .map_err(|e| e.to_string())?;
+                let proxy = self.proxies.get_mut(&sender).ok_or("gone")?;
+                if msg.ack == rove_core::msg::Ack::Request && self.devices.contains_key(&msg.dest_id) {
+                    proxy.prepare(msg.dest_id);
+                }
+                proxy.request(msg);
+            }
+        }
+        Ok(())
+    }
+
+    fn is_local_vehicle(&self, id: DeviceId) -> bool {
+        (self.devices.get(&id)).is_some_and(|d| d.info.device_type == DeviceType::Vehicle)
+    }
+
+    /// Another site's DeviceInfo: its proxy made, or told.
+    fn import(&mut self, site: &SiteName, info: DeviceInfo) -> Result<(), String> {
+        let id = info.device_id;
+        if self.devices.contains_key(&id) {
+            return Err(format!("device {id} is on this site"));
+        }
+        let full = self.proxies.len() >= MAX_DEVICES;
+        match self.proxies.get_mut(&id) {
+            Some(p) if &p.site != site => Err(format!("device {id} is site {}'s", p.site)),
+            Some(p) if p.info.device_type != info.device_type => {
+                Err(format!("device {id} changed its kind"))
+            }
+            Some(p) => {
+                p.update(info);
+                Ok(())
+            }
+            None if full => Err("too many devices".into()),
+            None => {
+                let proxy = Proxy::join(&self.common, site, info, &self.read_tx)
+                    .map_err(|e| format!("cannot join as device {id}: {e:#}"))?;
+                info!(id, %site, name = %proxy.info.name, kind = ?proxy.info.device_type, "device of another site joined here");
+                self.ours.insert(proxy.participant(), id);
+                self.proxies.insert(id, proxy);
+                Ok(())
+            }
+        }
+    }
+
+    fn drop_proxy(&mut self, id: DeviceId) {
+        if let Some(proxy) = self.proxies.remove(&id) {
+            info!(id, site = %proxy.site, "device of another site left");
+            self.ours.remove(&proxy.participant());
+            proxy.leave();
+        }
+    }
+
+    // ---- time ----------------------------------------------------------------------------
+
+    async fn tick(&mut self) {
+        for proxy in self.proxies.values() {
+            proxy.refresh();
+        }
+        // A proxy whose site has said nothing of it for three refreshes is gone (a backstop:
+        // deletes and the site's token normally say so first).
+        let stale: Vec<DeviceId> = (self.proxies.iter())
+            .filter(|(_, p)| p.heard.elapsed() > crate::dds::OFFLINE_AFTER)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in stale {
+            self.drop_proxy(id);
+        }
+        if self.refreshed.elapsed() >= crate::dds::DEVICE_INFO_REFRESH {
+            self.refreshed = Instant::now();
+            let up: Vec<SiteName> = self.up.iter().cloned().collect();
+            for site in up {
+                self.show_all(&site).await;
+            }
+        }
+        if self.missing.elapsed() >= MISSING_REPORT {
+            self.missing = Instant::now();
+            let missing: Vec<&str> = (self.policy.peers.iter())
+                .filter(|p| !self.up.contains(&p.name))
+                .map(|p| p.name.as_str())
+                .collect();
+            if !missing.is_empty() {
+                warn!(
+                    sites = ?missing,
+                    "not connected: the site's bridge is down or unreachable, or one of the two \
+                     refused the other's certificate (the fleet's CA, common name \
+                     rove-site-NAME, and the listening site's address in its certificate)"
+                );
+            }
+        }
+        let dropped = self.link.dropped.load(std::sync::atomic::Ordering::Relaxed);
+        if dropped > self.dropped_seen {
+            warn!(dropped = dropped - self.dropped_seen, "the loop fell behind the link");
+            self.dropped_seen = dropped;
+        }
+    }
+
+    async fn leave(mut self) {
+        let ids: Vec<DeviceId> = self.proxies.keys().copied().collect();
+        for id in ids {
+            self.drop_proxy(id);
+        }
+        self.link.close().await;
+    }
+}

@@ -1,0 +1,311 @@
+//! Two sites joined only by their bridges' Zenoh link (`rove bridge`, docs/remote.md): the
+//! vehicle's site ("lab") and a remote operators' site ("home"), each a network namespace with
+//! its own DDS network on its loopback, the two joined by a veth pair that carries nothing but
+//! the link (no multicast route over it). Latencies are measured and printed, never asserted.
+
+use crate::util::{ROVE, Rig, eventually, records, wait_for_output, wall_us};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const V: i64 = 100;
+/// The lab's end of the veth pair, where its bridge listens.
+const LAB: &str = "10.78.0.1";
+const HOME: &str = "10.78.0.2";
+/// A remote operator at home.
+const REMOTE: i64 = 21;
+/// A second remote operator at home (allowed).
+const REMOTE2: i64 = 22;
+/// The lab's own phone.
+const PHONE: i64 = 31;
+
+/// Both sites, their fleet's keys, and the veth ends.
+struct Sites {
+    lab: Rig,
+    home: Rig,
+    fleet: PathBuf,
+    lab_veth: String,
+}
+
+impl Sites {
+    /// Two namespaces on a veth pair, a fleet with a certificate for each site (the lab's
+    /// names its address, which the home bridge checks).
+    fn new(test: &str) -> Sites {
+        let lab = Rig::new(&format!("{test}-lab"));
+        let home = Rig::new(&format!("{test}-home"));
+        let (lab_veth, _) = rove_gateway::tools::harness::veth(
+            &lab,
+            &home,
+            &format!("{LAB}/24"),
+            &format!("{HOME}/24"),
+            false,
+        )
+        .expect("veth pair");
+        let fleet = lab.dir.join("fleet");
+        keys(&["init", "--dir", path(&fleet), "--fleet", "sites test"]);
+        keys(&["site", "--dir", path(&fleet), "--name", "lab", "--host", LAB]);
+        keys(&["site", "--dir", path(&fleet), "--name", "home"]);
+        Sites {
+            lab,
+            home,
+            fleet,
+            lab_veth,
+        }
+    }
+
+    /// The lab's bridge: listens, lets home speak for its two operators and drive vehicle 100.
+    fn lab_bridge(&mut self) -> usize {
+        let site = self.fleet.join("site-lab");
+        let toml = format!(
+            "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/{LAB}:7447\"]\n{}\n\
+             [[zenoh.site]]\nname = \"home\"\nids = [{REMOTE}, {REMOTE2}]\noffer = [{V}]\n",
+            link_files(&site)
+        );
+        let config = self.lab.write("bridge-lab.toml", &toml);
+        self.lab.spawn("bridge", &["bridge", "-c", path(&config)])
+    }
+
+    /// The home bridge, connecting to the lab's with the certificate in `site_dir`.
+    fn home_bridge(&mut self, site_dir: &Path) -> usize {
+        let toml = format!(
+            "[site]\nname = \"home\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
+             [[zenoh.site]]\nname = \"lab\"\nids = [{V}, {PHONE}]\n",
+            link_files(site_dir)
+        );
+        let config = self.home.write("bridge-home.toml", &toml);
+        self.home.spawn("bridge", &["bridge", "-c", path(&config)])
+    }
+
+    /// Both bridges with the fleet's certificates.
+    fn bridges(&mut self) {
+        self.lab_bridge();
+        let home = self.fleet.join("site-home");
+        self.home_bridge(&home);
+    }
+
+    /// `nft` in the lab's namespace: every packet on the veth dropped, both ways, silently
+    /// (`Some`), or the table removed (`None`).
+    fn silent_drop(&self, on: bool) {
+        let script = match on {
+            true => format!(
+                "nft add table inet rove_sites; \
+                 nft add chain inet rove_sites in '{{ type filter hook input priority 0; }}'; \
+                 nft add chain inet rove_sites out '{{ type filter hook output priority 0; }}'; \
+                 nft add rule inet rove_sites in iifname {0} drop; \
+                 nft add rule inet rove_sites out oifname {0} drop",
+                self.lab_veth
+            ),
+            false => "nft delete table inet rove_sites".to_string(),
+        };
+        self.lab.sh(&script).expect("nft");
+    }
+
+    /// The lab's veth end down or up.
+    fn link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        let script = format!("ip link set {} {state}", self.lab_veth);
+        self.lab.sh(&script).expect("ip link");
+    }
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// `rove keys ARGS`, which must succeed.
+fn keys(args: &[&str]) {
+    let out = std::process::Command::new(ROVE)
+        .arg("keys")
+        .args(args)
+        .output()
+        .expect("rove keys");
+    assert!(
+        out.status.success(),
+        "rove keys {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A site's `[zenoh]` file keys for the certificate directory `site`.
+fn link_files(site: &Path) -> String {
+    format!(
+        "ca = \"{}\"\ncertificate = \"{}\"\nkey = \"{}\"",
+        site.join("ca.cert.pem").display(),
+        site.join("cert.pem").display(),
+        site.join("key.pem").display()
+    )
+}
+
+/// Milliseconds since `since_us`.
+fn ms_since(since_us: u64, at_us: u64) -> f64 {
+    at_us.saturating_sub(since_us) as f64 / 1000.0
+}
+
+/// The first safe-state output at or after `since_us`.
+fn wait_for_safe(record: &Path, since_us: u64) -> u64 {
+    eventually("the vehicle goes to its safe state", || {
+        records(record)
+            .iter()
+            .find(|o| o.wall_us >= since_us && o.action == "safe")
+            .map(|o| o.wall_us)
+            .ok_or("no safe output yet")
+    })
+}
+
+#[test]
+fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a_crash_hands_over()
+{
+    let mut sites = Sites::new("sites-passive");
+    sites.bridges();
+    let record = sites.lab.vehicle(V);
+    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    let remote2 = sites
+        .home
+        .operator(REMOTE2, "remote", "desktop", &[V], 500, "", &[]);
+    let out = wait_for_output(&record, Some(REMOTE), 0).expect("the remote laptop drives");
+    assert_eq!(out.throttle, Some(1000));
+
+    // The lab lists the remote operators with their site, and home lists the vehicle.
+    let row = sites.lab.device_when("remote laptop listed", REMOTE, |d| {
+        d["name"].as_str().is_some_and(|n| n.ends_with("@home"))
+    });
+    assert_eq!(row["type"], "controller");
+    let vehicle = sites.home.device_when("vehicle listed at home", V, |d| {
+        d["controller_id"] == REMOTE
+    });
+    assert!(vehicle["name"].as_str().is_some_and(|n| n.ends_with("@lab")));
+
+    let phone = sites
+        .lab
+        .operator(PHONE, "mobile", "phone", &[V], 2000, "", &[]);
+    wait_for_output(&record, Some(PHONE), 0).expect("the local phone preempts");
+    let quit = wall_us();
+    sites.lab.procs[phone].terminate();
+    let back = wait_for_output(&record, Some(REMOTE), quit).expect("back to the remote laptop");
+    eprintln!("phone quits → remote laptop applied after {:.1} ms", ms_since(quit, back.wall_us));
+
+    // The remote laptop is killed: the remote desktop drives within about a command timeout.
+    let kill = wall_us();
+    let laptop = sites.home.procs.iter().position(|p| p.name == format!("operator-{REMOTE}"));
+    sites.home.procs[laptop.expect("laptop")].crash();
+    let next = wait_for_output(&record, Some(REMOTE2), kill).expect("the remote desktop drives");
+    eprintln!("remote laptop killed → remote desktop after {:.1} ms", ms_since(kill, next.wall_us));
+    assert_eq!(next.throttle, Some(500));
+    // Then it quits gracefully: its release crosses, so the vehicle is safe before its timeout
+    // could have run out, and no one else drives.
+    let quit = wall_us();
+    sites.home.procs[remote2].terminate();
+    let safe = wait_for_safe(&record, quit);
+    eprintln!("remote desktop quits → safe after {:.1} ms", ms_since(quit, safe));
+}
+
+#[test]
+fn an_active_handover_crosses_sites_with_the_owners_consent_and_finish_gives_it_back() {
+    let mut sites = Sites::new("sites-active");
+    sites.bridges();
+    let record = sites.lab.vehicle(V);
+    let always = "[handover]\nauto_accept = \"always\"\n";
+    sites
+        .lab
+        .operator(PHONE, "mobile", "phone", &[V], 2000, always, &[]);
+    wait_for_output(&record, Some(PHONE), 0).expect("the phone drives");
+    // The remote laptop asks for the vehicle (weaker: only the phone's consent gives it).
+    sites.home.device_when("the vehicle listed at home", V, |d| {
+        d["controller_id"] == PHONE
+    });
+    let asked = wall_us();
+    let remote = sites.home.operator(
+        REMOTE,
+        "remote",
+        "laptop",
+        &[],
+        1000,
+        "",
+        &["--request", &V.to_string()],
+    );
+    let granted = wait_for_output(&record, Some(REMOTE), asked).expect("the grant drives");
+    eprintln!(
+        "remote REQUEST → phone ACCEPT → remote applied: {:.1} ms after the remote started",
+        ms_since(asked, granted.wall_us)
+    );
+    // The holder quits: its FINISH crosses back and the phone drives again.
+    let quit = wall_us();
+    sites.home.procs[remote].terminate();
+    let back = wait_for_output(&record, Some(PHONE), quit).expect("the phone drives again");
+    eprintln!("remote FINISH → phone applied after {:.1} ms", ms_since(quit, back.wall_us));
+}
+
+#[test]
+fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_returns() {
+    let mut sites = Sites::new("sites-cut");
+    sites.bridges();
+    let record = sites.lab.vehicle(V);
+    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(REMOTE), 0).expect("the remote laptop drives");
+
+    for how in ["veth down", "silent drop"] {
+        let set = |cut: bool| match how {
+            "veth down" => sites.link(!cut),
+            _ => sites.silent_drop(cut),
+        };
+        let t = wall_us();
+        set(true);
+        let safe = wait_for_safe(&record, t);
+        eprintln!("{how}: safe state {:.1} ms after the cut", ms_since(t, safe));
+        // Hold the cut past the link's lease, so the lab also sees the site go.
+        std::thread::sleep(Duration::from_secs(4));
+        assert!(
+            records(&record).iter().all(|o| o.wall_us < safe || o.owner != Some(REMOTE)),
+            "{how}: the remote drove while the link was cut"
+        );
+        let healed = wall_us();
+        set(false);
+        let again = wait_for_output(&record, Some(REMOTE), healed).expect("driving resumes");
+        eprintln!("{how}: driving again {:.1} ms after the link returned", ms_since(healed, again.wall_us));
+    }
+}
+
+#[test]
+fn a_site_without_the_fleets_certificate_or_with_another_name_is_refused_and_says_so() {
+    let mut sites = Sites::new("sites-refused");
+    sites.lab_bridge();
+    sites.lab.vehicle(V);
+    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+
+    // A certificate of another fleet, for the right name.
+    let stranger = sites.home.dir.join("stranger");
+    keys(&["init", "--dir", path(&stranger), "--fleet", "strangers"]);
+    keys(&["site", "--dir", path(&stranger), "--name", "home"]);
+    let bridge = sites.home_bridge(&stranger.join("site-home"));
+    // The fleet's own certificate for a site the lab does not know.
+    let attic = sites.fleet.join("site-attic");
+    keys(&["site", "--dir", path(&sites.fleet), "--name", "attic"]);
+    let toml = format!(
+        "[site]\nname = \"attic\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
+         [[zenoh.site]]\nname = \"lab\"\nids = [{V}]\n",
+        link_files(&attic)
+    );
+    let config = sites.home.write("bridge-attic.toml", &toml);
+    sites.home.spawn("attic", &["bridge", "-c", path(&config)]);
+
+    // The home bridge says it is not connected; the lab never lists a home device.
+    eventually("the refused bridge reports it", || {
+        let log = std::fs::read_to_string(&sites.home.procs[bridge].log).unwrap_or_default();
+        if log.contains("not connected") { Ok(()) } else { Err(log) }
+    });
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(3) {
+        let status = sites.lab.status();
+        assert!(Rig::device(&status, REMOTE).is_none(), "a refused site's device listed: {status}");
+    }
+
+    // A missing key file: the bridge does not start, and names the file.
+    let toml = format!(
+        "[site]\nname = \"home\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n",
+        link_files(&sites.home.dir.join("nowhere"))
+    );
+    let config = sites.home.write("bridge-missing.toml", &toml);
+    let out = sites.home.command(&["bridge", "-c", path(&config)]).output().expect("run");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("nowhere/ca.cert.pem"), "{err}");
+}
