@@ -52,34 +52,37 @@ impl Sites {
         }
     }
 
-    /// The lab's bridge: listens, lets home speak for its two operators and drive vehicle 100.
-    fn lab_bridge(&mut self) -> usize {
+    /// The lab's bridge: listens, lets home speak for its two operators and drive vehicle 100;
+    /// `extra` is appended (another `[[zenoh.site]]`).
+    fn lab_bridge(&mut self, extra: &str) -> usize {
         let site = self.fleet.join("site-lab");
         let toml = format!(
             "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/{LAB}:7447\"]\n{}\n\
-             [[zenoh.site]]\nname = \"home\"\nids = [{REMOTE}, {REMOTE2}]\noffer = [{V}]\n",
+             [[zenoh.site]]\nname = \"home\"\nids = [{REMOTE}, {REMOTE2}]\noffer = [{V}]\n{extra}",
             link_files(&site)
         );
         let config = self.lab.write("bridge-lab.toml", &toml);
         self.lab.spawn("bridge", &["bridge", "-c", path(&config)])
     }
 
-    /// The home bridge, connecting to the lab's with the certificate in `site_dir`.
-    fn home_bridge(&mut self, site_dir: &Path) -> usize {
+    /// A bridge at home calling itself `name`, connecting to the lab's with the certificate
+    /// in `site_dir`.
+    fn home_bridge(&mut self, name: &str, site_dir: &Path) -> usize {
         let toml = format!(
-            "[site]\nname = \"home\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
+            "[site]\nname = \"{name}\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
              [[zenoh.site]]\nname = \"lab\"\nids = [{V}, {PHONE}]\n",
             link_files(site_dir)
         );
-        let config = self.home.write("bridge-home.toml", &toml);
-        self.home.spawn("bridge", &["bridge", "-c", path(&config)])
+        let n = self.home.procs.len();
+        let config = self.home.write(&format!("bridge-{name}-{n}.toml"), &toml);
+        self.home.spawn(&format!("bridge-{name}"), &["bridge", "-c", path(&config)])
     }
 
     /// Both bridges with the fleet's certificates.
     fn bridges(&mut self) {
-        self.lab_bridge();
+        self.lab_bridge("");
         let home = self.fleet.join("site-home");
-        self.home_bridge(&home);
+        self.home_bridge("home", &home);
     }
 
     /// `nft` in the lab's namespace: every packet on the veth dropped, both ways, silently
@@ -265,40 +268,59 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
 }
 
 #[test]
-fn a_site_without_the_fleets_certificate_or_with_another_name_is_refused_and_says_so() {
+fn a_site_with_another_fleets_certificate_an_unknown_name_or_anothers_name_is_refused() {
+    const OFFICE_OPERATOR: i64 = 41;
     let mut sites = Sites::new("sites-refused");
-    sites.lab_bridge();
-    sites.lab.vehicle(V);
+    let office = format!("[[zenoh.site]]\nname = \"office\"\nids = [{OFFICE_OPERATOR}]\noffer = [{V}]\n");
+    let lab = sites.lab_bridge(&office);
+    let record = sites.lab.vehicle(V);
     sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    sites.home.operator(OFFICE_OPERATOR, "remote", "laptop", &[V], 1000, "", &[]);
 
-    // A certificate of another fleet, for the right name.
+    // A certificate of another fleet, for the right name: refused in the TLS handshake.
     let stranger = sites.home.dir.join("stranger");
     keys(&["init", "--dir", path(&stranger), "--fleet", "strangers"]);
     keys(&["site", "--dir", path(&stranger), "--name", "home"]);
-    let bridge = sites.home_bridge(&stranger.join("site-home"));
-    // The fleet's own certificate for a site the lab does not know.
-    let attic = sites.fleet.join("site-attic");
+    let refused = sites.home_bridge("home", &stranger.join("site-home"));
+    // The fleet's own certificate for a site the lab does not know: nothing it says passes.
     keys(&["site", "--dir", path(&sites.fleet), "--name", "attic"]);
-    let toml = format!(
-        "[site]\nname = \"attic\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
-         [[zenoh.site]]\nname = \"lab\"\nids = [{V}]\n",
-        link_files(&attic)
-    );
-    let config = sites.home.write("bridge-attic.toml", &toml);
-    sites.home.spawn("attic", &["bridge", "-c", path(&config)]);
+    let attic = sites.fleet.join("site-attic");
+    sites.home_bridge("attic", &attic);
+    // Home's own certificate, claiming to be the office (which may drive): the link's access
+    // control lets home's certificate speak only as home.
+    let home_cert = sites.fleet.join("site-home");
+    sites.home_bridge("office", &home_cert);
 
-    // The home bridge says it is not connected; the lab never lists a home device.
     eventually("the refused bridge reports it", || {
-        let log = std::fs::read_to_string(&sites.home.procs[bridge].log).unwrap_or_default();
+        let log = std::fs::read_to_string(&sites.home.procs[refused].log).unwrap_or_default();
         if log.contains("not connected") { Ok(()) } else { Err(log) }
     });
+    eventually("the lab reports the unknown certificate", || {
+        let log = std::fs::read_to_string(&sites.lab.procs[lab].log).unwrap_or_default();
+        if log.contains("did not match any configured ACL subject") { Ok(()) } else { Err(log) }
+    });
     let started = Instant::now();
-    while started.elapsed() < Duration::from_secs(3) {
+    while started.elapsed() < Duration::from_secs(4) {
         let status = sites.lab.status();
-        assert!(Rig::device(&status, REMOTE).is_none(), "a refused site's device listed: {status}");
+        for id in [REMOTE, OFFICE_OPERATOR] {
+            assert!(Rig::device(&status, id).is_none(), "refused device {id} listed: {status}");
+        }
     }
+    assert!(
+        records(&record).iter().all(|o| o.owner.is_none()),
+        "a refused site's operator drove"
+    );
 
-    // A missing key file: the bridge does not start, and names the file.
+    // The same home with its own name and certificate is let in (so the above could fail).
+    sites.home_bridge("home", &home_cert);
+    wait_for_output(&record, Some(REMOTE), 0).expect("home's operator drives");
+    let status = sites.lab.status();
+    assert!(Rig::device(&status, OFFICE_OPERATOR).is_none(), "{status}");
+}
+
+#[test]
+fn a_bridge_without_its_key_file_does_not_start_and_names_the_file() {
+    let sites = Sites::new("sites-missing");
     let toml = format!(
         "[site]\nname = \"home\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n",
         link_files(&sites.home.dir.join("nowhere"))
