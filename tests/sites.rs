@@ -42,7 +42,15 @@ impl Sites {
         .expect("veth pair");
         let fleet = lab.dir.join("fleet");
         keys(&["init", "--dir", path(&fleet), "--fleet", "sites test"]);
-        keys(&["site", "--dir", path(&fleet), "--name", "lab", "--host", LAB]);
+        keys(&[
+            "site",
+            "--dir",
+            path(&fleet),
+            "--name",
+            "lab",
+            "--host",
+            LAB,
+        ]);
         keys(&["site", "--dir", path(&fleet), "--name", "home"]);
         Sites {
             lab,
@@ -75,7 +83,8 @@ impl Sites {
         );
         let n = self.home.procs.len();
         let config = self.home.write(&format!("bridge-{name}-{n}.toml"), &toml);
-        self.home.spawn(&format!("bridge-{name}"), &["bridge", "-c", path(&config)])
+        self.home
+            .spawn(&format!("bridge-{name}"), &["bridge", "-c", path(&config)])
     }
 
     /// Both bridges with the fleet's certificates.
@@ -160,7 +169,9 @@ fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a
     let mut sites = Sites::new("sites-passive");
     sites.bridges();
     let record = sites.lab.vehicle(V);
-    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    sites
+        .home
+        .operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
     let remote2 = sites
         .home
         .operator(REMOTE2, "remote", "desktop", &[V], 500, "", &[]);
@@ -175,7 +186,11 @@ fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a
     let vehicle = sites.home.device_when("vehicle listed at home", V, |d| {
         d["controller_id"] == REMOTE
     });
-    assert!(vehicle["name"].as_str().is_some_and(|n| n.ends_with("@lab")));
+    assert!(
+        vehicle["name"]
+            .as_str()
+            .is_some_and(|n| n.ends_with("@lab"))
+    );
 
     let phone = sites
         .lab
@@ -184,21 +199,34 @@ fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a
     let quit = wall_us();
     sites.lab.procs[phone].terminate();
     let back = wait_for_output(&record, Some(REMOTE), quit).expect("back to the remote laptop");
-    eprintln!("phone quits → remote laptop applied after {:.1} ms", ms_since(quit, back.wall_us));
+    eprintln!(
+        "phone quits → remote laptop applied after {:.1} ms",
+        ms_since(quit, back.wall_us)
+    );
 
     // The remote laptop is killed: the remote desktop drives within about a command timeout.
     let kill = wall_us();
-    let laptop = sites.home.procs.iter().position(|p| p.name == format!("operator-{REMOTE}"));
+    let laptop = sites
+        .home
+        .procs
+        .iter()
+        .position(|p| p.name == format!("operator-{REMOTE}"));
     sites.home.procs[laptop.expect("laptop")].crash();
     let next = wait_for_output(&record, Some(REMOTE2), kill).expect("the remote desktop drives");
-    eprintln!("remote laptop killed → remote desktop after {:.1} ms", ms_since(kill, next.wall_us));
+    eprintln!(
+        "remote laptop killed → remote desktop after {:.1} ms",
+        ms_since(kill, next.wall_us)
+    );
     assert_eq!(next.throttle, Some(500));
     // Then it quits gracefully: its release crosses, so the vehicle is safe before its timeout
     // could have run out, and no one else drives.
     let quit = wall_us();
     sites.home.procs[remote2].terminate();
     let safe = wait_for_safe(&record, quit);
-    eprintln!("remote desktop quits → safe after {:.1} ms", ms_since(quit, safe));
+    eprintln!(
+        "remote desktop quits → safe after {:.1} ms",
+        ms_since(quit, safe)
+    );
 }
 
 #[test]
@@ -212,9 +240,11 @@ fn an_active_handover_crosses_sites_with_the_owners_consent_and_finish_gives_it_
         .operator(PHONE, "mobile", "phone", &[V], 2000, always, &[]);
     wait_for_output(&record, Some(PHONE), 0).expect("the phone drives");
     // The remote laptop asks for the vehicle (weaker: only the phone's consent gives it).
-    sites.home.device_when("the vehicle listed at home", V, |d| {
-        d["controller_id"] == PHONE
-    });
+    sites
+        .home
+        .device_when("the vehicle listed at home", V, |d| {
+            d["controller_id"] == PHONE
+        });
     let asked = wall_us();
     let remote = sites.home.operator(
         REMOTE,
@@ -234,7 +264,10 @@ fn an_active_handover_crosses_sites_with_the_owners_consent_and_finish_gives_it_
     let quit = wall_us();
     sites.home.procs[remote].terminate();
     let back = wait_for_output(&record, Some(PHONE), quit).expect("the phone drives again");
-    eprintln!("remote FINISH → phone applied after {:.1} ms", ms_since(quit, back.wall_us));
+    eprintln!(
+        "remote FINISH → phone applied after {:.1} ms",
+        ms_since(quit, back.wall_us)
+    );
 }
 
 #[test]
@@ -242,7 +275,9 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
     let mut sites = Sites::new("sites-cut");
     sites.bridges();
     let record = sites.lab.vehicle(V);
-    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    sites
+        .home
+        .operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(REMOTE), 0).expect("the remote laptop drives");
 
     for how in ["veth down", "silent drop"] {
@@ -253,17 +288,25 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
         let t = wall_us();
         set(true);
         let safe = wait_for_safe(&record, t);
-        eprintln!("{how}: safe state {:.1} ms after the cut", ms_since(t, safe));
+        eprintln!(
+            "{how}: safe state {:.1} ms after the cut",
+            ms_since(t, safe)
+        );
         // Hold the cut past the link's lease, so the lab also sees the site go.
         std::thread::sleep(Duration::from_secs(4));
         assert!(
-            records(&record).iter().all(|o| o.wall_us < safe || o.owner != Some(REMOTE)),
+            records(&record)
+                .iter()
+                .all(|o| o.wall_us < safe || o.owner != Some(REMOTE)),
             "{how}: the remote drove while the link was cut"
         );
         let healed = wall_us();
         set(false);
         let again = wait_for_output(&record, Some(REMOTE), healed).expect("driving resumes");
-        eprintln!("{how}: driving again {:.1} ms after the link returned", ms_since(healed, again.wall_us));
+        eprintln!(
+            "{how}: driving again {:.1} ms after the link returned",
+            ms_since(healed, again.wall_us)
+        );
     }
 }
 
@@ -271,11 +314,16 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
 fn a_site_with_another_fleets_certificate_an_unknown_name_or_anothers_name_is_refused() {
     const OFFICE_OPERATOR: i64 = 41;
     let mut sites = Sites::new("sites-refused");
-    let office = format!("[[zenoh.site]]\nname = \"office\"\nids = [{OFFICE_OPERATOR}]\noffer = [{V}]\n");
+    let office =
+        format!("[[zenoh.site]]\nname = \"office\"\nids = [{OFFICE_OPERATOR}]\noffer = [{V}]\n");
     let lab = sites.lab_bridge(&office);
     let record = sites.lab.vehicle(V);
-    sites.home.operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
-    sites.home.operator(OFFICE_OPERATOR, "remote", "laptop", &[V], 1000, "", &[]);
+    sites
+        .home
+        .operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
+    sites
+        .home
+        .operator(OFFICE_OPERATOR, "remote", "laptop", &[V], 1000, "", &[]);
 
     // A certificate of another fleet, for the right name: refused in the TLS handshake.
     let stranger = sites.home.dir.join("stranger");
@@ -293,17 +341,28 @@ fn a_site_with_another_fleets_certificate_an_unknown_name_or_anothers_name_is_re
 
     eventually("the refused bridge reports it", || {
         let log = std::fs::read_to_string(&sites.home.procs[refused].log).unwrap_or_default();
-        if log.contains("not connected") { Ok(()) } else { Err(log) }
+        if log.contains("not connected") {
+            Ok(())
+        } else {
+            Err(log)
+        }
     });
     eventually("the lab reports the unknown certificate", || {
         let log = std::fs::read_to_string(&sites.lab.procs[lab].log).unwrap_or_default();
-        if log.contains("did not match any configured ACL subject") { Ok(()) } else { Err(log) }
+        if log.contains("did not match any configured ACL subject") {
+            Ok(())
+        } else {
+            Err(log)
+        }
     });
     let started = Instant::now();
     while started.elapsed() < Duration::from_secs(4) {
         let status = sites.lab.status();
         for id in [REMOTE, OFFICE_OPERATOR] {
-            assert!(Rig::device(&status, id).is_none(), "refused device {id} listed: {status}");
+            assert!(
+                Rig::device(&status, id).is_none(),
+                "refused device {id} listed: {status}"
+            );
         }
     }
     assert!(
@@ -326,7 +385,11 @@ fn a_bridge_without_its_key_file_does_not_start_and_names_the_file() {
         link_files(&sites.home.dir.join("nowhere"))
     );
     let config = sites.home.write("bridge-missing.toml", &toml);
-    let out = sites.home.command(&["bridge", "-c", path(&config)]).output().expect("run");
+    let out = sites
+        .home
+        .command(&["bridge", "-c", path(&config)])
+        .output()
+        .expect("run");
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("nowhere/ca.cert.pem"), "{err}");

@@ -307,9 +307,7 @@ impl Policy {
                 src,
                 dest,
                 strength,
-            } if command.src_id == src && command.dest_id == dest => {
-                self.strength(peer, strength)
-            }
+            } if command.src_id == src && command.dest_id == dest => self.strength(peer, strength),
             _ => Err(Refusal::Mismatch(subject)),
         }
     }
@@ -434,11 +432,23 @@ mod tests {
         for good in ["a", "lab-2", "x".repeat(32).as_str()] {
             assert!(SiteName::new(good).is_ok(), "{good}");
         }
-        for bad in ["", "Lab", "a/b", "a*", "-a", "é", "x".repeat(33).as_str(), "a b"] {
+        for bad in [
+            "",
+            "Lab",
+            "a/b",
+            "a*",
+            "-a",
+            "é",
+            "x".repeat(33).as_str(),
+            "a b",
+        ] {
             assert!(SiteName::new(bad).is_err(), "{bad}");
         }
         assert_eq!(site("home").common_name(), "rove-site-home");
-        assert_eq!(SiteName::of_liveliness("rove-live/home"), Some(site("home")));
+        assert_eq!(
+            SiteName::of_liveliness("rove-live/home"),
+            Some(site("home"))
+        );
         assert_eq!(SiteName::of_liveliness("rove/live/home"), None);
     }
 
@@ -484,9 +494,10 @@ mod tests {
         let p = policy();
         let peer = &p.peers[0];
         let h = Hierarchy::STANDARD;
-        let mobile_phone = h.strength(Level::Mobile, DeviceClass::Phone, 3);
-        let remote_phone = h.strength(Level::Remote, DeviceClass::Phone, 3);
-        assert_eq!(p.strength(peer, mobile_phone.unwrap()), remote_phone);
+        let rank = |level| h.strength(level, DeviceClass::Phone, 3).ok();
+        let (mobile_phone, remote_phone) = (rank(Level::Mobile), rank(Level::Remote));
+        let taken = mobile_phone.map(|s| p.strength(peer, s));
+        assert_eq!(taken, remote_phone.map(Ok));
         let remote_laptop = h.base(Level::Remote, DeviceClass::Laptop);
         assert_eq!(p.strength(peer, remote_laptop), Ok(remote_laptop));
         assert_eq!(p.strength(peer, Strength::PRIORITY), Ok(Strength::PRIORITY));
@@ -510,9 +521,15 @@ mod tests {
         // An answer is spoken by the owner asked, not by the requester.
         let mut accept = request;
         accept.ack = Ack::Accept;
-        assert!(p.request(peer, Subject::Request(21), |_| true, accept).is_err());
+        assert!(
+            p.request(peer, Subject::Request(21), |_| true, accept)
+                .is_err()
+        );
         accept.current_controller_id = 22;
-        assert!(p.request(peer, Subject::Request(22), |_| true, accept).is_ok());
+        assert!(
+            p.request(peer, Subject::Request(22), |_| true, accept)
+                .is_ok()
+        );
     }
 
     #[test]
@@ -529,9 +546,18 @@ mod tests {
         assert!(!p.shows(peer, &info(101, DeviceType::Vehicle, 101)));
         assert!(p.shows(peer, &info(31, DeviceType::Controller, 31)));
         let subject = Subject::Info(21);
-        assert!(p.info(subject, &info(21, DeviceType::Controller, 21)).is_ok());
-        assert!(p.info(subject, &info(21, DeviceType::Controller, 22)).is_err());
-        assert!(p.info(subject, &info(22, DeviceType::Controller, 22)).is_err());
+        assert!(
+            p.info(subject, &info(21, DeviceType::Controller, 21))
+                .is_ok()
+        );
+        assert!(
+            p.info(subject, &info(21, DeviceType::Controller, 22))
+                .is_err()
+        );
+        assert!(
+            p.info(subject, &info(22, DeviceType::Controller, 22))
+                .is_err()
+        );
     }
 
     fn subjects() -> impl Strategy<Value = Subject> {

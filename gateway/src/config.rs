@@ -1244,6 +1244,54 @@ mod tests {
     }
 
     #[test]
+    fn bridge_files_say_who_may_speak_and_their_errors_name_lines() {
+        let lab = load_bridge(&shipped("bridge-lab.toml")).expect("shipped lab bridge");
+        assert_eq!(lab.policy.me.as_str(), "lab");
+        assert_eq!(lab.link.listen, vec!["tls/203.0.113.7:7447".to_string()]);
+        assert_eq!(lab.link.lease, Duration::from_secs(3));
+        let home = &lab.policy.peers[0];
+        assert_eq!(home.name.as_str(), "home");
+        assert_eq!(home.ids, [21, 22].into());
+        assert_eq!(home.offer, [100].into());
+        assert_eq!(home.level, Level::Remote);
+        let text = "[site]\nname = \"Lab\"\n[zenoh]\nlisten = [\"tcp/1.2.3.4:7447\"]\n\
+                    connect = [\"tls/nowhere\"]\nca = \"a\"\ncertificate = \"b\"\nkey = \"c\"\n\
+                    lease_ms = 10\n[[zenoh.site]]\nname = \"home\"\nids = [0]\n\
+                    [[zenoh.site]]\nname = \"home\"\nlevel = \"mobile\"\n";
+        let message = format!(
+            "{:#}",
+            load_bridge(&write("b.toml", text)).expect_err("bad")
+        );
+        for want in [
+            "b.toml:2: site.name = \"Lab\": must be lowercase letters",
+            "b.toml:4: zenoh.listen[0] = \"tcp/1.2.3.4:7447\": must be `tls/HOST:PORT`",
+            "b.toml:5: zenoh.connect[0] = \"tls/nowhere\": must be `tls/HOST:PORT` (no port)",
+            "b.toml:9: zenoh.lease_ms = 10: must be 1000..=60000 ms",
+            "b.toml:12: zenoh.site[0].ids[0] = 0: must be a positive device id",
+            "b.toml:14: zenoh.site[1].name = \"home\": must be unique: site[0]",
+        ] {
+            assert!(message.contains(want), "missing {want:?} in\n{message}");
+        }
+        // An unknown key names its line; `[security]` is not a bridge's (docs/remote.md).
+        let text = "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/a:1\"]\nca = \"a\"\n\
+                    certificate = \"b\"\nkey = \"c\"\n[security]\ndir = \"d\"\n";
+        let message = format!(
+            "{:#}",
+            load_bridge(&write("s.toml", text)).expect_err("bad")
+        );
+        assert!(
+            message.contains("s.toml:8: unknown field `security`"),
+            "{message}"
+        );
+        // A relative key file is the config file's directory's.
+        let text = "[site]\nname = \"a\"\n[zenoh]\nlisten = [\"tls/a:1\"]\nca = \"k/ca.pem\"\n\
+                    certificate = \"b\"\nkey = \"c\"\n";
+        let path = write("rel.toml", text);
+        let ca = load_bridge(&path).expect("loads").link.ca;
+        assert_eq!(ca, path.parent().expect("dir").join("k/ca.pem"));
+    }
+
+    #[test]
     fn output_errors_name_the_line_of_the_channel_key() {
         let text = "[device]\nid = 7\n[output]\nadapter = \"pwm\"\nbackend = \"sim\"\n\
                     [[output.channels]]\nname = \"a\"\nsource = \"roll\"\nchannel = 0\n\

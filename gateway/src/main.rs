@@ -121,7 +121,7 @@ enum Command {
     #[cfg(feature = "security")]
     Keys {
         #[command(subcommand)]
-        what: KeysCommand,
+        what: rove_gateway::certs::cli::KeysCommand,
     },
     /// What this computer offers (PWM chips, GPIO and the board, serial ports, CAN interfaces,
     /// input devices, the service user's groups) and, with `-c`, what a config needs from it
@@ -145,89 +145,6 @@ enum Command {
         /// Print the effective configuration (defaults filled in).
         #[arg(long)]
         print: bool,
-    },
-}
-
-#[cfg(feature = "security")]
-#[derive(Debug, Subcommand)]
-enum KeysCommand {
-    /// Create a fleet: its CA (identity and permissions) and its signed governance.
-    Init {
-        /// The fleet's directory (created).
-        #[arg(long)]
-        dir: std::path::PathBuf,
-        /// The fleet's name (the certificates' organisation).
-        #[arg(long, default_value = "rove fleet")]
-        fleet: String,
-        /// The DDS domain the fleet runs in.
-        #[arg(long, default_value_t = 0)]
-        domain: u16,
-    },
-    /// Issue a device's certificate (subject CN=rove-ID), key and signed permissions in DIR/ID/.
-    Add {
-        /// The fleet's directory.
-        #[arg(long)]
-        dir: std::path::PathBuf,
-        /// The device id (vehicle or operator).
-        #[arg(long)]
-        id: i64,
-        /// Days the certificate is valid (`rove doctor` warns 30 days before the end).
-        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
-        days: u32,
-        /// Re-issue an existing device: a new key and certificate (copy the directory to the
-        /// device again).
-        #[arg(long)]
-        renew: bool,
-        /// Test hook, hidden from --help: the validity starts this many days from now
-        /// (negative: in the past).
-        #[arg(long, hide = true, default_value_t = 0, allow_negative_numbers = true)]
-        starts_in_days: i64,
-    },
-    /// Revoke a device's certificate: the fleet's revocation list (crl.pem) names it, and every
-    /// device directory in the fleet gets the new list (copy it to the devices, as the
-    /// governance; running devices read it again when the file changes).
-    Revoke {
-        /// The fleet's directory.
-        #[arg(long)]
-        dir: std::path::PathBuf,
-        /// The device id.
-        #[arg(long)]
-        id: i64,
-    },
-    /// List a fleet's devices, how long each certificate is valid, and which are revoked.
-    List {
-        /// The fleet's directory.
-        #[arg(long)]
-        dir: std::path::PathBuf,
-    },
-    /// Issue the browser console's HTTPS certificate, signed by the fleet CA, in
-    /// DIR/web-HOST/ (docs/web.md).
-    Web {
-        /// The fleet's directory.
-        #[arg(long)]
-        dir: std::path::PathBuf,
-        /// A name or address browsers reach the operator by (repeat for more).
-        #[arg(long = "host", required = true)]
-        hosts: Vec<String>,
-        /// Days the certificate is valid.
-        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
-        days: u32,
-    },
-    /// Issue a site bridge's certificate for the link between sites (CN=rove-site-NAME), in
-    /// DIR/site-NAME/ (docs/remote.md).
-    Site {
-        /// The fleet's directory.
-        #[arg(long)]
-        dir: std::path::PathBuf,
-        /// The site's name (lowercase letters, digits, '-').
-        #[arg(long)]
-        name: String,
-        /// A name or address the site's bridge is reached by (repeat for more; optional).
-        #[arg(long = "host")]
-        hosts: Vec<String>,
-        /// Days the certificate is valid.
-        #[arg(long, default_value_t = rove_gateway::certs::Lifetime::DEVICE.days)]
-        days: u32,
     },
 }
 
@@ -342,7 +259,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => show_input(&device, &config),
         Command::Bench { what } => tools::run(what, &std::env::current_exe()?),
         #[cfg(feature = "security")]
-        Command::Keys { what } => keys_cmd(what),
+        Command::Keys { what } => rove_gateway::certs::cli::run(what),
         Command::Doctor { config, user, root } => {
             let loaded = match &config {
                 Some(path) => Some(config::load_any(path).map_err(bad_config)?.0),
@@ -508,92 +425,6 @@ fn inputs_list() -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// `rove keys …`.
-#[cfg(feature = "security")]
-fn keys_cmd(what: KeysCommand) -> anyhow::Result<()> {
-    use rove_gateway::certs;
-    match what {
-        KeysCommand::Init { dir, fleet, domain } => {
-            certs::init(&dir, &fleet, domain)?;
-            println!(
-                "fleet {fleet:?} created in {} (domain {domain})",
-                dir.display()
-            );
-            Ok(())
-        }
-        KeysCommand::Add {
-            dir,
-            id,
-            days,
-            renew,
-            starts_in_days,
-        } => {
-            let lifetime = certs::Lifetime {
-                days,
-                starts_in_days,
-            };
-            let out = certs::add(&dir, id, lifetime, renew)?;
-            let expiry = certs::Expiry::of(&std::fs::read(out.join("cert.pem"))?)?;
-            println!(
-                "device {id}: certificate ({}), key and permissions in {}",
-                expiry.describe(),
-                out.display()
-            );
-            Ok(())
-        }
-        KeysCommand::Revoke { dir, id } => {
-            let done = certs::revoke(&dir, id)?;
-            let plural =
-                |n: usize, what: &str| format!("{n} {what}{}", if n == 1 { "" } else { "s" });
-            println!(
-                "device {id} revoked: {} now names {}; copied into {} — copy {} to every device \
-                 (running devices read it again)",
-                dir.join(certs::CRL_FILE).display(),
-                plural(done.listed, "certificate"),
-                match done.copied.len() {
-                    1 => "1 device directory".to_string(),
-                    n => format!("{n} device directories"),
-                },
-                certs::CRL_FILE
-            );
-            Ok(())
-        }
-        KeysCommand::List { dir } => {
-            let issued = certs::list(&dir)?;
-            println!("{:>8}  certificate", "device");
-            for device in &issued {
-                let revoked = if device.revoked { "REVOKED; " } else { "" };
-                println!("{:>8}  {revoked}{}", device.id, device.expiry.describe());
-            }
-            println!("{} devices in {}", issued.len(), dir.display());
-            Ok(())
-        }
-        KeysCommand::Site {
-            dir,
-            name,
-            hosts,
-            days,
-        } => {
-            let site = rove_core::site::SiteName::new(&name)
-                .map_err(|rule| anyhow::anyhow!("--name {name:?}: {rule}"))?;
-            let out = certs::site(&dir, &site, &hosts, certs::Lifetime::days(days))?;
-            println!(
-                "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
-                out.display()
-            );
-            Ok(())
-        }
-        KeysCommand::Web { dir, hosts, days } => {
-            let out = certs::web(&dir, &hosts, certs::Lifetime::days(days))?;
-            println!(
-                "web console certificate for {hosts:?} in {0}: [web] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\"",
-                out.display()
-            );
-            Ok(())
-        }
-    }
 }
 
 /// `rove status`: on loopback unless interfaces are given.

@@ -157,7 +157,11 @@ impl Link {
 /// anywhere but the configured endpoints), and the access control.
 fn zenoh_config(policy: &Policy, link: &ZenohLink) -> anyhow::Result<zenoh::Config> {
     let path = |p: &std::path::Path| json(p.to_string_lossy());
-    let mode = if link.listen.is_empty() { "peer" } else { "router" };
+    let mode = if link.listen.is_empty() {
+        "peer"
+    } else {
+        "router"
+    };
     let settings: Vec<(&str, String)> = vec![
         ("mode", json(mode)),
         ("listen/endpoints", json(&link.listen)),
@@ -168,18 +172,26 @@ fn zenoh_config(policy: &Policy, link: &ZenohLink) -> anyhow::Result<zenoh::Conf
         ("connect/exit_on_failure", "false".into()),
         (
             "connect/retry",
-            r#"{"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2}"#
-                .into(),
+            r#"{"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2}"#.into(),
         ),
         ("scouting/multicast/enabled", "false".into()),
         ("scouting/gossip/enabled", "false".into()),
         ("timestamping/enabled", "false".into()),
-        ("transport/link/tx/lease", link.lease.as_millis().to_string()),
+        (
+            "transport/link/tx/lease",
+            link.lease.as_millis().to_string(),
+        ),
         ("transport/link/tx/keep_alive", "4".into()),
         ("transport/link/tls/root_ca_certificate", path(&link.ca)),
-        ("transport/link/tls/listen_certificate", path(&link.certificate)),
+        (
+            "transport/link/tls/listen_certificate",
+            path(&link.certificate),
+        ),
         ("transport/link/tls/listen_private_key", path(&link.key)),
-        ("transport/link/tls/connect_certificate", path(&link.certificate)),
+        (
+            "transport/link/tls/connect_certificate",
+            path(&link.certificate),
+        ),
         ("transport/link/tls/connect_private_key", path(&link.key)),
         ("transport/link/tls/enable_mtls", "true".into()),
         ("transport/link/tls/verify_name_on_connect", "true".into()),
@@ -239,7 +251,9 @@ fn access_control(policy: &Policy) -> serde_json::Value {
         rules.push(rule("say", &["put", "delete"], format!("rove/*/{name}/**")));
         rules.push(rule("hear", &["declare_subscriber"], peer.name.inbox()));
         rules.push(rule("live", &["liveliness_token"], peer.name.liveliness()));
-        subjects.push(json!({ "id": format!("site-{name}"), "cert_common_names": [peer.name.common_name()] }));
+        subjects.push(
+            json!({ "id": format!("site-{name}"), "cert_common_names": [peer.name.common_name()] }),
+        );
         policies.push(json!({
             "rules": ["to-sites", "watch", format!("say-{name}"), format!("hear-{name}"), format!("live-{name}")],
             "subjects": [format!("site-{name}")],

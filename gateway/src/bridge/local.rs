@@ -15,7 +15,10 @@ use rustdds::with_key::Sample;
 #[derive(Debug)]
 pub(super) enum Heard {
     /// A device's DeviceInfo.
-    Info { info: DeviceInfo, from: ParticipantId },
+    Info {
+        info: DeviceInfo,
+        from: ParticipantId,
+    },
     /// A device's DeviceInfo withdrawn.
     InfoGone { id: DeviceId, from: ParticipantId },
     /// A vehicle's VehicleStatus.

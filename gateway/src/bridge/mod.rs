@@ -4,7 +4,7 @@
 //! sites it is configured to meet. It carries its devices' DeviceInfo, VehicleStatus,
 //! ControlCommand streams (with their strength and releases) and RequestControl to the sites
 //! concerned, and gives every device of another site a participant of its own here
-//! ([`proxy::Proxy`]), so vehicles, operators, the trust rules and the handover see it as any
+//! (a proxy), so vehicles, operators, the trust rules and the handover see it as any
 //! device: a remote operator drives with its own strength, quits with a release, and one that
 //! crashes or whose link dies leaves as a local one does. Identity is never a payload's: a
 //! local device is who its DeviceInfo's participant is, and another site speaks only under
@@ -51,7 +51,12 @@ pub async fn run(
     let (read_tx, mut read) = mpsc::channel(4096);
     let policy = &config.policy;
     let peers: Vec<String> = (policy.peers.iter())
-        .map(|p| format!("{} (ids {:?}, offered {:?}, up to {:?})", p.name, p.ids, p.offer, p.level))
+        .map(|p| {
+            format!(
+                "{} (ids {:?}, offered {:?}, up to {:?})",
+                p.name, p.ids, p.offer, p.level
+            )
+        })
         .collect();
     info!(
         site = %policy.me,
@@ -204,13 +209,16 @@ impl Bridge {
     async fn local_info(&mut self, info: DeviceInfo, from: ParticipantId) {
         let id = info.device_id;
         if self.proxies.contains_key(&id) {
-            self.ignored.warn(&format!("device {id} here has the id of another site's device"));
+            self.ignored.warn(&format!(
+                "device {id} here has the id of another site's device"
+            ));
             return;
         }
         let full = self.devices.len() >= MAX_DEVICES;
         let changed = match self.devices.get_mut(&id) {
             Some(d) if d.participant != from => {
-                self.ignored.warn(&format!("device {id} claimed by a second participant"));
+                self.ignored
+                    .warn(&format!("device {id} claimed by a second participant"));
                 return;
             }
             Some(d) => {
@@ -253,8 +261,14 @@ impl Bridge {
     /// A local RequestControl goes to the sites of the devices it names.
     async fn local_request(&mut self, msg: RequestControl, from: ParticipantId) {
         let sender = msg.sender_id();
-        if !self.devices.get(&sender).is_some_and(|d| d.participant == from) {
-            self.ignored.warn(&format!("RequestControl for {sender} from another participant"));
+        if self
+            .devices
+            .get(&sender)
+            .is_none_or(|d| d.participant != from)
+        {
+            self.ignored.warn(&format!(
+                "RequestControl for {sender} from another participant"
+            ));
             return;
         }
         let mut sites = BTreeSet::new();
@@ -282,13 +296,18 @@ impl Bridge {
         let (src, strength, payload) = match read.sample {
             Sample::Value(crate::dds::KeyedControlCommand(command)) => {
                 let src = command.src_id;
-                let pinned = self.devices.get(&src).is_some_and(|d| d.participant == participant);
+                let pinned = self
+                    .devices
+                    .get(&src)
+                    .is_some_and(|d| d.participant == participant);
                 if !pinned || command.dest_id != read.vehicle {
-                    self.ignored.warn(&format!("command as {src} from another participant"));
+                    self.ignored
+                        .warn(&format!("command as {src} from another participant"));
                     return;
                 }
                 let Some(strength) = proxy.strength_of(read.writer) else {
-                    self.ignored.warn(&"command of a writer whose strength is not known yet");
+                    self.ignored
+                        .warn(&"command of a writer whose strength is not known yet");
                     return;
                 };
                 if self.writers.len() < MAX_DEVICES || self.writers.contains_key(&read.writer) {
@@ -381,7 +400,9 @@ impl Bridge {
             Subject::Info(id) => match &put {
                 Some(bytes) => {
                     let info: DeviceInfo = wire::decode(bytes).ok_or("malformed DeviceInfo")?;
-                    self.policy.info(subject, &info).map_err(|e| e.to_string())?;
+                    self.policy
+                        .info(subject, &info)
+                        .map_err(|e| e.to_string())?;
                     self.import(site, info)?;
                 }
                 None => {
@@ -409,7 +430,8 @@ impl Bridge {
                 }
                 match put {
                     Some(bytes) => {
-                        let sent: wire::Command = wire::decode(&bytes).ok_or("malformed command")?;
+                        let sent: wire::Command =
+                            wire::decode(&bytes).ok_or("malformed command")?;
                         let strength = (self.policy.command(&peer, subject, &sent.command))
                             .map_err(|e| e.to_string())?;
                         proxy.command(strength, sent.command, sent.stamp);
@@ -418,8 +440,10 @@ impl Bridge {
                         let Subject::Command { strength, .. } = subject else {
                             return Ok(());
                         };
-                        let strength =
-                            self.policy.strength(&peer, strength).map_err(|e| e.to_string())?;
+                        let strength = self
+                            .policy
+                            .strength(&peer, strength)
+                            .map_err(|e| e.to_string())?;
                         proxy.release(dest, strength);
                     }
                 }
@@ -428,10 +452,12 @@ impl Bridge {
                 from_site(&self.proxies, sender)?;
                 let msg: RequestControl = wire::decode(payload()?).ok_or("malformed request")?;
                 let ours = |v| self.is_local_vehicle(v);
-                let msg = (self.policy.request(&peer, subject, ours, msg))
-                    .map_err(|e| e.to_string())?;
+                let msg =
+                    (self.policy.request(&peer, subject, ours, msg)).map_err(|e| e.to_string())?;
                 let proxy = self.proxies.get_mut(&sender).ok_or("gone")?;
-                if msg.ack == rove_core::msg::Ack::Request && self.devices.contains_key(&msg.dest_id) {
+                if msg.ack == rove_core::msg::Ack::Request
+                    && self.devices.contains_key(&msg.dest_id)
+                {
                     proxy.prepare(msg.dest_id);
                 }
                 proxy.request(msg);
@@ -519,7 +545,10 @@ impl Bridge {
         }
         let dropped = self.link.dropped.load(std::sync::atomic::Ordering::Relaxed);
         if dropped > self.dropped_seen {
-            warn!(dropped = dropped - self.dropped_seen, "the loop fell behind the link");
+            warn!(
+                dropped = dropped - self.dropped_seen,
+                "the loop fell behind the link"
+            );
             self.dropped_seen = dropped;
         }
     }

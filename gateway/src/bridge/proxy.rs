@@ -142,7 +142,8 @@ impl Proxy {
         let key = (vehicle, strength);
         if !self.commands.contains_key(&key) {
             if self.commands.len() >= MAX_WRITERS {
-                self.failed.warn(&"too many ControlCommand writers for one device");
+                self.failed
+                    .warn(&"too many ControlCommand writers for one device");
                 return None;
             }
             let route = dds::Route::Vehicle(vehicle);
@@ -173,7 +174,12 @@ impl Proxy {
     }
 
     /// Writes an operator's command at `strength`, with its sender's time stamp (ticks).
-    pub(super) fn command(&mut self, strength: Strength, command: ControlCommand, stamp: Option<u64>) {
+    pub(super) fn command(
+        &mut self,
+        strength: Strength,
+        command: ControlCommand,
+        stamp: Option<u64>,
+    ) {
         let stamp = stamp.map_or_else(rustdds::Timestamp::now, rustdds::Timestamp::from_ticks);
         let Some(w) = self.command_writer(command.dest_id, strength) else {
             return;

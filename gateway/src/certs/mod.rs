@@ -28,6 +28,7 @@
 //! the subject `rove keys` gives device `id`, so a participant may speak only for the id in its
 //! certificate.
 
+pub mod cli;
 use anyhow::{Context, anyhow, bail};
 use openssl::bn::{BigNum, MsbOption};
 use openssl::ec::{EcGroup, EcKey};
@@ -245,7 +246,10 @@ pub fn site(
     }
     cert.append_extension(BasicConstraints::new().critical().build()?)?;
     cert.append_extension(KeyUsage::new().critical().digital_signature().build()?)?;
-    let usage = ExtendedKeyUsage::new().server_auth().client_auth().build()?;
+    let usage = ExtendedKeyUsage::new()
+        .server_auth()
+        .client_auth()
+        .build()?;
     cert.append_extension(usage)?;
     cert.sign(&ca_key, MessageDigest::sha256())?;
     write(&out.join("cert.pem"), &cert.build().to_pem()?, false)?;

@@ -331,12 +331,41 @@ pub fn veth(
         ],
         vec!["ip", "-n", &near.ns, "addr", "add", near_addr, "dev", &a],
         vec!["ip", "-n", &far.ns, "addr", "add", far_addr, "dev", &b],
-        vec!["ip", "-n", &near.ns, "link", "set", &a, "up", "multicast", "on"],
-        vec!["ip", "-n", &far.ns, "link", "set", &b, "up", "multicast", "on"],
+        vec![
+            "ip",
+            "-n",
+            &near.ns,
+            "link",
+            "set",
+            &a,
+            "up",
+            "multicast",
+            "on",
+        ],
+        vec![
+            "ip",
+            "-n",
+            &far.ns,
+            "link",
+            "set",
+            &b,
+            "up",
+            "multicast",
+            "on",
+        ],
     ];
     if multicast {
         // The far host's multicast goes over the veth, not its own loopback.
-        steps.push(vec!["ip", "-n", &far.ns, "route", "replace", "224.0.0.0/4", "dev", &b]);
+        steps.push(vec![
+            "ip",
+            "-n",
+            &far.ns,
+            "route",
+            "replace",
+            "224.0.0.0/4",
+            "dev",
+            &b,
+        ]);
     }
     for step in steps {
         run(&step).map_err(anyhow::Error::msg)?;
