@@ -19,7 +19,7 @@ mod package;
 mod robustness;
 mod security;
 mod service;
-#[cfg(feature = "remote")]
+#[cfg(all(feature = "remote", feature = "security"))]
 mod sites;
 mod spray;
 mod trust;

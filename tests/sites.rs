@@ -4,13 +4,12 @@
 //! the link (no multicast route over it). Latencies are measured and printed, never asserted.
 
 use crate::util::{ROVE, Rig, eventually, records, wait_for_output, wall_us};
+use rove_gateway::tools::sites::{self, Cut, Meet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 const V: i64 = 100;
-/// The lab's end of the veth pair, where its bridge listens.
-const LAB: &str = "10.78.0.1";
-const HOME: &str = "10.78.0.2";
+const LAB: &str = sites::LAB_ADDRESS;
 /// A remote operator at home.
 const REMOTE: i64 = 21;
 /// A second remote operator at home (allowed).
@@ -18,7 +17,7 @@ const REMOTE2: i64 = 22;
 /// The lab's own phone.
 const PHONE: i64 = 31;
 
-/// Both sites, their fleet's keys, and the veth ends.
+/// Both sites, their fleet's keys, and the lab's veth end.
 struct Sites {
     lab: Rig,
     home: Rig,
@@ -32,26 +31,8 @@ impl Sites {
     fn new(test: &str) -> Sites {
         let lab = Rig::new(&format!("{test}-lab"));
         let home = Rig::new(&format!("{test}-home"));
-        let (lab_veth, _) = rove_gateway::tools::harness::veth(
-            &lab,
-            &home,
-            &format!("{LAB}/24"),
-            &format!("{HOME}/24"),
-            false,
-        )
-        .expect("veth pair");
-        let fleet = lab.dir.join("fleet");
-        keys(&["init", "--dir", path(&fleet), "--fleet", "sites test"]);
-        keys(&[
-            "site",
-            "--dir",
-            path(&fleet),
-            "--name",
-            "lab",
-            "--host",
-            LAB,
-        ]);
-        keys(&["site", "--dir", path(&fleet), "--name", "home"]);
+        let lab_veth = sites::join(&lab, &home).expect("veth pair");
+        let fleet = sites::fleet(&lab.dir.join("fleet")).expect("keys");
         Sites {
             lab,
             home,
@@ -63,28 +44,16 @@ impl Sites {
     /// The lab's bridge: listens, lets home speak for its two operators and drive vehicle 100;
     /// `extra` is appended (another `[[zenoh.site]]`).
     fn lab_bridge(&mut self, extra: &str) -> usize {
-        let site = self.fleet.join("site-lab");
-        let toml = format!(
-            "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/{LAB}:7447\"]\n{}\n\
-             [[zenoh.site]]\nname = \"home\"\nids = [{REMOTE}, {REMOTE2}]\noffer = [{V}]\n{extra}",
-            link_files(&site)
-        );
-        let config = self.lab.write("bridge-lab.toml", &toml);
-        self.lab.spawn("bridge", &["bridge", "-c", path(&config)])
+        let peers = sites::peer("home", &[REMOTE, REMOTE2], &[V]) + extra;
+        let dir = self.fleet.join("site-lab");
+        sites::bridge(&mut self.lab, "lab", Meet::Listen(LAB), &dir, &peers)
     }
 
     /// A bridge at home calling itself `name`, connecting to the lab's with the certificate
     /// in `site_dir`.
     fn home_bridge(&mut self, name: &str, site_dir: &Path) -> usize {
-        let toml = format!(
-            "[site]\nname = \"{name}\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n\
-             [[zenoh.site]]\nname = \"lab\"\nids = [{V}, {PHONE}]\n",
-            link_files(site_dir)
-        );
-        let n = self.home.procs.len();
-        let config = self.home.write(&format!("bridge-{name}-{n}.toml"), &toml);
-        self.home
-            .spawn(&format!("bridge-{name}"), &["bridge", "-c", path(&config)])
+        let peers = sites::peer("lab", &[V, PHONE], &[]);
+        sites::bridge(&mut self.home, name, Meet::Connect(LAB), site_dir, &peers)
     }
 
     /// Both bridges with the fleet's certificates.
@@ -94,28 +63,9 @@ impl Sites {
         self.home_bridge("home", &home);
     }
 
-    /// `nft` in the lab's namespace: every packet on the veth dropped, both ways, silently
-    /// (`Some`), or the table removed (`None`).
-    fn silent_drop(&self, on: bool) {
-        let script = match on {
-            true => format!(
-                "nft add table inet rove_sites; \
-                 nft add chain inet rove_sites in '{{ type filter hook input priority 0; }}'; \
-                 nft add chain inet rove_sites out '{{ type filter hook output priority 0; }}'; \
-                 nft add rule inet rove_sites in iifname {0} drop; \
-                 nft add rule inet rove_sites out oifname {0} drop",
-                self.lab_veth
-            ),
-            false => "nft delete table inet rove_sites".to_string(),
-        };
-        self.lab.sh(&script).expect("nft");
-    }
-
-    /// The lab's veth end down or up.
-    fn link(&self, up: bool) {
-        let state = if up { "up" } else { "down" };
-        let script = format!("ip link set {} {state}", self.lab_veth);
-        self.lab.sh(&script).expect("ip link");
+    /// The link cut (`on`) or restored.
+    fn cut(&self, how: Cut, on: bool) {
+        sites::cut(&self.lab, &self.lab_veth, how, on).expect("cut");
     }
 }
 
@@ -280,16 +230,13 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
         .operator(REMOTE, "remote", "laptop", &[V], 1000, "", &[]);
     wait_for_output(&record, Some(REMOTE), 0).expect("the remote laptop drives");
 
-    for how in ["veth down", "silent drop"] {
-        let set = |cut: bool| match how {
-            "veth down" => sites.link(!cut),
-            _ => sites.silent_drop(cut),
-        };
+    for how in [Cut::Down, Cut::Drop] {
+        let set = |on: bool| sites.cut(how, on);
         let t = wall_us();
         set(true);
         let safe = wait_for_safe(&record, t);
         eprintln!(
-            "{how}: safe state {:.1} ms after the cut",
+            "{how:?}: safe state {:.1} ms after the cut",
             ms_since(t, safe)
         );
         // Hold the cut past the link's lease, so the lab also sees the site go.
@@ -298,13 +245,13 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
             records(&record)
                 .iter()
                 .all(|o| o.wall_us < safe || o.owner != Some(REMOTE)),
-            "{how}: the remote drove while the link was cut"
+            "{how:?}: the remote drove while the link was cut"
         );
         let healed = wall_us();
         set(false);
         let again = wait_for_output(&record, Some(REMOTE), healed).expect("driving resumes");
         eprintln!(
-            "{how}: driving again {:.1} ms after the link returned",
+            "{how:?}: driving again {:.1} ms after the link returned",
             ms_since(healed, again.wall_us)
         );
     }

@@ -17,6 +17,8 @@ pub mod chaos;
 pub mod demo;
 pub mod fleet;
 pub mod harness;
+#[cfg(all(feature = "remote", feature = "security"))]
+pub mod sites;
 pub mod sweep;
 
 use std::path::Path;
