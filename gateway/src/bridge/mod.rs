@@ -102,6 +102,9 @@ struct Bridge {
     read_tx: mpsc::Sender<Read>,
     /// This site's devices, by id (pinned to the participant first heard).
     devices: HashMap<DeviceId, LocalDevice>,
+    /// A second participant's DeviceInfo for a pinned id (a device restarted before its old
+    /// participant was lost): it takes the id when the pinned one leaves.
+    claims: HashMap<DeviceId, (ParticipantId, DeviceInfo)>,
     /// Other sites' devices here.
     proxies: HashMap<DeviceId, Proxy>,
     /// The proxies' participants (what the bridge hears from them is not this site's).
@@ -131,6 +134,7 @@ impl Bridge {
             link,
             read_tx,
             devices: HashMap::new(),
+            claims: HashMap::new(),
             proxies: HashMap::new(),
             ours: HashMap::new(),
             up: BTreeSet::new(),
@@ -170,6 +174,9 @@ impl Bridge {
                 if self.ours.contains_key(&from) => {}
             Heard::Info { info, from } => self.local_info(info, from).await,
             Heard::InfoGone { id, from } => {
+                if self.claims.get(&id).is_some_and(|(p, _)| *p == from) {
+                    self.claims.remove(&id);
+                }
                 if self.devices.get(&id).is_some_and(|d| d.participant == from) {
                     self.local_gone(id).await;
                 }
@@ -192,6 +199,7 @@ impl Bridge {
             }
             Heard::Request { msg, from } => self.local_request(msg, from).await,
             Heard::Lost(participant) => {
+                self.claims.retain(|_, (p, _)| *p != participant);
                 let gone: Vec<DeviceId> = (self.devices.iter())
                     .filter(|(_, d)| d.participant == participant)
                     .map(|(id, _)| *id)
@@ -217,8 +225,13 @@ impl Bridge {
         let full = self.devices.len() >= MAX_DEVICES;
         let changed = match self.devices.get_mut(&id) {
             Some(d) if d.participant != from => {
-                self.ignored
-                    .warn(&format!("device {id} claimed by a second participant"));
+                self.ignored.warn(&format!(
+                    "device {id} claimed by a second participant: it takes the id if the first \
+                     leaves"
+                ));
+                if self.claims.len() < MAX_DEVICES || self.claims.contains_key(&id) {
+                    self.claims.insert(id, (from, info));
+                }
                 return;
             }
             Some(d) => {
@@ -255,6 +268,10 @@ impl Bridge {
         for to in self.audience(&device.info) {
             let key = self.key(&to, Subject::Info(id));
             self.link.send(&key, None).await;
+        }
+        // A device that restarted before its old participant was lost.
+        if let Some((participant, info)) = self.claims.remove(&id) {
+            self.local_info(info, participant).await;
         }
     }
 

@@ -113,8 +113,20 @@ pub enum Bench {
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
         /// Which experiment.
-        #[arg(long, value_enum)]
-        scenario: bench::Scenario,
+        #[arg(long, value_enum, required_unless_present = "remote")]
+        scenario: Option<bench::Scenario>,
+        /// Instead: across two sites joined by their bridges (`rove bridge`) beside the same
+        /// on one site, in one run: input → output latency, graceful, crash and active
+        /// handovers, the link cut, the bridges' CPU with `--operators` remote operators
+        /// streaming (docs/remote.md).
+        #[arg(long)]
+        remote: bool,
+        /// With `--remote`: remote operators streaming in the CPU phase.
+        #[arg(long, default_value_t = 8)]
+        operators: usize,
+        /// With `--remote`: stick events replayed per placement.
+        #[arg(long, default_value_t = 1000)]
+        events: usize,
         /// Controller counts to run, comma-separated (graceful/crash: owner + N−1 backups;
         /// active: owner, requester and N−2 bystanders).
         #[arg(long, value_delimiter = ',', default_value = "2")]
@@ -214,6 +226,14 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             }
         }
         Bench::Handover {
+            remote: true,
+            runs,
+            operators,
+            events,
+            json,
+            ..
+        } => remote_bench(rove, runs, operators, events, json.as_deref()),
+        Bench::Handover {
             scenario,
             controllers,
             devices,
@@ -222,9 +242,10 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             vehicle_rt,
             json,
             svg,
+            ..
         } => {
             let options = bench::Options {
-                scenario,
+                scenario: scenario.unwrap_or(bench::Scenario::Graceful),
                 controllers: 0,
                 devices,
                 runs,
@@ -240,4 +261,33 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             bench::handover_cli(rove, options, &controllers, modes, &outputs)
         }
     }
+}
+
+/// `rove bench handover --remote`.
+#[cfg(all(feature = "remote", feature = "security"))]
+fn remote_bench(
+    rove: &Path,
+    runs: usize,
+    operators: usize,
+    events: usize,
+    json: Option<&Path>,
+) -> anyhow::Result<()> {
+    let options = bench::RemoteOptions {
+        runs,
+        events,
+        operators,
+    };
+    bench::remote_cli(rove, &options, json)
+}
+
+/// `rove bench handover --remote` in a build without the bridge.
+#[cfg(not(all(feature = "remote", feature = "security")))]
+fn remote_bench(
+    _rove: &Path,
+    _runs: usize,
+    _operators: usize,
+    _events: usize,
+    _json: Option<&Path>,
+) -> anyhow::Result<()> {
+    anyhow::bail!("this rove was built without the `remote` and `security` features")
 }

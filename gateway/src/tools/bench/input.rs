@@ -24,8 +24,44 @@ pub fn input_latency(
 ) -> anyhow::Result<(Stats, usize)> {
     let mut rig = Rig::new(rove, "bench-input")?;
     let vehicle_record = rig.vehicle(VEHICLE);
-    // Start after DDS discovery (~1 s here); centred first (rove-inputs' no-jump rule).
-    let start_ms = 3000.0;
+    // Start after DDS discovery (~1 s here).
+    let replay = Replay {
+        operator: 11,
+        start_ms: 3000.0,
+        events,
+        rate_hz,
+    };
+    replay_to(&mut rig, &vehicle_record, &replay, progress)
+}
+
+/// A replayed joystick: its operator's id (a mobile phone driving vehicle 100), its first
+/// event `start_ms` after the operator starts, `events` at `rate_hz`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Replay {
+    pub(crate) operator: i64,
+    pub(crate) start_ms: f64,
+    pub(crate) events: usize,
+    pub(crate) rate_hz: f64,
+}
+
+/// [`input_latency`] with the `replay`'s operator in `rig`, which may be the vehicle's or
+/// another site's; the vehicle records to `vehicle_record`. The operator is stopped at the end.
+///
+/// # Errors
+/// As [`input_latency`].
+pub(crate) fn replay_to(
+    rig: &mut Rig,
+    vehicle_record: &Path,
+    replay: &Replay,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<(Stats, usize)> {
+    let Replay {
+        operator: id,
+        start_ms,
+        events,
+        rate_hz,
+    } = *replay;
+    // Centred first (rove-inputs' no-jump rule).
     let period_ms = 1000.0 / rate_hz.clamp(1.0, 1000.0);
     let mut text = String::from("0 replug Bench Pad\n0 absinfo ABS_Y 0 -32768 32767 0 0\n");
     let mut expected = Vec::with_capacity(events);
@@ -40,16 +76,16 @@ pub fn input_latency(
     let _ = writeln!(text, "{end_ms:.3} unplug end of the benchmark");
     let recording = rig.write("bench-pad.txt", &text);
     let config = rig.write(
-        "operator-bench.toml",
+        &format!("operator-bench-{id}.toml"),
         &format!(
-            "[device]\nid = 11\nname = \"bench-pad\"\n[operator]\nlevel = \"mobile\"\n\
+            "[device]\nid = {id}\nname = \"bench-pad\"\n[operator]\nlevel = \"mobile\"\n\
              device_class = \"phone\"\ndrive = [{VEHICLE}]\n[input]\nsource = \"replay\"\n\
              file = \"{}\"\n[input.axes.throttle]\nabs = \"ABS_Y\"\ndeadzone_pct = 0\n",
             recording.display()
         ),
     );
-    let op_record = rig.dir.join("operator-bench.jsonl");
-    rig.spawn(
+    let op_record = rig.dir.join(format!("operator-bench-{id}.jsonl"));
+    let operator = rig.spawn(
         "operator-bench",
         &[
             "operator",
@@ -60,7 +96,8 @@ pub fn input_latency(
         ],
     );
     progress(&format!(
-        "{events} input events at {rate_hz} Hz after a 3 s start"
+        "{events} input events at {rate_hz} Hz after a {:.0} s start",
+        start_ms / 1000.0
     ));
     let deadline = Instant::now() + Duration::from_secs_f64(end_ms / 1000.0 + 20.0);
     let mut inputs: Vec<(u64, i64)>;
@@ -71,14 +108,14 @@ pub fn input_latency(
             .filter(|e| e["kind"] == "input")
             .filter_map(|e| Some((e["wall_us"].as_u64()?, e["throttle"].as_i64()?)))
             .collect();
-        let done = records(&vehicle_record)
+        let done = records(vehicle_record)
             .iter()
             .any(|o| o.action != "apply" && o.wall_us > inputs.last().map_or(u64::MAX, |i| i.0));
         if (inputs.len() >= events && done) || Instant::now() > deadline {
             break;
         }
     }
-    let outputs = records(&vehicle_record);
+    let outputs = records(vehicle_record);
     let mut latencies = Vec::new();
     let mut unmatched = 0;
     let mut slow = Vec::new();
@@ -87,7 +124,7 @@ pub fn input_latency(
     for (i, (read_us, throttle)) in inputs.iter().enumerate().skip(1) {
         match outputs
             .iter()
-            .find(|o| o.owner == Some(11) && o.throttle == Some(*throttle) && o.wall_us >= *read_us)
+            .find(|o| o.owner == Some(id) && o.throttle == Some(*throttle) && o.wall_us >= *read_us)
         {
             Some(o) => {
                 let l = ms(o.wall_us - read_us);
@@ -107,6 +144,8 @@ pub fn input_latency(
         inputs.len(),
         slow.iter().take(40).cloned().collect::<Vec<_>>().join(", ")
     ));
+    rig.procs[operator].terminate();
+    rig.procs[operator].wait_exit(Duration::from_secs(5));
     let stats = Stats::of(&latencies).ok_or_else(|| {
         anyhow::anyhow!("no input reached the vehicle; see {}", rig.dir.display())
     })?;

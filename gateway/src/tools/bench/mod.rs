@@ -14,9 +14,13 @@
 //! All processes share one machine clock (wall time in microseconds), so no clock sync is needed.
 
 mod input;
+#[cfg(all(feature = "remote", feature = "security"))]
+mod remote;
 mod report;
 
 pub use input::{input_cli, input_latency};
+#[cfg(all(feature = "remote", feature = "security"))]
+pub use remote::{Options as RemoteOptions, RemoteReport, Row, remote, remote_cli};
 pub use report::{Report, Stats, count_ping_pong, seed_figure, svg, table, write_json};
 
 use crate::tools::harness::{self, Follow, Rig, records, wall_us};

@@ -173,6 +173,27 @@ fn sample(pid: u32) -> Option<(u64, u64)> {
     Some((ticks, rss))
 }
 
+/// The CPU (percent of a core) of each process in `pids` over `window`.
+///
+/// # Errors
+/// A process exited.
+pub fn cpu_of(pids: &[u32], window: Duration) -> anyhow::Result<Vec<f64>> {
+    let before: Vec<_> = pids.iter().map(|&p| sample(p)).collect();
+    let started = Instant::now();
+    std::thread::sleep(window);
+    let elapsed = started.elapsed().as_secs_f64();
+    let after: Vec<_> = pids.iter().map(|&p| sample(p)).collect();
+    let hz = clock_ticks();
+    (before.iter().zip(&after))
+        .map(|(b, a)| match (b, a) {
+            (Some(b), Some(a)) => Ok(a.0.saturating_sub(b.0) as f64 / hz / elapsed * 100.0),
+            _ => Err(anyhow::anyhow!(
+                "a measured process exited during the window"
+            )),
+        })
+        .collect()
+}
+
 /// Clock ticks per second of `/proc/PID/stat` (`getconf CLK_TCK`, 100 on Linux).
 fn clock_ticks() -> f64 {
     std::process::Command::new("getconf")
