@@ -1,25 +1,11 @@
 //! DDS Security between real processes (docs/security.md): a fleet made by `rove keys`, a
 //! secured vehicle and operators, and what an unauthenticated peer or a wrong certificate gets.
 
-use crate::util::{ROVE, Rig, laptop_drives_sim, records, wait_for_output, wall_us};
+use crate::util::{ROVE, Rig, keys, laptop_drives_sim, records, wait_for_output, wall_us};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 const V: i64 = 100;
-
-/// `rove keys ARGS`, which must succeed.
-fn keys(args: &[&str]) {
-    let out = Command::new(ROVE)
-        .arg("keys")
-        .args(args)
-        .output()
-        .expect("rove keys");
-    assert!(
-        out.status.success(),
-        "rove keys {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
 
 /// `rove keys list --dir DIR`'s output.
 fn keys_list(dir: &str) -> String {

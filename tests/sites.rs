@@ -3,7 +3,7 @@
 //! its own DDS network on its loopback, the two joined by a veth pair that carries nothing but
 //! the link (no multicast route over it). Latencies are measured and printed, never asserted.
 
-use crate::util::{ROVE, Rig, eventually, records, wait_for_output, wall_us};
+use crate::util::{Rig, eventually, keys, records, wait_for_output, wall_us};
 use rove_gateway::tools::sites::{self, Cut, Meet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -73,20 +73,6 @@ fn path(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
-/// `rove keys ARGS`, which must succeed.
-fn keys(args: &[&str]) {
-    let out = std::process::Command::new(ROVE)
-        .arg("keys")
-        .args(args)
-        .output()
-        .expect("rove keys");
-    assert!(
-        out.status.success(),
-        "rove keys {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
 /// A site's `[zenoh]` file keys for the certificate directory `site`.
 fn link_files(site: &Path) -> String {
     format!(
@@ -129,9 +115,10 @@ fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a
     assert_eq!(out.throttle, Some(1000));
 
     // The lab lists the remote operators with their site, and home lists the vehicle.
-    let row = sites.lab.device_when("remote laptop listed", REMOTE, |d| {
-        d["name"].as_str().is_some_and(|n| n.ends_with("@home"))
-    });
+    let row = sites
+        .lab
+        .device_when("remote laptop listed", REMOTE, |d| d["site"] == "home");
+    assert_eq!(row["name"], format!("op{REMOTE} @home"));
     assert_eq!(row["type"], "controller");
     let vehicle = sites.home.device_when("vehicle listed at home", V, |d| {
         d["controller_id"] == REMOTE

@@ -399,3 +399,17 @@ pub fn limit_address_space(name: &str, pid: u32, headroom_kib: u64) {
         .expect("prlimit (util-linux)");
     assert!(limited.success(), "prlimit --as on the {name}");
 }
+
+/// `rove keys ARGS`, which must succeed.
+pub fn keys(args: &[&str]) {
+    let out = Command::new(ROVE)
+        .arg("keys")
+        .args(args)
+        .output()
+        .expect("rove keys");
+    assert!(
+        out.status.success(),
+        "rove keys {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -72,6 +72,18 @@ impl SiteName {
     }
 }
 
+/// The name another site's device goes by on this site's network: `NAME @SITE`, which is
+/// how device lists show where it is.
+pub fn proxy_name(name: &str, site: &SiteName) -> String {
+    format!("{name} @{site}")
+}
+
+/// The site in a name made by [`proxy_name`], if any.
+pub fn site_of_name(name: &str) -> Option<SiteName> {
+    let (_, site) = name.rsplit_once(" @")?;
+    SiteName::new(site).ok()
+}
+
 impl fmt::Display for SiteName {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(&self.0)
@@ -450,6 +462,11 @@ mod tests {
             Some(site("home"))
         );
         assert_eq!(SiteName::of_liveliness("rove/live/home"), None);
+        let named = proxy_name("op 21", &site("home"));
+        assert_eq!(named, "op 21 @home");
+        assert_eq!(site_of_name(&named), Some(site("home")));
+        assert_eq!(site_of_name("op21"), None);
+        assert_eq!(site_of_name("a @Home"), None);
     }
 
     #[test]

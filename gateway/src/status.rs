@@ -31,6 +31,9 @@ pub struct DeviceRow {
     pub id: DeviceId,
     /// Name.
     pub name: String,
+    /// The site of another site's device (its name ends with ` @SITE`, docs/remote.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub site: Option<String>,
     /// "vehicle" or "controller".
     #[serde(rename = "type")]
     pub kind: &'static str,
@@ -315,6 +318,7 @@ fn snapshot(
             DeviceRow {
                 id: s.info.device_id,
                 name: s.info.name.clone(),
+                site: rove_core::site::site_of_name(&s.info.name).map(|s| s.to_string()),
                 kind: match s.info.device_type {
                     DeviceType::Vehicle => "vehicle",
                     DeviceType::Controller => "controller",

@@ -182,6 +182,9 @@ fn zenoh_config(policy: &Policy, link: &ZenohLink) -> anyhow::Result<zenoh::Conf
             link.lease.as_millis().to_string(),
         ),
         ("transport/link/tx/keep_alive", "4".into()),
+        // A message is a few hundred bytes; Zenoh's default would reassemble up to 1 GiB
+        // from one (authenticated) peer.
+        ("transport/link/rx/max_message_size", "65536".into()),
         ("transport/link/tls/root_ca_certificate", path(&link.ca)),
         (
             "transport/link/tls/listen_certificate",

@@ -73,7 +73,7 @@ impl Proxy {
     ) -> anyhow::Result<Proxy> {
         let common = Common {
             id: info.device_id,
-            name: format!("{} @{site}", info.name),
+            name: rove_core::site::proxy_name(&info.name, site),
             security: None,
             ..common.clone()
         };

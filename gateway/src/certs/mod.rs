@@ -175,7 +175,7 @@ pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow:
 /// # Errors
 /// `dir` holds no fleet, `hosts` is empty, the files exist, or OpenSSL fails.
 pub fn web(dir: &Path, hosts: &[String], lifetime: Lifetime) -> anyhow::Result<PathBuf> {
-    use openssl::x509::extension::{ExtendedKeyUsage, SubjectAlternativeName};
+    use openssl::x509::extension::ExtendedKeyUsage;
     let Some(first) = hosts.first() else {
         bail!("name at least one host (--host NAME or address)");
     };
@@ -185,25 +185,9 @@ pub fn web(dir: &Path, hosts: &[String], lifetime: Lifetime) -> anyhow::Result<P
         bail!("{} exists already", out.join("cert.pem").display());
     }
     std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
-    let key = new_key()?;
     let name = subject(&fleet_of(&ca)?, first)?;
-    let mut cert = builder(&name, ca.subject_name(), &key, lifetime)?;
-    let mut names = SubjectAlternativeName::new();
-    for host in hosts {
-        if host.parse::<std::net::IpAddr>().is_ok() {
-            names.ip(host);
-        } else {
-            names.dns(host);
-        }
-    }
-    let names = names.build(&cert.x509v3_context(Some(&ca), None))?;
-    cert.append_extension(names)?;
-    cert.append_extension(BasicConstraints::new().critical().build()?)?;
-    cert.append_extension(KeyUsage::new().critical().digital_signature().build()?)?;
-    cert.append_extension(ExtendedKeyUsage::new().server_auth().build()?)?;
-    cert.sign(&ca_key, MessageDigest::sha256())?;
-    write(&out.join("cert.pem"), &cert.build().to_pem()?, false)?;
-    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
+    let usage = ExtendedKeyUsage::new().server_auth().build()?;
+    issue_tls(&out, (&ca, &ca_key), &name, hosts, usage, lifetime)?;
     Ok(out)
 }
 
@@ -222,16 +206,36 @@ pub fn site(
     hosts: &[String],
     lifetime: Lifetime,
 ) -> anyhow::Result<PathBuf> {
-    use openssl::x509::extension::{ExtendedKeyUsage, SubjectAlternativeName};
+    use openssl::x509::extension::ExtendedKeyUsage;
     let (ca, ca_key) = fleet_ca(dir)?;
     let out = dir.join(format!("site-{name}"));
     if out.join("cert.pem").exists() {
         bail!("{} exists already", out.join("cert.pem").display());
     }
     std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
-    let key = new_key()?;
     let subject_name = subject(&fleet_of(&ca)?, &name.common_name())?;
-    let mut cert = builder(&subject_name, ca.subject_name(), &key, lifetime)?;
+    let usage = ExtendedKeyUsage::new()
+        .server_auth()
+        .client_auth()
+        .build()?;
+    issue_tls(&out, (&ca, &ca_key), &subject_name, hosts, usage, lifetime)?;
+    write(&out.join("ca.cert.pem"), &ca.to_pem()?, false)?;
+    Ok(out)
+}
+
+/// A TLS certificate for `subject` signed by the fleet's CA, with `hosts` (names or addresses)
+/// as subject alternative names and `usage`, and a new key: `cert.pem` and `key.pem` in `out`.
+fn issue_tls(
+    out: &Path,
+    (ca, ca_key): (&X509, &PKey<Private>),
+    subject: &X509Name,
+    hosts: &[String],
+    usage: openssl::x509::X509Extension,
+    lifetime: Lifetime,
+) -> anyhow::Result<()> {
+    use openssl::x509::extension::SubjectAlternativeName;
+    let key = new_key()?;
+    let mut cert = builder(subject, ca.subject_name(), &key, lifetime)?;
     if !hosts.is_empty() {
         let mut names = SubjectAlternativeName::new();
         for host in hosts {
@@ -241,21 +245,16 @@ pub fn site(
                 names.dns(host);
             }
         }
-        let names = names.build(&cert.x509v3_context(Some(&ca), None))?;
+        let names = names.build(&cert.x509v3_context(Some(ca), None))?;
         cert.append_extension(names)?;
     }
     cert.append_extension(BasicConstraints::new().critical().build()?)?;
     cert.append_extension(KeyUsage::new().critical().digital_signature().build()?)?;
-    let usage = ExtendedKeyUsage::new()
-        .server_auth()
-        .client_auth()
-        .build()?;
     cert.append_extension(usage)?;
-    cert.sign(&ca_key, MessageDigest::sha256())?;
+    cert.sign(ca_key, MessageDigest::sha256())?;
     write(&out.join("cert.pem"), &cert.build().to_pem()?, false)?;
     write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
-    write(&out.join("ca.cert.pem"), &ca.to_pem()?, false)?;
-    Ok(out)
+    Ok(())
 }
 
 /// The files of a device directory (`[security] dir`), as rustdds reads them.

@@ -17,6 +17,7 @@ pub mod chaos;
 pub mod demo;
 pub mod fleet;
 pub mod harness;
+pub mod procstat;
 #[cfg(all(feature = "remote", feature = "security"))]
 pub mod sites;
 pub mod sweep;

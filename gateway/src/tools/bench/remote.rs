@@ -319,7 +319,7 @@ fn streaming_cpu(sites: &mut Sites, operators: usize) -> anyhow::Result<(f64, f6
         sites.lab.procs[sites.bridges.0].pid(),
         sites.home.procs[sites.bridges.1].pid(),
     ];
-    let cpu = crate::tools::fleet::cpu_of(&pids, Duration::from_secs(10))?;
+    let cpu = crate::tools::procstat::cpu_of(&pids, Duration::from_secs(10))?;
     Ok((cpu[0], cpu[1]))
 }
 
