@@ -341,8 +341,9 @@ impl Policy {
 
     /// A RequestControl of `peer` under `subject`, checked against its key, with the
     /// requester's priority taken as a strength here ([`Policy::strength`]: auto-accept
-    /// compares it with the owner's strength). A REQUEST or FINISH for one of our vehicles
-    /// must be for one offered to that site.
+    /// compares it with the owner's strength). Its vehicle must be one offered to that site or
+    /// one of that site's own (`theirs`): whether or not this bridge has heard the vehicle yet,
+    /// a site never asks for, answers for or finishes a vehicle it was not offered.
     ///
     /// # Errors
     /// The sender is not the key's, the vehicle is not offered, or the priority is not
@@ -351,13 +352,13 @@ impl Policy {
         &self,
         peer: &Peer,
         subject: Subject,
-        ours: impl Fn(DeviceId) -> bool,
+        theirs: impl Fn(DeviceId) -> bool,
         mut msg: RequestControl,
     ) -> Result<RequestControl, Refusal> {
         if subject != Subject::Request(msg.sender_id()) {
             return Err(Refusal::Mismatch(subject));
         }
-        if matches!(msg.ack, Ack::Request | Ack::Finish) && ours(msg.dest_id) {
+        if !theirs(msg.dest_id) {
             peer.offered(msg.dest_id)?;
         }
         if msg.ack == Ack::Request {
@@ -529,22 +530,37 @@ mod tests {
             ack: Ack::Request,
             timestamp: TimeT(1),
         };
-        let taken = p.request(peer, Subject::Request(21), |v| v == 100, request);
+        let theirs = |_| false;
+        let taken = p.request(peer, Subject::Request(21), theirs, request);
         assert_eq!(taken.map(|m| m.src_priority), Ok(140));
+        // A vehicle not offered is refused whether or not it is known here, at every stage.
         let mut stranger = request;
         stranger.dest_id = 101;
-        let refused = p.request(peer, Subject::Request(21), |v| v == 101, stranger);
-        assert!(matches!(refused, Err(Refusal::NotOffered { .. })));
+        for ack in [Ack::Request, Ack::Finish, Ack::Accept, Ack::Refuse] {
+            stranger.ack = ack;
+            let speaker = Subject::Request(stranger.sender_id());
+            let refused = p.request(peer, speaker, theirs, stranger);
+            assert!(
+                matches!(refused, Err(Refusal::NotOffered { .. })),
+                "{ack:?}"
+            );
+        }
+        // Unless it is the site's own vehicle (a lab operator asking home for it).
+        stranger.ack = Ack::Request;
+        assert!(
+            p.request(peer, Subject::Request(21), |v| v == 101, stranger)
+                .is_ok()
+        );
         // An answer is spoken by the owner asked, not by the requester.
         let mut accept = request;
         accept.ack = Ack::Accept;
         assert!(
-            p.request(peer, Subject::Request(21), |_| true, accept)
+            p.request(peer, Subject::Request(21), theirs, accept)
                 .is_err()
         );
         accept.current_controller_id = 22;
         assert!(
-            p.request(peer, Subject::Request(22), |_| true, accept)
+            p.request(peer, Subject::Request(22), theirs, accept)
                 .is_ok()
         );
     }

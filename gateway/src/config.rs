@@ -565,6 +565,13 @@ impl RawBridge {
         let lease = errors.int::<u64>("zenoh.lease_ms", lease, 1000..=60_000, " ms");
         let mut peers = Vec::new();
         let mut unique = Unique::default();
+        // An id belongs to one site: to one other site, or to this one (offered).
+        let mut owners = Unique::default();
+        let offered: std::collections::BTreeSet<DeviceId> = z
+            .site
+            .iter()
+            .flat_map(|p| p.offer.iter().copied())
+            .collect();
         for (i, peer) in z.site.iter_mut().enumerate() {
             let key = format!("zenoh.site[{i}].name");
             let Some(site) = name(&mut errors, &key, &peer.name) else {
@@ -582,6 +589,15 @@ impl RawBridge {
                         errors.add(key, id, "must be a positive device id");
                     }
                 }
+            }
+            for (j, id) in peer.ids.iter().enumerate() {
+                let key = format!("zenoh.site[{i}].ids[{j}]");
+                if offered.contains(id) {
+                    let rule = "is offered as this site's vehicle: an id belongs to one site";
+                    errors.add(&key, id, rule);
+                }
+                let shown = (key.as_str(), id);
+                owners.check(&mut errors, *id, format!("site[{i}].ids"), shown, "");
             }
             peers.push(Peer {
                 name: site,
@@ -1256,8 +1272,9 @@ mod tests {
         assert_eq!(home.level, Level::Remote);
         let text = "[site]\nname = \"Lab\"\n[zenoh]\nlisten = [\"tcp/1.2.3.4:7447\"]\n\
                     connect = [\"tls/nowhere\"]\nca = \"a\"\ncertificate = \"b\"\nkey = \"c\"\n\
-                    lease_ms = 10\n[[zenoh.site]]\nname = \"home\"\nids = [0]\n\
-                    [[zenoh.site]]\nname = \"home\"\nlevel = \"mobile\"\n";
+                    lease_ms = 10\n[[zenoh.site]]\nname = \"home\"\nids = [0, 7]\n\
+                    [[zenoh.site]]\nname = \"home\"\nlevel = \"mobile\"\nids = [7, 9]\n\
+                    offer = [9]\n";
         let message = format!(
             "{:#}",
             load_bridge(&write("b.toml", text)).expect_err("bad")
@@ -1269,6 +1286,8 @@ mod tests {
             "b.toml:9: zenoh.lease_ms = 10: must be 1000..=60000 ms",
             "b.toml:12: zenoh.site[0].ids[0] = 0: must be a positive device id",
             "b.toml:14: zenoh.site[1].name = \"home\": must be unique: site[0]",
+            "b.toml:16: zenoh.site[1].ids[0] = 7: must be unique: site[0].ids",
+            "b.toml:16: zenoh.site[1].ids[1] = 9: is offered as this site's vehicle",
         ] {
             assert!(message.contains(want), "missing {want:?} in\n{message}");
         }

@@ -75,6 +75,12 @@ impl Link {
                 .declare_subscriber(policy.me.inbox())
                 .callback(move |sample: zenoh::sample::Sample| {
                     let put = match sample.kind() {
+                        // Longer than any payload the bridge reads: refused uncopied.
+                        zenoh::sample::SampleKind::Put
+                            if sample.payload().len() > super::wire::MAX_PAYLOAD =>
+                        {
+                            Some(Vec::new())
+                        }
                         zenoh::sample::SampleKind::Put => {
                             Some(sample.payload().to_bytes().into_owned())
                         }
@@ -184,7 +190,14 @@ fn zenoh_config(policy: &Policy, link: &ZenohLink) -> anyhow::Result<zenoh::Conf
         ("transport/link/tx/keep_alive", "4".into()),
         // A message is a few hundred bytes; Zenoh's default would reassemble up to 1 GiB
         // from one (authenticated) peer.
-        ("transport/link/rx/max_message_size", "65536".into()),
+        ("transport/link/rx/max_message_size", "8192".into()),
+        // A congested link drops at once rather than holding the bridge's loop (and every
+        // other site's traffic) up to 1 ms per message: commands are a stream, the rest is
+        // refreshed or resent.
+        (
+            "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+            "0".into(),
+        ),
         ("transport/link/tls/root_ca_certificate", path(&link.ca)),
         (
             "transport/link/tls/listen_certificate",
@@ -198,6 +211,8 @@ fn zenoh_config(policy: &Policy, link: &ZenohLink) -> anyhow::Result<zenoh::Conf
         ("transport/link/tls/connect_private_key", path(&link.key)),
         ("transport/link/tls/enable_mtls", "true".into()),
         ("transport/link/tls/verify_name_on_connect", "true".into()),
+        // A site whose certificate expires is cut off then, not at its next connection.
+        ("transport/link/tls/close_link_on_expiration", "true".into()),
         ("access_control", access_control(policy).to_string()),
     ];
     let mut config = zenoh::Config::default();

@@ -11,6 +11,7 @@
 //! its certificate's name (the link's access control) and for the ids configured for it
 //! ([`rove_core::site::Policy`]).
 
+mod inbound;
 mod link;
 mod local;
 mod proxy;
@@ -23,7 +24,7 @@ use local::{Heard, Local};
 use proxy::{Proxy, Read};
 use rove_core::arbiter::ParticipantId;
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, RequestControl, VehicleStatus};
+use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
 use rove_core::site::{Key, Policy, SiteName, Subject};
 use rustdds::GUID;
 use rustdds::with_key::Sample;
@@ -121,7 +122,12 @@ struct Bridge {
     dropped_seen: u64,
     /// When configured sites not connected were last reported.
     missing: Instant,
+    /// Sites just up, shown everything again at these instants.
+    reshow: HashMap<SiteName, Instant>,
 }
+
+/// How long after a site comes up it is shown everything again.
+const RESHOW: Duration = Duration::from_secs(1);
 
 /// How often configured sites that are not connected are reported (first after one period).
 const MISSING_REPORT: Duration = Duration::from_secs(5);
@@ -144,6 +150,7 @@ impl Bridge {
             ignored: RateLimited::new("ignored a local message"),
             dropped_seen: 0,
             missing: Instant::now(),
+            reshow: HashMap::new(),
         }
     }
 
@@ -199,6 +206,14 @@ impl Bridge {
             }
             Heard::Request { msg, from } => self.local_request(msg, from).await,
             Heard::Lost(participant) => {
+                let proxy_gone = (self.ours.get(&participant)).is_some_and(|id| {
+                    self.proxies
+                        .get(id)
+                        .is_none_or(|p| p.participant() != participant)
+                });
+                if proxy_gone {
+                    self.ours.remove(&participant);
+                }
                 self.claims.retain(|_, (p, _)| *p != participant);
                 let gone: Vec<DeviceId> = (self.devices.iter())
                     .filter(|(_, d)| d.participant == participant)
@@ -365,6 +380,9 @@ impl Bridge {
                     info!(%site, "site up");
                     self.up.insert(site.clone());
                     self.show_all(&site).await;
+                    // Again a second later: its subscription may not have been routed yet
+                    // when its token arrived.
+                    self.reshow.insert(site, Instant::now() + RESHOW);
                 } else {
                     info!(%site, "site gone: its devices leave this site");
                     self.up.remove(&site);
@@ -401,128 +419,6 @@ impl Bridge {
         }
     }
 
-    /// A message from another site; `Err` says why it was refused.
-    fn message(&mut self, key: &str, put: Option<Vec<u8>>) -> Result<(), String> {
-        let key = Key::parse(key).ok_or("not a rove key")?;
-        let peer = self.policy.admit(&key).map_err(|e| e.to_string())?.clone();
-        let site = &key.from;
-        let subject = key.subject;
-        let payload = || put.as_deref().ok_or("no payload");
-        let from_site = |proxies: &HashMap<DeviceId, Proxy>, id| match proxies.get(&id) {
-            Some(p) if &p.site == site => Ok(()),
-            Some(_) => Err(format!("device {id} is another site's")),
-            None => Err(format!("device {id} is not known yet")),
-        };
-        match subject {
-            Subject::Info(id) => match &put {
-                Some(bytes) => {
-                    let info: DeviceInfo = wire::decode(bytes).ok_or("malformed DeviceInfo")?;
-                    self.policy
-                        .info(subject, &info)
-                        .map_err(|e| e.to_string())?;
-                    self.import(site, info)?;
-                }
-                None => {
-                    from_site(&self.proxies, id)?;
-                    self.drop_proxy(id);
-                }
-            },
-            Subject::Status(id) => {
-                from_site(&self.proxies, id)?;
-                let status: VehicleStatus = wire::decode(payload()?).ok_or("malformed status")?;
-                let proxy = self.proxies.get_mut(&id).ok_or("gone")?;
-                if status.vehicle_id != id || proxy.info.device_type != DeviceType::Vehicle {
-                    return Err("status of another device".into());
-                }
-                proxy.status(status);
-            }
-            Subject::Command { src, dest, .. } => {
-                from_site(&self.proxies, src)?;
-                if !self.is_local_vehicle(dest) {
-                    return Err(format!("vehicle {dest} is not on this site"));
-                }
-                let proxy = self.proxies.get_mut(&src).ok_or("gone")?;
-                if proxy.info.device_type != DeviceType::Controller {
-                    return Err(format!("device {src} is not an operator"));
-                }
-                match put {
-                    Some(bytes) => {
-                        let sent: wire::Command =
-                            wire::decode(&bytes).ok_or("malformed command")?;
-                        let strength = (self.policy.command(&peer, subject, &sent.command))
-                            .map_err(|e| e.to_string())?;
-                        proxy.command(strength, sent.command, sent.stamp);
-                    }
-                    None => {
-                        let Subject::Command { strength, .. } = subject else {
-                            return Ok(());
-                        };
-                        let strength = self
-                            .policy
-                            .strength(&peer, strength)
-                            .map_err(|e| e.to_string())?;
-                        proxy.release(dest, strength);
-                    }
-                }
-            }
-            Subject::Request(sender) => {
-                from_site(&self.proxies, sender)?;
-                let msg: RequestControl = wire::decode(payload()?).ok_or("malformed request")?;
-                let ours = |v| self.is_local_vehicle(v);
-                let msg =
-                    (self.policy.request(&peer, subject, ours, msg)).map_err(|e| e.to_string())?;
-                let proxy = self.proxies.get_mut(&sender).ok_or("gone")?;
-                if msg.ack == rove_core::msg::Ack::Request
-                    && self.devices.contains_key(&msg.dest_id)
-                {
-                    proxy.prepare(msg.dest_id);
-                }
-                proxy.request(msg);
-            }
-        }
-        Ok(())
-    }
-
-    fn is_local_vehicle(&self, id: DeviceId) -> bool {
-        (self.devices.get(&id)).is_some_and(|d| d.info.device_type == DeviceType::Vehicle)
-    }
-
-    /// Another site's DeviceInfo: its proxy made, or told.
-    fn import(&mut self, site: &SiteName, info: DeviceInfo) -> Result<(), String> {
-        let id = info.device_id;
-        if self.devices.contains_key(&id) {
-            return Err(format!("device {id} is on this site"));
-        }
-        let full = self.proxies.len() >= MAX_DEVICES;
-        match self.proxies.get_mut(&id) {
-            Some(p) if &p.site != site => Err(format!("device {id} is site {}'s", p.site)),
-            Some(p) if p.info.device_type != info.device_type => {
-                Err(format!("device {id} changed its kind"))
-            }
-            Some(p) => {
-                p.update(info);
-                Ok(())
-            }
-            None if full => Err("too many devices".into()),
-            None => {
-                let proxy = Proxy::join(&self.common, site, info, &self.read_tx)
-                    .map_err(|e| format!("cannot join as device {id}: {e:#}"))?;
-                info!(id, %site, name = %proxy.info.name, kind = ?proxy.info.device_type, "device of another site joined here");
-                self.ours.insert(proxy.participant(), id);
-                self.proxies.insert(id, proxy);
-                Ok(())
-            }
-        }
-    }
-
-    fn drop_proxy(&mut self, id: DeviceId) {
-        if let Some(proxy) = self.proxies.remove(&id) {
-            info!(id, site = %proxy.site, "device of another site left");
-            self.ours.remove(&proxy.participant());
-            proxy.leave();
-        }
-    }
-
     // ---- time ----------------------------------------------------------------------------
 
     async fn tick(&mut self) {
@@ -537,6 +433,17 @@ impl Bridge {
             .collect();
         for id in stale {
             self.drop_proxy(id);
+        }
+        let now = Instant::now();
+        let due: Vec<SiteName> = (self.reshow.iter())
+            .filter(|(_, at)| **at <= now)
+            .map(|(site, _)| site.clone())
+            .collect();
+        for site in due {
+            self.reshow.remove(&site);
+            if self.up.contains(&site) {
+                self.show_all(&site).await;
+            }
         }
         if self.refreshed.elapsed() >= crate::dds::DEVICE_INFO_REFRESH {
             self.refreshed = Instant::now();

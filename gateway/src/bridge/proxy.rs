@@ -167,10 +167,14 @@ impl Proxy {
         self.commands.get(&key)
     }
 
-    /// Makes an operator's priority writer for `vehicle` ahead of need (it asked for the
-    /// vehicle), so that discovery has matched it by the grant's first sample.
-    pub(super) fn prepare(&mut self, vehicle: DeviceId) {
+    /// Makes an operator's writers for `vehicle` ahead of need (it asked for the vehicle): the
+    /// priority writer, so that discovery has matched it by the grant's first sample, and the
+    /// regular one at `regular` (the strength the owner's auto-accept looks for).
+    pub(super) fn prepare(&mut self, vehicle: DeviceId, regular: Option<Strength>) {
         self.command_writer(vehicle, Strength::PRIORITY);
+        if let Some(strength) = regular.filter(|s| s.is_operator()) {
+            self.command_writer(vehicle, strength);
+        }
     }
 
     /// Writes an operator's command at `strength`, with its sender's time stamp (ticks).
