@@ -1,6 +1,6 @@
 //! `rove keys …`: the command line of a fleet's keys (the functions are in [`super`]).
 
-use super as certs;
+use crate::certs;
 use clap::Subcommand;
 
 #[derive(Debug, Subcommand)]
