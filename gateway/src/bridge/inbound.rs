@@ -44,7 +44,11 @@ impl Bridge {
                 }
                 proxy.status(status);
             }
-            Subject::Command { src, dest, .. } => {
+            Subject::Command {
+                src,
+                dest,
+                strength,
+            } => {
                 from_site(&self.proxies, src)?;
                 if !self.is_local_vehicle(dest) {
                     return Err(format!("vehicle {dest} is not on this site"));
@@ -62,9 +66,6 @@ impl Bridge {
                         proxy.command(strength, sent.command, sent.stamp);
                     }
                     None => {
-                        let Subject::Command { strength, .. } = subject else {
-                            return Ok(());
-                        };
                         let strength = self
                             .policy
                             .strength(&peer, strength)

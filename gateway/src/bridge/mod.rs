@@ -170,6 +170,20 @@ impl Bridge {
             .collect()
     }
 
+    /// Sends `payload` (`None`: a delete) about our device `info` to every site up that sees it.
+    async fn tell(&self, info: &DeviceInfo, subject: Subject, payload: Option<Vec<u8>>) {
+        for to in self.audience(info) {
+            self.link
+                .send(&self.key(&to, subject), payload.clone())
+                .await;
+        }
+    }
+
+    /// Whether our device `id` is pinned to `participant`.
+    fn pinned(&self, id: DeviceId, participant: ParticipantId) -> bool {
+        (self.devices.get(&id)).is_some_and(|d| d.participant == participant)
+    }
+
     // ---- this site's network -------------------------------------------------------------
 
     async fn local(&mut self, heard: Heard) {
@@ -184,7 +198,7 @@ impl Bridge {
                 if self.claims.get(&id).is_some_and(|(p, _)| *p == from) {
                     self.claims.remove(&id);
                 }
-                if self.devices.get(&id).is_some_and(|d| d.participant == from) {
+                if self.pinned(id, from) {
                     self.local_gone(id).await;
                 }
             }
@@ -198,11 +212,8 @@ impl Bridge {
                 }
                 device.status = Some(status.clone());
                 let info = device.info.clone();
-                let payload = wire::encode(&status);
-                for to in self.audience(&info) {
-                    let key = self.key(&to, Subject::Status(id));
-                    self.link.send(&key, Some(payload.clone())).await;
-                }
+                self.tell(&info, Subject::Status(id), Some(wire::encode(&status)))
+                    .await;
             }
             Heard::Request { msg, from } => self.local_request(msg, from).await,
             Heard::Lost(participant) => {
@@ -267,11 +278,8 @@ impl Bridge {
             }
         };
         if changed {
-            let payload = wire::encode(&info);
-            for to in self.audience(&info) {
-                let key = self.key(&to, Subject::Info(id));
-                self.link.send(&key, Some(payload.clone())).await;
-            }
+            self.tell(&info, Subject::Info(id), Some(wire::encode(&info)))
+                .await;
         }
     }
 
@@ -280,10 +288,7 @@ impl Bridge {
             return;
         };
         info!(id, "device left this site");
-        for to in self.audience(&device.info) {
-            let key = self.key(&to, Subject::Info(id));
-            self.link.send(&key, None).await;
-        }
+        self.tell(&device.info, Subject::Info(id), None).await;
         // A device that restarted before its old participant was lost.
         if let Some((participant, info)) = self.claims.remove(&id) {
             self.local_info(info, participant).await;
@@ -293,11 +298,7 @@ impl Bridge {
     /// A local RequestControl goes to the sites of the devices it names.
     async fn local_request(&mut self, msg: RequestControl, from: ParticipantId) {
         let sender = msg.sender_id();
-        if self
-            .devices
-            .get(&sender)
-            .is_none_or(|d| d.participant != from)
-        {
+        if !self.pinned(sender, from) {
             self.ignored.warn(&format!(
                 "RequestControl for {sender} from another participant"
             ));
@@ -322,16 +323,18 @@ impl Bridge {
         if self.ours.contains_key(&participant) {
             return;
         }
+        // Whether a command's operator is pinned to the writer's participant (a release names
+        // no operator: its writer's earlier commands did).
+        let pinned = match &read.sample {
+            Sample::Value(crate::dds::KeyedControlCommand(c)) => self.pinned(c.src_id, participant),
+            Sample::Dispose(_) => true,
+        };
         let Some(proxy) = self.proxies.get_mut(&read.vehicle) else {
             return;
         };
         let (src, strength, payload) = match read.sample {
             Sample::Value(crate::dds::KeyedControlCommand(command)) => {
                 let src = command.src_id;
-                let pinned = self
-                    .devices
-                    .get(&src)
-                    .is_some_and(|d| d.participant == participant);
                 if !pinned || command.dest_id != read.vehicle {
                     self.ignored
                         .warn(&format!("command as {src} from another participant"));

@@ -228,11 +228,9 @@ impl Proxy {
     }
 
     /// Leaves this site's network: the DeviceInfo withdrawn, every stream released, the
-    /// participant dropped (so discovery tells everyone at once).
+    /// participant dropped (so discovery tells everyone at once) and the command reader's task
+    /// ended ([`Drop`]).
     pub(super) fn leave(mut self) {
-        if let Some(reader) = self.reader.take() {
-            reader.abort();
-        }
         let streams: Vec<_> = self.commands.keys().copied().collect();
         for (vehicle, strength) in streams {
             self.release(vehicle, strength);
