@@ -191,7 +191,9 @@ mod tests {
         fn scaled_values_stay_in_range_and_keep_sign(v in any::<i16>()) {
             let s = scale_signed(v);
             prop_assert!((-1000..=1000).contains(&s));
-            prop_assert_eq!(s.signum(), if v.abs() < 17 { s.signum() } else { v.signum() });
+            // `unsigned_abs`: −32768 has no positive i16 (found by CI, seed kept in
+            // proptest-regressions/encode.txt).
+            prop_assert_eq!(s.signum(), if v.unsigned_abs() < 17 { s.signum() } else { v.signum() });
             let p = scale_positive(v);
             prop_assert!((0..=1000).contains(&p));
         }
