@@ -176,7 +176,9 @@ impl Hierarchy {
                     ));
                 }
                 if let Some((prev_key, prev)) = &previous {
-                    let min = *prev + i64::from(MAX_OFFSET) + 1;
+                    // Saturating: `prev` is any number a file holds (and was reported if out
+                    // of range).
+                    let min = prev.saturating_add(i64::from(MAX_OFFSET) + 1);
                     if v < min {
                         errors.push(ConfigError::new(
                             &key,
@@ -294,6 +296,26 @@ mod tests {
             Hierarchy::from_table(&HierarchyTable::default()),
             Ok(Hierarchy::STANDARD)
         );
+    }
+
+    #[test]
+    fn the_largest_numbers_are_refused_not_overflowed() {
+        for (key, value) in [
+            ("desktop", i64::MAX),
+            ("laptop", i64::MAX - 9),
+            ("tablet", i64::MIN),
+        ] {
+            let text = format!("remote = {{ {key} = {value} }}");
+            let table: HierarchyTable = toml::from_str(&text).expect("parses");
+            let Err(Error::Config(errors)) = Hierarchy::from_table(&table) else {
+                panic!("{text}: accepted");
+            };
+            let keys: Vec<&str> = errors.0.iter().map(|e| e.key.as_str()).collect();
+            assert!(
+                keys.contains(&format!("remote.{key}").as_str()),
+                "{text}: {keys:?}"
+            );
+        }
     }
 
     #[test]

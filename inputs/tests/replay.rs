@@ -199,7 +199,7 @@ fn keyboard_ramps_smoothly_and_springs_back() {
     let near = |ms: u64, want: i16| {
         let got = at(ms).expect("a value by then");
         assert!(
-            (got - want).abs() <= 1,
+            got.abs_diff(want) <= 1,
             "at {ms} ms: {got}, want {want} ± 1"
         );
     };

@@ -339,7 +339,11 @@ fn int_scale(
     errors: &mut ConfigErrors,
 ) -> Option<(Scale, Int)> {
     let rule = format!("must be {lo}..={hi}");
-    let mid = |a: Int, b: Int| (a + b).div_euclid(2);
+    // In i128: `a` and `b` are any numbers the file holds (checked against the range next).
+    let mid = |a: Int, b: Int| {
+        let mid = (i128::from(a) + i128::from(b)).div_euclid(2);
+        Int::try_from(mid).unwrap_or(a)
+    };
     let [min, centre, max, failsafe] =
         s.check(defaults, mid, failsafe_default, (lo..=hi, &rule), errors)?;
     Some((Scale { min, centre, max }, failsafe))
@@ -734,6 +738,18 @@ mod tests {
             &Source::Mix(vec![(Axis::Throttle, 1.0), (Axis::Roll, 1.0)])
         );
         assert_eq!(c.output_names(), ["left", "right"]);
+    }
+
+    #[test]
+    fn the_largest_numbers_are_refused_not_overflowed() {
+        for (min, max) in [(Int::MAX, 1), (Int::MAX, Int::MAX), (Int::MIN, Int::MIN)] {
+            let text = format!(
+                "interface = \"vcan0\"\n[[frames]]\nid = 1\n[[frames.outputs]]\n\
+                 source = \"yaw\"\noffset = 0\nmin = {min}\nmax = {max}"
+            );
+            let errors = parse(&text).validate().expect_err("out of range");
+            assert!(errors.to_string().contains("min"), "{min}, {max}: {errors}");
+        }
     }
 
     #[test]
