@@ -50,10 +50,20 @@ fn unit_files() -> Vec<String> {
     units
 }
 
+/// The unit of `rove bridge`, a role only binaries built with the `remote` feature have.
+const BRIDGE_UNIT: &str = "rove-bridge.service";
+
+/// The units a package whose binary has (`bridge`) or lacks the bridge role must install.
+fn units_for(bridge: bool) -> Vec<String> {
+    let mut units = unit_files();
+    units.retain(|u| bridge || u != BRIDGE_UNIT);
+    units
+}
+
 /// The `/etc/rove/…` files the (non-template) units run with.
-fn configs_named_by_units() -> BTreeSet<String> {
+fn configs_named_by_units(units: &[String]) -> BTreeSet<String> {
     let mut configs = BTreeSet::new();
-    for unit in unit_files().iter().filter(|u| !u.contains('@')) {
+    for unit in units.iter().filter(|u| !u.contains('@')) {
         let text =
             std::fs::read_to_string(repo_root().join("systemd").join(unit)).expect("unit file");
         let exec_lines = text.lines().filter(|l| l.trim_start().starts_with("Exec"));
@@ -95,8 +105,9 @@ fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
         .iter()
         .filter_map(|v| v.as_str())
         .collect();
-    let configs = configs_named_by_units();
+    let configs = configs_named_by_units(&units);
     assert!(configs.contains("/etc/rove/vehicle.toml"), "{configs:?}");
+    assert!(configs.contains("/etc/rove/bridge.toml"), "{configs:?}");
     for config in &configs {
         let dest = config.trim_start_matches('/');
         assert!(
@@ -131,6 +142,8 @@ fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
         }
     }
 
+    the_pi_variant_is_the_package_without_the_bridge(&deb);
+
     // The maintainer scripts exist, are executable and are shell scripts that parse.
     let scripts = Path::new(GATEWAY).join(deb["maintainer-scripts"].as_str().expect("dir"));
     for script in ["postinst", "prerm", "postrm"] {
@@ -148,6 +161,37 @@ fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
             .expect("sh");
         assert!(parsed.success(), "{script} does not parse");
     }
+}
+
+/// The Pi variant is built without the `remote` feature, so its binary has no `rove bridge`:
+/// it installs what the main package does but the bridge's unit, config and guide.
+fn the_pi_variant_is_the_package_without_the_bridge(deb: &toml::Table) {
+    let pi = deb["variants"]["pi"].as_table().expect("[…variants.pi]");
+    let features: Vec<&str> = (pi["features"].as_array().expect("pi features").iter())
+        .filter_map(|f| f.as_str())
+        .collect();
+    assert_eq!(pi["default-features"].as_bool(), Some(false));
+    assert!(!features.contains(&"remote"), "{features:?}");
+    let of_bridge = |(source, _, _): &(String, String, String)| {
+        source.contains("bridge") || source.ends_with("remote.md")
+    };
+    let mut without: Vec<_> = assets(deb);
+    let before = without.len();
+    without.retain(|a| !of_bridge(a));
+    assert_eq!(
+        before - without.len(),
+        3,
+        "the bridge's unit, config and guide"
+    );
+    assert_eq!(assets(pi), without);
+    let conf_files = |t: &toml::Table| -> Vec<String> {
+        (t["conf-files"].as_array().expect("conf-files").iter())
+            .filter_map(|v| v.as_str().map(String::from))
+            .collect()
+    };
+    let mut main = conf_files(deb);
+    main.retain(|c| c != "/etc/rove/bridge.toml");
+    assert_eq!(conf_files(pi), main);
 }
 
 /// `dpkg-deb OPTION DEB REST…`'s output.
@@ -181,6 +225,21 @@ fn the_built_packages_hold_binary_units_and_conffiles() {
 
 /// One package, for any of the architectures: a board's binary runs under qemu-user.
 fn check_package(deb: &Path) {
+    let scratch = Scratch::new("deb");
+    let dir = &scratch.dir;
+    // The packaged binary is for the package's architecture and runs (under qemu-user for a
+    // board's); whether it has `rove bridge` says which units the package must hold.
+    let root = dir.join("root");
+    dpkg_deb("--extract", deb, &[root.to_str().expect("utf-8 temp dir")]);
+    let binary = root.join("usr/bin/rove");
+    let arch = dpkg_deb("--field", deb, &["Architecture"]);
+    assert_eq!(elf_arch(&binary), Some(arch.trim()), "{}", deb.display());
+    let bridge = (run_any_arch(&binary).args(["bridge", "--help"]).output())
+        .expect("run the packaged rove")
+        .status
+        .success();
+    let units = units_for(bridge);
+
     // `drwxr-xr-x root/root 0 2024-01-01 00:00 ./usr/bin/` → mode and path.
     let listing = dpkg_deb("--contents", deb, &[]);
     let files: Vec<(&str, &str)> = listing
@@ -198,8 +257,15 @@ fn check_package(deb: &Path) {
             .unwrap_or_else(|| panic!("{path} is not in the package:\n{listing}"))
     };
     assert_eq!(mode("./usr/bin/rove"), "-rwxr-xr-x");
-    for unit in unit_files() {
+    for unit in &units {
         assert_eq!(mode(&format!("./lib/systemd/system/{unit}")), "-rw-r--r--");
+    }
+    if !bridge {
+        let unit = format!("./lib/systemd/system/{BRIDGE_UNIT}");
+        assert!(
+            files.iter().all(|(_, p)| *p != unit),
+            "{unit} in a package whose binary has no `rove bridge`"
+        );
     }
     for path in [
         "./etc/rove/vehicle.toml",
@@ -216,8 +282,6 @@ fn check_package(deb: &Path) {
     assert!(depends.contains("passwd"), "Depends: {depends}");
 
     // Control files: conffiles and the maintainer scripts.
-    let scratch = Scratch::new("deb");
-    let dir = &scratch.dir;
     let control = dir.join("control");
     dpkg_deb(
         "--control",
@@ -226,7 +290,7 @@ fn check_package(deb: &Path) {
     );
     let conffiles = std::fs::read_to_string(control.join("conffiles")).expect("conffiles");
     let conffiles: BTreeSet<&str> = conffiles.lines().map(str::trim).collect();
-    for config in configs_named_by_units() {
+    for config in configs_named_by_units(&units) {
         assert!(
             conffiles.contains(config.as_str()),
             "{config}: {conffiles:?}"
@@ -236,17 +300,11 @@ fn check_package(deb: &Path) {
     assert!(prerm.contains("systemctl --system stop"), "{prerm}");
     postinst_creates_the_service_user(&control.join("postinst"), dir);
 
-    // The packaged binary is for the package's architecture, runs (under qemu-user for a
-    // board's) and accepts the packaged default configs.
-    let root = dir.join("root");
-    dpkg_deb("--extract", deb, &[root.to_str().expect("utf-8 temp dir")]);
-    let binary = root.join("usr/bin/rove");
-    let arch = dpkg_deb("--field", deb, &["Architecture"]);
-    assert_eq!(elf_arch(&binary), Some(arch.trim()), "{}", deb.display());
-    for config in ["vehicle.toml", "operator.toml"] {
+    // The packaged binary accepts the packaged default configs.
+    for config in configs_named_by_units(&units) {
         let out = run_any_arch(&binary)
             .arg("check-config")
-            .arg(root.join("etc/rove").join(config))
+            .arg(root.join(config.trim_start_matches('/')))
             .output()
             .expect("run the packaged rove");
         assert!(

@@ -118,7 +118,7 @@ struct UnitCase {
     instance: Option<&'static str>,
 }
 
-const UNIT_FILES: [UnitCase; 3] = [
+const UNIT_FILES: [UnitCase; 4] = [
     UnitCase {
         file: "rove-vehicle.service",
         role: "vehicle",
@@ -132,6 +132,11 @@ const UNIT_FILES: [UnitCase; 3] = [
     UnitCase {
         file: "rove-operator.service",
         role: "operator",
+        instance: None,
+    },
+    UnitCase {
+        file: "rove-bridge.service",
+        role: "bridge",
         instance: None,
     },
 ];
@@ -214,7 +219,7 @@ fn the_template_is_the_vehicle_unit_with_a_config_per_instance() {
 
 #[test]
 fn the_installed_default_configs_are_valid() {
-    for file in ["vehicle.toml", "operator.toml"] {
+    for file in ["vehicle.toml", "operator.toml", "bridge.toml"] {
         let path = units().join("etc").join(file);
         let out = Command::new(ROVE)
             .arg("check-config")
@@ -237,7 +242,10 @@ fn a_bad_config_exits_78_from_every_role_so_systemd_stops_restarting() {
     let bad = dir.join("bad.toml");
     // The config fails to load before any role touches the network.
     std::fs::write(&bad, "[device]\nid = 0\n[output]\nadapter = \"sim\"\n").expect("config");
-    for role in ["vehicle", "operator", "failsafe"] {
+    let roles = ["vehicle", "operator", "failsafe"];
+    #[cfg(feature = "remote")]
+    let roles = [&roles[..], &["bridge"]].concat();
+    for role in roles {
         let out = Command::new(ROVE)
             .args([role, "-c"])
             .arg(&bad)
@@ -412,10 +420,7 @@ impl Drop for Service {
         let _ = self.child.wait();
         if std::thread::panicking() {
             let log = std::fs::read_to_string(&self.log).unwrap_or_default();
-            eprintln!(
-                "===== service vehicle ({}) =====\n{log}",
-                self.log.display()
-            );
+            eprintln!("===== service ({}) =====\n{log}", self.log.display());
         }
     }
 }
@@ -719,4 +724,66 @@ fn after_sigkill_the_vehicle_units_exec_stop_post_makes_the_outputs_safe() {
 #[test]
 fn after_sigkill_a_template_instances_exec_stop_post_makes_its_outputs_safe() {
     killed_vehicle_is_made_safe_by_exec_stop_post("rove-vehicle@.service", Some("front"));
+}
+
+/// `rove bridge` under the service manager: READY=1 once its participant and link are open,
+/// a STATUS line that follows the sites up and the devices it carries, keep-alives, and
+/// STOPPING=1 on SIGTERM. (The link itself is tested in `sites`.)
+#[cfg(all(feature = "remote", feature = "security"))]
+#[test]
+fn a_bridge_notifies_ready_status_keepalives_and_stopping() {
+    use rove_gateway::tools::sites;
+    let mut rig = Rig::new("bridge-notify");
+    let fleet = sites::fleet(&rig.dir.join("fleet")).expect("keys");
+    let files = fleet.join("site-lab");
+    let toml = format!(
+        "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/127.0.0.1:7447\"]\nca = \"{}\"\n\
+         certificate = \"{}\"\nkey = \"{}\"\n{}",
+        files.join("ca.cert.pem").display(),
+        files.join("cert.pem").display(),
+        files.join("key.pem").display(),
+        sites::peer("home", &[21], &[V])
+    );
+    let config = rig.write("bridge.toml", &toml);
+    let mut manager = Manager::bind(&rig.dir);
+    let mut bridge = Service::start(&rig, "bridge", &config, &manager.path, WATCHDOG, &[]);
+
+    let (_, first) = manager.recv(PATIENCE).expect("a first notification");
+    assert!(has_line(&first, "READY=1"), "first notification: {first:?}");
+    let alone = "STATUS=site lab: 0 of 1 sites up (home not connected); 0 devices of other \
+                 sites here, 0 on this site";
+    assert!(has_line(&first, alone), "{first:?}");
+
+    // A device joins this site: the status line counts it.
+    rig.operator(11, "mobile", "phone", &[V], 0, "", &[]);
+    manager.wait_for(
+        "STATUS=site lab: 0 of 1 sites up (home not connected); 0 devices of other sites \
+         here, 1 on this site",
+    );
+
+    // Keep-alives every half watchdog timeout.
+    let mut beats = Vec::new();
+    while beats.len() < 4 {
+        beats.push(manager.wait_for("WATCHDOG=1").0);
+    }
+    let gaps: Vec<Duration> = beats.windows(2).map(|w| w[1] - w[0]).collect();
+    eprintln!("keep-alive gaps: {gaps:?}");
+    for gap in &gaps {
+        assert!(
+            *gap > Duration::from_millis(250) && *gap < WATCHDOG,
+            "keep-alive gaps {gaps:?}: want about {:?}",
+            WATCHDOG / 2
+        );
+    }
+
+    bridge.signal("TERM");
+    manager.wait_for("STOPPING=1");
+    let status = bridge.wait_exit();
+    assert!(status.success(), "exit status {status}");
+    let log = std::fs::read_to_string(&bridge.log).expect("log");
+    let started = log
+        .lines()
+        .find(|l| l.contains("bridge started"))
+        .unwrap_or_else(|| panic!("no start-up line in:\n{log}"));
+    assert!(started.contains("watchdog_keepalive_ms=500"), "{started}");
 }

@@ -19,6 +19,7 @@
 //! - [`rtps`]: RTPS datagrams into a participant with a vehicle's endpoints, through
 //!   rustdds's receive path (message receiver, proxies, discovery).
 //! - [`web_page`]: a browser's messages into the web console's parser and stale-input rules.
+//! - [`site`]: another site's messages (key and payload) into the bridge's reader.
 //! - `bytes`: the cursor the structure-aware targets draw their choices from.
 //!
 //! Not here: I/O. Targets never open files, sockets or devices.
@@ -36,6 +37,7 @@ pub mod mavlink;
 pub mod replay;
 pub mod rtps;
 pub mod session;
+pub mod site;
 pub mod web_page;
 
 /// A target's body: any bytes in; a panic is a finding.
@@ -54,4 +56,5 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("console_api", console_api::console_api),
     ("web_page", web_page::web_page),
     ("rtps", rtps::rtps),
+    ("site", site::site),
 ];

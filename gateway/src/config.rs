@@ -528,6 +528,30 @@ impl BridgeConfig {
     }
 }
 
+impl ZenohLink {
+    /// Whether this process can read the link's certificate files (the bridge checks at start,
+    /// `check-config` does not: an installed config names files made later).
+    ///
+    /// # Errors
+    /// The first file that cannot be opened, with its `[zenoh]` key and the cause.
+    pub fn check_files(&self) -> anyhow::Result<()> {
+        for (key, file) in [
+            ("ca", &self.ca),
+            ("certificate", &self.certificate),
+            ("key", &self.key),
+        ] {
+            std::fs::File::open(file).map_err(|e| {
+                anyhow::anyhow!(
+                    "[zenoh] {key} = {}: {e} (a site's files come from `rove keys site`, and \
+                     must be readable by the user the bridge runs as)",
+                    file.display()
+                )
+            })?;
+        }
+        Ok(())
+    }
+}
+
 impl RawBridge {
     /// Validates, filling defaults into `self`.
     ///
@@ -614,8 +638,12 @@ impl RawBridge {
             key: z.key.clone(),
             lease: Duration::from_millis(lease.unwrap_or(3000)),
         };
+        let Some(me) = me else {
+            // `site.name` is invalid, and `name` recorded why.
+            return Err(rove_core::Error::Config(errors));
+        };
         let policy = Policy {
-            me: me.unwrap_or_else(|| SiteName::new("invalid").unwrap_or_else(|_| unreachable!())),
+            me,
             hierarchy: hierarchy.unwrap_or(Hierarchy::STANDARD),
             peers,
         };

@@ -328,6 +328,8 @@ fn load_vehicle(path: &std::path::Path) -> anyhow::Result<config::VehicleConfig>
 #[cfg(feature = "remote")]
 fn bridge_cmd(path: &std::path::Path) -> anyhow::Result<()> {
     let config = config::load_bridge(path).map_err(bad_config)?;
+    // Missing or unreadable keys are a config error (exit 78): restarting cannot help.
+    config.link.check_files().map_err(bad_config)?;
     let filter = match config.common.log_filter.as_deref() {
         Some(f) if f.contains("zenoh") => f.to_string(),
         Some(f) => format!("{f},zenoh=warn"),
@@ -340,7 +342,12 @@ fn bridge_cmd(path: &std::path::Path) -> anyhow::Result<()> {
         .build()?;
     runtime.block_on(async {
         let shutdown = runtime::shutdown_signal()?;
-        rove_gateway::bridge::run(config, shutdown).await
+        rove_gateway::bridge::run(
+            config,
+            rove_gateway::sdnotify::Notifier::from_env(),
+            shutdown,
+        )
+        .await
     })
 }
 

@@ -1,53 +1,46 @@
 //! What another site sends: believed or refused ([`rove_core::site::Policy`]), then written
 //! by the proxy of the device that speaks.
 
-use super::{Bridge, MAX_DEVICES, proxy::Proxy, wire};
+use super::{Bridge, MAX_DEVICES, proxy::Proxy};
 use rove_core::hierarchy::Strength;
-use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, RequestControl, VehicleStatus};
-use rove_core::site::{Key, SiteName, Subject};
+use rove_core::msg::{DeviceId, DeviceInfo, DeviceType};
+use rove_core::site::SiteName;
+use rove_core::site::wire::Inbound;
 use std::collections::HashMap;
 use tracing::info;
 
 impl Bridge {
-    /// A message from another site; `Err` says why it was refused.
+    /// A message from another site, read and checked by [`rove_core::site::Policy::inbound`],
+    /// then given to the proxy of the device that speaks; `Err` says why it was refused.
     pub(super) fn message(&mut self, key: &str, put: Option<Vec<u8>>) -> Result<(), String> {
-        let key = Key::parse(key).ok_or("not a rove key")?;
-        let peer = self.policy.admit(&key).map_err(|e| e.to_string())?.clone();
-        let site = &key.from;
-        let subject = key.subject;
-        let payload = || put.as_deref().ok_or("no payload");
+        let theirs = |site: &SiteName, id| self.proxies.get(&id).is_some_and(|p| &p.site == site);
+        let (site, inbound) =
+            (self.policy.inbound(key, put.as_deref(), theirs)).map_err(|e| e.to_string())?;
         let from_site = |proxies: &HashMap<DeviceId, Proxy>, id| match proxies.get(&id) {
-            Some(p) if &p.site == site => Ok(()),
+            Some(p) if p.site == site => Ok(()),
             Some(_) => Err(format!("device {id} is another site's")),
             None => Err(format!("device {id} is not known yet")),
         };
-        match subject {
-            Subject::Info(id) => match &put {
-                Some(bytes) => {
-                    let info: DeviceInfo = wire::decode(bytes).ok_or("malformed DeviceInfo")?;
-                    self.policy
-                        .info(subject, &info)
-                        .map_err(|e| e.to_string())?;
-                    self.import(site, info)?;
-                }
-                None => {
-                    from_site(&self.proxies, id)?;
-                    self.drop_proxy(id);
-                }
-            },
-            Subject::Status(id) => {
+        match inbound {
+            Inbound::Info(info) => self.import(&site, info)?,
+            Inbound::Withdrawn(id) => {
                 from_site(&self.proxies, id)?;
-                let status: VehicleStatus = wire::decode(payload()?).ok_or("malformed status")?;
+                self.drop_proxy(id);
+            }
+            Inbound::Status(status) => {
+                let id = status.vehicle_id;
+                from_site(&self.proxies, id)?;
                 let proxy = self.proxies.get_mut(&id).ok_or("gone")?;
-                if status.vehicle_id != id || proxy.info.device_type != DeviceType::Vehicle {
-                    return Err("status of another device".into());
+                if proxy.info.device_type != DeviceType::Vehicle {
+                    return Err(format!("status of device {id}, which is not a vehicle"));
                 }
                 proxy.status(status);
             }
-            Subject::Command {
+            Inbound::Command {
                 src,
                 dest,
                 strength,
+                command,
             } => {
                 from_site(&self.proxies, src)?;
                 if !self.is_local_vehicle(dest) {
@@ -57,29 +50,14 @@ impl Bridge {
                 if proxy.info.device_type != DeviceType::Controller {
                     return Err(format!("device {src} is not an operator"));
                 }
-                match put {
-                    Some(bytes) => {
-                        let sent: wire::Command =
-                            wire::decode(&bytes).ok_or("malformed command")?;
-                        let strength = (self.policy.command(&peer, subject, &sent.command))
-                            .map_err(|e| e.to_string())?;
-                        proxy.command(strength, sent.command, sent.stamp);
-                    }
-                    None => {
-                        let strength = self
-                            .policy
-                            .strength(&peer, strength)
-                            .map_err(|e| e.to_string())?;
-                        proxy.release(dest, strength);
-                    }
+                match command {
+                    Some(sent) => proxy.command(strength, sent.command, sent.stamp),
+                    None => proxy.release(dest, strength),
                 }
             }
-            Subject::Request(sender) => {
+            Inbound::Request(msg) => {
+                let sender = msg.sender_id();
                 from_site(&self.proxies, sender)?;
-                let msg: RequestControl = wire::decode(payload()?).ok_or("malformed request")?;
-                let theirs = |v| self.proxies.get(&v).is_some_and(|p| &p.site == site);
-                let msg = (self.policy.request(&peer, subject, theirs, msg))
-                    .map_err(|e| e.to_string())?;
                 let local_vehicle = self.is_local_vehicle(msg.dest_id);
                 let proxy = self.proxies.get_mut(&sender).ok_or("gone")?;
                 if msg.ack == rove_core::msg::Ack::Request && local_vehicle {

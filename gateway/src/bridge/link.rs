@@ -51,10 +51,7 @@ impl Link {
         policy: &Policy,
         link: &ZenohLink,
     ) -> anyhow::Result<(Link, mpsc::Receiver<Arrived>)> {
-        for file in [&link.ca, &link.certificate, &link.key] {
-            std::fs::metadata(file)
-                .map_err(|e| anyhow::anyhow!("[zenoh] {}: {e}", file.display()))?;
-        }
+        link.check_files()?;
         let config = zenoh_config(policy, link)?;
         let session = zenoh::open(config)
             .await
@@ -77,7 +74,7 @@ impl Link {
                     let put = match sample.kind() {
                         // Longer than any payload the bridge reads: refused uncopied.
                         zenoh::sample::SampleKind::Put
-                            if sample.payload().len() > super::wire::MAX_PAYLOAD =>
+                            if sample.payload().len() > rove_core::site::wire::MAX_PAYLOAD =>
                         {
                             Some(Vec::new())
                         }

@@ -15,17 +15,17 @@ mod inbound;
 mod link;
 mod local;
 mod proxy;
-mod wire;
 
 use crate::config::{BridgeConfig, Common};
 use crate::runtime::RateLimited;
+use crate::sdnotify::Notifier;
 use link::{Arrived, Link};
 use local::{Heard, Local};
 use proxy::{Proxy, Read};
 use rove_core::arbiter::ParticipantId;
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
-use rove_core::site::{Key, Policy, SiteName, Subject};
+use rove_core::site::{Key, Policy, SiteName, Subject, wire};
 use rustdds::GUID;
 use rustdds::with_key::Sample;
 use std::collections::{BTreeSet, HashMap};
@@ -41,10 +41,15 @@ const MAX_DEVICES: usize = 1024;
 
 /// Runs the bridge until `shutdown`. Needs a multi-thread runtime (Zenoh's rule).
 ///
+/// Under systemd (see [`crate::sdnotify`]): `READY=1` once the DDS participant and the link
+/// are open, a `STATUS=` line whenever the sites up or the device counts change, keep-alives
+/// from the loop, `STOPPING=1` before the proxies leave.
+///
 /// # Errors
 /// The DDS participant or the link cannot be opened, or a DDS stream ended.
 pub async fn run(
     config: BridgeConfig,
+    mut notify: Notifier,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let mut local = Local::join(&config.common)?;
@@ -66,10 +71,14 @@ pub async fn run(
         ?peers,
         domain = config.common.domain_id,
         interfaces = ?config.common.interfaces,
+        watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "bridge started"
     );
     let mut bridge = Bridge::new(config.common.clone(), config.policy.clone(), link, read_tx);
     let mut tick = tokio::time::interval(TICK);
+    let mut keepalive = notify.keepalive_timer();
+    let mut shown = bridge.counts();
+    notify.ready(&bridge.status_line());
     tokio::pin!(shutdown);
     let result = loop {
         tokio::select! {
@@ -81,8 +90,15 @@ pub async fn run(
             Some(arrived) = arrived.recv() => bridge.arrived(arrived).await,
             Some(one) = read.recv() => bridge.read(one).await,
             _ = tick.tick() => bridge.tick().await,
+            () = keepalive.tick() => notify.keepalive(),
+        }
+        // Counted each turn, the line written only when a count changed.
+        if bridge.counts() != shown {
+            shown = bridge.counts();
+            notify.status(&bridge.status_line());
         }
     };
+    notify.stopping("stopping: other sites' devices leave this site, the link closes");
     bridge.leave().await;
     result
 }
@@ -177,6 +193,37 @@ impl Bridge {
                 .send(&self.key(&to, subject), payload.clone())
                 .await;
         }
+    }
+
+    /// Sites up, other sites' devices here, this site's devices: what the status line shows.
+    fn counts(&self) -> (usize, usize, usize) {
+        (self.up.len(), self.proxies.len(), self.devices.len())
+    }
+
+    /// The `STATUS=` line: e.g. `site lab: 1 of 2 sites up (office not connected); 2 devices
+    /// of other sites here, 3 on this site`.
+    fn status_line(&self) -> String {
+        let not_connected = match self.missing().as_slice() {
+            [] => String::new(),
+            names => format!(" ({} not connected)", names.join(", ")),
+        };
+        format!(
+            "site {}: {} of {} sites up{not_connected}; {} devices of other sites here, {} on \
+             this site",
+            self.policy.me,
+            self.up.len(),
+            self.policy.peers.len(),
+            self.proxies.len(),
+            self.devices.len()
+        )
+    }
+
+    /// The configured sites that are not up.
+    fn missing(&self) -> Vec<&str> {
+        (self.policy.peers.iter())
+            .filter(|p| !self.up.contains(&p.name))
+            .map(|p| p.name.as_str())
+            .collect()
     }
 
     /// Whether our device `id` is pinned to `participant`.
@@ -457,10 +504,7 @@ impl Bridge {
         }
         if self.missing.elapsed() >= MISSING_REPORT {
             self.missing = Instant::now();
-            let missing: Vec<&str> = (self.policy.peers.iter())
-                .filter(|p| !self.up.contains(&p.name))
-                .map(|p| p.name.as_str())
-                .collect();
+            let missing = self.missing();
             if !missing.is_empty() {
                 warn!(
                     sites = ?missing,

@@ -17,6 +17,8 @@
 //! and subscribe only to `rove/<its name>/**`, so `<from>` is authenticated by the link; which
 //! ids that site may speak for, and which of our vehicles it may see, is [`Policy`]'s.
 
+pub mod wire;
+
 use crate::hierarchy::{Hierarchy, Level, Strength};
 use crate::msg::{Ack, ControlCommand, DeviceId, DeviceInfo, DeviceType, RequestControl};
 use std::collections::BTreeSet;
@@ -209,6 +211,15 @@ pub struct Peer {
 /// Why a message from another site was not believed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum Refusal {
+    /// The key is not one [`Key::render`] makes.
+    #[error("not a rove key")]
+    NotAKey,
+    /// A put without a payload.
+    #[error("no payload")]
+    NoPayload,
+    /// The payload is not the key's type (or longer than [`wire::MAX_PAYLOAD`]).
+    #[error("malformed {0}")]
+    Malformed(&'static str),
     /// Not addressed to us.
     #[error("addressed to site {0}, not to us")]
     NotForUs(SiteName),
