@@ -332,3 +332,54 @@ fn a_bridge_without_its_key_file_does_not_start_and_names_the_file() {
         "{err}"
     );
 }
+
+/// How long the lab's vehicle stalls: past the three DeviceInfo refreshes after which a device
+/// not heard is taken as gone (15 s), while its participant stays (rustdds's own threads keep
+/// announcing it), which is how a device looks whose loss discovery never reports.
+const SILENT: Duration = Duration::from_secs(25);
+
+#[test]
+fn a_device_not_heard_for_three_refreshes_leaves_the_other_site_and_comes_back() {
+    let mut sites = Sites::new("sites-silent");
+    sites.bridges();
+    let config = sites.lab.write(
+        "vehicle-stall.toml",
+        &format!("[device]\nid = {V}\nname = \"v{V}\"\n[output]\nadapter = \"sim\"\n"),
+    );
+    let stall_ms = SILENT.as_millis().to_string();
+    let vehicle = sites.lab.spawn(
+        "vehicle-stall",
+        &[
+            "vehicle",
+            "-c",
+            path(&config),
+            "--test-stall-on-sigusr1",
+            &stall_ms,
+        ],
+    );
+    sites
+        .home
+        .device_when("home lists the lab's vehicle", V, |_| true);
+
+    let stalled = Instant::now();
+    assert!(sites.lab.procs[vehicle].signal("-USR1"), "kill -USR1");
+    let listed = |sites: &Sites| Rig::device(&sites.home.status(), V).is_some();
+    rove_testkit::eventually_within(SILENT, "home no longer lists the silent vehicle", || {
+        if listed(&sites) {
+            Err("still listed")
+        } else {
+            Ok(())
+        }
+    });
+    let gone = stalled.elapsed();
+    eprintln!("the silent vehicle left home {gone:?} after its loop stalled");
+    // It went by the backstop: discovery reported no loss of its participant.
+    let log = sites.lab.log_of("bridge-lab");
+    assert!(log.contains("device on this site not heard"), "{log}");
+
+    // Its loop resumes, refreshes its DeviceInfo, and the bridge shows it again.
+    sites
+        .home
+        .device_when("home lists the vehicle again", V, |_| true);
+    eprintln!("listed again {:?} after the stall began", stalled.elapsed());
+}

@@ -109,6 +109,9 @@ struct LocalDevice {
     participant: ParticipantId,
     info: DeviceInfo,
     status: Option<VehicleStatus>,
+    /// When its participant last said something (a DeviceInfo refresh at least every
+    /// [`crate::dds::DEVICE_INFO_REFRESH`]).
+    heard: Instant,
 }
 
 /// The bridge's state.
@@ -254,7 +257,11 @@ impl Bridge {
                 let Some(device) = self.devices.get_mut(&id) else {
                     return;
                 };
-                if device.participant != from || device.status.as_ref() == Some(&status) {
+                if device.participant != from {
+                    return;
+                }
+                device.heard = Instant::now();
+                if device.status.as_ref() == Some(&status) {
                     return;
                 }
                 device.status = Some(status.clone());
@@ -310,6 +317,7 @@ impl Bridge {
             Some(d) => {
                 let changed = d.info != info;
                 d.info = info.clone();
+                d.heard = Instant::now();
                 changed
             }
             None if full => return,
@@ -319,6 +327,7 @@ impl Bridge {
                     participant: from,
                     info: info.clone(),
                     status: None,
+                    heard: Instant::now(),
                 };
                 self.devices.insert(id, device);
                 true
@@ -483,6 +492,20 @@ impl Bridge {
             .collect();
         for id in stale {
             self.drop_proxy(id);
+        }
+        // Likewise a local device not heard for three refreshes, as device lists and id pins
+        // do (a backstop for a participant whose loss discovery never reports).
+        let silent: Vec<DeviceId> = (self.devices.iter())
+            .filter(|(_, d)| d.heard.elapsed() > crate::dds::OFFLINE_AFTER)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in silent {
+            warn!(
+                id,
+                silent_s = crate::dds::OFFLINE_AFTER.as_secs(),
+                "device on this site not heard: taken as gone"
+            );
+            self.local_gone(id).await;
         }
         let now = Instant::now();
         let due: Vec<SiteName> = (self.reshow.iter())
