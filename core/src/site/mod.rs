@@ -415,17 +415,19 @@ mod tests {
     use crate::msg::{CommandType, Mode, MovementCommand, TimeT};
     use proptest::prelude::*;
 
-    fn site(name: &str) -> SiteName {
+    pub(super) fn site(name: &str) -> SiteName {
         SiteName::new(name).unwrap_or_else(|e| panic!("{name}: {e}"))
     }
 
-    fn policy() -> Policy {
+    /// The lab: home may speak for its operators 21 and 22 and its vehicle 500, and drive our
+    /// vehicle 100, as remote operators at most.
+    pub(super) fn policy() -> Policy {
         Policy {
             me: site("lab"),
             hierarchy: Hierarchy::STANDARD,
             peers: vec![Peer {
                 name: site("home"),
-                ids: [21, 22].into(),
+                ids: [21, 22, 500].into(),
                 offer: [100].into(),
                 level: Level::Remote,
             }],

@@ -136,6 +136,8 @@ impl Policy {
 mod tests {
     use super::*;
     use crate::msg::{Ack, CommandType, DeviceType, Mode, MovementCommand, TimeT};
+    use crate::site::tests::{policy as lab, site};
+    use proptest::prelude::*;
 
     #[test]
     fn the_seed_types_read_back_as_written_and_junk_is_refused() {
@@ -176,33 +178,6 @@ mod tests {
         assert_eq!(decode::<Command>(&encode(&request)), None);
         let long = format!("{{\"name\":\"{}\"}}", "x".repeat(MAX_PAYLOAD));
         assert_eq!(decode::<DeviceInfo>(long.as_bytes()), None);
-    }
-}
-
-#[cfg(test)]
-mod inbound_tests {
-    use super::*;
-    use crate::hierarchy::{Hierarchy, Level};
-    use crate::msg::{Ack, CommandType, DeviceType, Mode, MovementCommand, TimeT};
-    use crate::site::Peer;
-    use proptest::prelude::*;
-
-    fn site(name: &str) -> SiteName {
-        SiteName::new(name).unwrap_or_else(|e| panic!("{name}: {e}"))
-    }
-
-    /// The lab: home may speak for 21 and 22 and drive 100, as remote operators at most.
-    fn lab() -> Policy {
-        Policy {
-            me: site("lab"),
-            hierarchy: Hierarchy::STANDARD,
-            peers: vec![Peer {
-                name: site("home"),
-                ids: [21, 22, 500].into(),
-                offer: [100].into(),
-                level: Level::Remote,
-            }],
-        }
     }
 
     fn info(id: DeviceId, device_type: DeviceType) -> DeviceInfo {
