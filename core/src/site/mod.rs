@@ -434,7 +434,7 @@ mod tests {
         }
     }
 
-    fn command(src: DeviceId, dest: DeviceId) -> ControlCommand {
+    pub(super) fn command(src: DeviceId, dest: DeviceId) -> ControlCommand {
         ControlCommand {
             src_id: src,
             dest_id: dest,

@@ -191,14 +191,7 @@ mod tests {
 
     fn command(src: DeviceId, dest: DeviceId) -> Command {
         Command {
-            command: ControlCommand {
-                src_id: src,
-                dest_id: dest,
-                command_type: CommandType::Movement,
-                movement_command: MovementCommand::CENTRED,
-                mode: Mode::Manual,
-                timestamp: TimeT(0),
-            },
+            command: crate::site::tests::command(src, dest),
             stamp: Some(1),
         }
     }
