@@ -357,9 +357,16 @@ fn a_device_not_heard_for_three_refreshes_leaves_the_other_site_and_comes_back()
             &stall_ms,
         ],
     );
+    // A control: the lab's phone, whose loop goes on, stays listed at home throughout.
+    sites
+        .lab
+        .operator(PHONE, "mobile", "phone", &[], 0, "", &[]);
     sites
         .home
         .device_when("home lists the lab's vehicle", V, |_| true);
+    sites
+        .home
+        .device_when("home lists the lab's phone", PHONE, |_| true);
 
     let stalled = Instant::now();
     assert!(sites.lab.procs[vehicle].signal("-USR1"), "kill -USR1");
@@ -373,9 +380,21 @@ fn a_device_not_heard_for_three_refreshes_leaves_the_other_site_and_comes_back()
     });
     let gone = stalled.elapsed();
     eprintln!("the silent vehicle left home {gone:?} after its loop stalled");
-    // It went by the backstop: discovery reported no loss of its participant.
+    let status = sites.home.status();
+    assert!(
+        Rig::device(&status, PHONE).is_some(),
+        "the phone left too: {status}"
+    );
+    // It went by the backstop (discovery reported no loss of its participant), and only it.
     let log = sites.lab.log_of("bridge-lab");
-    assert!(log.contains("device on this site not heard"), "{log}");
+    let silent: Vec<&str> = (log.lines())
+        .filter(|l| l.contains("device on this site not heard"))
+        .collect();
+    assert!(!silent.is_empty(), "{log}");
+    assert!(
+        silent.iter().all(|l| l.contains(&format!("id={V}"))),
+        "{silent:?}"
+    );
 
     // Its loop resumes, refreshes its DeviceInfo, and the bridge shows it again.
     sites

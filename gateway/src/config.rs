@@ -540,7 +540,11 @@ impl ZenohLink {
             ("certificate", &self.certificate),
             ("key", &self.key),
         ] {
-            std::fs::File::open(file).map_err(|e| {
+            let readable = std::fs::File::open(file).and_then(|f| match f.metadata()?.is_file() {
+                true => Ok(()),
+                false => Err(std::io::Error::other("not a file")),
+            });
+            readable.map_err(|e| {
                 anyhow::anyhow!(
                     "[zenoh] {key} = {}: {e} (a site's files come from `rove keys site`, and \
                      must be readable by the user the bridge runs as)",
@@ -1336,6 +1340,29 @@ mod tests {
         let path = write("rel.toml", text);
         let ca = load_bridge(&path).expect("loads").link.ca;
         assert_eq!(ca, path.parent().expect("dir").join("k/ca.pem"));
+    }
+
+    #[test]
+    fn a_bridge_checks_its_certificate_files_are_readable_files() {
+        let text = "[site]\nname = \"a\"\n[zenoh]\nlisten = [\"tls/a:1\"]\nca = \"certs/ca.pem\"\n\
+                    certificate = \"certs/cert.pem\"\nkey = \"certs/KEY\"\n";
+        let path = write("files.toml", text);
+        let dir = path.parent().expect("dir").join("certs");
+        std::fs::create_dir_all(&dir).expect("certs dir");
+        for file in ["ca.pem", "cert.pem"] {
+            std::fs::write(dir.join(file), file).expect("write");
+        }
+        let mut link = load_bridge(&path).expect("loads").link;
+        let missing = format!("{:#}", link.check_files().expect_err("no key"));
+        assert!(
+            missing.starts_with("[zenoh] key = ") && missing.contains("KEY"),
+            "{missing}"
+        );
+        link.key = dir.clone();
+        let directory = format!("{:#}", link.check_files().expect_err("a directory"));
+        assert!(directory.contains("not a file"), "{directory}");
+        link.key = dir.join("cert.pem");
+        link.check_files().expect("three readable files");
     }
 
     #[test]

@@ -88,6 +88,11 @@ pub struct RemoteReport {
     pub bridge_cpu_pct: (f64, f64),
     /// Remote operators streaming then, at 50 Hz each.
     pub operators: usize,
+    /// Each bridge's resident memory (KiB) before those operators and their vehicles joined,
+    /// and while they streamed: ((lab before, lab after), (home before, home after)). Each
+    /// bridge then holds one more proxy participant per streaming operator (lab: the
+    /// operators; home: their vehicles).
+    pub bridge_rss_kib: ((u64, u64), (u64, u64)),
 }
 
 /// The two sites, their bridges and the lab's vehicles.
@@ -163,11 +168,14 @@ pub fn remote(
     }
     rows.extend(cuts(&mut sites, options.runs.clamp(1, 5), progress)?);
     progress(&format!("{} remote operators streaming", options.operators));
+    let before = bridges_rss(&sites)?;
     let bridge_cpu_pct = streaming_cpu(&mut sites, options.operators)?;
+    let after = bridges_rss(&sites)?;
     Ok(RemoteReport {
         rows,
         bridge_cpu_pct,
         operators: options.operators,
+        bridge_rss_kib: ((before.0, after.0), (before.1, after.1)),
     })
 }
 
@@ -323,6 +331,19 @@ fn streaming_cpu(sites: &mut Sites, operators: usize) -> anyhow::Result<(f64, f6
     Ok((cpu[0], cpu[1]))
 }
 
+/// Each bridge's resident memory, KiB: (lab, home).
+fn bridges_rss(sites: &Sites) -> anyhow::Result<(u64, u64)> {
+    let rss = |rig: &Rig, index: usize| {
+        crate::tools::procstat::sample(rig.procs[index].pid())
+            .map(|(_, rss)| rss)
+            .ok_or_else(|| anyhow::anyhow!("a bridge exited"))
+    };
+    Ok((
+        rss(&sites.lab, sites.bridges.0)?,
+        rss(&sites.home, sites.bridges.1)?,
+    ))
+}
+
 /// `rove bench handover --remote`: runs and prints the report; `json` gets it as JSON.
 ///
 /// # Errors
@@ -360,6 +381,20 @@ pub fn remote_cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow
         "{} remote operators at 50 Hz: lab bridge {lab:.1} %, home bridge {home:.1} % of a core",
         report.operators
     );
+    let n = report.operators.max(1) as f64;
+    for (site, (before, after)) in [
+        ("lab", report.bridge_rss_kib.0),
+        ("home", report.bridge_rss_kib.1),
+    ] {
+        let per = (after as f64 - before as f64) / n / 1024.0;
+        println!(
+            "{site} bridge resident memory: {:.1} MiB before, {:.1} MiB with {} more proxies \
+             ({per:.2} MiB each)",
+            before as f64 / 1024.0,
+            after as f64 / 1024.0,
+            report.operators
+        );
+    }
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")?;
     }
