@@ -50,6 +50,13 @@ fn unit_files() -> Vec<String> {
     units
 }
 
+/// The `conf-files` of a `[package.metadata.deb]` table (or a variant's).
+fn conf_files(deb: &toml::Table) -> Vec<String> {
+    (deb["conf-files"].as_array().expect("conf-files").iter())
+        .filter_map(|v| v.as_str().map(String::from))
+        .collect()
+}
+
 /// The unit of `rove bridge`, a role only binaries built with the `remote` feature have.
 const BRIDGE_UNIT: &str = "rove-bridge.service";
 
@@ -99,12 +106,7 @@ fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
             "{unit} is not installed to lib/systemd/system/"
         );
     }
-    let conf_files: Vec<&str> = deb["conf-files"]
-        .as_array()
-        .expect("conf-files")
-        .iter()
-        .filter_map(|v| v.as_str())
-        .collect();
+    let conf_files = conf_files(&deb);
     let configs = configs_named_by_units(&units);
     assert!(configs.contains("/etc/rove/vehicle.toml"), "{configs:?}");
     assert!(configs.contains("/etc/rove/bridge.toml"), "{configs:?}");
@@ -114,10 +116,7 @@ fn the_package_installs_the_binary_units_conffiles_examples_and_guide() {
             installs(dest).is_some(),
             "{config} is named by a unit but not installed"
         );
-        assert!(
-            conf_files.contains(&config.as_str()),
-            "{config} is not a conffile"
-        );
+        assert!(conf_files.contains(config), "{config} is not a conffile");
     }
     assert!(installs("usr/share/doc/rove/examples/").is_some());
     assert!(installs("usr/share/doc/rove/").is_some());
@@ -184,11 +183,6 @@ fn the_pi_variant_is_the_package_without_the_bridge(deb: &toml::Table) {
         "the bridge's unit, config and guide"
     );
     assert_eq!(assets(pi), without);
-    let conf_files = |t: &toml::Table| -> Vec<String> {
-        (t["conf-files"].as_array().expect("conf-files").iter())
-            .filter_map(|v| v.as_str().map(String::from))
-            .collect()
-    };
     let mut main = conf_files(deb);
     main.retain(|c| c != "/etc/rove/bridge.toml");
     assert_eq!(conf_files(pi), main);
@@ -290,7 +284,8 @@ fn check_package(deb: &Path) {
     );
     let conffiles = std::fs::read_to_string(control.join("conffiles")).expect("conffiles");
     let conffiles: BTreeSet<&str> = conffiles.lines().map(str::trim).collect();
-    for config in configs_named_by_units(&units) {
+    let configs = configs_named_by_units(&units);
+    for config in &configs {
         assert!(
             conffiles.contains(config.as_str()),
             "{config}: {conffiles:?}"
@@ -301,7 +296,7 @@ fn check_package(deb: &Path) {
     postinst_creates_the_service_user(&control.join("postinst"), dir);
 
     // The packaged binary accepts the packaged default configs.
-    for config in configs_named_by_units(&units) {
+    for config in &configs {
         let out = run_any_arch(&binary)
             .arg("check-config")
             .arg(root.join(config.trim_start_matches('/')))

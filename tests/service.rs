@@ -682,16 +682,24 @@ fn safe_after_stop(root: &Path, log: &Path, dir: &Path) {
         "outputs {written:?} after a clean stop, and no word of it:\n{text}"
     );
     eprintln!("the stop left the safe state to `rove failsafe` (outputs {written:?})");
-    let stop_post = localize(
-        &command_line(&unit("rove-vehicle.service"), "ExecStopPost", None),
-        dir,
-    );
+    let stop_post = command_line(&unit("rove-vehicle.service"), "ExecStopPost", None);
+    run_exec_stop_post(&stop_post, dir);
+    assert_eq!((duty(root, 0), duty(root, 1)), safe);
+}
+
+/// Runs a unit's ExecStopPost= command line `stop_post` with its paths in `dir`, as systemd
+/// would after the service stopped; it must succeed.
+fn run_exec_stop_post(stop_post: &[String], dir: &Path) {
+    let stop_post = localize(stop_post, dir);
     let out = Command::new(&stop_post[0])
         .args(&stop_post[1..])
         .output()
         .expect("run ExecStopPost");
-    assert!(out.status.success(), "{stop_post:?}: {out:?}");
-    assert_eq!((duty(root, 0), duty(root, 1)), safe);
+    assert!(
+        out.status.success(),
+        "{stop_post:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -725,16 +733,7 @@ fn killed_vehicle_is_made_safe_by_exec_stop_post(file: &str, instance: Option<&s
     rig.procs[vehicle].crash();
     assert_eq!(duty(&root, 1), "2000000", "full throttle after the kill");
 
-    let stop_post = localize(&stop_post, &rig.dir);
-    let out = Command::new(&stop_post[0])
-        .args(&stop_post[1..])
-        .output()
-        .expect("run ExecStopPost");
-    assert!(
-        out.status.success(),
-        "{stop_post:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    run_exec_stop_post(&stop_post, &rig.dir);
     assert_eq!(
         (duty(&root, 0), duty(&root, 1)),
         (SAFE_NS.to_string(), SAFE_NS.to_string())

@@ -540,9 +540,12 @@ impl ZenohLink {
             ("certificate", &self.certificate),
             ("key", &self.key),
         ] {
-            let readable = std::fs::File::open(file).and_then(|f| match f.metadata()?.is_file() {
-                true => Ok(()),
-                false => Err(std::io::Error::other("not a file")),
+            let readable = std::fs::File::open(file).and_then(|f| {
+                if f.metadata()?.is_file() {
+                    Ok(())
+                } else {
+                    Err(std::io::Error::other("not a file"))
+                }
             });
             readable.map_err(|e| {
                 anyhow::anyhow!(

@@ -44,14 +44,14 @@ impl Link {
     /// reconnecting), declares this site's liveliness token and subscribes to its inbox and to
     /// every bridge's token. Must run on a multi-thread runtime (Zenoh's own rule).
     ///
+    /// The certificate files are the caller's to check first ([`ZenohLink::check_files`]).
+    ///
     /// # Errors
-    /// The certificate files cannot be read, or Zenoh refuses the configuration or cannot
-    /// listen.
+    /// Zenoh refuses the configuration or cannot listen.
     pub(super) async fn open(
         policy: &Policy,
         link: &ZenohLink,
     ) -> anyhow::Result<(Link, mpsc::Receiver<Arrived>)> {
-        link.check_files()?;
         let config = zenoh_config(policy, link)?;
         let session = zenoh::open(config)
             .await

@@ -45,8 +45,13 @@ const MAX_DEVICES: usize = 1024;
 /// are open, a `STATUS=` line whenever the sites up or the device counts change, keep-alives
 /// from the loop, `STOPPING=1` before the proxies leave.
 ///
+/// The link's certificate files are checked before ([`ZenohLink::check_files`]): `rove bridge`
+/// does so ahead of the runtime, so that a missing one is a config error (exit 78).
+///
 /// # Errors
 /// The DDS participant or the link cannot be opened, or a DDS stream ended.
+///
+/// [`ZenohLink::check_files`]: crate::config::ZenohLink::check_files
 pub async fn run(
     config: BridgeConfig,
     mut notify: Notifier,
@@ -93,8 +98,9 @@ pub async fn run(
             () = keepalive.tick() => notify.keepalive(),
         }
         // Counted each turn, the line written only when a count changed.
-        if bridge.counts() != shown {
-            shown = bridge.counts();
+        let counts = bridge.counts();
+        if counts != shown {
+            shown = counts;
             notify.status(&bridge.status_line());
         }
     };
@@ -143,6 +149,14 @@ struct Bridge {
     missing: Instant,
     /// Sites just up, shown everything again at these instants.
     reshow: HashMap<SiteName, Instant>,
+}
+
+/// The devices of `map` not heard (`heard`) for three DeviceInfo refreshes.
+fn not_heard<T>(map: &HashMap<DeviceId, T>, heard: impl Fn(&T) -> Instant) -> Vec<DeviceId> {
+    (map.iter())
+        .filter(|(_, v)| heard(v).elapsed() > crate::dds::OFFLINE_AFTER)
+        .map(|(id, _)| *id)
+        .collect()
 }
 
 /// How long after a site comes up it is shown everything again.
@@ -486,20 +500,12 @@ impl Bridge {
         }
         // A proxy whose site has said nothing of it for three refreshes is gone (a backstop:
         // deletes and the site's token normally say so first).
-        let stale: Vec<DeviceId> = (self.proxies.iter())
-            .filter(|(_, p)| p.heard.elapsed() > crate::dds::OFFLINE_AFTER)
-            .map(|(id, _)| *id)
-            .collect();
-        for id in stale {
+        for id in not_heard(&self.proxies, |p| p.heard) {
             self.drop_proxy(id);
         }
         // Likewise a local device not heard for three refreshes, as device lists and id pins
         // do (a backstop for a participant whose loss discovery never reports).
-        let silent: Vec<DeviceId> = (self.devices.iter())
-            .filter(|(_, d)| d.heard.elapsed() > crate::dds::OFFLINE_AFTER)
-            .map(|(id, _)| *id)
-            .collect();
-        for id in silent {
+        for id in not_heard(&self.devices, |d| d.heard) {
             warn!(
                 id,
                 silent_s = crate::dds::OFFLINE_AFTER.as_secs(),
