@@ -7,6 +7,7 @@
 
 mod util;
 
+mod audit;
 mod boards;
 mod console_api;
 mod fleet;

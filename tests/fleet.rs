@@ -95,6 +95,7 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
         heartbeat_ms: None,
         presence_ms: None,
         vehicle_rt: None,
+        secure: false,
     };
     let rove = std::path::Path::new(crate::util::ROVE);
     let report = rove_gateway::tools::fleet::run(rove, &options, &mut |line| eprintln!("{line}"))

@@ -276,3 +276,127 @@ fn revoking_a_driving_operator_drops_it_and_the_next_operator_drives() {
     let again = (records(&record).into_iter()).find(|o| o.owner == Some(12) && o.wall_us > dropped);
     assert!(again.is_none(), "the revoked phone drove again: {again:?}");
 }
+
+/// How many times `rig`'s logs say a peer authenticated again (ROVE-PATCH.md §24).
+fn restarts(rig: &Rig) -> usize {
+    (rig.procs.iter())
+        .map(|p| std::fs::read_to_string(&p.log).unwrap_or_default())
+        .map(|log| log.matches("authenticates again").count())
+        .sum()
+}
+
+/// nftables in `rig`'s namespace: UDP from anywhere but its loopback dropped (`cut`), or
+/// everything let in again.
+fn cut_input(rig: &Rig, cut: bool) {
+    let script = match cut {
+        true => {
+            "nft add table inet rove_oneway && nft add chain inet rove_oneway input \
+                 '{ type filter hook input priority 0; }' && nft add rule inet rove_oneway \
+                 input iifname != lo meta l4proto udp drop"
+        }
+        false => "nft delete table inet rove_oneway",
+    };
+    rig.sh(script).expect("nft (apt-get install nftables)");
+}
+
+/// A secured vehicle and laptop on two hosts (a veth pair); one side stops hearing the other
+/// for longer than its lease (the link cut one way) and drops it, while the other keeps their
+/// session; then the link heals. They authenticate again and the laptop drives.
+///
+/// Before ROVE-PATCH.md §24 such a pair stayed apart for good, as pairs of a busy secured fleet
+/// did: the side that kept the session ignored the other's new handshake request as done, or
+/// never sent the request the other waited for. Each side is cut off once, so both orders of
+/// the pair's GUIDs (which side sends the request) are forced, whichever they are.
+#[test]
+fn a_secured_pair_that_lost_one_another_one_way_authenticates_again() {
+    let mut near = Rig::new("secure-oneway-near");
+    let mut far = Rig::new("secure-oneway-far");
+    let fleet = fleet(&near, &[V, 11]);
+    rove_gateway::tools::harness::veth(&near, &far, "10.78.0.1/24", "10.78.0.2/24", true)
+        .expect("veth pair");
+    let output = format!(
+        "[network]\ninterfaces = [\"10.78.0.1\"]\n{}[output]\nadapter = \"sim\"\n",
+        security(&fleet, V)
+    );
+    let record = near.vehicle_with_output(V, &output);
+    let laptop = format!(
+        "[network]\ninterfaces = [\"10.78.0.2\"]\n{}",
+        security(&fleet, 11)
+    );
+    far.operator(11, "stationary", "laptop", &[V], 1000, &laptop, &[]);
+    wait_for_output(&record, Some(11), 0).expect("the secured laptop drives");
+    let lost = "participant of a command writer lost";
+    // The laptop stops hearing the vehicle: once its lease of the vehicle runs out it stops
+    // sending, and the vehicle goes to its failsafe.
+    let t = wall_us();
+    cut_input(&far, true);
+    wait_for_output(&record, None, t).expect("the laptop dropped the vehicle");
+    cut_input(&far, false);
+    let healed = wall_us();
+    let back = wait_for_output(&record, Some(11), healed).expect("the laptop drives again");
+    eprintln!(
+        "laptop cut off: it drives {} ms after the heal",
+        (back.wall_us - healed) / 1000
+    );
+    // The vehicle stops hearing the laptop, until its lease of the laptop runs out.
+    let before = near.log_of("vehicle-100").matches(lost).count();
+    cut_input(&near, true);
+    crate::util::eventually("the vehicle drops the laptop", || {
+        match near.log_of("vehicle-100").matches(lost).count() > before {
+            true => Ok(()),
+            false => Err("not yet"),
+        }
+    });
+    cut_input(&near, false);
+    let healed = wall_us();
+    let back = wait_for_output(&record, Some(11), healed).expect("the laptop drives again");
+    eprintln!(
+        "vehicle cut off: the laptop drives {} ms after the heal",
+        (back.wall_us - healed) / 1000
+    );
+    let (n, f) = (restarts(&near), restarts(&far));
+    assert!(
+        n + f >= 2,
+        "authenticated again: vehicle {n}, laptop {f} times"
+    );
+}
+
+/// Active handover in a secured fleet: the requester's grant is driven through its priority
+/// writer, which the vehicle reads beside the requester's regular writer on the same reader.
+///
+/// Before ROVE-PATCH.md §26 the crypto plugin gave a participant's second writer matched to
+/// the same reader the first one's handle: its keys were refused ("already associated with
+/// receiver-specific encode key materials") and its samples could not be decoded; and secure
+/// discovery sent a reader the keys of our first writer only. Whichever of the two writers came
+/// second never reached the vehicle.
+#[test]
+fn a_secured_request_is_driven_through_the_requesters_priority_writer() {
+    let mut rig = Rig::new("secure-request");
+    let fleet = fleet(&rig, &[V, 11, 13]);
+    let output = format!("{}[output]\nadapter = \"sim\"\n", security(&fleet, V));
+    let record = rig.vehicle_with_output(V, &output);
+    let accept = format!(
+        "[handover]\nauto_accept = \"always\"\n{}",
+        security(&fleet, 11)
+    );
+    rig.operator(11, "stationary", "laptop", &[V], 1000, &accept, &[]);
+    wait_for_output(&record, Some(11), 0).expect("the secured laptop drives");
+    let asked = wall_us();
+    let request = ["--request", "100"];
+    rig.operator(
+        13,
+        "remote",
+        "tablet",
+        &[V],
+        3000,
+        &security(&fleet, 13),
+        &request,
+    );
+    let granted = wait_for_output(&record, Some(13), asked).expect("the tablet is granted");
+    assert_eq!(granted.throttle, Some(3000));
+    eprintln!(
+        "secured request → the tablet drives after {} ms",
+        (granted.wall_us - asked) / 1000
+    );
+    keeps_driving(&record, 13, 1000);
+}

@@ -38,6 +38,7 @@
 
 pub mod adapter;
 pub mod arbiter;
+pub mod audit;
 pub mod config;
 pub mod error;
 pub mod freshness;

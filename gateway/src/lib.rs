@@ -16,6 +16,7 @@
 //! - [`status`]: device list and ownership, table / JSON / event stream.
 //! - [`tools`]: apart from the roles: the demo, the benches (`handover`, `input`, `chaos`,
 //!   `scale`) and the process harness they and the multi-process tests share.
+//! - [`audit`]: each vehicle's hash-chained log of who drove it, `rove audit`.
 //! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
 //! - `certs` (with the `security` feature): `rove keys`, a fleet's DDS Security files (CA,
 //!   governance, each device's certificate and permissions); `keys` in the console is the keyboard.
@@ -24,6 +25,7 @@
 
 #![deny(missing_docs)]
 
+pub mod audit;
 #[cfg(feature = "remote")]
 pub mod bridge;
 #[cfg(feature = "security")]

@@ -111,6 +111,22 @@ enum Command {
         #[arg(long, value_name = "DIR")]
         security: Option<std::path::PathBuf>,
     },
+    /// Who drove each vehicle, when and why: the vehicle's hash-chained audit log (oldest
+    /// first); `--verify` checks the chain and fails on an edited, reordered or cut-short log.
+    Audit {
+        /// The vehicle (default: every vehicle with a log in the directory).
+        #[arg(long)]
+        vehicle: Option<i64>,
+        /// The state directory (default: `$STATE_DIRECTORY`, else /var/lib/rove as root).
+        #[arg(long, value_name = "DIR")]
+        dir: Option<std::path::PathBuf>,
+        /// Only check the chain (exit 1 on a break).
+        #[arg(long)]
+        verify: bool,
+        /// The entries as JSON lines, as stored.
+        #[arg(long)]
+        json: bool,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -207,6 +223,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             test_stall_on_sigusr1,
         } => vehicle_cmd(config, record, test_stall_on_sigusr1),
         Command::Failsafe { config } => failsafe_cmd(&config),
+        Command::Audit {
+            vehicle,
+            dir,
+            verify,
+            json,
+        } => rove_gateway::audit::cli(dir, vehicle, verify, json),
         #[cfg(feature = "remote")]
         Command::Bridge { config } => bridge_cmd(&config),
         Command::Operator {

@@ -155,6 +155,12 @@ impl Rig {
         self.dir.join("run")
     }
 
+    /// The state directory every `rove` of the rig gets (`STATE_DIRECTORY`, as systemd's
+    /// `StateDirectory=` gives it): `DIR/state`, where vehicles keep their audit logs.
+    pub fn state_dir(&self) -> PathBuf {
+        self.dir.join("state")
+    }
+
     /// `rove ARGS` in the namespace with the rig's environment, not started yet (for a command
     /// that runs to completion, such as `rove failsafe`).
     pub fn command(&self, args: &[&str]) -> Command {
@@ -173,6 +179,8 @@ impl Rig {
             .arg(&self.rove)
             .args(args)
             .env("RUNTIME_DIRECTORY", self.runtime_dir())
+            // As systemd's `StateDirectory=`: the vehicles' audit logs.
+            .env("STATE_DIRECTORY", self.state_dir())
             .env(
                 "RUST_LOG",
                 std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),

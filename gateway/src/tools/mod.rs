@@ -106,6 +106,15 @@ pub enum Bench {
         /// (`chrt -f`), as the vehicle unit's real-time option does.
         #[arg(long)]
         vehicle_rt: Option<u8>,
+        /// Also run the same fleet secured (DDS Security: a certificate per device, `[access]`),
+        /// after the unsecured one, and print the two side by side.
+        #[arg(long)]
+        secure: bool,
+        /// Start the fleet this many times from nothing (each mode), timing each start to every
+        /// vehicle driven, before the full run; a start that does not converge in 60 s fails the
+        /// bench.
+        #[arg(long, default_value_t = 0)]
+        starts: usize,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -206,6 +215,8 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             heartbeat_ms,
             presence_ms,
             vehicle_rt,
+            secure,
+            starts,
             json,
         } => {
             let options = fleet::Options {
@@ -219,8 +230,11 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 heartbeat_ms,
                 presence_ms,
                 vehicle_rt,
+                secure,
             };
-            if idle_sweep.is_empty() {
+            if secure || starts > 0 {
+                fleet::starts::cli(rove, &options, starts, json.as_deref())
+            } else if idle_sweep.is_empty() {
                 fleet::cli(rove, &options, json.as_deref())
             } else {
                 sweep::cli(rove, &options, &idle_sweep, json.as_deref())

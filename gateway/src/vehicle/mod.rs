@@ -45,6 +45,7 @@ mod report;
 #[cfg(test)]
 mod tests;
 
+use crate::audit::AuditLog;
 use crate::config::VehicleConfig;
 use crate::output::{OutputReport, OutputWorker, WriteLimits};
 use crate::runtime::{Clock, sleep_until};
@@ -54,6 +55,7 @@ use net::{Dds, Net};
 use report::{HungWatch, StatusWatch, Suspects, status_line};
 use rove_core::MonoTime;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, Setpoint};
+use rove_core::audit::{Event as AuditEvent, Who, Why};
 use std::path::PathBuf;
 use std::time::Duration;
 use tracing::{info, warn};
@@ -113,6 +115,8 @@ struct Vehicle<N, O> {
     shown: String,
     heartbeat: Duration,
     stall: Option<Duration>,
+    /// Who drove, when and why ([`crate::audit`]); `None` if it could not be opened.
+    audit: Option<AuditLog>,
 }
 
 /// Runs the vehicle role on `clock` until `shutdown` completes: opens the output (which
@@ -143,7 +147,9 @@ pub async fn run(
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
     let net = Dds::join(&config)?;
+    let audit = open_audit(config.common.id);
     info!(
+        audit = ?audit.as_ref().map(AuditLog::path),
         config = %options.config_path.display(),
         device = config.common.id,
         name = %config.common.name,
@@ -155,16 +161,31 @@ pub async fn run(
         watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "vehicle started"
     );
+    let stall = options.stall_on_sigusr1;
+    let mut vehicle = Vehicle::new(&config, stall, clock, net, output, log, notify);
+    vehicle.audit = audit;
+    vehicle.audit(Owner::Failsafe, Why::Start);
     if config.access.is_open() {
         warn!(
             "no [access] in the config: this vehicle trusts every participant on its network \
              (any operator id may drive it, at any strength inside the hierarchy)"
         );
     }
-    let stall = options.stall_on_sigusr1;
-    (Vehicle::new(&config, stall, clock, net, output, log, notify))
-        .serve(shutdown)
-        .await
+    vehicle.serve(shutdown).await
+}
+
+/// The vehicle's audit log in the state directory; a log that cannot be opened is an error
+/// in the journal, not a reason to leave the vehicle without its gateway.
+fn open_audit(id: i64) -> Option<AuditLog> {
+    let Some(dir) = crate::audit::state_dir() else {
+        tracing::error!(
+            "no state directory (STATE_DIRECTORY, /var/lib/rove or XDG_STATE_HOME): no audit of control"
+        );
+        return None;
+    };
+    AuditLog::open(&dir, id)
+        .inspect_err(|e| tracing::error!("audit of control not kept: {e:#}"))
+        .ok()
 }
 
 impl<N: Net, O: Outputs> Vehicle<N, O> {
@@ -198,6 +219,34 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             shown: String::new(),
             heartbeat: config.common.heartbeat,
             stall,
+            audit: None,
+        }
+    }
+
+    /// Appends who drives now and why to the audit log (an error goes to the journal, at most
+    /// once: the log is then closed).
+    fn audit(&mut self, owner: Owner, why: Why) {
+        let secured = self.net.certifier().is_some();
+        let Some(log) = self.audit.as_mut() else {
+            return;
+        };
+        let event = AuditEvent {
+            wall_us: self.clock.wall_micros(),
+            vehicle: self.me,
+            who: Who::of(&owner, secured),
+            why,
+        };
+        if let Err(e) = log.record(event) {
+            tracing::error!("audit log {}: {e:#}; no more entries", log.path().display());
+            self.audit = None;
+        }
+    }
+
+    /// The audit log made durable (once a second, at least: every heartbeat and every record).
+    fn sync_audit(&mut self) {
+        if let Some(Err(e)) = self.audit.as_mut().map(AuditLog::tick) {
+            tracing::error!("audit log: {e:#}; no more entries");
+            self.audit = None;
         }
     }
 
@@ -282,6 +331,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
 
     /// Every heartbeat: DeviceInfo again, VehicleStatus and `STATUS=` if they changed.
     fn on_heartbeat(&mut self) {
+        self.sync_audit();
         self.net.publish_owner(self.arbiter.controller_id());
         let report = self.output.report();
         self.hung.observe(&report);
@@ -326,6 +376,9 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         if let Some(suspect) = decision.suspect {
             self.suspects.report(suspect);
         }
+        if let Some(change) = decision.owner_change {
+            self.audit(change.to, Why::of(change.reason));
+        }
         if decision.owner_change.is_some() {
             self.publish_status();
             let line = status_line(&self.arbiter, &self.output.report(), clock.now());
@@ -347,6 +400,18 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         }
         if let Some(log) = self.log.as_mut() {
             log.record(&self.clock, "safe", Owner::Failsafe, None);
+        }
+        // (`self.output` is gone: the audit's fields one by one.)
+        if let Some(audit) = self.audit.as_mut() {
+            let event = AuditEvent {
+                wall_us: self.clock.wall_micros(),
+                vehicle: self.me,
+                who: Who::of(&Owner::Failsafe, false),
+                why: Why::Stop,
+            };
+            if let Err(e) = audit.record(event).and_then(|()| audit.sync()) {
+                tracing::error!("audit log {}: {e:#}", audit.path().display());
+            }
         }
         self.net.publish_owner(self.me);
         self.net.withdraw();

@@ -28,11 +28,12 @@
 //! from the smallest to the largest: what each peer adds to every node.
 
 mod owners;
+pub mod starts;
 
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Rig, wall_us};
 use crate::tools::procstat::{clock_ticks, sample};
-use owners::{Assignment, assign, drives_of, is_laptop, settle, tally};
+use owners::{Assignment, SETTLE_PATIENCE, assign, drives_of, is_laptop, settle, tally};
 pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -43,8 +44,12 @@ use std::time::{Duration, Instant};
 pub const FIRST_VEHICLE: i64 = 100;
 /// The first operator's id.
 pub const FIRST_OPERATOR: i64 = 1000;
-/// The phone that takes vehicle 100 in the handover phase.
+/// The first phone that takes vehicle 100 in the handover phase: run `k` is phone
+/// `PHONE + k`, a device new to the fleet each time (one id quitting and coming back at once is
+/// held back by the trust rules' pin while it lasts, which is not what a late join measures).
 pub const PHONE: i64 = 9000;
+/// Phones at most (handover runs).
+pub const PHONES: i64 = 900;
 /// How long the churn phase waits between two restarts of a weaker operator.
 const RESTART_EVERY: Duration = Duration::from_secs(1);
 
@@ -73,6 +78,8 @@ pub struct Options {
     /// priority (`chrt -f`), as the vehicle unit's real-time option does; `None`: the normal
     /// scheduler.
     pub vehicle_rt: Option<u8>,
+    /// Every device with a certificate of its own and `[access]` (DDS Security, `rove keys`).
+    pub secure: bool,
 }
 
 /// CPU and memory of one role's processes.
@@ -157,6 +164,13 @@ pub struct Report {
     /// From the first process started until every vehicle was driven by its laptop and no
     /// vehicle had a wrong owner or a failsafe entry for 2 s, ms.
     pub settle_ms: u64,
+    /// Every device had a certificate of its own (DDS Security).
+    pub secure: bool,
+    /// From the first process started until every vehicle had applied its laptop's command, ms.
+    pub driven_ms: u64,
+    /// Vehicle 100: a mobile phone started → its first command applied (a late operator into
+    /// the running fleet), ms.
+    pub late_operator_ms: Option<Percentiles>,
 }
 
 /// The usage of one role from (CPU %, RSS KiB) per process.
@@ -195,9 +209,50 @@ fn fleet_ids(options: &Options) -> (Vec<i64>, Vec<i64>) {
     (vehicles.collect(), operators.collect())
 }
 
-/// Starts `rove status --events` as `name`; its log is the event stream.
-fn observer(rig: &mut Rig, name: &str) -> PathBuf {
-    let p = rig.spawn(name, &["status", "--events"]);
+/// The id whose certificate `rove status` observers use in a secured fleet.
+const OBSERVER: i64 = 9999;
+
+/// The phone of handover run `run`.
+fn phone(run: usize) -> i64 {
+    PHONE + (run as i64 % PHONES)
+}
+
+/// Every id that needs a certificate in a secured fleet.
+fn certified_ids(options: &Options) -> Vec<i64> {
+    let (vehicles, operators) = fleet_ids(options);
+    (vehicles.into_iter().chain(operators))
+        .chain((0..options.handover_runs).map(phone))
+        .chain([OBSERVER])
+        .collect()
+}
+
+/// A fleet's DDS Security files, if it is secured.
+#[derive(Debug, Clone, Default)]
+struct Keys(Option<PathBuf>);
+
+impl Keys {
+    /// Makes them in the rig's directory when `options` asks for a secured fleet.
+    fn make(rig: &Rig, options: &Options) -> anyhow::Result<Keys> {
+        let dir = options.secure.then(|| rig.fleet(&certified_ids(options)));
+        Ok(Keys(dir.transpose()?))
+    }
+
+    /// Device `id`'s `[security]` table, empty unsecured.
+    fn toml(&self, id: i64) -> String {
+        harness::security_toml(self.0.as_deref(), id)
+    }
+}
+
+/// Starts `rove status --events` as `name`, secured like the fleet; its log is the event
+/// stream.
+fn observer(rig: &mut Rig, keys: &Keys, name: &str) -> PathBuf {
+    let dir = keys.0.as_ref().map(|f| f.join(OBSERVER.to_string()));
+    let dir = dir.map(|d| d.display().to_string());
+    let mut args = vec!["status", "--events"];
+    if let Some(dir) = &dir {
+        args.extend(["--security", dir.as_str()]);
+    }
+    let p = rig.spawn(name, &args);
     rig.procs[p].log.clone()
 }
 
@@ -212,6 +267,72 @@ fn stop_last(rig: &mut Rig) {
     }
 }
 
+/// A fleet just started: who is who, and where each vehicle records.
+struct Started {
+    vehicles: Vec<i64>,
+    operators: Vec<i64>,
+    /// Each vehicle's record, in the order of `vehicles`.
+    records: Vec<PathBuf>,
+    assignment: Assignment,
+    /// Each operator's process index in the rig, and what it is started with.
+    started_as: BTreeMap<i64, (usize, &'static str, Vec<i64>)>,
+    /// Wall clock of the first process's start, µs.
+    at: u64,
+    /// The `[network]` and `[security]` an operator `id` is started with.
+    keys: Keys,
+    network: String,
+}
+
+impl Started {
+    /// What operator `id` appends to its file: the fleet's `[network]` and its `[security]`.
+    fn extra(&self, id: i64) -> String {
+        format!("{}{}", self.network, self.keys.toml(id))
+    }
+}
+
+/// Starts the fleet's vehicles, then its operators, in `rig`.
+fn start(rig: &mut Rig, options: &Options) -> anyhow::Result<Started> {
+    let keys = Keys::make(rig, options)?;
+    let at = wall_us();
+    let (vehicles, operators) = fleet_ids(options);
+    let network = network_toml(options);
+    // Only the measured vehicle runs real-time: on a real board each vehicle has its own
+    // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
+    // real-time on these two cores starves the operators: measured, stale outputs everywhere.)
+    let records: Vec<PathBuf> = (vehicles.iter())
+        .map(|&v| {
+            let fifo = options.vehicle_rt.filter(|_| v == FIRST_VEHICLE);
+            let output = format!("{network}{}[output]\nadapter = \"sim\"\n", keys.toml(v));
+            rig.vehicle_scheduled(v, &output, fifo)
+        })
+        .collect();
+    let assignment = assign(&vehicles, &operators);
+    let mut fleet = Started {
+        vehicles,
+        operators,
+        records,
+        assignment,
+        started_as: BTreeMap::new(),
+        at,
+        keys,
+        network,
+    };
+    for id in fleet.operators.clone() {
+        let class = match is_laptop(&fleet.assignment, id) {
+            true => "laptop",
+            false => "desktop",
+        };
+        let drive = match options.idle {
+            true => Vec::new(),
+            false => drives_of(&fleet.assignment, id),
+        };
+        let extra = fleet.extra(id);
+        let p = rig.operator(id, "stationary", class, &drive, 1000, &extra, &[]);
+        fleet.started_as.insert(id, (p, class, drive));
+    }
+    Ok(fleet)
+}
+
 /// Runs the bench.
 ///
 /// # Errors
@@ -223,94 +344,62 @@ pub fn run(
 ) -> anyhow::Result<Report> {
     anyhow::ensure!(options.vehicles >= 1, "needs at least one vehicle");
     let mut rig = Rig::new(rove, "scale")?;
-    let started = wall_us();
-    let (vehicles, operators) = fleet_ids(options);
-    let network = network_toml(options);
-    let output = format!("{network}[output]\nadapter = \"sim\"\n");
-    // Only the measured vehicle runs real-time: on a real board each vehicle has its own
-    // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
-    // real-time on these two cores starves the operators: measured, stale outputs everywhere.)
-    let records: Vec<PathBuf> = (vehicles.iter())
-        .map(|&v| {
-            let fifo = options.vehicle_rt.filter(|_| v == FIRST_VEHICLE);
-            rig.vehicle_scheduled(v, &output, fifo)
-        })
-        .collect();
-    let assignment = assign(&vehicles, &operators);
-    // Each operator's process index in the rig, and what it is started with.
-    let mut started_as: BTreeMap<i64, (usize, &'static str, Vec<i64>)> = BTreeMap::new();
-    for &id in &operators {
-        let class = if is_laptop(&assignment, id) {
-            "laptop"
-        } else {
-            "desktop"
-        };
-        let drive = if options.idle {
-            Vec::new()
-        } else {
-            drives_of(&assignment, id)
-        };
-        let p = rig.operator(id, "stationary", class, &drive, 1000, &network, &[]);
-        started_as.insert(id, (p, class, drive));
-    }
+    let mut f = start(&mut rig, options)?;
+    let started = f.at;
     let fleet: Vec<usize> = (0..rig.procs.len()).collect();
     progress(&format!(
-        "{} vehicles, {} operators started",
-        vehicles.len(),
-        operators.len()
+        "{} vehicles, {} operators started{}",
+        f.vehicles.len(),
+        f.operators.len(),
+        if options.secure { ", secured" } else { "" }
     ));
-    let everyone: BTreeSet<i64> = vehicles.iter().chain(&operators).copied().collect();
-    if options.idle {
-        let path = observer(&mut rig, "observer");
-        harness::wait_listed(&path, &everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
+    let everyone: BTreeSet<i64> = f.vehicles.iter().chain(&f.operators).copied().collect();
+    let driven_ms = if options.idle {
+        let path = observer(&mut rig, &f.keys, "observer");
+        let listed = harness::wait_listed(&path, &everyone, LISTING_PATIENCE);
         stop_last(&mut rig);
+        listed.map_err(anyhow::Error::msg)?.saturating_sub(started) / 1000
     } else {
-        settle(&vehicles, &records, &assignment, started)?;
-    }
+        let driven = driven(&f, SETTLE_PATIENCE).map_err(|undriven| {
+            anyhow::anyhow!("vehicles {undriven:?} were not driven by their laptops")
+        })?;
+        settle(&f.vehicles, &f.records, &f.assignment, started)?;
+        driven
+    };
     let steady = wall_us();
     let settle_ms = (steady - started) / 1000;
     progress(&format!(
-        "fleet steady {settle_ms} ms after the start; measuring CPU"
+        "every vehicle driven {driven_ms} ms, fleet steady {settle_ms} ms after the start; \
+         measuring CPU"
     ));
     let (measured, elapsed) = cpu_window(&rig, &fleet, options.window)?;
-    let (v_usage, o_usage) = measured.split_at(vehicles.len());
+    let (v_usage, o_usage) = measured.split_at(f.vehicles.len());
     let mut phases = vec![
         (owners::START, started),
         ("steady", steady),
         ("churn", wall_us()),
     ];
-    let restarts = if options.idle {
-        0
-    } else {
-        churn(
-            &mut rig,
-            &assignment,
-            &mut started_as,
-            options.restarts,
-            &network,
-            progress,
-        )
+    let restarts = match options.idle {
+        true => 0,
+        false => churn(&mut rig, &mut f, options.restarts, progress),
     };
     phases.push(("handover", wall_us()));
-    let handover = if options.idle {
-        Vec::new()
-    } else {
-        let (record, owner) = (&records[0], assignment[&vehicles[0]].0);
-        handovers(
-            &mut rig,
-            record,
-            vehicles[0],
-            owner,
-            options.handover_runs,
-            progress,
-        )?
+    let (handover, late_operator) = match options.idle {
+        true => (Vec::new(), Vec::new()),
+        false => handovers(&mut rig, &f, options.handover_runs, progress)?,
     };
     phases.push(("late joiner", wall_us()));
-    let latejoin = late_joiners(&mut rig, &everyone, options.latejoin_runs, progress)?;
-    let tally = tally(&vehicles, &records, &assignment, started, &phases);
+    let latejoin = late_joiners(
+        &mut rig,
+        &f.keys,
+        &everyone,
+        options.latejoin_runs,
+        progress,
+    )?;
+    let tally = tally(&f.vehicles, &f.records, &f.assignment, started, &phases);
     Ok(Report {
-        vehicles: vehicles.len(),
-        operators: operators.len(),
+        vehicles: f.vehicles.len(),
+        operators: f.operators.len(),
         idle: options.idle,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
         presence_ms: options
@@ -332,7 +421,44 @@ pub fn run(
         incidents: tally.incidents,
         incidents_by_phase: tally.by_phase,
         settle_ms,
+        secure: options.secure,
+        driven_ms,
+        late_operator_ms: Percentiles::of(&late_operator),
     })
+}
+
+/// Waits at most `patience` until every vehicle of `f` has applied its laptop's command; how
+/// long after the start the last one did (ms), or the vehicles that were never driven.
+fn driven(f: &Started, patience: Duration) -> Result<u64, Vec<i64>> {
+    let give_up = Instant::now() + patience;
+    let mut first: BTreeMap<i64, u64> = BTreeMap::new();
+    loop {
+        for (&vehicle, record) in f.vehicles.iter().zip(&f.records) {
+            let Some(&(laptop, _)) = f.assignment.get(&vehicle) else {
+                first.insert(vehicle, f.at);
+                continue;
+            };
+            if first.contains_key(&vehicle) {
+                continue;
+            }
+            let outs = harness::records(record);
+            let by_laptop = outs
+                .iter()
+                .find(|o| o.action == "apply" && o.owner == Some(laptop));
+            if let Some(o) = by_laptop {
+                first.insert(vehicle, o.wall_us);
+            }
+        }
+        if first.len() == f.vehicles.len() {
+            let last = first.values().max().copied().unwrap_or(f.at);
+            return Ok(last.saturating_sub(f.at) / 1000);
+        }
+        if Instant::now() > give_up {
+            let undriven = f.vehicles.iter().filter(|v| !first.contains_key(v));
+            return Err(undriven.copied().collect());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// Every process's CPU (percent of a core) over `window`, 2 s from now, and its resident memory
@@ -363,16 +489,9 @@ fn cpu_window(
 }
 
 /// The churn phase: `restarts` times, a desktop quits (SIGTERM) and starts again with what it
-/// was started with (`started_as`: its process, class and vehicles), one a second; how many.
-fn churn(
-    rig: &mut Rig,
-    assignment: &Assignment,
-    started_as: &mut BTreeMap<i64, (usize, &'static str, Vec<i64>)>,
-    restarts: usize,
-    network: &str,
-    progress: &mut dyn FnMut(&str),
-) -> usize {
-    let desktops: Vec<i64> = (assignment.values())
+/// was started with (`f.started_as`: its process, class and vehicles), one a second; how many.
+fn churn(rig: &mut Rig, f: &mut Started, restarts: usize, progress: &mut dyn FnMut(&str)) -> usize {
+    let desktops: Vec<i64> = (f.assignment.values())
         .filter_map(|(_, desktop)| *desktop)
         .collect::<BTreeSet<_>>()
         .into_iter()
@@ -382,51 +501,66 @@ fn churn(
     }
     for run in 0..restarts {
         let id = desktops[run % desktops.len()];
-        let (p, class, drive) = started_as[&id].clone();
+        let (p, class, drive) = f.started_as[&id].clone();
         rig.procs[p].stop();
-        let again = rig.operator(id, "stationary", class, &drive, 1000, network, &[]);
+        let extra = f.extra(id);
+        let again = rig.operator(id, "stationary", class, &drive, 1000, &extra, &[]);
         progress(&format!(
             "restart {}/{restarts}: desktop {id} (drives {drive:?})",
             run + 1
         ));
-        started_as.insert(id, (again, class, drive));
+        f.started_as.insert(id, (again, class, drive));
         std::thread::sleep(RESTART_EVERY);
     }
     restarts
 }
 
-/// `runs` times: a mobile phone takes `vehicle` from `owner` and quits; from its SIGTERM to
-/// `owner`'s first command applied again, ms.
+/// `runs` times: a mobile phone starts and takes the first vehicle from its laptop, then quits.
+/// Returns, ms, from the phone's SIGTERM to the laptop's first command applied again, and from
+/// the phone's start to its own first command applied (a late operator).
 fn handovers(
     rig: &mut Rig,
-    record: &Path,
-    vehicle: i64,
-    owner: i64,
+    f: &Started,
     runs: usize,
     progress: &mut dyn FnMut(&str),
-) -> anyhow::Result<Vec<f64>> {
-    let mut handover = Vec::new();
+) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
+    let (vehicle, record) = (f.vehicles[0], &f.records[0]);
+    let owner = f.assignment[&vehicle].0;
+    let (mut handover, mut late) = (Vec::new(), Vec::new());
     for run in 0..runs {
-        let phone = rig.operator(PHONE, "mobile", "phone", &[vehicle], 2000, "", &[]);
-        harness::wait_for_output(record, Some(PHONE), wall_us()).map_err(anyhow::Error::msg)?;
+        let id = phone(run);
+        let extra = f.keys.toml(id);
+        let t_start = wall_us();
+        let phone = rig.operator(id, "mobile", "phone", &[vehicle], 2000, &extra, &[]);
+        let first = harness::wait_for_output(record, Some(id), t_start);
+        late.push(
+            first
+                .map_err(anyhow::Error::msg)?
+                .wall_us
+                .saturating_sub(t_start) as f64
+                / 1e3,
+        );
         let t0 = wall_us();
         rig.procs[phone].terminate();
         let out = harness::wait_for_output(record, Some(owner), t0).map_err(anyhow::Error::msg)?;
         rig.procs[phone].wait_exit(harness::PATIENCE);
         handover.push(out.wall_us.saturating_sub(t0) as f64 / 1000.0);
         progress(&format!(
-            "handover {}/{runs}: {:.2} ms",
+            "handover {}/{runs}: phone drives {:.1} ms after its start, laptop {:.2} ms after \
+             its quit",
             run + 1,
+            late[run],
             handover[run]
         ));
     }
-    Ok(handover)
+    Ok((handover, late))
 }
 
 /// `runs` times: `rove status --events` starts; from its start to every device of `everyone`
 /// listed, ms.
 fn late_joiners(
     rig: &mut Rig,
+    keys: &Keys,
     everyone: &BTreeSet<i64>,
     runs: usize,
     progress: &mut dyn FnMut(&str),
@@ -434,7 +568,7 @@ fn late_joiners(
     let mut latejoin = Vec::new();
     for run in 0..runs {
         let t0 = wall_us();
-        let path = observer(rig, &format!("joiner-{run}"));
+        let path = observer(rig, keys, &format!("joiner-{run}"));
         let done =
             harness::wait_listed(&path, everyone, LISTING_PATIENCE).map_err(anyhow::Error::msg)?;
         stop_last(rig);
@@ -536,6 +670,7 @@ mod tests {
             heartbeat_ms: None,
             presence_ms: None,
             vehicle_rt: None,
+            secure: false,
         };
         assert_eq!(
             fleet_ids(&options),

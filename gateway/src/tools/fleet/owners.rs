@@ -1,7 +1,7 @@
 //! Who should drive each vehicle of the scale bench, and the outputs that say otherwise: a
 //! wrong owner (an apply from anyone but the vehicle's laptop) or a failsafe entry.
 
-use super::PHONE;
+use super::{PHONE, PHONES};
 use crate::tools::harness::{self, Out, wall_us};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -149,7 +149,7 @@ pub(super) fn tally(
             .into_iter()
             .collect();
         if vehicle == vehicles[0] {
-            allowed.push(PHONE);
+            allowed.extend(PHONE..PHONE + PHONES);
         }
         let found = incidents_of(&outs, since, &allowed, phases, vehicle);
         for i in &found {
@@ -180,7 +180,7 @@ pub(super) fn tally(
 pub const SETTLE_QUIET: Duration = Duration::from_secs(2);
 
 /// How long a streaming fleet may take to settle.
-const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
+pub(super) const SETTLE_PATIENCE: Duration = Duration::from_secs(60);
 
 /// Waits until every vehicle was driven by its laptop and the fleet settled: no wrong owner
 /// and no failsafe entry for [`SETTLE_QUIET`] (checked once a second: reading every record

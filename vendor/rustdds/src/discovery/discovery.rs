@@ -71,7 +71,7 @@ use crate::{
 // in Secure RTPS. Please see the RTPS Security specification for explanation.
 #[cfg(feature = "security")]
 use crate::{
-  discovery::secure_discovery::SecureDiscovery,
+  discovery::secure_discovery::{HandshakeFollowUp, SecureDiscovery},
   security::{security_plugins::SecurityPluginsHandle, types::*},
 };
 #[cfg(not(feature = "security"))]
@@ -351,7 +351,10 @@ impl Discovery {
   #[cfg(feature = "security")]
   const SECURE_SPDP_PERIOD: StdDuration = StdDuration::from_secs(10);
   #[cfg(feature = "security")]
-  const CACHED_SECURE_DISCOVERY_MESSAGE_RESEND_PERIOD: StdDuration = StdDuration::from_secs(1);
+  // rove patch (ROVE-PATCH.md §25): was 1 s. Each stored handshake message keeps its own
+  // schedule (the first resend after 50 ms, backing off to 1 s); this is how often it is
+  // looked at.
+  const CACHED_SECURE_DISCOVERY_MESSAGE_RESEND_PERIOD: StdDuration = StdDuration::from_millis(50);
 
   #[allow(clippy::too_many_arguments)]
   pub fn new(
@@ -1274,15 +1277,27 @@ impl Discovery {
     // and removes them.
     let removed_for_good = self.is_secured();
     discovery_db_write(&self.discovery_db).remove_participant(participant_guidp, removed_for_good);
-    self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost {
-      guid_prefix: participant_guidp,
-    });
-    self.send_participant_status(DomainParticipantStatusEvent::ParticipantLost {
-      id: participant_guidp,
-      reason: LostReason::Disposed,
-    });
+    self.participant_removed(participant_guidp, LostReason::Disposed);
+  }
+
+  /// rove patch (ROVE-PATCH.md §24): a participant removed from the database, for whatever
+  /// reason: secure discovery and the security plugins forget its session here, on this
+  /// thread, before the event loop and the application are told (the event loop used to
+  /// unregister it from the plugins when it got round to it, which could be after the
+  /// participant had started to authenticate again, and took that handshake's handles).
+  fn participant_removed(&mut self, guid_prefix: GuidPrefix, reason: LostReason) {
     #[cfg(feature = "security")]
-    self.spdp_quick_response_sent.remove(&participant_guidp);
+    {
+      if let Some(security) = self.security_opt.as_mut() {
+        security.forget(guid_prefix);
+      }
+      self.spdp_quick_response_sent.remove(&guid_prefix);
+    }
+    self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost { guid_prefix });
+    self.send_participant_status(DomainParticipantStatusEvent::ParticipantLost {
+      id: guid_prefix,
+      reason,
+    });
   }
 
   fn send_endpoint_dispose_message(&self, endpoint_guid: GUID) {
@@ -1766,7 +1781,7 @@ impl Discovery {
 
   #[cfg(feature = "security")]
   fn receive_participant_stateless_message(&mut self) {
-    if let Some(security) = self.security_opt.as_mut() {
+    if self.security_opt.is_some() {
       // Security enabled. Get messages from the stateless data reader & feed to
       // Secure Discovery.
       match self
@@ -1775,19 +1790,51 @@ impl Discovery {
         .into_iterator()
       {
         Ok(dr_iter) => {
-          for msg in dr_iter {
-            security.participant_stateless_message_read(
-              &msg,
-              &self.discovery_db,
-              &self.discovery_updated_sender,
-              &self.dcps_participant_stateless_message.writer,
-            );
+          let messages: Vec<_> = dr_iter.collect();
+          for msg in messages {
+            self.participant_stateless_message(&msg);
           }
         }
         Err(e) => {
           error!("receive_participant_stateless_message: {e:?}");
         }
       };
+    }
+  }
+
+  #[cfg(feature = "security")]
+  fn participant_stateless_message(&mut self, msg: &ParticipantStatelessMessage) {
+    let Some(security) = self.security_opt.as_mut() else {
+      return;
+    };
+    let follow_up = security.participant_stateless_message_read(
+      msg,
+      &self.discovery_db,
+      &self.discovery_updated_sender,
+      &self.dcps_participant_stateless_message.writer,
+    );
+    // rove patch (ROVE-PATCH.md §24): the peer authenticates again. Its session is
+    // dropped as if it had left (the event loop removes its proxies, the application hears
+    // it leave), then the handshake starts over with what it announced.
+    if let HandshakeFollowUp::Restart(remote) = follow_up {
+      let data = discovery_db_read(&self.discovery_db)
+        .find_participant_proxy(remote)
+        .cloned();
+      let Some(data) = data else {
+        return;
+      };
+      // Its endpoints to the attic: they come back once it has authenticated again.
+      discovery_db_write(&self.discovery_db).remove_participant(remote, false);
+      self.participant_removed(remote, LostReason::Disposed);
+      if let Some(security) = self.security_opt.as_mut() {
+        security.restart_authentication(
+          &data,
+          msg,
+          &self.discovery_db,
+          &self.discovery_updated_sender,
+          &self.dcps_participant_stateless_message.writer,
+        );
+      }
     }
   }
 
@@ -1964,7 +2011,7 @@ impl Discovery {
     }
   }
 
-  pub fn participant_cleanup(&self) {
+  pub fn participant_cleanup(&mut self) {
     // rove patch (certificate lifetime, revocation list): an authenticated participant whose
     // certificate has expired, or which a list read again now revokes, is dropped as if it had
     // left (its proxies and keys go); authenticating again, it is refused.
@@ -1977,21 +2024,13 @@ impl Discovery {
       for (guid_prefix, why) in unacceptable {
         error!("authenticated participant {guid_prefix:?} dropped: {why}");
         discovery_db_write(&self.discovery_db).remove_participant(guid_prefix, true);
-        self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost { guid_prefix });
-        self.send_participant_status(DomainParticipantStatusEvent::ParticipantLost {
-          id: guid_prefix,
-          reason: LostReason::Disposed,
-        });
+        self.participant_removed(guid_prefix, LostReason::Disposed);
       }
     }
     let removed = discovery_db_write(&self.discovery_db).participant_cleanup();
     for (guid_prefix, reason) in removed {
       debug!("participant cleanup - timeout for {guid_prefix:?}");
-      self.send_discovery_notification(DiscoveryNotificationType::ParticipantLost { guid_prefix });
-      self.send_participant_status(DomainParticipantStatusEvent::ParticipantLost {
-        id: guid_prefix,
-        reason,
-      });
+      self.participant_removed(guid_prefix, reason);
     }
   }
 

@@ -1,6 +1,7 @@
 use std::{
   collections::{HashMap, HashSet},
   sync::{Arc, RwLock},
+  time::{Duration as StdDuration, Instant},
 };
 
 #[allow(unused_imports)]
@@ -22,7 +23,8 @@ use crate::{
   security::{
     access_control::{EndpointSecurityAttributes, ParticipantSecurityAttributes, PermissionsToken},
     authentication::{
-      authentication_builtin::DiscHandshakeState, HandshakeMessageToken, IdentityToken,
+      authentication_builtin::{types::HANDSHAKE_REQUEST_CLASS_ID, DiscHandshakeState},
+      HandshakeMessageToken, IdentityToken,
       ValidationOutcome, GMCLASSID_SECURITY_AUTH_HANDSHAKE,
     },
     cryptographic::{
@@ -63,19 +65,66 @@ pub enum AuthenticationStatus {
 }
 
 // How many times an authentication message is resent if we don't get an answer
-const STORED_AUTH_MESSAGE_MAX_RESEND_COUNT: u8 = 10;
+// rove patch (ROVE-PATCH.md §25): was 10 (10 s at one a second); with the back-off 15 cover
+// about 11 s.
+const STORED_AUTH_MESSAGE_MAX_RESEND_COUNT: u8 = 15;
+
+// rove patch (ROVE-PATCH.md §24): authentication that converges when one side of a pair
+// lost the other (its lease ran out under load, a handshake message crossed a restart).
+/// The class of a handshake token that asks the peer to authenticate again: sent by a
+/// participant that waits for a handshake request from a peer that thinks it is done.
+pub(crate) const RESTART_CLASS_ID: &str = "rove:Auth:Restart";
+/// How long a participant waits for a handshake request before it asks for one.
+const NUDGE_AFTER: StdDuration = StdDuration::from_millis(1000);
+/// A peer's session is torn down and authenticated again at most once in this time, so that
+/// forged requests cannot keep a pair apart for longer than a handshake at this rate.
+const RESTART_MIN_INTERVAL: StdDuration = StdDuration::from_millis(1000);
+
+/// What a handshake message asks Discovery to do besides answering it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum HandshakeFollowUp {
+  /// Nothing.
+  None,
+  /// The peer authenticates again: forget its session (as if it had left), then
+  /// [`SecureDiscovery::restart_authentication`].
+  Restart(GuidPrefix),
+}
 
 struct StoredAuthenticationMessage {
   message: ParticipantStatelessMessage,
   remaining_resend_counter: u8,
+  // rove patch (ROVE-PATCH.md §25): when it goes again, and the wait after that.
+  next_resend: Instant,
+  backoff: StdDuration,
 }
+
+// rove patch (ROVE-PATCH.md §25): a handshake message is resent 50 ms after it was sent, then
+// after twice as long each time, up to once a second (it was once a second from the start).
+// The first request to a peer is often lost: it is written before the event loop has matched
+// the peer's stateless reader (or before the peer has heard our announcement), so every
+// secured pair waited a full second to authenticate, and a fleet's start or a late joiner
+// took seconds.
+const FIRST_RESEND_AFTER: StdDuration = StdDuration::from_millis(50);
+const LONGEST_RESEND_INTERVAL: StdDuration = StdDuration::from_secs(1);
 
 impl StoredAuthenticationMessage {
   pub fn new(message: ParticipantStatelessMessage) -> Self {
     Self {
       message,
       remaining_resend_counter: STORED_AUTH_MESSAGE_MAX_RESEND_COUNT,
+      next_resend: Instant::now() + FIRST_RESEND_AFTER,
+      backoff: FIRST_RESEND_AFTER,
     }
+  }
+
+  /// Whether it is due at `now`; if so, the next resend is scheduled.
+  fn due(&mut self, now: Instant) -> bool {
+    if now < self.next_resend {
+      return false;
+    }
+    self.backoff = (self.backoff * 2).min(LONGEST_RESEND_INTERVAL);
+    self.next_resend = now + self.backoff;
+    true
   }
 }
 
@@ -107,10 +156,23 @@ pub(crate) struct SecureDiscovery {
 
   // In the key, first GUID is local endpoint's, second is remote endpoint's
   cached_received_key_exchange_messages: HashMap<(GUID, GUID), ParticipantVolatileMessageSecure>,
-  user_data_endpoints_with_keys_already_sent_to: HashSet<GUID>,
+  // rove patch (ROVE-PATCH.md §26): (local endpoint, remote endpoint) pairs; it was the remote
+  // endpoint alone, so a remote reader matched by two of our writers (an operator's regular
+  // and priority command writers, read by a vehicle's one reader) got the first writer's keys
+  // only, and never decoded the second's samples.
+  user_data_endpoints_with_keys_already_sent_to: HashSet<(GUID, GUID)>,
 
   // A set for keeping track which remote readers are relay-only
   relay_only_remote_readers: HashSet<GUID>,
+
+  // rove patch (ROVE-PATCH.md §24)
+  /// Since when we wait for a handshake request from each peer, and when we last asked it.
+  waiting_for_request_since: HashMap<GuidPrefix, (Instant, Option<Instant>)>,
+  /// When each peer's session was last torn down to authenticate again.
+  last_restart: HashMap<GuidPrefix, Instant>,
+  /// The identity of the last handshake request we answered from each peer: a request
+  /// sent again is answered as before, a new one starts the handshake over.
+  answered_request: HashMap<GuidPrefix, rpc::SampleIdentity>,
 }
 
 impl SecureDiscovery {
@@ -257,6 +319,9 @@ impl SecureDiscovery {
       cached_received_key_exchange_messages: HashMap::new(),
       user_data_endpoints_with_keys_already_sent_to: HashSet::new(),
       relay_only_remote_readers: HashSet::new(),
+      waiting_for_request_since: HashMap::new(),
+      last_restart: HashMap::new(),
+      answered_request: HashMap::new(),
     })
   }
 
@@ -1510,12 +1575,16 @@ impl SecureDiscovery {
     auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
     key_exchange_writer: &no_key::DataWriter<ParticipantVolatileMessageSecure>,
   ) {
+    // rove patch (ROVE-PATCH.md §24): peers we wait for are asked for their request.
+    self.ask_for_requests(auth_msg_writer);
     // First resend authentication messages
+    let now = Instant::now();
     for (guid_prefix, stored_message) in self.stored_authentication_messages.iter_mut() {
       // Resend the message unless it's a final message (which needs to be requested
       // from us)
       if self.handshake_states.get(guid_prefix)
         != Some(&DiscHandshakeState::CompletedWithFinalMessageSent)
+        && stored_message.due(now)
       {
         match auth_msg_writer.write(stored_message.message.clone(), None) {
           Ok(()) => {
@@ -1570,6 +1639,9 @@ impl SecureDiscovery {
       .get_mut(remote_guid_prefix)
     {
       msg.remaining_resend_counter = STORED_AUTH_MESSAGE_MAX_RESEND_COUNT;
+      // rove patch (ROVE-PATCH.md §25): and the back-off starts again.
+      msg.backoff = FIRST_RESEND_AFTER;
+      msg.next_resend = Instant::now() + FIRST_RESEND_AFTER;
     } else {
       debug!(
         "Did not find a stored authentication message for remote participant \
@@ -1584,10 +1656,10 @@ impl SecureDiscovery {
     discovery_db: &Arc<RwLock<DiscoveryDB>>,
     discovery_updated_sender: &WakeSender<DiscoveryNotificationType>,
     auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
-  ) {
+  ) -> HandshakeFollowUp {
     if !self.is_stateless_msg_for_local_participant(message) {
       trace!("Ignoring a ParticipantStatelessMessage, since its not meant for me.");
-      return;
+      return HandshakeFollowUp::None;
     }
 
     // Check that GenericMessageClassID is what we expect
@@ -1596,10 +1668,15 @@ impl SecureDiscovery {
         "Received a ParticipantStatelessMessage with an unknown GenericMessageClassID: {}",
         message.generic.message_class_id
       );
-      return;
+      return HandshakeFollowUp::None;
     }
 
     let remote_guid_prefix = message.generic.source_guid_prefix();
+    // rove patch (ROVE-PATCH.md §24): a request or a restart where the state does not
+    // expect one.
+    if let Some(follow_up) = self.unexpected_request(message, auth_msg_writer) {
+      return follow_up;
+    }
     // What to do depends on the handshake state with the remote participant
     match self.get_handshake_state(&remote_guid_prefix) {
       None => {
@@ -1643,6 +1720,158 @@ impl SecureDiscovery {
            with this participant has already been completed by receiving the final message. \
            Nothing for us to do anymore."
         );
+      }
+    }
+    HandshakeFollowUp::None
+  }
+
+  // rove patch (ROVE-PATCH.md §24): a handshake request, or a restart request, that the
+  // handshake state with its sender does not expect. The builtin protocol has the lower GUID
+  // send the request and the other wait for it, and neither side starts over by itself, so a
+  // pair in which one side lost the other (its lease ran out while the discovery thread was
+  // busy with the handshakes of a whole fleet, or a request was made again after a reply
+  // was sent) stayed apart for good: the side that had lost its peer sent a request the
+  // other ignored as done, or waited for a request the other never sent again. Now:
+  // - a new request from a peer whose request we answered (or that we authenticated) means
+  //   it lost our session: we forget ours and answer as a new handshake;
+  // - a restart request (RESTART_CLASS_ID, sent by a peer that waits for our request) means
+  //   the same from the side that must wait: we forget the session and send a new request,
+  //   or, if we are waiting for its reply, send our request again.
+  // Returns `None` when the message takes the normal path.
+  fn unexpected_request(
+    &mut self,
+    message: &ParticipantStatelessMessage,
+    auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
+  ) -> Option<HandshakeFollowUp> {
+    let remote = message.generic.source_guid_prefix();
+    let class_id = message.generic.message_data.first()?.class_id.as_str();
+    let state = self.get_handshake_state(&remote)?;
+    let is_request = class_id.as_bytes() == HANDSHAKE_REQUEST_CLASS_ID;
+    let is_restart = class_id == RESTART_CLASS_ID;
+    let answered = self.answered_request.get(&remote) == Some(&message.generic.message_identity);
+    use DiscHandshakeState::*;
+    match (is_request, is_restart, state) {
+      // A request sent again after our reply: our reply goes again.
+      (true, _, PendingFinalMessage) if answered => {
+        self.reset_stored_message_resend_counter(&remote);
+        self.resend_stored_message(remote, auth_msg_writer);
+        return Some(HandshakeFollowUp::None);
+      }
+      (true, _, CompletedWithFinalMessageReceived) if answered => {
+        return Some(HandshakeFollowUp::None);
+      }
+      // A new request after ours was answered or done: the peer started over.
+      (true, _, PendingFinalMessage | CompletedWithFinalMessageReceived) => {}
+      // The peer waits for our request: it goes again, or the session starts over.
+      (_, true, PendingReplyMessage) if self.stored_authentication_messages.contains_key(&remote) => {
+        self.reset_stored_message_resend_counter(&remote);
+        self.resend_stored_message(remote, auth_msg_writer);
+        return Some(HandshakeFollowUp::None);
+      }
+      (_, true, PendingReplyMessage | CompletedWithFinalMessageSent | CompletedWithFinalMessageReceived) => {}
+      // Not yet sent: the normal path sends it.
+      (_, true, PendingRequestSend) => return None,
+      (_, true, _) => return Some(HandshakeFollowUp::None),
+      _ => return None,
+    }
+    let now = Instant::now();
+    if (self.last_restart.get(&remote)).is_some_and(|at| now.duration_since(*at) < RESTART_MIN_INTERVAL)
+    {
+      debug!("restart of the handshake with {remote:?} asked too soon after the last; ignored");
+      return Some(HandshakeFollowUp::None);
+    }
+    self.last_restart.insert(remote, now);
+    warn!(
+      "participant {remote:?} authenticates again ({}, our state {state:?}): its session is \
+       dropped and the handshake starts over",
+      if is_restart { "it asks us to" } else { "a new handshake request" }
+    );
+    Some(HandshakeFollowUp::Restart(remote))
+  }
+
+  /// rove patch (ROVE-PATCH.md §24): sends the stored handshake message to `remote` again now.
+  fn resend_stored_message(
+    &mut self,
+    remote: GuidPrefix,
+    auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
+  ) {
+    if let Some(stored) = self.stored_authentication_messages.get(&remote) {
+      if let Err(e) = auth_msg_writer.write(stored.message.clone(), None) {
+        debug!("Failed to resend a handshake message to {remote:?}: {e}");
+      }
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §24): everything about `remote`'s session is forgotten: its
+  /// handshake, the messages kept for it, the keys sent to its endpoints, and its handles in
+  /// the security plugins. Called when the participant is lost, for whatever reason, and
+  /// before it authenticates again; before, all of it stayed, so a participant found again
+  /// was matched with the keys of its previous session.
+  pub fn forget(&mut self, remote: GuidPrefix) {
+    self.handshake_states.remove(&remote);
+    self.stored_authentication_messages.remove(&remote);
+    self.waiting_for_request_since.remove(&remote);
+    self.answered_request.remove(&remote);
+    (self.cached_key_exchange_messages_for_resend)
+      .retain(|m| m.generic.destination_participant_guid.prefix != remote);
+    (self.cached_received_key_exchange_messages).retain(|(_, from), _| from.prefix != remote);
+    (self.user_data_endpoints_with_keys_already_sent_to).retain(|(_, g)| g.prefix != remote);
+    (self.relay_only_remote_readers).retain(|g| g.prefix != remote);
+    if let Err(e) = (self.security_plugins.get_plugins()).unregister_remote_participant(&remote) {
+      debug!("unregistering remote participant {remote:?}: {e}");
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §24): after [`Self::forget`], authenticates `participant_data`
+  /// again; if we are the side that answers and `request` is a handshake request, answers
+  /// it at once.
+  pub fn restart_authentication(
+    &mut self,
+    participant_data: &SpdpDiscoveredParticipantData,
+    request: &ParticipantStatelessMessage,
+    discovery_db: &Arc<RwLock<DiscoveryDB>>,
+    discovery_updated_sender: &WakeSender<DiscoveryNotificationType>,
+    auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
+  ) {
+    let remote = participant_data.participant_guid.prefix;
+    let status = self.start_authentication_with_remote(
+      participant_data,
+      discovery_db,
+      discovery_updated_sender,
+      auth_msg_writer,
+    );
+    discovery_db_write(discovery_db).update_authentication_status(remote, status);
+    let is_request = (request.generic.message_data.first())
+      .is_some_and(|d| d.class_id.as_bytes() == HANDSHAKE_REQUEST_CLASS_ID);
+    if is_request && self.get_handshake_state(&remote) == Some(DiscHandshakeState::PendingRequestMessage)
+    {
+      self.handshake_on_pending_request_message(request, discovery_db, auth_msg_writer);
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §24): to each peer whose handshake request we have waited
+  /// for longer than [`NUDGE_AFTER`], a restart request (the peer may think it is done).
+  fn ask_for_requests(&mut self, auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>) {
+    let now = Instant::now();
+    let overdue: Vec<GuidPrefix> = (self.waiting_for_request_since.iter_mut())
+      .filter(|(_, (since, asked))| {
+        now.duration_since(*asked.as_ref().unwrap_or(since)) >= NUDGE_AFTER
+      })
+      .map(|(p, (_, asked))| {
+        *asked = Some(now);
+        *p
+      })
+      .collect();
+    for remote in overdue {
+      let token = HandshakeMessageToken::from(DataHolder {
+        class_id: RESTART_CLASS_ID.to_string(),
+        properties: Vec::new(),
+        binary_properties: Vec::new(),
+      });
+      let message = self.new_stateless_message(GMCLASSID_SECURITY_AUTH_HANDSHAKE, remote, None, token);
+      debug!("asking {remote:?} for a handshake request");
+      if let Err(e) = auth_msg_writer.write(message, None) {
+        debug!("Failed to send a restart request to {remote:?}: {e}");
       }
     }
   }
@@ -1720,6 +1949,11 @@ impl SecureDiscovery {
 
         // Set handshake state as pending final message
         self.update_handshake_state(remote_guid_prefix, DiscHandshakeState::PendingFinalMessage);
+        // rove patch (ROVE-PATCH.md §24): which request we answered.
+        (self.answered_request).insert(
+          remote_guid_prefix,
+          received_message.generic.message_identity,
+        );
       }
       Ok((other_outcome, _reply_token)) => {
         // Other outcomes should not be possible
@@ -2142,6 +2376,37 @@ impl SecureDiscovery {
       discovery_db,
       discovery_updated_sender,
     );
+
+    // rove patch (ROVE-PATCH.md §24): a participant authenticated again (after its lease ran
+    // out, or after it or we started the handshake over) gets back the endpoints the database
+    // kept of it (restored from the attic). Its discovery writers do not send them again, and
+    // our discovery readers would not take them again under the sequence numbers they already
+    // took: without this, the pair authenticated and never matched a user endpoint.
+    let (writers, readers) = discovery_db_read(discovery_db).endpoints_of(remote_guid_prefix);
+    if !writers.is_empty() || !readers.is_empty() {
+      info!(
+        "participant {remote_guid_prefix:?} authenticated again: {} writers and {} readers \
+         restored",
+        writers.len(),
+        readers.len()
+      );
+    }
+    for discovered_reader_data in readers {
+      send_discovery_notification(
+        discovery_updated_sender,
+        DiscoveryNotificationType::ReaderUpdated {
+          discovered_reader_data,
+        },
+      );
+    }
+    for discovered_writer_data in writers {
+      send_discovery_notification(
+        discovery_updated_sender,
+        DiscoveryNotificationType::WriterUpdated {
+          discovered_writer_data,
+        },
+      );
+    }
   }
 
   // Initiates the exchange of cryptographic keys with the remote participant.
@@ -2375,7 +2640,7 @@ impl SecureDiscovery {
     // See if we have already sent our keys. Do nothing if so.
     let we_have_sent_ours = self
       .user_data_endpoints_with_keys_already_sent_to
-      .contains(&remote_endpoint_guid);
+      .contains(&(local_endpoint_guid, remote_endpoint_guid));
     if we_have_sent_ours {
       return;
     }
@@ -2424,7 +2689,7 @@ impl SecureDiscovery {
       // Mark as if we have sent keys to the remote
       self
         .user_data_endpoints_with_keys_already_sent_to
-        .insert(remote_endpoint_guid);
+        .insert((local_endpoint_guid, remote_endpoint_guid));
       return;
     }
 
@@ -2523,7 +2788,7 @@ impl SecureDiscovery {
     // Remember that we have successfully sent the keys
     self
       .user_data_endpoints_with_keys_already_sent_to
-      .insert(remote_endpoint_guid);
+      .insert((local_endpoint_guid, remote_endpoint_guid));
   }
 
   fn validate_remote_participant_permissions(
@@ -2629,6 +2894,14 @@ impl SecureDiscovery {
   }
 
   fn update_handshake_state(&mut self, remote_guid_prefix: GuidPrefix, state: DiscHandshakeState) {
+    // rove patch (ROVE-PATCH.md §24): how long we wait for a request.
+    if state == DiscHandshakeState::PendingRequestMessage {
+      (self.waiting_for_request_since)
+        .entry(remote_guid_prefix)
+        .or_insert_with(|| (Instant::now(), None));
+    } else {
+      self.waiting_for_request_since.remove(&remote_guid_prefix);
+    }
     self.handshake_states.insert(remote_guid_prefix, state);
   }
 

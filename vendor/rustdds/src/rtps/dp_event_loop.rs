@@ -895,13 +895,9 @@ impl DPEventLoop {
       .borrow_mut()
       .remove(participant_guid_prefix);
 
-    #[cfg(feature = "security")]
-    if let Some(security_plugins_handle) = &self.security_plugins_opt {
-      security_plugins_handle
-        .get_plugins()
-        .unregister_remote_participant(&participant_guid_prefix)
-        .unwrap_or_else(|e| error!("{e}"));
-    }
+    // rove patch (ROVE-PATCH.md §24): discovery has unregistered the participant from the
+    // security plugins already, before telling us (here it could take the handles of a
+    // handshake that had started again meanwhile).
   }
 
   fn remote_reader_discovered(&mut self, remote_reader: &DiscoveredReaderData) {

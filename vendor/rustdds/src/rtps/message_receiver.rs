@@ -1019,7 +1019,14 @@ impl MessageReceiver {
         );
         match decode_result {
           Err(e) => {
-            error!("Submessage decoding failed: {e:?}");
+            error!(
+              "Submessage decoding failed: {e:?} (from participant {:?})",
+              self.source_guid_prefix
+            );
+            debug!(
+              "decode failure from {:?}: {:?} {:?}",
+              self.source_guid_prefix, sec_prefix, encoded_submessage.header
+            );
           }
           Ok(DecodeOutcome::Success(DecodedSubmessage::Writer(
             decoded_writer_submessage,

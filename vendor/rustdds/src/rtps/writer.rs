@@ -124,6 +124,12 @@ const EXTRA_DESTINATIONS_PERIOD: std::time::Duration = std::time::Duration::from
 
 // This is used to construct an actual Writer.
 // Ingredients are sendable between threads, whereas the Writer is not.
+// rove patch (ROVE-PATCH.md §25): see `Writer::kick_heartbeat`.
+const HEARTBEAT_KICK: std::time::Duration = std::time::Duration::from_millis(30);
+const RECENT_MATCH: std::time::Duration = std::time::Duration::from_secs(2);
+// A HEARTBEAT event this much before its chain's time is still that chain's.
+const HEARTBEAT_EVENT_SLACK: std::time::Duration = std::time::Duration::from_millis(2);
+
 pub(crate) struct WriterIngredients {
   pub guid: GUID,
   /// Shared, flow-controlled buffer of outgoing samples. The producer end is
@@ -280,6 +286,10 @@ pub(crate) struct Writer {
   participant_status_sender: StatusChannelSender<DomainParticipantStatusEvent>,
 
   security_plugins: Option<SecurityPluginsHandle>,
+  // rove patch (ROVE-PATCH.md §25): when the periodic HEARTBEAT chain fires next, and until
+  // when a reader matched recently may have missed what we sent (see `kick_heartbeat`).
+  next_heartbeat: std::time::Instant,
+  recently_matched_until: Option<std::time::Instant>,
 }
 
 impl Writer {
@@ -360,6 +370,9 @@ impl Writer {
       my_guid: i.guid,
       readers: BTreeMap::new(),
       matched_readers_count_total: 0,
+      next_heartbeat: std::time::Instant::now()
+        + heartbeat_period.map_or(std::time::Duration::ZERO, std::time::Duration::from),
+      recently_matched_until: None,
       requested_incompatible_qos_count: 0,
       udp_sender,
       extra_unicast_destinations: Vec::new(),
@@ -499,6 +512,12 @@ impl Writer {
   pub fn handle_timed_event(&mut self, event: TimedEvent) {
     match event {
       TimedEvent::Heartbeat => {
+        // rove patch (ROVE-PATCH.md §25): an event of a chain that an earlier kick replaced;
+        // one chain runs at a time.
+        let now = std::time::Instant::now();
+        if now + HEARTBEAT_EVENT_SLACK < self.next_heartbeat {
+          return;
+        }
         let readers_behind = self.handle_heartbeat_tick(false);
         // ^^ false = This is automatic heartbeat by timer, not manual by application
         // call.
@@ -511,6 +530,7 @@ impl Writer {
           self.heartbeat_period
         };
         if let Some(period) = next_period {
+          self.next_heartbeat = now + std::time::Duration::from(period);
           self.schedule_timed_event(std::time::Duration::from(period), TimedEvent::Heartbeat);
         }
       }
@@ -954,6 +974,29 @@ impl Writer {
         self.sample_cursor = SampleCursor::Fresh;
         self.send_buffer.set_sent_frontier(sequence_number);
       }
+    }
+    self.kick_heartbeat();
+  }
+
+  /// rove patch (ROVE-PATCH.md §25): after new data, a HEARTBEAT within
+  /// [`HEARTBEAT_KICK`] while a reader matched in the last [`RECENT_MATCH`] may have missed it.
+  /// A reader that matched us a moment ago may not have matched us yet on its side (its
+  /// writer proxy comes with its own discovery of us), and drops what we send until then;
+  /// the periodic HEARTBEAT that lets it ask again came up to a second later. In a secured
+  /// pair that second was paid for every step after the handshake (the crypto tokens, then
+  /// the secure SEDP), and a late joiner took a second or more to see the fleet.
+  fn kick_heartbeat(&mut self) {
+    if !self.is_reliable() || self.like_stateless {
+      return;
+    }
+    let now = std::time::Instant::now();
+    if self.recently_matched_until.is_none_or(|until| now > until) {
+      self.recently_matched_until = None;
+      return;
+    }
+    if self.next_heartbeat > now + HEARTBEAT_KICK {
+      self.next_heartbeat = now + HEARTBEAT_KICK;
+      self.schedule_timed_event(HEARTBEAT_KICK, TimedEvent::Heartbeat);
     }
   }
 
@@ -2084,6 +2127,9 @@ impl Writer {
         // and thus the back-pressure window.
         self.refresh_acked_frontier();
         if new_reader {
+          // rove patch (ROVE-PATCH.md §25)
+          self.recently_matched_until = Some(std::time::Instant::now() + RECENT_MATCH);
+          self.kick_heartbeat();
           self.matched_readers_count_total += 1;
           self.send_status(DataWriterStatus::PublicationMatched {
             // total: How many matches have been detected ever?

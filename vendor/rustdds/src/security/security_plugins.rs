@@ -274,8 +274,12 @@ impl SecurityPlugins {
       .remote_endpoint_crypto_handle_cache
       .remove(&local_and_proxy_guid_pair)
       .or_else(|| {
-        if !self.submessage_not_protected(local_endpoint_guid)
-          || !self.payload_not_protected(local_endpoint_guid)
+        // rove patch (ROVE-PATCH.md §24): a participant's endpoints are unregistered with it,
+        // before the event loop removes their proxies: nothing to remove is no error then.
+        let participant_forgotten = !self.identity_handle_cache.contains_key(&proxy_guid.prefix);
+        if !participant_forgotten
+          && (!self.submessage_not_protected(local_endpoint_guid)
+            || !self.payload_not_protected(local_endpoint_guid))
         {
           error!(
             "Could not find a remote EndpointCryptoHandle to remove for the (local_endpoint_guid, \
@@ -932,9 +936,30 @@ impl SecurityPlugins {
     &mut self,
     remote_participant_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<()> {
-    self
+    // rove patch (ROVE-PATCH.md §24): the participant's endpoints and its identity go too.
+    // Before, their crypto handles stayed, so that a participant authenticated again had its
+    // endpoints taken as "registered already" with the keys of its previous session.
+    let endpoints: Vec<(GUID, GUID)> = (self.remote_endpoint_crypto_handle_cache.keys())
+      .filter(|(_, remote)| remote.prefix == *remote_participant_guid_prefix)
+      .copied()
+      .collect();
+    for pair in endpoints {
+      if let Some(handle) = self.remote_endpoint_crypto_handle_cache.remove(&pair) {
+        let unregistered = match pair.1.entity_id.entity_kind.is_writer() {
+          true => self.crypto.unregister_datawriter(handle),
+          false => self.crypto.unregister_datareader(handle),
+        };
+        if let Err(e) = unregistered {
+          debug!("unregistering remote endpoint {:?}: {e}", pair.1);
+        }
+      }
+    }
+    if let Some(handle) = self
       .identity_handle_cache
-      .remove(remote_participant_guid_prefix);
+      .remove(remote_participant_guid_prefix)
+    {
+      self.auth.forget_remote_identity(handle);
+    }
     self
       .permissions_handle_cache
       .remove(remote_participant_guid_prefix);

@@ -22,7 +22,7 @@ use super::{
 };
 
 mod authentication;
-pub(in crate::security) mod types;
+pub(crate) mod types; // rove patch (ROVE-PATCH.md §24): was pub(in crate::security)
 
 // States for an ongoing handshake with a remote participant. Used by the plugin
 // internally. Note that there is no 'failed' state, since once a handshake has

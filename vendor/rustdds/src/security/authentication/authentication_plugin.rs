@@ -33,6 +33,11 @@ pub trait Authentication: Send {
     false
   }
 
+  /// rove patch (ROVE-PATCH.md §24): forget a remote identity and its handshakes, once its
+  /// participant is gone or authenticates again (each authentication makes a new handle; the
+  /// old ones were kept for ever). Nothing to forget by default.
+  fn forget_remote_identity(&mut self, _handle: IdentityHandle) {}
+
   /// validate_local_identity: section 8.3.2.11.2 of the Security
   /// specification
   ///

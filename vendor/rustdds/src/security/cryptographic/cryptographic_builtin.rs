@@ -73,9 +73,12 @@ pub struct CryptographicBuiltin {
   // TODO: The current session_id is just a constant. Implementing counting above requires
   // some access to shared mutable state from encryption/send operations.
   /// For each (local datawriter (/datareader), remote participant) pair, stores
-  /// the matched remote datareader (/datawriter)
+  /// the matched remote datareaders (/datawriters). rove patch (ROVE-PATCH.md §26): several
+  /// of them; it was one, so a participant's second endpoint matched to the same local one
+  /// (an operator's regular and priority command writers, both read by a vehicle's one
+  /// reader) shared the first one's handle and could not be registered.
   matched_remote_endpoint:
-    HashMap<EndpointCryptoHandle, HashMap<ParticipantCryptoHandle, EndpointCryptoHandle>>,
+    HashMap<EndpointCryptoHandle, HashMap<ParticipantCryptoHandle, Vec<EndpointCryptoHandle>>>,
   ///For reverse lookups,  for each remote datawriter (/datareader), stores the
   /// matched local datareader (/datawriter)
   matched_local_endpoint: HashMap<EndpointCryptoHandle, EndpointCryptoHandle>,

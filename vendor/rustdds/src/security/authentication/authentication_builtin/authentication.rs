@@ -99,6 +99,13 @@ impl Authentication for AuthenticationBuiltin {
   }
 
   // rove patch (revocation list)
+  fn forget_remote_identity(&mut self, handle: IdentityHandle) {
+    self.remote_participant_infos.remove(&handle);
+    self
+      .handshake_to_identity_handle_map
+      .retain(|_, identity| *identity != handle);
+  }
+
   fn refresh_revocation(&self) -> bool {
     (self.get_local_participant_info().ok())
       .and_then(|i| i.revocation.as_ref())

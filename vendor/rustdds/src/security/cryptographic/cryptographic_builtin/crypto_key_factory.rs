@@ -20,54 +20,35 @@ impl CryptographicBuiltin {
     self.crypto_handle_counter
   }
 
-  fn get_or_generate_matched_remote_endpoint_crypto_handle(
+  // rove patch (ROVE-PATCH.md §26): a new handle for every remote endpoint registered. It
+  // was "get or generate" per (remote participant, local endpoint) pair: a participant's
+  // second endpoint matched to the same local endpoint got the first one's handle, its key
+  // materials were refused ("The CryptoHandle … was already associated with receiver-specific
+  // encode key materials", "Failed to register remote endpoint"), and its submessages could
+  // not be decoded ("ring … 'Unspecified'") for as long as both lived. Registering the same
+  // remote endpoint twice is prevented above, in `SecurityPlugins`.
+  fn generate_matched_remote_endpoint_crypto_handle(
     &mut self,
     remote_participant_crypto_handle: ParticipantCryptoHandle,
     local_endpoint_crypto_handle: EndpointCryptoHandle,
   ) -> EndpointCryptoHandle {
-    // If a corresponding handle exists, get and return
-    if let Some(remote_endpoint_crypto_handle) = self
-      .matched_remote_endpoint
-      .get(&local_endpoint_crypto_handle)
-      .and_then(|remote_participant_to_remote_endpoint| {
-        remote_participant_to_remote_endpoint.get(&remote_participant_crypto_handle)
-      })
-    {
-      *remote_endpoint_crypto_handle
-    } else {
-      // Otherwise generate a new handle
-      let remote_endpoint_crypto_handle = self.generate_crypto_handle();
-      // Associate it with the remote participant
-      self.endpoint_to_participant.insert(
-        remote_endpoint_crypto_handle,
-        remote_participant_crypto_handle,
-      );
-      // Associate it with the local endpoint
-      self
-        .matched_local_endpoint
-        .insert(remote_endpoint_crypto_handle, local_endpoint_crypto_handle);
-      // Insert it to the HashMap corresponding to the local endpoint
-      if let Some(remote_participant_to_remote_endpoint) = self
-        .matched_remote_endpoint
-        .get_mut(&local_endpoint_crypto_handle)
-      {
-        remote_participant_to_remote_endpoint.insert(
-          remote_participant_crypto_handle,
-          remote_endpoint_crypto_handle,
-        );
-      } else {
-        // Create a new HashMap if one does not yet exist
-        self.matched_remote_endpoint.insert(
-          local_endpoint_crypto_handle,
-          HashMap::from([(
-            remote_participant_crypto_handle,
-            remote_endpoint_crypto_handle,
-          )]),
-        );
-      }
-      // Return the generated handle
-      remote_endpoint_crypto_handle
-    }
+    let remote_endpoint_crypto_handle = self.generate_crypto_handle();
+    // Associate it with the remote participant
+    self.endpoint_to_participant.insert(
+      remote_endpoint_crypto_handle,
+      remote_participant_crypto_handle,
+    );
+    // Associate it with the local endpoint
+    self
+      .matched_local_endpoint
+      .insert(remote_endpoint_crypto_handle, local_endpoint_crypto_handle);
+    (self.matched_remote_endpoint)
+      .entry(local_endpoint_crypto_handle)
+      .or_default()
+      .entry(remote_participant_crypto_handle)
+      .or_default()
+      .push(remote_endpoint_crypto_handle);
+    remote_endpoint_crypto_handle
   }
 
   fn is_volatile(properties: &[Property]) -> bool {
@@ -250,7 +231,15 @@ impl CryptographicBuiltin {
           .matched_remote_endpoint
           .get_mut(&matched_local_endpoint_crypto_handle)
         {
-          remote_participant_to_remote_endpoint.remove(&participant_crypto_handle);
+          // rove patch (ROVE-PATCH.md §26): this endpoint only.
+          if let Some(endpoints) =
+            remote_participant_to_remote_endpoint.get_mut(&participant_crypto_handle)
+          {
+            endpoints.retain(|h| *h != endpoint_crypto_handle);
+            if endpoints.is_empty() {
+              remote_participant_to_remote_endpoint.remove(&participant_crypto_handle);
+            }
+          }
         }
       }
       // If the endpoint is local, unregister all associated remote entities as they serve no
@@ -258,7 +247,7 @@ impl CryptographicBuiltin {
       else if let Some(remote_participant_to_remote_endpoint) =
         self.matched_remote_endpoint.remove(&endpoint_crypto_handle)
       {
-        for remote_endpoint_crypto_handle in remote_participant_to_remote_endpoint.values() {
+        for remote_endpoint_crypto_handle in remote_participant_to_remote_endpoint.values().flatten() {
           self.unregister_endpoint(EndpointInfo {
             crypto_handle: *remote_endpoint_crypto_handle,
             kind: endpoint_info.kind.opposite(),
@@ -442,7 +431,7 @@ impl CryptoKeyFactory for CryptographicBuiltin {
     // Find a handle for the remote datareader corresponding to the (remote
     // participant, local datawriter) pair, or generate a new one
     let remote_datareader_crypto_handle = self
-      .get_or_generate_matched_remote_endpoint_crypto_handle(
+      .generate_matched_remote_endpoint_crypto_handle(
         remote_participant_crypto_handle,
         local_datawriter_crypto_handle,
       );
@@ -578,7 +567,7 @@ impl CryptoKeyFactory for CryptographicBuiltin {
     // Find a handle for the remote datawriter corresponding to the (remote
     // participant, local datareader) pair, or generate a new one
     let remote_datawriter_crypto_handle: DatareaderCryptoHandle = self
-      .get_or_generate_matched_remote_endpoint_crypto_handle(
+      .generate_matched_remote_endpoint_crypto_handle(
         remote_participant_crypto_handle,
         local_datareader_crypto_handle,
       );
