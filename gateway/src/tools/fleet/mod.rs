@@ -28,16 +28,20 @@
 //! from the smallest to the largest: what each peer adds to every node.
 
 mod owners;
+mod start;
 pub mod starts;
 
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Rig, wall_us};
 use crate::tools::procstat::{clock_ticks, sample};
-use owners::{Assignment, SETTLE_PATIENCE, assign, drives_of, is_laptop, settle, tally};
+use owners::{SETTLE_PATIENCE, settle, tally};
+use start::{Keys, Started, driven, observer, phone, start};
+#[cfg(test)]
+use start::fleet_ids;
 pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use serde::Serialize;
-use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::collections::BTreeSet;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// The first vehicle's id; vehicle `k` is `FIRST_VEHICLE + k`.
@@ -184,78 +188,6 @@ fn usage(samples: &[(f64, u64)]) -> Usage {
     }
 }
 
-/// The fleet's `[network]` table: the heartbeat and presence the options ask for.
-fn network_toml(options: &Options) -> String {
-    let heartbeat = options
-        .heartbeat_ms
-        .map(|ms| format!("heartbeat_ms = {ms}\n"));
-    let presence = options
-        .presence_ms
-        .map(|ms| format!("presence_ms = {ms}\n"));
-    match (heartbeat, presence) {
-        (None, None) => String::new(),
-        (h, p) => format!(
-            "[network]\n{}{}",
-            h.unwrap_or_default(),
-            p.unwrap_or_default()
-        ),
-    }
-}
-
-/// The ids of the fleet.
-fn fleet_ids(options: &Options) -> (Vec<i64>, Vec<i64>) {
-    let vehicles = (0..options.vehicles as i64).map(|k| FIRST_VEHICLE + k);
-    let operators = (0..options.operators as i64).map(|i| FIRST_OPERATOR + i);
-    (vehicles.collect(), operators.collect())
-}
-
-/// The id whose certificate `rove status` observers use in a secured fleet.
-const OBSERVER: i64 = 9999;
-
-/// The phone of handover run `run`.
-fn phone(run: usize) -> i64 {
-    PHONE + (run as i64 % PHONES)
-}
-
-/// Every id that needs a certificate in a secured fleet.
-fn certified_ids(options: &Options) -> Vec<i64> {
-    let (vehicles, operators) = fleet_ids(options);
-    (vehicles.into_iter().chain(operators))
-        .chain((0..options.handover_runs).map(phone))
-        .chain([OBSERVER])
-        .collect()
-}
-
-/// A fleet's DDS Security files, if it is secured.
-#[derive(Debug, Clone, Default)]
-struct Keys(Option<PathBuf>);
-
-impl Keys {
-    /// Makes them in the rig's directory when `options` asks for a secured fleet.
-    fn make(rig: &Rig, options: &Options) -> anyhow::Result<Keys> {
-        let dir = options.secure.then(|| rig.fleet(&certified_ids(options)));
-        Ok(Keys(dir.transpose()?))
-    }
-
-    /// Device `id`'s `[security]` table, empty unsecured.
-    fn toml(&self, id: i64) -> String {
-        harness::security_toml(self.0.as_deref(), id)
-    }
-}
-
-/// Starts `rove status --events` as `name`, secured like the fleet; its log is the event
-/// stream.
-fn observer(rig: &mut Rig, keys: &Keys, name: &str) -> PathBuf {
-    let dir = keys.0.as_ref().map(|f| f.join(OBSERVER.to_string()));
-    let dir = dir.map(|d| d.display().to_string());
-    let mut args = vec!["status", "--events"];
-    if let Some(dir) = &dir {
-        args.extend(["--security", dir.as_str()]);
-    }
-    let p = rig.spawn(name, &args);
-    rig.procs[p].log.clone()
-}
-
 /// How long an observer may take to list the whole fleet: generous, 64 processes joining at
 /// once on two cores.
 const LISTING_PATIENCE: Duration = Duration::from_secs(60);
@@ -265,72 +197,6 @@ fn stop_last(rig: &mut Rig) {
     if let Some(p) = rig.procs.last_mut() {
         p.stop();
     }
-}
-
-/// A fleet just started: who is who, and where each vehicle records.
-struct Started {
-    vehicles: Vec<i64>,
-    operators: Vec<i64>,
-    /// Each vehicle's record, in the order of `vehicles`.
-    records: Vec<PathBuf>,
-    assignment: Assignment,
-    /// Each operator's process index in the rig, and what it is started with.
-    started_as: BTreeMap<i64, (usize, &'static str, Vec<i64>)>,
-    /// Wall clock of the first process's start, µs.
-    at: u64,
-    /// The `[network]` and `[security]` an operator `id` is started with.
-    keys: Keys,
-    network: String,
-}
-
-impl Started {
-    /// What operator `id` appends to its file: the fleet's `[network]` and its `[security]`.
-    fn extra(&self, id: i64) -> String {
-        format!("{}{}", self.network, self.keys.toml(id))
-    }
-}
-
-/// Starts the fleet's vehicles, then its operators, in `rig`.
-fn start(rig: &mut Rig, options: &Options) -> anyhow::Result<Started> {
-    let keys = Keys::make(rig, options)?;
-    let at = wall_us();
-    let (vehicles, operators) = fleet_ids(options);
-    let network = network_toml(options);
-    // Only the measured vehicle runs real-time: on a real board each vehicle has its own
-    // computer, and here the rest of the fleet plays the load on that board. (Every vehicle
-    // real-time on these two cores starves the operators: measured, stale outputs everywhere.)
-    let records: Vec<PathBuf> = (vehicles.iter())
-        .map(|&v| {
-            let fifo = options.vehicle_rt.filter(|_| v == FIRST_VEHICLE);
-            let output = format!("{network}{}[output]\nadapter = \"sim\"\n", keys.toml(v));
-            rig.vehicle_scheduled(v, &output, fifo)
-        })
-        .collect();
-    let assignment = assign(&vehicles, &operators);
-    let mut fleet = Started {
-        vehicles,
-        operators,
-        records,
-        assignment,
-        started_as: BTreeMap::new(),
-        at,
-        keys,
-        network,
-    };
-    for id in fleet.operators.clone() {
-        let class = match is_laptop(&fleet.assignment, id) {
-            true => "laptop",
-            false => "desktop",
-        };
-        let drive = match options.idle {
-            true => Vec::new(),
-            false => drives_of(&fleet.assignment, id),
-        };
-        let extra = fleet.extra(id);
-        let p = rig.operator(id, "stationary", class, &drive, 1000, &extra, &[]);
-        fleet.started_as.insert(id, (p, class, drive));
-    }
-    Ok(fleet)
 }
 
 /// Runs the bench.
@@ -425,40 +291,6 @@ pub fn run(
         driven_ms,
         late_operator_ms: Percentiles::of(&late_operator),
     })
-}
-
-/// Waits at most `patience` until every vehicle of `f` has applied its laptop's command; how
-/// long after the start the last one did (ms), or the vehicles that were never driven.
-fn driven(f: &Started, patience: Duration) -> Result<u64, Vec<i64>> {
-    let give_up = Instant::now() + patience;
-    let mut first: BTreeMap<i64, u64> = BTreeMap::new();
-    loop {
-        for (&vehicle, record) in f.vehicles.iter().zip(&f.records) {
-            let Some(&(laptop, _)) = f.assignment.get(&vehicle) else {
-                first.insert(vehicle, f.at);
-                continue;
-            };
-            if first.contains_key(&vehicle) {
-                continue;
-            }
-            let outs = harness::records(record);
-            let by_laptop = outs
-                .iter()
-                .find(|o| o.action == "apply" && o.owner == Some(laptop));
-            if let Some(o) = by_laptop {
-                first.insert(vehicle, o.wall_us);
-            }
-        }
-        if first.len() == f.vehicles.len() {
-            let last = first.values().max().copied().unwrap_or(f.at);
-            return Ok(last.saturating_sub(f.at) / 1000);
-        }
-        if Instant::now() > give_up {
-            let undriven = f.vehicles.iter().filter(|v| !first.contains_key(v));
-            return Err(undriven.copied().collect());
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
 }
 
 /// Every process's CPU (percent of a core) over `window`, 2 s from now, and its resident memory

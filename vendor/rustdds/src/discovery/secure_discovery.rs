@@ -1559,7 +1559,7 @@ impl SecureDiscovery {
     );
 
     // Try to send the message
-    let _ = auth_msg_writer.write(request_message, None).map_err(|err| {
+    let _ = write_stateless(auth_msg_writer, request_message).map_err(|err| {
       warn!(
         "Failed to send a handshake request message. Remote GUID prefix: {remote_guid_prefix:?}. \
          Info: {err}. Trying to resend the message later."
@@ -1586,7 +1586,7 @@ impl SecureDiscovery {
         != Some(&DiscHandshakeState::CompletedWithFinalMessageSent)
         && stored_message.due(now)
       {
-        match auth_msg_writer.write(stored_message.message.clone(), None) {
+        match write_stateless(auth_msg_writer, stored_message.message.clone()) {
           Ok(()) => {
             stored_message.remaining_resend_counter -= 1;
             debug!(
@@ -1796,7 +1796,7 @@ impl SecureDiscovery {
     auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
   ) {
     if let Some(stored) = self.stored_authentication_messages.get(&remote) {
-      if let Err(e) = auth_msg_writer.write(stored.message.clone(), None) {
+      if let Err(e) = write_stateless(auth_msg_writer, stored.message.clone()) {
         debug!("Failed to resend a handshake message to {remote:?}: {e}");
       }
     }
@@ -1870,7 +1870,7 @@ impl SecureDiscovery {
       });
       let message = self.new_stateless_message(GMCLASSID_SECURITY_AUTH_HANDSHAKE, remote, None, token);
       debug!("asking {remote:?} for a handshake request");
-      if let Err(e) = auth_msg_writer.write(message, None) {
+      if let Err(e) = write_stateless(auth_msg_writer, message) {
         debug!("Failed to send a restart request to {remote:?}: {e}");
       }
     }
@@ -1931,8 +1931,7 @@ impl SecureDiscovery {
         debug!("Sending a handshake reply message to remote participant {remote_guid_prefix:?}");
 
         // Send the token
-        let _ = auth_msg_writer
-          .write(reply_message.clone(), None)
+        let _ = write_stateless(auth_msg_writer, reply_message.clone())
           .map_err(|err| {
             error!(
               "Failed to send a handshake reply message. Remote GUID prefix: \
@@ -2024,8 +2023,7 @@ impl SecureDiscovery {
         debug!("Sending a final handshake message to remote participant {remote_guid_prefix:?}");
 
         // Send the token
-        let _ = auth_msg_writer
-          .write(final_message.clone(), None)
+        let _ = write_stateless(auth_msg_writer, final_message.clone())
           .map_err(|err| {
             error!(
               "Failed to send a final handshake message. Remote GUID prefix: \
@@ -2847,8 +2845,7 @@ impl SecureDiscovery {
     auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
   ) {
     if let Some(stored_msg) = self.stored_authentication_messages.get(&remote_guid_prefix) {
-      let _ = auth_msg_writer
-        .write(stored_msg.message.clone(), None)
+      let _ = write_stateless(auth_msg_writer, stored_msg.message.clone())
         .map_err(|err| {
           warn!(
             "Failed to send a final handshake message. Remote GUID prefix: \
@@ -2974,6 +2971,23 @@ fn send_discovery_notification(
     Ok(_) => (),
     Err(e) => error!("Failed to send DiscoveryNotification {e:?}"),
   }
+}
+
+/// rove patch (ROVE-PATCH.md §27): a handshake message goes to the stateless reader of the
+/// participant it is for, not to every participant matched (each of which decoded the
+/// certificates and permissions documents it carries, only to find it was not theirs: in a
+/// fleet of N participants starting at once, N times the handshakes of the whole fleet). Until
+/// that reader is matched, it goes to all, as before.
+fn write_stateless(
+  writer: &no_key::DataWriter<ParticipantStatelessMessage>,
+  message: ParticipantStatelessMessage,
+) -> Result<(), WriteError<ParticipantStatelessMessage>> {
+  let to = GUID::new(
+    message.generic.destination_participant_guid.prefix,
+    EntityId::P2P_BUILTIN_PARTICIPANT_STATELESS_READER,
+  );
+  let options = WriteOptionsBuilder::new().to_single_reader(to).build();
+  writer.write_with_options(message, options).map(|_| ())
 }
 
 fn get_handshake_token_from_stateless_message(
