@@ -38,6 +38,36 @@ pub enum KeysCommand {
         #[arg(long, hide = true, default_value_t = 0, allow_negative_numbers = true)]
         starts_in_days: i64,
     },
+    /// On the device: make its private key and a certificate request in DIR (the directory
+    /// `[security] dir` names), for `rove keys sign` at the fleet CA. The key never leaves DIR.
+    Request {
+        /// The device's security directory (created, mode 0700).
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The device id (vehicle or operator).
+        #[arg(long)]
+        id: i64,
+    },
+    /// At the fleet CA: sign a device's request (`rove keys request`): its certificate and
+    /// permissions in DIR/ID/, with the CA, governance and revocation list, to copy to the
+    /// device beside its key.
+    Sign {
+        /// The fleet's directory.
+        #[arg(long)]
+        dir: std::path::PathBuf,
+        /// The request file (request.csr.pem from the device).
+        #[arg(long)]
+        request: std::path::PathBuf,
+        /// The device id, as confirmed with the device (the request must name it).
+        #[arg(long)]
+        id: i64,
+        /// Days the certificate is valid.
+        #[arg(long, default_value_t = certs::Lifetime::DEVICE.days)]
+        days: u32,
+        /// Re-issue an existing device (for its new request).
+        #[arg(long)]
+        renew: bool,
+    },
     /// Revoke a device's certificate: the fleet's revocation list (crl.pem) names it, and every
     /// device directory in the fleet gets the new list (copy it to the devices, as the
     /// governance; running devices read it again when the file changes).
@@ -113,6 +143,34 @@ pub fn run(what: KeysCommand) -> anyhow::Result<()> {
             println!(
                 "device {id}: certificate ({}), key and permissions in {}",
                 expiry.describe(),
+                out.display()
+            );
+            Ok(())
+        }
+        KeysCommand::Request { dir, id } => {
+            let path = certs::request(&dir, id)?;
+            println!(
+                "device {id}: private key in {} (it stays here); take {} to the fleet CA \
+                 (`rove keys sign --request {} --id {id}`)",
+                dir.join("key.pem").display(),
+                path.display(),
+                certs::REQUEST_FILE
+            );
+            Ok(())
+        }
+        KeysCommand::Sign {
+            dir,
+            request,
+            id,
+            days,
+            renew,
+        } => {
+            let pem = std::fs::read(&request)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", request.display()))?;
+            let out = certs::sign_request(&dir, &pem, id, certs::Lifetime::days(days), renew)?;
+            println!(
+                "device {id}: certificate and permissions in {} (no private key): copy its files \
+                 to the device's directory, beside key.pem",
                 out.display()
             );
             Ok(())

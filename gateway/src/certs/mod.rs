@@ -29,6 +29,7 @@
 //! certificate.
 
 pub mod cli;
+mod enrol;
 use anyhow::{Context, anyhow, bail};
 use openssl::bn::{BigNum, MsbOption};
 use openssl::ec::{EcGroup, EcKey};
@@ -47,6 +48,7 @@ mod lifetime;
 mod revocation;
 
 pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
+pub use enrol::{REQUEST_FILE, request, sign_request};
 pub use revocation::{CRL_FILE, Revoked, revoke};
 
 /// The topics every device may publish and subscribe.
@@ -110,6 +112,27 @@ pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
 /// `dir` holds no fleet, the device exists already (and not `renew`), or a file cannot be
 /// read or written.
 pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow::Result<PathBuf> {
+    let key = new_key()?;
+    let out = issue_device(dir, id, &key, lifetime, renew, &DEVICE_FILES)?;
+    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
+    Ok(out)
+}
+
+/// Issues device `id`'s certificate for `public_key`, and its permissions, in `dir/ID/` with
+/// copies of the CA, the governance and the revocation list (everything a device needs but its
+/// private key); returns that directory. An existing device's `replaced` files are removed
+/// first, with `renew`.
+///
+/// # Errors
+/// As [`add`].
+fn issue_device<K: openssl::pkey::HasPublic>(
+    dir: &Path,
+    id: DeviceId,
+    public_key: &openssl::pkey::PKeyRef<K>,
+    lifetime: Lifetime,
+    renew: bool,
+    replaced: &[&str],
+) -> anyhow::Result<PathBuf> {
     if id <= 0 {
         bail!("device id {id}: must be positive");
     }
@@ -128,15 +151,17 @@ pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow:
                 out.display()
             );
         }
-        for name in DEVICE_FILES {
+        for name in replaced {
             let path = out.join(name);
-            std::fs::remove_file(&path).with_context(|| format!("remove {}", path.display()))?;
+            if path.exists() {
+                std::fs::remove_file(&path)
+                    .with_context(|| format!("remove {}", path.display()))?;
+            }
         }
     }
     std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
-    let key = new_key()?;
     let name = subject(&fleet, &common_name(id))?;
-    let mut cert = builder(&name, ca.subject_name(), &key, lifetime)?;
+    let mut cert = builder(&name, ca.subject_name(), public_key, lifetime)?;
     cert.append_extension(BasicConstraints::new().critical().build()?)?;
     cert.append_extension(
         KeyUsage::new()
@@ -148,7 +173,6 @@ pub fn add(dir: &Path, id: DeviceId, lifetime: Lifetime, renew: bool) -> anyhow:
     cert.sign(&ca_key, MessageDigest::sha256())?;
     let cert = cert.build();
     write(&out.join("cert.pem"), &cert.to_pem()?, false)?;
-    write(&out.join("key.pem"), &key.private_key_to_pem_pkcs8()?, true)?;
     let permissions = permissions_xml(&fleet, id, domain);
     write(
         &out.join("permissions.p7s"),
@@ -291,6 +315,15 @@ pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Resul
             common_name(id)
         );
     }
+    // A certificate signed for another request than this key's (`rove keys sign`).
+    let key = PKey::private_key_from_pem(&std::fs::read(dir.join("key.pem"))?)
+        .with_context(|| format!("[security] {}: key.pem is not a PEM private key", dir.display()))?;
+    if !cert.public_key()?.public_eq(&key) {
+        bail!(
+            "[security] {}: cert.pem was not issued for key.pem (sign this device's own request)",
+            dir.display()
+        );
+    }
     FleetIdentity::from_certificate(&pem)
 }
 
@@ -392,10 +425,10 @@ fn fleet_of(cert: &X509) -> anyhow::Result<String> {
     Ok(entry.data().to_string()?)
 }
 
-fn builder(
+fn builder<K: openssl::pkey::HasPublic>(
     subject: &openssl::x509::X509NameRef,
     issuer: &openssl::x509::X509NameRef,
-    key: &PKey<Private>,
+    key: &openssl::pkey::PKeyRef<K>,
     lifetime: Lifetime,
 ) -> anyhow::Result<X509Builder> {
     let mut cert = X509Builder::new()?;

@@ -110,6 +110,9 @@ pub enum Bench {
         /// after the unsecured one, and print the two side by side.
         #[arg(long)]
         secure: bool,
+        /// With `--secure`: the secured fleet only.
+        #[arg(long, requires = "secure")]
+        secure_only: bool,
         /// Start the fleet this many times from nothing (each mode), timing each start to every
         /// vehicle driven, before the full run; a start that does not converge in 60 s fails the
         /// bench.
@@ -216,6 +219,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             presence_ms,
             vehicle_rt,
             secure,
+            secure_only,
             starts,
             json,
         } => {
@@ -233,7 +237,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 secure,
             };
             if secure || starts > 0 {
-                fleet::starts::cli(rove, &options, starts, json.as_deref())
+                fleet::starts::cli(rove, &options, starts, secure_only, json.as_deref())
             } else if idle_sweep.is_empty() {
                 fleet::cli(rove, &options, json.as_deref())
             } else {

@@ -164,7 +164,7 @@ pub fn table(modes: &[Mode]) -> Vec<String> {
     lines
 }
 
-/// `rove bench scale --starts N [--secure]`: each mode's starts and full run, then the table;
+/// `rove bench scale --starts N [--secure [--secure-only]]`: each mode's starts and full run, then the table;
 /// `--json` gets every mode.
 ///
 /// # Errors
@@ -173,13 +173,14 @@ pub fn cli(
     rove: &Path,
     options: &Options,
     starts: usize,
+    secure_only: bool,
     json: Option<&Path>,
 ) -> anyhow::Result<()> {
     let secure = [false, true];
-    let modes = if options.secure {
-        &secure[..]
-    } else {
-        &secure[..1]
+    let modes = match (options.secure, secure_only) {
+        (true, true) => &secure[1..],
+        (true, false) => &secure[..],
+        (false, _) => &secure[..1],
     };
     let mut done = Vec::new();
     for &secure in modes {

@@ -2012,6 +2012,14 @@ impl Discovery {
   }
 
   pub fn participant_cleanup(&mut self) {
+    // rove patch (ROVE-PATCH.md §28): the liveness reports queued while this thread was busy
+    // (with the handshakes of a secured fleet starting, say) count before any lease is judged.
+    // A peer heard a moment ago, whose report waited behind that work, was dropped as silent,
+    // and found and authenticated again at once: in a secured fleet of 64 processes, hundreds
+    // of such restarts a minute kept every pair from ever matching.
+    while let Ok(guid_prefix) = self.spdp_liveness_receiver.try_recv() {
+      discovery_db_write(&self.discovery_db).participant_is_alive(guid_prefix);
+    }
     // rove patch (certificate lifetime, revocation list): an authenticated participant whose
     // certificate has expired, or which a list read again now revokes, is dropped as if it had
     // left (its proxies and keys go); authenticating again, it is refused.

@@ -55,6 +55,9 @@ pub(crate) struct DiscoveryDB {
   // Authentication statuses of participants
   #[cfg(feature = "security")]
   authentication_statuses: BTreeMap<GuidPrefix, AuthenticationStatus>,
+  // rove patch (ROVE-PATCH.md §28): when each participant was last authenticated.
+  #[cfg(feature = "security")]
+  authenticated_at: BTreeMap<GuidPrefix, Instant>,
 
   // local writer proxies for topics (topic name acts as key)
   local_topic_writers: BTreeMap<GUID, DiscoveredWriterData>,
@@ -151,6 +154,8 @@ impl DiscoveryDB {
       participant_last_life_signs: BTreeMap::new(),
       #[cfg(feature = "security")]
       authentication_statuses: BTreeMap::new(),
+      #[cfg(feature = "security")]
+      authenticated_at: BTreeMap::new(),
       local_topic_writers: BTreeMap::new(),
       local_topic_readers: BTreeMap::new(),
       external_topic_readers: BTreeMap::new(),
@@ -295,6 +300,8 @@ impl DiscoveryDB {
     self.participant_last_life_signs.remove(&guid_prefix);
     #[cfg(feature = "security")]
     self.authentication_statuses.remove(&guid_prefix);
+    #[cfg(feature = "security")]
+    self.authenticated_at.remove(&guid_prefix);
 
     if active_disposal {
       self.remove_topic_reader_with_prefix(guid_prefix);
@@ -395,6 +402,8 @@ impl DiscoveryDB {
   // Delete participant proxies, if we have not heard of them within
   // lease_duration
   pub fn participant_cleanup(&mut self) -> Vec<(GuidPrefix, LostReason)> {
+    #[cfg(feature = "security")]
+    const HANDSHAKE_LEASE: Duration = Duration::from_secs(30);
     let inow = Instant::now();
 
     let mut to_remove = Vec::new();
@@ -404,7 +413,22 @@ impl DiscoveryDB {
       let lease_duration = sp
         .lease_duration
         .unwrap_or(DEFAULT_PARTICIPANT_LEASE_DURATION);
-      // let lease_duration = lease_duration + lease_duration; // double it
+      // rove patch (ROVE-PATCH.md §28): a participant we are authenticating, or authenticated
+      // less than HANDSHAKE_LEASE ago, keeps its place for HANDSHAKE_LEASE at least. A secured
+      // fleet starting at once is CPU-bound on its handshakes and key exchanges; a peer whose
+      // discovery thread is busy with them announces itself late, and, dropped at its short
+      // lease, starts its handshake over, which costs everyone more: among 64 processes on 2
+      // cores, no pair ever finished.
+      #[cfg(feature = "security")]
+      let lease_duration = {
+        let recent = (self.authenticated_at.get(&guid))
+          .is_some_and(|at| inow.duration_since(*at) < HANDSHAKE_LEASE.to_std());
+        match self.authentication_statuses.get(&guid) {
+          Some(AuthenticationStatus::Authenticating) => lease_duration.max(HANDSHAKE_LEASE),
+          Some(AuthenticationStatus::Authenticated) if recent => lease_duration.max(HANDSHAKE_LEASE),
+          _ => lease_duration,
+        }
+      };
       match self.participant_last_life_signs.get(&guid) {
         Some(&last_life) => {
           // keep, if duration not exceeded
@@ -956,7 +980,10 @@ impl DiscoveryDB {
     guid_prefix: GuidPrefix,
     status: AuthenticationStatus,
   ) {
-    self.authentication_statuses.insert(guid_prefix, status);
+    let before = self.authentication_statuses.insert(guid_prefix, status);
+    if status == AuthenticationStatus::Authenticated && before != Some(status) {
+      self.authenticated_at.insert(guid_prefix, Instant::now());
+    }
   }
 }
 

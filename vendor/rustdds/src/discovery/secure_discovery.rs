@@ -173,6 +173,9 @@ pub(crate) struct SecureDiscovery {
   /// The identity of the last handshake request we answered from each peer: a request
   /// sent again is answered as before, a new one starts the handshake over.
   answered_request: HashMap<GuidPrefix, rpc::SampleIdentity>,
+  /// The handshake message we completed a handshake with, per peer (its reply, or its final):
+  /// a restart request the peer sent before it (delayed on a busy network) is stale.
+  completed_with: HashMap<GuidPrefix, rpc::SampleIdentity>,
 }
 
 impl SecureDiscovery {
@@ -322,6 +325,7 @@ impl SecureDiscovery {
       waiting_for_request_since: HashMap::new(),
       last_restart: HashMap::new(),
       answered_request: HashMap::new(),
+      completed_with: HashMap::new(),
     })
   }
 
@@ -1748,7 +1752,15 @@ impl SecureDiscovery {
     let state = self.get_handshake_state(&remote)?;
     let is_request = class_id.as_bytes() == HANDSHAKE_REQUEST_CLASS_ID;
     let is_restart = class_id == RESTART_CLASS_ID;
-    let answered = self.answered_request.get(&remote) == Some(&message.generic.message_identity);
+    // Sent no later than what we already answered (a copy, or an older request that arrived
+    // late): not a new handshake. The sequence numbers of one sender only grow.
+    let not_newer = |known: Option<&rpc::SampleIdentity>| {
+      let id = &message.generic.message_identity;
+      known.is_some_and(|k| k.writer_guid == id.writer_guid && id.sequence_number <= k.sequence_number)
+    };
+    let answered = not_newer(self.answered_request.get(&remote));
+    // A restart request sent before the handshake message we completed with: stale.
+    let stale_restart = is_restart && not_newer(self.completed_with.get(&remote));
     use DiscHandshakeState::*;
     match (is_request, is_restart, state) {
       // A request sent again after our reply: our reply goes again.
@@ -1766,6 +1778,12 @@ impl SecureDiscovery {
       (_, true, PendingReplyMessage) if self.stored_authentication_messages.contains_key(&remote) => {
         self.reset_stored_message_resend_counter(&remote);
         self.resend_stored_message(remote, auth_msg_writer);
+        return Some(HandshakeFollowUp::None);
+      }
+      (_, true, CompletedWithFinalMessageSent | CompletedWithFinalMessageReceived)
+        if stale_restart =>
+      {
+        debug!("a restart request of {remote:?} sent before our handshake completed: ignored");
         return Some(HandshakeFollowUp::None);
       }
       (_, true, PendingReplyMessage | CompletedWithFinalMessageSent | CompletedWithFinalMessageReceived) => {}
@@ -1812,6 +1830,7 @@ impl SecureDiscovery {
     self.stored_authentication_messages.remove(&remote);
     self.waiting_for_request_since.remove(&remote);
     self.answered_request.remove(&remote);
+    self.completed_with.remove(&remote);
     (self.cached_key_exchange_messages_for_resend)
       .retain(|m| m.generic.destination_participant_guid.prefix != remote);
     (self.cached_received_key_exchange_messages).retain(|(_, from), _| from.prefix != remote);
@@ -2043,6 +2062,8 @@ impl SecureDiscovery {
           remote_guid_prefix,
           DiscHandshakeState::CompletedWithFinalMessageSent,
         );
+        // rove patch (ROVE-PATCH.md §24): the reply we completed with.
+        (self.completed_with).insert(remote_guid_prefix, received_message.generic.message_identity);
 
         self.on_remote_participant_authenticated(
           remote_guid_prefix,
@@ -2117,6 +2138,8 @@ impl SecureDiscovery {
           remote_guid_prefix,
           DiscHandshakeState::CompletedWithFinalMessageReceived,
         );
+        // rove patch (ROVE-PATCH.md §24): the final we completed with.
+        (self.completed_with).insert(remote_guid_prefix, received_message.generic.message_identity);
 
         // Remove the stored reply message so it won't be resent
         self
