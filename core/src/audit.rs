@@ -322,7 +322,7 @@ mod tests {
     fn log(n: u64) -> (Vec<String>, Option<Checkpoint>) {
         let mut chain = Chain::default();
         let lines = (0..n)
-            .map(|k| serde_json::to_string(&chain.append(event(k, Why::Join))).unwrap())
+            .map(|k| serde_json::to_string(&chain.append(event(k, Why::Join))).expect("test step"))
             .collect();
         (lines, chain.checkpoint())
     }
@@ -334,13 +334,18 @@ mod tests {
     #[test]
     fn a_chain_verifies_and_goes_on_after_its_last_entry() {
         let (mut lines, c) = log(5);
-        let v = check(&lines, c.as_ref()).unwrap();
+        let v = check(&lines, c.as_ref()).expect("test step");
         assert_eq!((v.entries, v.first, v.after_checkpoint), (5, Some(0), 0));
-        let last: Entry = serde_json::from_str(&lines[4]).unwrap();
+        let last: Entry = serde_json::from_str(&lines[4]).expect("test step");
         let mut chain = Chain::after(Some(&last));
-        lines.push(serde_json::to_string(&chain.append(event(9, Why::Stop))).unwrap());
+        lines.push(serde_json::to_string(&chain.append(event(9, Why::Stop))).expect("test step"));
         // One entry after the checkpoint: written after the last sync, still a chain.
-        assert_eq!(check(&lines, c.as_ref()).unwrap().after_checkpoint, 1);
+        assert_eq!(
+            check(&lines, c.as_ref())
+                .expect("test step")
+                .after_checkpoint,
+            1
+        );
     }
 
     #[test]
@@ -394,12 +399,15 @@ mod tests {
     fn a_rotated_chain_starts_anywhere_but_entry_zero_starts_at_genesis() {
         let (lines, c) = log(6);
         // The oldest file was rotated away: the rest still verifies.
-        assert_eq!(check(&lines[3..], c.as_ref()).unwrap().first, Some(3));
+        assert_eq!(
+            check(&lines[3..], c.as_ref()).expect("test step").first,
+            Some(3)
+        );
         // A forged entry 0 must start at genesis.
-        let mut forged: Entry = serde_json::from_str(&lines[0]).unwrap();
+        let mut forged: Entry = serde_json::from_str(&lines[0]).expect("test step");
         forged.prev = "ab".repeat(32);
         forged.hash = hash_of(forged.seq, &forged.event, &forged.prev);
-        let forged = [serde_json::to_string(&forged).unwrap()];
+        let forged = [serde_json::to_string(&forged).expect("test step")];
         assert_eq!(check(&forged, None), Err(Broken::BadStart { line: 1 }));
     }
 

@@ -377,40 +377,43 @@ mod tests {
     #[test]
     fn a_reopened_log_goes_on_with_its_chain_and_an_incomplete_line_is_cut() {
         let dir = scratch("reopen");
-        let mut log = AuditLog::open(&dir, 100).unwrap();
-        log.record(event(0)).unwrap();
-        log.record(event(1)).unwrap();
-        log.sync().unwrap();
+        let mut log = AuditLog::open(&dir, 100).expect("test step");
+        log.record(event(0)).expect("test step");
+        log.record(event(1)).expect("test step");
+        log.sync().expect("test step");
         let path = log.path();
         drop(log);
         // A power cut in the middle of a write.
-        let mut f = OpenOptions::new().append(true).open(&path).unwrap();
-        f.write_all(b"{\"seq\":2,\"wall").unwrap();
-        let mut log = AuditLog::open(&dir, 100).unwrap();
-        log.record(event(2)).unwrap();
-        log.sync().unwrap();
-        let v = verify(&dir, 100).unwrap();
+        let mut f = OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .expect("test step");
+        f.write_all(b"{\"seq\":2,\"wall").expect("test step");
+        let mut log = AuditLog::open(&dir, 100).expect("test step");
+        log.record(event(2)).expect("test step");
+        log.sync().expect("test step");
+        let v = verify(&dir, 100).expect("test step");
         assert_eq!((v.entries, v.first, v.after_checkpoint), (3, Some(0), 0));
-        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::remove_dir_all(&dir).expect("test step");
     }
 
     #[test]
     fn the_log_rotates_is_bounded_and_its_chain_runs_across_files() {
         let dir = scratch("rotate");
-        let mut log = AuditLog::open(&dir, 7).unwrap();
+        let mut log = AuditLog::open(&dir, 7).expect("test step");
         // Each entry is ~200 bytes: enough for every rotated file and one more.
         let per_file = MAX_FILE_BYTES / 150;
         for k in 0..per_file * (KEEP_ROTATED as u64 + 2) {
-            log.record(event(k)).unwrap();
+            log.record(event(k)).expect("test step");
         }
-        log.sync().unwrap();
+        log.sync().expect("test step");
         assert!(!file(&dir, 7, Some(KEEP_ROTATED + 1)).exists());
-        let v = verify(&dir, 7).unwrap();
+        let v = verify(&dir, 7).expect("test step");
         assert!(
             v.first.is_some_and(|f| f > 0),
             "the oldest were rotated away: {v:?}"
         );
         assert_eq!(vehicles(&dir), vec![7]);
-        std::fs::remove_dir_all(&dir).unwrap();
+        std::fs::remove_dir_all(&dir).expect("test step");
     }
 }

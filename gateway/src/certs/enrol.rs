@@ -112,7 +112,9 @@ mod tests {
         init(&fleet, "test fleet", 0).expect("init");
         let req = request(&device, 100).expect("request");
         let mode = std::os::unix::fs::PermissionsExt::mode(
-            &std::fs::metadata(device.join("key.pem")).expect("key").permissions(),
+            &std::fs::metadata(device.join("key.pem"))
+                .expect("key")
+                .permissions(),
         );
         assert_eq!(mode & 0o777, 0o600);
         assert!(request(&device, 100).is_err(), "a key is made once");
@@ -125,17 +127,19 @@ mod tests {
         }
         check_device_dir(&device, 100, false).expect("a complete device directory");
         // The certificate holds the device's key.
-        let cert = openssl::x509::X509::from_pem(&std::fs::read(device.join("cert.pem")).unwrap())
-            .expect("cert");
+        let cert = openssl::x509::X509::from_pem(
+            &std::fs::read(device.join("cert.pem")).expect("test step"),
+        )
+        .expect("cert");
         let key = openssl::pkey::PKey::private_key_from_pem(
-            &std::fs::read(device.join("key.pem")).unwrap(),
+            &std::fs::read(device.join("key.pem")).expect("test step"),
         )
         .expect("key");
-        assert!(cert.public_key().unwrap().public_eq(&key));
+        assert!(cert.public_key().expect("test step").public_eq(&key));
         // Signed twice only with --renew.
         assert!(sign_request(&fleet, &pem, 100, Lifetime::DEVICE, false).is_err());
         sign_request(&fleet, &pem, 100, Lifetime::DEVICE, true).expect("renew");
-        std::fs::remove_dir_all(&root).unwrap();
+        std::fs::remove_dir_all(&root).expect("test step");
     }
 
     #[test]
@@ -143,24 +147,36 @@ mod tests {
         let root = scratch("refuse");
         let fleet = root.join("fleet");
         init(&fleet, "test fleet", 0).expect("init");
-        let req = std::fs::read(request(&root.join("d"), 100).expect("request")).unwrap();
-        let e = sign_request(&fleet, &req, 101, Lifetime::DEVICE, false).unwrap_err();
+        let req =
+            std::fs::read(request(&root.join("d"), 100).expect("request")).expect("test step");
+        let e = sign_request(&fleet, &req, 101, Lifetime::DEVICE, false).expect_err("an error");
         assert!(e.to_string().contains("not device 101"), "{e}");
         // The request's body changed after it was signed (its subject now says 101).
-        let mut tampered = X509Req::from_pem(&req).unwrap();
-        let mut name = X509NameBuilder::new().unwrap();
-        name.append_entry_by_nid(Nid::COMMONNAME, "rove-101").unwrap();
-        let mut other = X509ReqBuilder::new().unwrap();
-        other.set_subject_name(&name.build()).unwrap();
-        other.set_pubkey(&tampered.public_key().unwrap()).unwrap();
+        let mut tampered = X509Req::from_pem(&req).expect("test step");
+        let mut name = X509NameBuilder::new().expect("test step");
+        name.append_entry_by_nid(Nid::COMMONNAME, "rove-101")
+            .expect("test step");
+        let mut other = X509ReqBuilder::new().expect("test step");
+        other.set_subject_name(&name.build()).expect("test step");
+        other
+            .set_pubkey(&tampered.public_key().expect("test step"))
+            .expect("test step");
         // Signed by another key than the one it carries.
-        let stranger = new_key().unwrap();
-        other.sign(&stranger, MessageDigest::sha256()).unwrap();
+        let stranger = new_key().expect("test step");
+        other
+            .sign(&stranger, MessageDigest::sha256())
+            .expect("test step");
         tampered = other.build();
-        let e = sign_request(&fleet, &tampered.to_pem().unwrap(), 101, Lifetime::DEVICE, false)
-            .unwrap_err();
+        let e = sign_request(
+            &fleet,
+            &tampered.to_pem().expect("test step"),
+            101,
+            Lifetime::DEVICE,
+            false,
+        )
+        .expect_err("an error");
         assert!(e.to_string().contains("does not verify"), "{e}");
         assert!(sign_request(&fleet, b"not a request", 100, Lifetime::DEVICE, false).is_err());
-        std::fs::remove_dir_all(&root).unwrap();
+        std::fs::remove_dir_all(&root).expect("test step");
     }
 }

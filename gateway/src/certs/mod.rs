@@ -47,8 +47,8 @@ use std::path::{Path, PathBuf};
 mod lifetime;
 mod revocation;
 
-pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
 pub use enrol::{REQUEST_FILE, request, sign_request};
+pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
 pub use revocation::{CRL_FILE, Revoked, revoke};
 
 /// The topics every device may publish and subscribe.
@@ -316,8 +316,13 @@ pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Resul
         );
     }
     // A certificate signed for another request than this key's (`rove keys sign`).
-    let key = PKey::private_key_from_pem(&std::fs::read(dir.join("key.pem"))?)
-        .with_context(|| format!("[security] {}: key.pem is not a PEM private key", dir.display()))?;
+    let key =
+        PKey::private_key_from_pem(&std::fs::read(dir.join("key.pem"))?).with_context(|| {
+            format!(
+                "[security] {}: key.pem is not a PEM private key",
+                dir.display()
+            )
+        })?;
     if !cert.public_key()?.public_eq(&key) {
         bail!(
             "[security] {}: cert.pem was not issued for key.pem (sign this device's own request)",

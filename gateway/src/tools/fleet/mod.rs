@@ -34,12 +34,12 @@ pub mod starts;
 use crate::tools::bench::Stats;
 use crate::tools::harness::{self, Rig, wall_us};
 use crate::tools::procstat::{clock_ticks, sample};
+pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use owners::{SETTLE_PATIENCE, settle, tally};
-use start::{Keys, Started, driven, observer, phone, start};
+use serde::Serialize;
 #[cfg(test)]
 use start::fleet_ids;
-pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
-use serde::Serialize;
+use start::{Keys, Started, driven, observer, phone, start};
 use std::collections::BTreeSet;
 use std::path::Path;
 use std::time::{Duration, Instant};

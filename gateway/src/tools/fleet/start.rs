@@ -179,4 +179,3 @@ pub(super) fn driven(f: &Started, patience: Duration) -> Result<u64, Vec<i64>> {
         std::thread::sleep(Duration::from_millis(100));
     }
 }
-

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::Duration;
 
 /// How long one start may take to have every vehicle driven before it counts as not converged.
-const START_PATIENCE: Duration = Duration::from_secs(60);
+pub const START_PATIENCE: Duration = Duration::from_secs(60);
 
 /// One start of the fleet from nothing.
 #[derive(Debug, Clone, Serialize)]
@@ -158,7 +158,7 @@ pub fn table(modes: &[Mode]) -> Vec<String> {
     )];
     lines.push(format!("|---|{}", "---|".repeat(modes.len())));
     for (name, cell) in &rows {
-        let cells: Vec<String> = modes.iter().map(|m| cell(m)).collect();
+        let cells: Vec<String> = modes.iter().map(cell).collect();
         lines.push(format!("| {name} | {} |", cells.join(" | ")));
     }
     lines
