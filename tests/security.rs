@@ -371,13 +371,9 @@ fn a_secured_pair_that_lost_one_another_one_way_authenticates_again() {
 }
 
 /// Active handover in a secured fleet: the requester's grant is driven through its priority
-/// writer, which the vehicle reads beside the requester's regular writer on the same reader.
-///
-/// Before ROVE-PATCH.md §26 the crypto plugin gave a participant's second writer matched to
-/// the same reader the first one's handle: its keys were refused ("already associated with
-/// receiver-specific encode key materials") and its samples could not be decoded; and secure
-/// discovery sent a reader the keys of our first writer only. Whichever of the two writers came
-/// second never reached the vehicle.
+/// writer, which the vehicle reads beside the requester's regular writer on the same reader
+/// (ROVE-PATCH.md §26 gives the second writer keys of its own; with rove's governance, RTPS
+/// protection only, this test passes with that fix and without it: it pins the path).
 #[test]
 fn a_secured_request_is_driven_through_the_requesters_priority_writer() {
     let mut rig = Rig::new("secure-request");
