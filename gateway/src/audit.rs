@@ -360,12 +360,6 @@ mod tests {
         }
     }
 
-    fn scratch(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("rove-audit-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        dir
-    }
-
     #[test]
     fn utc_dates() {
         assert_eq!(utc(0), "1970-01-01 00:00:00.000 UTC");
@@ -376,7 +370,8 @@ mod tests {
 
     #[test]
     fn a_reopened_log_goes_on_with_its_chain_and_an_incomplete_line_is_cut() {
-        let dir = scratch("reopen");
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let dir = tmp.path().to_path_buf();
         let mut log = AuditLog::open(&dir, 100).expect("test step");
         log.record(event(0)).expect("test step");
         log.record(event(1)).expect("test step");
@@ -394,12 +389,12 @@ mod tests {
         log.sync().expect("test step");
         let v = verify(&dir, 100).expect("test step");
         assert_eq!((v.entries, v.first, v.after_checkpoint), (3, Some(0), 0));
-        std::fs::remove_dir_all(&dir).expect("test step");
     }
 
     #[test]
     fn the_log_rotates_is_bounded_and_its_chain_runs_across_files() {
-        let dir = scratch("rotate");
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let dir = tmp.path().to_path_buf();
         let mut log = AuditLog::open(&dir, 7).expect("test step");
         // Each entry is ~200 bytes: enough for every rotated file and one more.
         let per_file = MAX_FILE_BYTES / 150;
@@ -414,6 +409,5 @@ mod tests {
             "the oldest were rotated away: {v:?}"
         );
         assert_eq!(vehicles(&dir), vec![7]);
-        std::fs::remove_dir_all(&dir).expect("test step");
     }
 }

@@ -99,15 +99,10 @@ mod tests {
     use super::super::{check_device_dir, init};
     use super::*;
 
-    fn scratch(test: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("rove-enrol-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        dir
-    }
-
     #[test]
     fn a_request_made_on_the_device_is_signed_without_its_key() {
-        let root = scratch("sign");
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let root = tmp.path().to_path_buf();
         let (fleet, device) = (root.join("fleet"), root.join("device"));
         init(&fleet, "test fleet", 0).expect("init");
         let req = request(&device, 100).expect("request");
@@ -139,12 +134,12 @@ mod tests {
         // Signed twice only with --renew.
         assert!(sign_request(&fleet, &pem, 100, Lifetime::DEVICE, false).is_err());
         sign_request(&fleet, &pem, 100, Lifetime::DEVICE, true).expect("renew");
-        std::fs::remove_dir_all(&root).expect("test step");
     }
 
     #[test]
     fn a_request_for_another_id_or_tampered_with_is_refused() {
-        let root = scratch("refuse");
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let root = tmp.path().to_path_buf();
         let fleet = root.join("fleet");
         init(&fleet, "test fleet", 0).expect("init");
         let req =
@@ -177,6 +172,5 @@ mod tests {
         .expect_err("an error");
         assert!(e.to_string().contains("does not verify"), "{e}");
         assert!(sign_request(&fleet, b"not a request", 100, Lifetime::DEVICE, false).is_err());
-        std::fs::remove_dir_all(&root).expect("test step");
     }
 }
