@@ -12,7 +12,7 @@
 //! checkpoint: an edited, reordered, removed or cut-short log fails with the first break.
 
 use anyhow::Context;
-use rove_core::audit::{Chain, Checkpoint, Entry, Event, Verified};
+use rove_core::audit::{Chain, Checkpoint, Entry, Event, Verified, Who, Why};
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -183,6 +183,85 @@ impl AuditLog {
     }
 }
 
+/// A vehicle's audit as its control loop keeps it: the log, if it could be opened (an error is
+/// in the journal, never a reason to leave the vehicle without its gateway), and how its
+/// drivers' ids are known.
+#[derive(Debug)]
+pub struct Recorder {
+    log: Option<AuditLog>,
+    vehicle: i64,
+    /// Under DDS Security an id is believed only from the participant its certificate names.
+    secured: bool,
+}
+
+impl Recorder {
+    /// Vehicle `vehicle`'s log in [`state_dir`].
+    pub fn open(vehicle: i64, secured: bool) -> Recorder {
+        let log = match state_dir() {
+            Some(dir) => AuditLog::open(&dir, vehicle)
+                .inspect_err(|e| tracing::error!("audit of control not kept: {e:#}"))
+                .ok(),
+            None => {
+                tracing::error!(
+                    "no state directory (STATE_DIRECTORY, /var/lib/rove or XDG_STATE_HOME): \
+                     no audit of control"
+                );
+                None
+            }
+        };
+        Recorder {
+            log,
+            vehicle,
+            secured,
+        }
+    }
+
+    /// One that keeps nothing (the control loop's tests).
+    pub fn none(vehicle: i64) -> Recorder {
+        Recorder {
+            log: None,
+            vehicle,
+            secured: false,
+        }
+    }
+
+    /// The current file, if a log is kept.
+    pub fn path(&self) -> Option<PathBuf> {
+        self.log.as_ref().map(AuditLog::path)
+    }
+
+    /// Appends who drives from `wall_us` on, and why. An error goes to the journal, once: the
+    /// log is then closed.
+    pub fn record(&mut self, wall_us: u64, owner: &rove_core::arbiter::Owner, why: Why) {
+        let event = Event {
+            wall_us,
+            vehicle: self.vehicle,
+            who: Who::of(owner, self.secured),
+            why,
+        };
+        self.keep(|log| log.record(event));
+    }
+
+    /// Made durable if anything was written since the last sync (call at least once a second).
+    pub fn tick(&mut self) {
+        self.keep(AuditLog::tick);
+    }
+
+    /// Made durable now (the stop).
+    pub fn sync(&mut self) {
+        self.keep(AuditLog::sync);
+    }
+
+    fn keep(&mut self, step: impl FnOnce(&mut AuditLog) -> anyhow::Result<()>) {
+        if let Some(log) = self.log.as_mut()
+            && let Err(e) = step(log)
+        {
+            tracing::error!("audit log {}: {e:#}; no more entries", log.path().display());
+            self.log = None;
+        }
+    }
+}
+
 /// The last entry among `text`'s lines that reads.
 fn last_entry(text: &[u8]) -> Option<Entry> {
     let text = String::from_utf8_lossy(text);
@@ -344,7 +423,6 @@ pub fn cli(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rove_core::audit::{Who, Why};
 
     fn event(k: u64) -> Event {
         Event {

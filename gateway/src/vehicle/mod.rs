@@ -45,7 +45,7 @@ mod report;
 #[cfg(test)]
 mod tests;
 
-use crate::audit::AuditLog;
+use crate::audit::Recorder;
 use crate::config::VehicleConfig;
 use crate::output::{OutputReport, OutputWorker, WriteLimits};
 use crate::runtime::{Clock, sleep_until};
@@ -55,7 +55,7 @@ use net::{Dds, Net};
 use report::{HungWatch, StatusWatch, Suspects, status_line};
 use rove_core::MonoTime;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, Setpoint};
-use rove_core::audit::{Event as AuditEvent, Who, Why};
+use rove_core::audit::Why;
 use std::path::PathBuf;
 use std::time::Duration;
 use tracing::{info, warn};
@@ -115,8 +115,8 @@ struct Vehicle<N, O> {
     shown: String,
     heartbeat: Duration,
     stall: Option<Duration>,
-    /// Who drove, when and why ([`crate::audit`]); `None` if it could not be opened.
-    audit: Option<AuditLog>,
+    /// Who drove, when and why ([`crate::audit`]).
+    audit: Recorder,
 }
 
 /// Runs the vehicle role on `clock` until `shutdown` completes: opens the output (which
@@ -147,9 +147,9 @@ pub async fn run(
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
     let net = Dds::join(&config)?;
-    let audit = open_audit(config.common.id);
+    let audit = Recorder::open(config.common.id, net.certifier().is_some());
     info!(
-        audit = ?audit.as_ref().map(AuditLog::path),
+        audit = ?audit.path(),
         config = %options.config_path.display(),
         device = config.common.id,
         name = %config.common.name,
@@ -164,7 +164,7 @@ pub async fn run(
     let stall = options.stall_on_sigusr1;
     let mut vehicle = Vehicle::new(&config, stall, clock, net, output, log, notify);
     vehicle.audit = audit;
-    vehicle.audit(Owner::Failsafe, Why::Start);
+    vehicle.audit(&Owner::Failsafe, Why::Start);
     if config.access.is_open() {
         warn!(
             "no [access] in the config: this vehicle trusts every participant on its network \
@@ -172,20 +172,6 @@ pub async fn run(
         );
     }
     vehicle.serve(shutdown).await
-}
-
-/// The vehicle's audit log in the state directory; a log that cannot be opened is an error
-/// in the journal, not a reason to leave the vehicle without its gateway.
-fn open_audit(id: i64) -> Option<AuditLog> {
-    let Some(dir) = crate::audit::state_dir() else {
-        tracing::error!(
-            "no state directory (STATE_DIRECTORY, /var/lib/rove or XDG_STATE_HOME): no audit of control"
-        );
-        return None;
-    };
-    AuditLog::open(&dir, id)
-        .inspect_err(|e| tracing::error!("audit of control not kept: {e:#}"))
-        .ok()
 }
 
 impl<N: Net, O: Outputs> Vehicle<N, O> {
@@ -219,35 +205,13 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             shown: String::new(),
             heartbeat: config.common.heartbeat,
             stall,
-            audit: None,
+            audit: Recorder::none(me),
         }
     }
 
-    /// Appends who drives now and why to the audit log (an error goes to the journal, at most
-    /// once: the log is then closed).
-    fn audit(&mut self, owner: Owner, why: Why) {
-        let secured = self.net.certifier().is_some();
-        let Some(log) = self.audit.as_mut() else {
-            return;
-        };
-        let event = AuditEvent {
-            wall_us: self.clock.wall_micros(),
-            vehicle: self.me,
-            who: Who::of(&owner, secured),
-            why,
-        };
-        if let Err(e) = log.record(event) {
-            tracing::error!("audit log {}: {e:#}; no more entries", log.path().display());
-            self.audit = None;
-        }
-    }
-
-    /// The audit log made durable (once a second, at least: every heartbeat and every record).
-    fn sync_audit(&mut self) {
-        if let Some(Err(e)) = self.audit.as_mut().map(AuditLog::tick) {
-            tracing::error!("audit log: {e:#}; no more entries");
-            self.audit = None;
-        }
+    /// Appends who drives now and why to the audit log.
+    fn audit(&mut self, owner: &Owner, why: Why) {
+        self.audit.record(self.clock.wall_micros(), owner, why);
     }
 
     /// The loop until `shutdown` (or the network is gone: an error), then the stop.
@@ -331,7 +295,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
 
     /// Every heartbeat: DeviceInfo again, VehicleStatus and `STATUS=` if they changed.
     fn on_heartbeat(&mut self) {
-        self.sync_audit();
+        self.audit.tick();
         self.net.publish_owner(self.arbiter.controller_id());
         let report = self.output.report();
         self.hung.observe(&report);
@@ -377,7 +341,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             self.suspects.report(suspect);
         }
         if let Some(change) = decision.owner_change {
-            self.audit(change.to, Why::of(change.reason));
+            self.audit(&change.to, Why::of(change.reason));
         }
         if decision.owner_change.is_some() {
             self.publish_status();
@@ -401,18 +365,9 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         if let Some(log) = self.log.as_mut() {
             log.record(&self.clock, "safe", Owner::Failsafe, None);
         }
-        // (`self.output` is gone: the audit's fields one by one.)
-        if let Some(audit) = self.audit.as_mut() {
-            let event = AuditEvent {
-                wall_us: self.clock.wall_micros(),
-                vehicle: self.me,
-                who: Who::of(&Owner::Failsafe, false),
-                why: Why::Stop,
-            };
-            if let Err(e) = audit.record(event).and_then(|()| audit.sync()) {
-                tracing::error!("audit log {}: {e:#}", audit.path().display());
-            }
-        }
+        self.audit
+            .record(self.clock.wall_micros(), &Owner::Failsafe, Why::Stop);
+        self.audit.sync();
         self.net.publish_owner(self.me);
         self.net.withdraw();
     }

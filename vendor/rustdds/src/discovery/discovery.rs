@@ -1146,24 +1146,12 @@ impl Discovery {
       // endpoints wait for authentication and the secure discovery instead.
       if !self.is_secured() {
         let (writers, readers) =
-          discovery_db_read(&self.discovery_db).endpoints_of(guid_prefix);
-        if !writers.is_empty() || !readers.is_empty() {
+          announce_endpoints(&self.discovery_db, &self.discovery_updated_sender, guid_prefix);
+        if writers + readers > 0 {
           warn!(
-            "participant {guid_prefix:?} found again after it was dropped: {} writers and {} \
-             readers restored (ROVE-PATCH.md §16)",
-            writers.len(),
-            readers.len()
+            "participant {guid_prefix:?} found again after it was dropped: {writers} writers and \
+             {readers} readers restored (ROVE-PATCH.md §16)"
           );
-        }
-        for discovered_reader_data in readers {
-          self.send_discovery_notification(DiscoveryNotificationType::ReaderUpdated {
-            discovered_reader_data,
-          });
-        }
-        for discovered_writer_data in writers {
-          self.send_discovery_notification(DiscoveryNotificationType::WriterUpdated {
-            discovered_writer_data,
-          });
         }
       }
 
@@ -2427,6 +2415,34 @@ impl Discovery {
       .try_send(event)
       .unwrap_or_else(|e| error!("Cannot report participant status: {e:?}"));
   }
+}
+
+/// rove patch (ROVE-PATCH.md §16, §24): the endpoints the database keeps of a participant
+/// found again (restored from the attic), announced to the event loop, so that local endpoints
+/// match them again: its discovery writers do not send what we acknowledged before. Returns how
+/// many writers and readers.
+pub(super) fn announce_endpoints(
+  discovery_db: &Arc<RwLock<DiscoveryDB>>,
+  sender: &WakeSender<DiscoveryNotificationType>,
+  guid_prefix: GuidPrefix,
+) -> (usize, usize) {
+  let (writers, readers) = discovery_db_read(discovery_db).endpoints_of(guid_prefix);
+  let counts = (writers.len(), readers.len());
+  let updates = (readers.into_iter())
+    .map(|discovered_reader_data| DiscoveryNotificationType::ReaderUpdated {
+      discovered_reader_data,
+    })
+    .chain(writers.into_iter().map(|discovered_writer_data| {
+      DiscoveryNotificationType::WriterUpdated {
+        discovered_writer_data,
+      }
+    }));
+  for update in updates {
+    if let Err(e) = sender.send(update) {
+      error!("Failed to send DiscoveryNotification {e:?}");
+    }
+  }
+  counts
 }
 
 // -----------------------------------------------------------------------

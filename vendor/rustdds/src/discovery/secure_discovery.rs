@@ -48,7 +48,7 @@ use crate::{
   RepresentationIdentifier, SequenceNumber, GUID,
 };
 use super::{
-  discovery::{DataWriterPlCdr, NormalDiscoveryPermission},
+  discovery::{announce_endpoints, DataWriterPlCdr, NormalDiscoveryPermission},
   discovery_db::{discovery_db_read, discovery_db_write, DiscoveryDB},
   spdp_participant_data, DiscoveredReaderData, DiscoveredTopicData, DiscoveredWriterData,
   ParticipantMessageData, Participant_GUID, SpdpDiscoveredParticipantData,
@@ -166,8 +166,8 @@ pub(crate) struct SecureDiscovery {
   relay_only_remote_readers: HashSet<GUID>,
 
   // rove patch (ROVE-PATCH.md §24)
-  /// Since when we wait for a handshake request from each peer, and when we last asked it.
-  waiting_for_request_since: HashMap<GuidPrefix, (Instant, Option<Instant>)>,
+  /// When to ask each peer whose handshake request we wait for to send one.
+  ask_for_request_at: HashMap<GuidPrefix, Instant>,
   /// When each peer's session was last torn down to authenticate again.
   last_restart: HashMap<GuidPrefix, Instant>,
   /// The identity of the last handshake request we answered from each peer: a request
@@ -322,7 +322,7 @@ impl SecureDiscovery {
       cached_received_key_exchange_messages: HashMap::new(),
       user_data_endpoints_with_keys_already_sent_to: HashSet::new(),
       relay_only_remote_readers: HashSet::new(),
-      waiting_for_request_since: HashMap::new(),
+      ask_for_request_at: HashMap::new(),
       last_restart: HashMap::new(),
       answered_request: HashMap::new(),
       completed_with: HashMap::new(),
@@ -1716,7 +1716,7 @@ impl SecureDiscovery {
         // message. Send the message again in case the remote hasn't
         // received it
         debug!("Resending a final handshake message to remote participant {remote_guid_prefix:?}");
-        self.resend_final_handshake_message(remote_guid_prefix, auth_msg_writer);
+        self.resend_stored_handshake_message(remote_guid_prefix, auth_msg_writer);
       }
       Some(DiscHandshakeState::CompletedWithFinalMessageReceived) => {
         debug!(
@@ -1766,7 +1766,7 @@ impl SecureDiscovery {
       // A request sent again after our reply: our reply goes again.
       (true, _, PendingFinalMessage) if answered => {
         self.reset_stored_message_resend_counter(&remote);
-        self.resend_stored_message(remote, auth_msg_writer);
+        self.resend_stored_handshake_message(remote, auth_msg_writer);
         return Some(HandshakeFollowUp::None);
       }
       (true, _, CompletedWithFinalMessageReceived) if answered => {
@@ -1777,7 +1777,7 @@ impl SecureDiscovery {
       // The peer waits for our request: it goes again, or the session starts over.
       (_, true, PendingReplyMessage) if self.stored_authentication_messages.contains_key(&remote) => {
         self.reset_stored_message_resend_counter(&remote);
-        self.resend_stored_message(remote, auth_msg_writer);
+        self.resend_stored_handshake_message(remote, auth_msg_writer);
         return Some(HandshakeFollowUp::None);
       }
       (_, true, CompletedWithFinalMessageSent | CompletedWithFinalMessageReceived)
@@ -1807,19 +1807,6 @@ impl SecureDiscovery {
     Some(HandshakeFollowUp::Restart(remote))
   }
 
-  /// rove patch (ROVE-PATCH.md §24): sends the stored handshake message to `remote` again now.
-  fn resend_stored_message(
-    &mut self,
-    remote: GuidPrefix,
-    auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
-  ) {
-    if let Some(stored) = self.stored_authentication_messages.get(&remote) {
-      if let Err(e) = write_stateless(auth_msg_writer, stored.message.clone()) {
-        debug!("Failed to resend a handshake message to {remote:?}: {e}");
-      }
-    }
-  }
-
   /// rove patch (ROVE-PATCH.md §24): everything about `remote`'s session is forgotten: its
   /// handshake, the messages kept for it, the keys sent to its endpoints, and its handles in
   /// the security plugins. Called when the participant is lost, for whatever reason, and
@@ -1828,7 +1815,7 @@ impl SecureDiscovery {
   pub fn forget(&mut self, remote: GuidPrefix) {
     self.handshake_states.remove(&remote);
     self.stored_authentication_messages.remove(&remote);
-    self.waiting_for_request_since.remove(&remote);
+    self.ask_for_request_at.remove(&remote);
     self.answered_request.remove(&remote);
     self.completed_with.remove(&remote);
     (self.cached_key_exchange_messages_for_resend)
@@ -1872,12 +1859,10 @@ impl SecureDiscovery {
   /// for longer than [`NUDGE_AFTER`], a restart request (the peer may think it is done).
   fn ask_for_requests(&mut self, auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>) {
     let now = Instant::now();
-    let overdue: Vec<GuidPrefix> = (self.waiting_for_request_since.iter_mut())
-      .filter(|(_, (since, asked))| {
-        now.duration_since(*asked.as_ref().unwrap_or(since)) >= NUDGE_AFTER
-      })
-      .map(|(p, (_, asked))| {
-        *asked = Some(now);
+    let overdue: Vec<GuidPrefix> = (self.ask_for_request_at.iter_mut())
+      .filter(|(_, at)| now >= **at)
+      .map(|(p, at)| {
+        *at = now + NUDGE_AFTER;
         *p
       })
       .collect();
@@ -2403,29 +2388,12 @@ impl SecureDiscovery {
     // kept of it (restored from the attic). Its discovery writers do not send them again, and
     // our discovery readers would not take them again under the sequence numbers they already
     // took: without this, the pair authenticated and never matched a user endpoint.
-    let (writers, readers) = discovery_db_read(discovery_db).endpoints_of(remote_guid_prefix);
-    if !writers.is_empty() || !readers.is_empty() {
+    let (writers, readers) =
+      announce_endpoints(discovery_db, discovery_updated_sender, remote_guid_prefix);
+    if writers + readers > 0 {
       info!(
-        "participant {remote_guid_prefix:?} authenticated again: {} writers and {} readers \
-         restored",
-        writers.len(),
-        readers.len()
-      );
-    }
-    for discovered_reader_data in readers {
-      send_discovery_notification(
-        discovery_updated_sender,
-        DiscoveryNotificationType::ReaderUpdated {
-          discovered_reader_data,
-        },
-      );
-    }
-    for discovered_writer_data in writers {
-      send_discovery_notification(
-        discovery_updated_sender,
-        DiscoveryNotificationType::WriterUpdated {
-          discovered_writer_data,
-        },
+        "participant {remote_guid_prefix:?} authenticated again: {writers} writers and {readers} \
+         readers restored"
       );
     }
   }
@@ -2862,7 +2830,9 @@ impl SecureDiscovery {
     }
   }
 
-  fn resend_final_handshake_message(
+  // rove patch (ROVE-PATCH.md §24): was resend_final_handshake_message; the restart handling
+  // resends a stored request or reply the same way.
+  fn resend_stored_handshake_message(
     &self,
     remote_guid_prefix: GuidPrefix,
     auth_msg_writer: &no_key::DataWriter<ParticipantStatelessMessage>,
@@ -2871,13 +2841,13 @@ impl SecureDiscovery {
       let _ = write_stateless(auth_msg_writer, stored_msg.message.clone())
         .map_err(|err| {
           warn!(
-            "Failed to send a final handshake message. Remote GUID prefix: \
+            "Failed to resend a handshake message. Remote GUID prefix: \
              {remote_guid_prefix:?}. Error: {err}"
           );
         });
     } else {
       warn!(
-        "Did not find the final handshake request to send. Remote guid prefix: \
+        "Did not find the handshake message to send again. Remote guid prefix: \
          {remote_guid_prefix:?}"
       );
     }
@@ -2914,13 +2884,13 @@ impl SecureDiscovery {
   }
 
   fn update_handshake_state(&mut self, remote_guid_prefix: GuidPrefix, state: DiscHandshakeState) {
-    // rove patch (ROVE-PATCH.md §24): how long we wait for a request.
+    // rove patch (ROVE-PATCH.md §24): when to ask for the request we wait for.
     if state == DiscHandshakeState::PendingRequestMessage {
-      (self.waiting_for_request_since)
+      (self.ask_for_request_at)
         .entry(remote_guid_prefix)
-        .or_insert_with(|| (Instant::now(), None));
+        .or_insert_with(|| Instant::now() + NUDGE_AFTER);
     } else {
-      self.waiting_for_request_since.remove(&remote_guid_prefix);
+      self.ask_for_request_at.remove(&remote_guid_prefix);
     }
     self.handshake_states.insert(remote_guid_prefix, state);
   }

@@ -1023,10 +1023,6 @@ impl MessageReceiver {
               "Submessage decoding failed: {e:?} (from participant {:?})",
               self.source_guid_prefix
             );
-            debug!(
-              "decode failure from {:?}: {:?} {:?}",
-              self.source_guid_prefix, sec_prefix, encoded_submessage.header
-            );
           }
           Ok(DecodeOutcome::Success(DecodedSubmessage::Writer(
             decoded_writer_submessage,

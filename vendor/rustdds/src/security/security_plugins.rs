@@ -936,24 +936,12 @@ impl SecurityPlugins {
     &mut self,
     remote_participant_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<()> {
-    // rove patch (ROVE-PATCH.md §24): the participant's endpoints and its identity go too.
-    // Before, their crypto handles stayed, so that a participant authenticated again had its
+    // rove patch (ROVE-PATCH.md §24): the participant's endpoint handles and its identity go
+    // too. Before, their crypto handles stayed, so that a participant authenticated again had its
     // endpoints taken as "registered already" with the keys of its previous session.
-    let endpoints: Vec<(GUID, GUID)> = (self.remote_endpoint_crypto_handle_cache.keys())
-      .filter(|(_, remote)| remote.prefix == *remote_participant_guid_prefix)
-      .copied()
-      .collect();
-    for pair in endpoints {
-      if let Some(handle) = self.remote_endpoint_crypto_handle_cache.remove(&pair) {
-        let unregistered = match pair.1.entity_id.entity_kind.is_writer() {
-          true => self.crypto.unregister_datawriter(handle),
-          false => self.crypto.unregister_datareader(handle),
-        };
-        if let Err(e) = unregistered {
-          debug!("unregistering remote endpoint {:?}: {e}", pair.1);
-        }
-      }
-    }
+    // (The crypto plugin unregisters them with the participant, below.)
+    (self.remote_endpoint_crypto_handle_cache)
+      .retain(|(_, remote), _| remote.prefix != *remote_participant_guid_prefix);
     if let Some(handle) = self
       .identity_handle_cache
       .remove(remote_participant_guid_prefix)
