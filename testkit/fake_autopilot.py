@@ -10,7 +10,9 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
 - MANUAL_CONTROL is taken when its target is ours; it expires like an override.
 - MAV_CMD_DO_SET_MODE (param1 = custom mode flag, param2 = custom_mode; PX4: param2 main mode,
   param3 sub mode) switches the mode and is answered with COMMAND_ACK; the HEARTBEAT reports it.
-- HEARTBEAT at --heartbeat-hz (1 Hz like the real one).
+- HEARTBEAT at --heartbeat-hz (1 Hz like the real one); with --mode-heartbeat also at once on
+  every mode change, before the COMMAND_ACK, as a real ArduRover does (without it, a new mode
+  shows only at the next regular beat: the slower model, which tests the COMMAND_ACK path).
 - udpout:HOST:PORT is ArduPilot's UDP client (`--serialN udpclient:...`): a connected socket on
   a port of its own, speaking first. A ground station on udpin learns its address only from its
   first datagram, and only datagrams from HOST:PORT reach it.
@@ -71,6 +73,8 @@ def main():
     p.add_argument("--vehicle", choices=["rover", "copter"], default="rover")
     p.add_argument("--mode", type=int, default=None, help="initial custom_mode (default: the safe mode)")
     p.add_argument("--heartbeat-hz", type=float, default=1.0)
+    p.add_argument("--mode-heartbeat", action="store_true",
+                   help="a HEARTBEAT at once on every mode change (ArduPilot does)")
     p.add_argument("--override-timeout", type=float, default=3.0)
     p.add_argument("--gcs-failsafe", type=float, default=0.0)
     p.add_argument("--ignore-mode-commands", type=int, default=0)
@@ -308,7 +312,11 @@ def main():
                     mode = wanted
                 record("set_mode", src=src, custom_mode=wanted, param1=msg.param1, answered=True,
                        result=result)
-                # Like ArduPilot, the new mode shows in the next regular HEARTBEAT, not at once.
+                if a.mode_heartbeat and result == mavutil.mavlink.MAV_RESULT_ACCEPTED:
+                    # ArduPilot's GCS_MAVLINK::send_heartbeat on a mode change: at once.
+                    m.mav.heartbeat_send(mav_type, ap, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                         mode, mavutil.mavlink.MAV_STATE_ACTIVE)
+                    record("mode_heartbeat", custom_mode=mode)
                 m.mav.command_ack_send(mavutil.mavlink.MAV_CMD_DO_SET_MODE, result)
             else:
                 record("other", type=kind, src=src)

@@ -124,7 +124,7 @@ fn rig(test: &str) -> (Rig, PathBuf, Api, Api) {
     b.wait("B's standing: A drives", |v| {
         v["event"] == "standing"
             && v["vehicle"] == V
-            && v["state"] == "standby"
+            && v["state"] == "driven"
             && v["other"] == A
             && v["safe"] == false
             && v["text"]

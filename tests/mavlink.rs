@@ -27,6 +27,10 @@ fn wall(e: &Value) -> u64 {
     e["wall_us"].as_u64().unwrap_or(0)
 }
 
+fn modified(path: &std::path::Path) -> Option<std::time::SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
 fn mavlink_output(port: u16) -> String {
     format!(
         "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:{port}\"\n\
@@ -153,7 +157,14 @@ fn runs(var: &str, default: usize) -> usize {
 /// the operator driving the restarted vehicle again between them.
 fn stopping_a_driven_vehicle_leaves_the_autopilot_in_the_safe_mode(transport: Transport) {
     let mut rig = Rig::new(&format!("mavlink-stop-{transport:?}"));
-    let wired = wire(&rig, transport, &[]);
+    // The transports ArduPilot was measured on get its HEARTBEAT at once on a mode change; the
+    // others the slower model (the new mode only at the next beat), so both are covered.
+    let fast = matches!(transport, Transport::UdpIn | Transport::Tcp);
+    let wired = wire(
+        &rig,
+        transport,
+        if fast { &["--mode-heartbeat"] } else { &[] },
+    );
     let ap = &wired.ap;
     let output = format!(
         "[output]\nadapter = \"mavlink\"\nconnection = \"{}\"\n",
@@ -232,7 +243,13 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
     let mut rig = Rig::new(&format!("mavlink-failsafe-{transport:?}-{target_system}"));
     // ROVE_FAILSAFE_HEARTBEAT_HZ=1 measures at ArduPilot's rate (the assertion then says less).
     let hz = std::env::var("ROVE_FAILSAFE_HEARTBEAT_HZ").unwrap_or_else(|_| "0.2".into());
-    let wired = wire(&rig, transport, &["--heartbeat-hz", &hz]);
+    // With `target_system`, the autopilot also beats at once on a mode change (ArduPilot does):
+    // the failsafe's summary then comes from that HEARTBEAT, else from the COMMAND_ACK alone.
+    let mut args = vec!["--heartbeat-hz", &hz];
+    if target_system {
+        args.push("--mode-heartbeat");
+    }
+    let wired = wire(&rig, transport, &args);
     let ap = &wired.ap;
     let target = if target_system {
         "target_system = 1\n"
@@ -261,7 +278,17 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
             false => Err("not yet"),
         }
     });
+    // The vehicle's keeper writes what it learned on a thread of its own, soon after.
+    let memory = rig.runtime_dir().join(format!("vehicle-{V}-mavlink"));
+    crate::util::eventually("the vehicle kept what it learned", || {
+        std::fs::read_to_string(&memory)
+            .ok()
+            .filter(|t| t.contains("system=1"))
+            .map(|_| ())
+            .ok_or("not yet")
+    });
     rig.procs[0].crash();
+    let kept = (std::fs::read(&memory).ok(), modified(&memory));
     let config = rig.dir.join(format!("vehicle-{V}.toml"));
     let mut times = Vec::new();
     for run in 0..runs("ROVE_FAILSAFE_RUNS", 3) {
@@ -272,11 +299,16 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
             .output()
             .expect("run rove failsafe");
         let took = t.elapsed().as_secs_f64() * 1000.0;
+        let said = String::from_utf8_lossy(&out.stdout);
         assert!(
             out.status.success(),
-            "run {run}: {}{}",
-            String::from_utf8_lossy(&out.stdout),
+            "run {run}: {said}{}",
             String::from_utf8_lossy(&out.stderr)
+        );
+        // Issue 50: an acknowledged HOLD is an autopilot heard, HEARTBEAT or not.
+        assert!(
+            said.contains("HOLD") && !said.contains("no autopilot heard"),
+            "run {run}: {said}"
         );
         // The autopilot logs an answered SET_MODE after it answered, so its record may lag
         // `rove failsafe`'s exit: waited for, not read once (seen under a loaded machine).
@@ -294,8 +326,29 @@ fn rove_failsafe_after_a_kill_is_immediate(transport: Transport, target_system: 
                 .ok_or(format!("{after:#?}"))
         });
         times.push(took);
+        if run == 0 {
+            eprintln!(
+                "{transport:?} target_system={target_system}: {}",
+                said.trim()
+            );
+        }
     }
-    eprintln!("{transport:?} target_system={target_system}: rove failsafe, ms: {times:.1?}");
+    // Issue 50: `rove failsafe` reads the vehicle's memory file and leaves it, and the
+    // directory, as they were (it rewrote it and left `vehicle-100-mavlink.tmp` behind).
+    let mut listing: Vec<String> = std::fs::read_dir(rig.runtime_dir())
+        .expect("the runtime directory")
+        .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+        .collect();
+    listing.sort();
+    assert_eq!(listing, [format!("vehicle-{V}-mavlink")]);
+    assert_eq!(
+        (std::fs::read(&memory).ok(), modified(&memory)),
+        kept,
+        "not rewritten"
+    );
+    eprintln!(
+        "{transport:?} target_system={target_system}: rove failsafe, ms: {times:.1?}; runtime directory after: {listing:?}"
+    );
     assert!(
         times.iter().all(|&ms| ms < 1000.0),
         "no run waited for the autopilot's HEARTBEAT (5 s apart): {times:.1?} ms"

@@ -104,7 +104,8 @@ pub fn standing(
 
 impl Standing {
     /// A stable name for programs (the API's `state`): `offline`, `failsafe`, `held`,
-    /// `driving`, `outranked`, `yielded`, `paused`, `standby`.
+    /// `driving`, `outranked`, `yielded`, `paused`, `driven` (someone else drives it; this
+    /// operator, or a bystander, takes no part — it was `standby`, which read as "nobody drives").
     pub fn kind(&self) -> &'static str {
         match self {
             Standing::Offline => "offline",
@@ -114,7 +115,7 @@ impl Standing {
             Standing::Outranked { .. } => "outranked",
             Standing::Yielded { .. } => "yielded",
             Standing::Paused { .. } => "paused",
-            Standing::StandingBy { .. } => "standby",
+            Standing::StandingBy { .. } => "driven",
         }
     }
 
@@ -265,5 +266,13 @@ mod tests {
         assert_eq!(held.text(label), "held by autopilot · owner dev (11)");
         assert_eq!(held.kind(), "held");
         assert!(held.is_safe());
+    }
+
+    /// Issue 49: a bystander's name for a vehicle someone drives agrees with its words.
+    #[test]
+    fn a_driven_vehicle_is_driven_for_a_bystander() {
+        let s = standing(V, true, &view(PHONE), None, None);
+        assert_eq!(s.kind(), "driven");
+        assert_eq!(s.text(|id| format!("phone ({id})")), "driven by phone (12)");
     }
 }

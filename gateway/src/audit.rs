@@ -33,9 +33,7 @@ pub fn state_dir() -> Option<PathBuf> {
         let first = std::env::split_paths(&dirs).next()?;
         return first.is_absolute().then_some(first);
     }
-    // The process's effective user owns /proc/self.
-    let uid = std::fs::metadata("/proc/self").map(|m| std::os::unix::fs::MetadataExt::uid(&m));
-    if uid.is_ok_and(|uid| uid == 0) {
+    if crate::runtime::is_root() {
         return Some(PathBuf::from("/var/lib/rove"));
     }
     let xdg = std::env::var_os("XDG_STATE_HOME").map(PathBuf::from);

@@ -52,7 +52,7 @@ pub struct DeviceRow {
     /// Vehicles, from their VehicleStatus: the outputs are in the safe state.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failsafe: Option<bool>,
-    /// Vehicles: where it stands for a bystander (`offline`, `failsafe`, `held`, `standby`:
+    /// Vehicles: where it stands for a bystander (`offline`, `failsafe`, `held`, `driven`:
     /// someone drives), as every console derives it (rove_console::standing).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub standing: Option<&'static str>,

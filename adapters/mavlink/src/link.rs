@@ -15,7 +15,7 @@
 
 use crate::config::{Endpoint, MavlinkConfig};
 use crate::frame::{Decoder, encode};
-use crate::memory::Learned;
+use crate::memory::{Keeper, Learned};
 use crate::mode::AckResult;
 use mavlink::dialects::ardupilotmega::{
     MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavType,
@@ -25,7 +25,6 @@ use rove_core::error::LinkError;
 use std::collections::VecDeque;
 use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
@@ -87,6 +86,9 @@ pub struct LinkStatus {
     pub connects: u64,
     /// The battery, from our autopilot's last SYS_STATUS.
     pub battery: Option<Battery>,
+    /// The (system, component) whose last COMMAND_ACK for a mode was ours: proof the autopilot
+    /// hears us, HEARTBEAT or not.
+    pub acked_by: Option<(u8, u8)>,
 }
 
 /// A SYS_STATUS's battery: each part `None` where the autopilot says it does not know.
@@ -146,10 +148,8 @@ struct Shared {
     learned: Option<(u8, u8)>,
     /// A `udpin:` link's peer: the sender of the last datagram (or the learned address).
     peer: Arc<Mutex<Option<SocketAddr>>>,
-    /// Where to keep what is learned, and what was last written there.
-    memory: Option<PathBuf>,
-    stored: Mutex<Option<Learned>>,
-    memory_warned: AtomicBool,
+    /// Keeps what is learned in the memory file (off this thread), if there is one.
+    keeper: Option<Keeper>,
     writer: Mutex<Option<Arc<Writer>>>,
     status: Mutex<LinkStatus>,
     acks: Mutex<VecDeque<AckResult>>,
@@ -208,9 +208,7 @@ impl Link {
             target_component: config.target_component,
             learned: learned.map(|l| (l.system_id, l.component_id)),
             peer: Arc::new(Mutex::new(learned.and_then(|l| l.peer).filter(|_| udpin))),
-            memory: config.memory.clone(),
-            stored: Mutex::new(None),
-            memory_warned: AtomicBool::new(false),
+            keeper: keeper(config),
             writer: Mutex::new(None),
             status: Mutex::new(LinkStatus::default()),
             acks: Mutex::new(VecDeque::new()),
@@ -542,11 +540,26 @@ fn target(shared: &Shared) -> Option<(u8, u8)> {
     Some((sys, shared.target_component.unwrap_or(comp)))
 }
 
+/// The memory file's keeper, which starts from what the file holds: an unchanged autopilot
+/// is not written again. Without one (no runtime directory, `rove failsafe`), nothing is kept.
+fn keeper(config: &MavlinkConfig) -> Option<Keeper> {
+    let path = config.memory.clone()?;
+    let on_disk = Learned::load(&path, &config.endpoint.to_string())
+        .ok()
+        .flatten();
+    match Keeper::start(path, on_disk) {
+        Ok(k) => Some(k),
+        Err(e) => {
+            warn!(error = %e, "mavlink: cannot start the memory file's writer; `rove failsafe` will wait for the autopilot");
+            None
+        }
+    }
+}
+
 /// Keeps what the link learned in the memory file, when it changed (the udpin peer, the
-/// autopilot's ids). A failure is logged once: the link works without it, only `rove failsafe`
-/// is slower.
+/// autopilot's ids); the [`Keeper`] writes it on its own thread.
 fn remember(shared: &Shared) {
-    let Some(path) = &shared.memory else {
+    let Some(keeper) = &shared.keeper else {
         return;
     };
     // Whom the link addresses: a udpin link's address is worth keeping with a configured
@@ -554,32 +567,12 @@ fn remember(shared: &Shared) {
     let Some((system_id, component_id)) = target(shared) else {
         return;
     };
-    let learned = Learned {
+    keeper.keep(Learned {
         endpoint: shared.endpoint.to_string(),
         peer: *lock(&shared.peer),
         system_id,
         component_id,
-    };
-    let mut stored = lock(&shared.stored);
-    if stored.as_ref() == Some(&learned) {
-        return;
-    }
-    match learned.store(path) {
-        Ok(()) => {
-            debug!(path = %path.display(), %learned, "mavlink: kept what the link learned");
-            *stored = Some(learned);
-        }
-        Err(e) => {
-            if !shared.memory_warned.swap(true, Ordering::Relaxed) {
-                warn!(
-                    path = %path.display(),
-                    error = %e,
-                    "mavlink: cannot keep the autopilot's address and ids for `rove failsafe` \
-                     (it will wait for the autopilot instead)"
-                );
-            }
-        }
-    }
+    });
 }
 
 fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
@@ -633,7 +626,7 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
             drop(s);
             notify(shared);
             if known != Some((info.system_id, info.component_id)) {
-                // Kept before it is announced: once the log says so, `rove failsafe` knows too.
+                // Handed to the keeper before it is announced (written within milliseconds).
                 remember(shared);
             }
             if known.is_none() {
@@ -660,6 +653,7 @@ fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                 MavResult::MAV_RESULT_FAILED => AckResult::Refused("MAV_RESULT_FAILED"),
                 _ => AckResult::Refused("a refusal"),
             };
+            s.acked_by = Some((system_id, header.component_id));
             drop(s);
             let mut acks = lock(&shared.acks);
             if acks.len() >= ACK_QUEUE {
@@ -745,6 +739,11 @@ mod tests {
         assert!(link.take_acks().is_empty(), "an ACK from another system");
         handle(shared, header(1, 1), &ack());
         assert_eq!(link.take_acks(), vec![AckResult::Accepted]);
+        assert_eq!(
+            link.status().acked_by,
+            Some((1, 1)),
+            "heard without a HEARTBEAT"
+        );
         assert!(!memory.exists(), "nothing heard, nothing new to keep");
         // The autopilot on this link now is system 2: its HEARTBEAT wins over the file.
         handle(shared, header(2, 1), &heartbeat());
@@ -754,6 +753,8 @@ mod tests {
             link.take_acks().is_empty(),
             "the learned system is no longer ours"
         );
+        let keeper = shared.keeper.as_ref().expect("a memory file is kept");
+        assert!(keeper.wait_idle(Duration::from_secs(10)), "written");
         let kept = Learned::load(&memory, &config.endpoint.to_string()).expect("readable");
         assert_eq!(kept.map(|l| l.system_id), Some(2), "what is heard is kept");
     }

@@ -10,11 +10,20 @@
 //!
 //! The file is a few `key=value` lines; [`Learned::parse`] is pure and rejects anything it does
 //! not expect, and a file for another endpoint (the configuration changed) is ignored.
+//!
+//! The running link hands what it learned to a [`Keeper`], which writes it on a thread of its
+//! own (create, fsync, rename: never on the thread that reads the autopilot), newest first, and
+//! only when it differs from what the file already holds — the file as loaded at start counts,
+//! so a vehicle that restarts and hears the same autopilot writes nothing. `rove failsafe` only
+//! reads the file: it leaves the running vehicle's record, and the directory, as they were.
 
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use tracing::{debug, warn};
 
 /// The largest memory file read; a real one is under 100 bytes.
 const MAX_FILE: u64 = 4096;
@@ -126,12 +135,148 @@ impl Learned {
     /// # Errors
     /// The directory is not writable.
     pub fn store(&self, path: &Path) -> io::Result<()> {
-        let tmp = path.with_extension("tmp");
+        let tmp = temporary(path);
         let mut file = std::fs::File::create(&tmp)?;
         file.write_all(self.to_text().as_bytes())?;
         file.sync_data()?;
         drop(file);
         std::fs::rename(&tmp, path)
+    }
+}
+
+/// The file [`Learned::store`] writes before renaming it over `path`.
+fn temporary(path: &Path) -> PathBuf {
+    path.with_extension("tmp")
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Keeps the memory file up to date off the caller's thread (see the module's text).
+#[derive(Debug)]
+pub struct Keeper {
+    shared: Arc<KeeperShared>,
+}
+
+#[derive(Debug)]
+struct KeeperShared {
+    path: PathBuf,
+    state: Mutex<KeeperState>,
+    wake: Condvar,
+}
+
+#[derive(Debug, Default)]
+struct KeeperState {
+    /// What the file holds (as loaded, or as last written).
+    on_disk: Option<Learned>,
+    /// The newest not written yet.
+    queued: Option<Learned>,
+    /// A write is under way.
+    busy: bool,
+    /// The owner is gone: write what is queued, then end.
+    stop: bool,
+    /// A failed write was logged (once).
+    warned: bool,
+}
+
+impl Keeper {
+    /// A keeper of `path`, which holds `on_disk` (as loaded). A temporary file a killed writer
+    /// left behind is removed.
+    ///
+    /// # Errors
+    /// The writer thread cannot be spawned.
+    pub fn start(path: PathBuf, on_disk: Option<Learned>) -> io::Result<Keeper> {
+        let _ = std::fs::remove_file(temporary(&path));
+        let shared = Arc::new(KeeperShared {
+            path,
+            state: Mutex::new(KeeperState {
+                on_disk,
+                ..KeeperState::default()
+            }),
+            wake: Condvar::new(),
+        });
+        let for_thread = Arc::clone(&shared);
+        std::thread::Builder::new()
+            .name("rove-mavlink-keep".into())
+            .spawn(move || write_loop(&for_thread))?;
+        Ok(Keeper { shared })
+    }
+
+    /// Has `learned` written unless the file holds it already; returns at once.
+    pub fn keep(&self, learned: Learned) {
+        let mut s = lock(&self.shared.state);
+        if s.on_disk.as_ref() == Some(&learned) {
+            // Newer than anything queued, and already there.
+            s.queued = None;
+            return;
+        }
+        if s.queued.as_ref() != Some(&learned) {
+            s.queued = Some(learned);
+            self.shared.wake.notify_all();
+        }
+    }
+
+    /// Waits until nothing is queued or being written, at most `limit`; whether it got there.
+    pub fn wait_idle(&self, limit: Duration) -> bool {
+        let deadline = Instant::now() + limit;
+        let mut s = lock(&self.shared.state);
+        while s.queued.is_some() || s.busy {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            s = self
+                .shared
+                .wake
+                .wait_timeout(s, left)
+                .unwrap_or_else(PoisonError::into_inner)
+                .0;
+        }
+        true
+    }
+}
+
+impl Drop for Keeper {
+    fn drop(&mut self) {
+        lock(&self.shared.state).stop = true;
+        self.shared.wake.notify_all();
+    }
+}
+
+fn write_loop(shared: &KeeperShared) {
+    let mut s = lock(&shared.state);
+    loop {
+        let Some(learned) = s.queued.take() else {
+            if s.stop {
+                return;
+            }
+            s = shared.wake.wait(s).unwrap_or_else(PoisonError::into_inner);
+            continue;
+        };
+        s.busy = true;
+        drop(s);
+        let written = learned.store(&shared.path);
+        s = lock(&shared.state);
+        s.busy = false;
+        match written {
+            Ok(()) => {
+                debug!(path = %shared.path.display(), %learned, "mavlink: kept what the link learned");
+                s.on_disk = Some(learned);
+            }
+            Err(e) => {
+                let _ = std::fs::remove_file(temporary(&shared.path));
+                if !std::mem::replace(&mut s.warned, true) {
+                    warn!(
+                        path = %shared.path.display(),
+                        error = %e,
+                        "mavlink: cannot keep the autopilot's address and ids for `rove failsafe` \
+                         (it will wait for the autopilot instead)"
+                    );
+                }
+            }
+        }
+        shared.wake.notify_all();
     }
 }
 
@@ -183,5 +328,52 @@ mod tests {
         assert!(e.contains("written for udpin"), "{e}");
         std::fs::write(&path, vec![b'x'; 10_000]).expect("written");
         assert!(Learned::load(&path, "udpin:127.0.0.1:14550").is_err());
+    }
+
+    fn modified(path: &Path) -> std::time::SystemTime {
+        std::fs::metadata(path)
+            .and_then(|m| m.modified())
+            .expect("the file's time")
+    }
+
+    /// Issue 50: the keeper writes only what the file does not hold yet — the file as loaded
+    /// counts — and leaves no temporary file behind, a stale one included.
+    #[test]
+    fn the_keeper_writes_only_changes_and_leaves_nothing_else() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("vehicle-100-mavlink");
+        let l = learned(Some("127.0.0.1:40123"));
+        l.store(&path).expect("stored");
+        std::fs::write(temporary(&path), "half a file").expect("written");
+        let before = modified(&path);
+        let on_disk = Learned::load(&path, &l.endpoint).expect("readable");
+        let keeper = Keeper::start(path.clone(), on_disk).expect("keeper");
+        keeper.keep(l.clone());
+        assert!(keeper.wait_idle(Duration::from_secs(10)));
+        assert_eq!(
+            modified(&path),
+            before,
+            "the same contents are not written again"
+        );
+        let listing = |dir: &Path| -> Vec<String> {
+            let mut names: Vec<String> = std::fs::read_dir(dir)
+                .expect("listing")
+                .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+                .collect();
+            names.sort();
+            names
+        };
+        assert_eq!(listing(dir.path()), ["vehicle-100-mavlink"]);
+        // A change is written; the newest of several wins; back to the file's is nothing.
+        let moved = learned(Some("127.0.0.1:40124"));
+        keeper.keep(learned(Some("127.0.0.1:40999")));
+        keeper.keep(moved.clone());
+        assert!(keeper.wait_idle(Duration::from_secs(10)));
+        assert_eq!(Learned::load(&path, &l.endpoint), Ok(Some(moved.clone())));
+        let after = modified(&path);
+        keeper.keep(moved);
+        assert!(keeper.wait_idle(Duration::from_secs(10)));
+        assert_eq!(modified(&path), after);
+        assert_eq!(listing(dir.path()), ["vehicle-100-mavlink"]);
     }
 }

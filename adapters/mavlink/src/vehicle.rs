@@ -2,7 +2,7 @@
 //!
 //! | call | sends |
 //! |---|---|
-//! | `apply` | the control message for the setpoint (RC_CHANNELS_OVERRIDE or MANUAL_CONTROL) at once; a mode command when the wished mode changed |
+//! | `apply` | the control message for the setpoint (RC_CHANNELS_OVERRIDE or MANUAL_CONTROL) at once — the failsafe content instead while a new mode waits for the autopilot to take it; a mode command when the wished mode changed |
 //! | `keepalive` (every `1/rate_hz`) | the GCS HEARTBEAT when 1 s has passed; while driving, the control message again unless one left within [`KEEPALIVE_SKIP`] of the period (one override per period, not one per command *plus* one per period); in failsafe, neutral sticks (`failsafe = "neutral"`) or the release message ([`RELEASE_SENDS`] times, then nothing); mode command resends |
 //! | `safe_state` | release or neutral at once; the safe mode, if rove was driving |
 //! | drop | as `safe_state`, then waits (bounded) for the safe mode's confirmation |
@@ -225,8 +225,9 @@ impl MavlinkVehicle {
             self.mode.on_ack(now, ack);
         }
         // Only a HEARTBEAT heard after the last mode command says what the autopilot made of
-        // it: ArduPilot reports a new mode at its next 1 Hz HEARTBEAT, so an older one still
-        // shows the mode before (and would "confirm" HOLD after a quick HOLD → MANUAL → HOLD).
+        // it: one sent before it still shows the mode before (and would "confirm" HOLD after a
+        // quick HOLD → MANUAL → HOLD). ArduPilot sends a HEARTBEAT at once on a mode change,
+        // which may come before its COMMAND_ACK; either confirms.
         if let Some(a) = status.autopilot
             && status
                 .last_heartbeat
@@ -375,6 +376,36 @@ impl MavlinkVehicle {
         self.last_control = Some(now);
         self.deferred = false;
         Ok(())
+    }
+
+    /// Whether the operator's sticks wait for the autopilot to take the operator's mode: a mode
+    /// was asked for and is neither acknowledged nor reported by a HEARTBEAT yet.
+    ///
+    /// Sticks are meant for the mode they come with. Sent before the autopilot took it, they act
+    /// in the mode before (seen: a Rover refusing AUTO ran the AUTO request's throttle in MANUAL
+    /// for ~60 ms), so until then the control message carries the configured failsafe content
+    /// (neutral sticks, or the release): the vehicle does nothing it was not asked to do in the
+    /// mode it is in. The cost is one COMMAND_ACK round trip (20–45 ms on ArduPilot) of no
+    /// driving at a mode change; a mode the autopilot already reports costs nothing.
+    fn sticks_wait(&self) -> bool {
+        let ModeState::Pending { mode, .. } = self.mode.state() else {
+            return false;
+        };
+        (self.link.status().autopilot).is_none_or(|a| a.custom_mode != mode.custom_mode)
+    }
+
+    /// The operator's sticks, or the failsafe content while they wait ([`Self::sticks_wait`]).
+    fn send_sticks(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
+        if !self.sticks_wait() {
+            return self.send_control(now, movement);
+        }
+        match self.config.failsafe {
+            FailsafeAction::Neutral => self.send_control(now, &MovementCommand::CENTRED),
+            FailsafeAction::Release => {
+                self.deferred = false;
+                self.send_release(now)
+            }
+        }
     }
 
     fn send_release(&mut self, now: MonoTime) -> Result<(), LinkError> {
@@ -534,7 +565,7 @@ impl OutputAdapter for MavlinkVehicle {
         self.fresh = false;
         // The control message first: it is what the latency budget is about.
         let control = if self.budget_allows(now) {
-            self.send_control(now, &setpoint.movement)
+            self.send_sticks(now, &setpoint.movement)
         } else {
             self.deferred = true;
             Ok(())
@@ -568,7 +599,7 @@ impl OutputAdapter for MavlinkVehicle {
         let heartbeat = self.send_heartbeat_if_due(now);
         let due = self.keepalive_due(now) || (self.deferred && self.budget_allows(now));
         let control = match self.drive {
-            Drive::Driving(setpoint) if due => self.send_control(now, &setpoint.movement),
+            Drive::Driving(setpoint) if due => self.send_sticks(now, &setpoint.movement),
             Drive::Safe { .. } if due && self.link.target().is_some() => self.send_failsafe(now),
             _ => Ok(()),
         };
@@ -730,7 +761,13 @@ pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
         }
         None => None,
     };
-    let mut v = MavlinkVehicle::start(config.clone(), MonoTime::ZERO, learned.as_ref())?;
+    // The file is the running vehicle's: read here, never written (a one-shot process killed
+    // by systemd mid-write would leave half of it behind).
+    let read_only = MavlinkConfig {
+        memory: None,
+        ..config.clone()
+    };
+    let mut v = MavlinkVehicle::start(read_only, MonoTime::ZERO, learned.as_ref())?;
     let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.can_send();
     while !ready(&v) && start.elapsed() < config.link_timeout {
         let seen = v.link.generation();
@@ -792,14 +829,94 @@ impl MavlinkVehicle {
                 "{} not confirmed in time",
                 mode.name
             ))),
-            _ => Ok(format!("{} — {}", v.describe(), v.autopilot_summary())),
+            ModeState::Confirmed(mode) => Ok(format!(
+                "{} — {}",
+                v.describe(),
+                confirmation(&v.link.status(), mode, |m| v.mode_name(m))
+            )),
+            ModeState::Idle => Ok(format!(
+                "{} — {}; no mode commanded (set_mode = false)",
+                v.describe(),
+                v.autopilot_summary()
+            )),
         }
+    }
+}
+
+/// What `rove failsafe` says of a confirmed safe mode: who confirmed it, and how. A COMMAND_ACK
+/// is as good an answer as a HEARTBEAT; a HEARTBEAT that still shows the mode before is named as
+/// such (pure, unit-tested).
+fn confirmation(status: &LinkStatus, mode: &AutopilotMode, name: impl Fn(u32) -> String) -> String {
+    match (status.autopilot, status.acked_by) {
+        (Some(a), _) if a.custom_mode == mode.custom_mode => format!(
+            "system {}/{} in {}, {}",
+            a.system_id,
+            a.component_id,
+            mode.name,
+            if a.armed { "armed" } else { "disarmed" }
+        ),
+        (Some(a), _) => format!(
+            "system {}/{} acknowledged {} (its last HEARTBEAT, older, said {}), {}",
+            a.system_id,
+            a.component_id,
+            mode.name,
+            name(a.custom_mode),
+            if a.armed { "armed" } else { "disarmed" }
+        ),
+        (None, Some((sys, comp))) => format!(
+            "system {sys}/{comp} acknowledged {} (COMMAND_ACK; no HEARTBEAT heard yet)",
+            mode.name
+        ),
+        (None, None) => format!("{} confirmed", mode.name),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 50: an ACK-only run said "no autopilot heard" while HOLD was acknowledged.
+    #[test]
+    fn the_failsafe_summary_names_who_confirmed_the_safe_mode_and_how() {
+        let hold = AutopilotMode {
+            name: "HOLD".into(),
+            custom_mode: 4,
+        };
+        let name = |m: u32| format!("mode {m}");
+        let mut status = LinkStatus {
+            acked_by: Some((1, 1)),
+            ..LinkStatus::default()
+        };
+        assert_eq!(
+            confirmation(&status, &hold, name),
+            "system 1/1 acknowledged HOLD (COMMAND_ACK; no HEARTBEAT heard yet)"
+        );
+        let mut heard = crate::link::AutopilotInfo {
+            system_id: 1,
+            component_id: 1,
+            mav_type: 10,
+            autopilot: 3,
+            custom_mode: 0,
+            armed: true,
+        };
+        status.autopilot = Some(heard);
+        assert_eq!(
+            confirmation(&status, &hold, name),
+            "system 1/1 acknowledged HOLD (its last HEARTBEAT, older, said mode 0), armed"
+        );
+        heard.custom_mode = 4;
+        status.autopilot = Some(heard);
+        assert_eq!(
+            confirmation(&status, &hold, name),
+            "system 1/1 in HOLD, armed"
+        );
+        for summary in [
+            confirmation(&status, &hold, name),
+            confirmation(&LinkStatus::default(), &hold, name),
+        ] {
+            assert!(!summary.contains("no autopilot heard"), "{summary}");
+        }
+    }
 
     #[test]
     fn serial_budget_lowers_the_rate_only_on_slow_links() {

@@ -813,3 +813,106 @@ fn r20_the_start_up_release_still_goes_out_when_nobody_drives() {
         .count();
     assert_eq!(releases, 3, "the release, after the grace, 3 times");
 }
+
+/// Issue 50: sticks that come with a new mode wait until the autopilot takes it. Refused (AUTO
+/// without a mission), they never reach it; taken (STEERING), the first override carrying them
+/// leaves after the autopilot answered. Until then the control message is the failsafe content
+/// (here the release: ch3 = 0). Against both autopilot models: the new mode in the next regular
+/// HEARTBEAT, and (ArduPilot's way) a HEARTBEAT at once before the COMMAND_ACK.
+fn sticks_for_a_new_mode_wait_for_the_autopilot(extra: &[&str]) {
+    let clock = Clock::new();
+    let mut args = vec!["--fail-modes", "10"];
+    args.extend_from_slice(extra);
+    let (peer, mut v) = tcp_pair(&args, "", &clock);
+    drive_until_confirmed(&mut v, &clock, setpoint(20000, 0, Mode::Manual), "MANUAL");
+    run(
+        &mut v,
+        &clock,
+        Duration::from_millis(100),
+        Some(setpoint(20000, 0, Mode::Manual)),
+    );
+    // ch3 for throttle 10000: neither MANUAL's 1805 nor neutral nor a release.
+    let new_sticks =
+        |e: &Value| e["event"] == "rc_override" && ![0, 1500, 1805].contains(&raw(e)[2]);
+    let auto = setpoint(10000, 0, Mode::Auto);
+    let start = Instant::now();
+    while !matches!(v.health(), Health::Degraded(_)) {
+        assert!(start.elapsed() < WAIT, "refusal not reported");
+        let _ = v.apply(clock.now(), &auto);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    run(&mut v, &clock, Duration::from_millis(200), Some(auto));
+    // The refused AUTO's timeline, for the record (`--nocapture`).
+    let events = peer.events();
+    if let Some(t0) = events
+        .iter()
+        .find(|e| e["event"] == "set_mode" && e["custom_mode"] == 10)
+        .and_then(|e| e["t"].as_f64())
+    {
+        let timeline: Vec<String> = events
+            .iter()
+            .filter(|e| {
+                e["t"]
+                    .as_f64()
+                    .is_some_and(|t| t > t0 - 0.05 && t < t0 + 0.15)
+            })
+            .filter(|e| matches!(e["event"].as_str(), Some("rc_override" | "set_mode")))
+            .map(|e| {
+                let ms = (e["t"].as_f64().unwrap_or(t0) - t0) * 1000.0;
+                match e["event"].as_str() {
+                    Some("set_mode") => format!("{ms:+.0} ms set_mode {}", e["custom_mode"]),
+                    _ => format!("{ms:+.0} ms ch3={}", raw(e)[2]),
+                }
+            })
+            .collect();
+        eprintln!("refused AUTO {extra:?}: {}", timeline.join(", "));
+    }
+    let leaked: Vec<Value> = events.into_iter().filter(new_sticks).collect();
+    assert!(
+        leaked.is_empty(),
+        "a refused mode's sticks reached the autopilot: {leaked:#?}"
+    );
+
+    let steering = setpoint(10000, 0, Mode::Assisted);
+    drive_until_confirmed(&mut v, &clock, steering, "STEERING");
+    run(&mut v, &clock, Duration::from_millis(200), Some(steering));
+    let events = peer.events();
+    let answered = events
+        .iter()
+        .find(|e| e["event"] == "set_mode" && e["custom_mode"] == 3 && e["answered"] == true)
+        .and_then(|e| e["t"].as_f64())
+        .expect("STEERING answered");
+    let first = events
+        .iter()
+        .find(|e| new_sticks(e))
+        .and_then(|e| e["t"].as_f64())
+        .expect("STEERING's sticks sent once it was taken");
+    assert!(
+        first > answered,
+        "STEERING's sticks left {:.1} ms before the autopilot took it",
+        (answered - first) * 1000.0
+    );
+    let between: Vec<&Value> = events
+        .iter()
+        .filter(|e| e["event"] == "rc_override")
+        .filter(|e| {
+            e["t"]
+                .as_f64()
+                .is_some_and(|t| t > answered - 1.0 && t < first)
+        })
+        .collect();
+    assert!(
+        between.iter().all(|e| matches!(raw(e)[2], 0 | 1805)),
+        "before: MANUAL's sticks, the hold, or the release: {between:#?}"
+    );
+}
+
+#[test]
+fn r20_sticks_for_a_new_mode_wait_for_the_autopilot_to_take_it() {
+    sticks_for_a_new_mode_wait_for_the_autopilot(&[]);
+}
+
+#[test]
+fn r20_sticks_for_a_new_mode_wait_for_an_autopilot_that_beats_at_once() {
+    sticks_for_a_new_mode_wait_for_the_autopilot(&["--mode-heartbeat"]);
+}

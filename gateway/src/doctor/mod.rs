@@ -222,7 +222,39 @@ pub fn check(roots: &Roots, user: &str, config: Option<&AnyConfig>) -> Vec<Findi
     found.extend(network(roots, config));
     #[cfg(feature = "security")]
     found.extend(certificate(config));
+    found.extend(failsafe_memory(config, crate::runtime::runtime_location()));
     found
+}
+
+/// A MAVLink vehicle: where its link keeps what `rove failsafe` needs (the autopilot's ids and
+/// address), or that nothing is kept and the failsafe waits for the autopilot.
+fn failsafe_memory(
+    config: Option<&AnyConfig>,
+    runtime: Option<crate::runtime::RuntimeDir>,
+) -> Option<Finding> {
+    let Some(AnyConfig::Vehicle(v)) = config else {
+        return None;
+    };
+    let OutputConfig::Mavlink(_) = &v.output else {
+        return None;
+    };
+    Some(match runtime {
+        Some(dir) => ok(format!(
+            "failsafe memory: {} ({})",
+            dir.path
+                .join(format!("vehicle-{}-mavlink", v.common.id))
+                .display(),
+            dir.source
+        )),
+        None => bad(
+            Status::Missing,
+            "failsafe memory: no runtime directory (no RUNTIME_DIRECTORY or XDG_RUNTIME_DIR, \
+             not root)"
+                .into(),
+            "run the vehicle under systemd (the unit's RuntimeDirectory=) or set XDG_RUNTIME_DIR: \
+             without it `rove failsafe` waits up to a second for the autopilot's HEARTBEAT",
+        ),
+    })
 }
 
 fn read_user<'a>(roots: &Roots, name: &'a str, found: &mut Vec<Finding>) -> User<'a> {

@@ -266,3 +266,30 @@ fn a_certificate_near_its_end_is_a_warning_and_an_expired_one_is_wrong() {
         }
     }
 }
+
+/// Issue 49: `rove doctor` says where a MAVLink vehicle keeps `rove failsafe`'s memory, or that
+/// it keeps none.
+#[test]
+fn a_mavlink_vehicle_is_told_where_the_failsafe_memory_lives() {
+    let roots = tree("memory");
+    let mavlink = vehicle(
+        &roots,
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpin:127.0.0.1:14550\"\n",
+    );
+    let root = crate::runtime::runtime_dir_from(None, None, true);
+    let kept = failsafe_memory(Some(&mavlink), root).expect("a line");
+    assert_eq!(kept.status, Status::Ok);
+    assert_eq!(
+        kept.what,
+        "failsafe memory: /run/rove/vehicle-100-mavlink (root without systemd or XDG_RUNTIME_DIR)"
+    );
+    let none = failsafe_memory(Some(&mavlink), None).expect("a line");
+    assert_eq!(none.status, Status::Missing);
+    assert!(none.to_string().contains("RuntimeDirectory="), "{none}");
+    let pwm = vehicle(&roots, "[output]\nadapter = \"sim\"\n");
+    assert_eq!(
+        failsafe_memory(Some(&pwm), None),
+        None,
+        "only MAVLink keeps one"
+    );
+}
