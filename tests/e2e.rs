@@ -23,5 +23,6 @@ mod service;
 #[cfg(all(feature = "remote", feature = "security"))]
 mod sites;
 mod spray;
+mod stop;
 mod trust;
 mod web;

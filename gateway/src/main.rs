@@ -357,7 +357,10 @@ fn bridge_cmd(path: &std::path::Path) -> anyhow::Result<()> {
         Some(f) => format!("{f},zenoh=warn"),
         None => format!("{},zenoh=warn", runtime::DEFAULT_LOG_FILTER),
     };
-    runtime::init_logging(Some(&filter));
+    runtime::init_logging_with(
+        Some(&filter),
+        Some(rove_gateway::bridge::tls_watch(&config)),
+    );
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()

@@ -218,34 +218,94 @@ where
 /// (and valid), else `default_filter` (e.g. a level from the config), else
 /// [`DEFAULT_LOG_FILTER`]. Call once, in `main`.
 pub fn init_logging(default_filter: Option<&str>) {
-    use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env()
-        .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
-        .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
-    let builder = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr);
-    match LogStyle::detect() {
-        LogStyle::Terminal => install_subscriber(builder.finish()),
-        LogStyle::Plain => install_subscriber(builder.with_ansi(false).finish()),
+    init_logging_with(default_filter, None);
+}
+
+/// A layer beside the log's own, seeing every event its `sees` filter lets through whatever the
+/// log's filter shows: the bridge's Zenoh TLS watch.
+pub struct Watch {
+    /// The layer.
+    pub layer: Box<dyn tracing_subscriber::Layer<tracing_subscriber::Registry> + Send + Sync>,
+    /// The events it sees.
+    pub sees: tracing_subscriber::filter::Targets,
+    /// Events the log itself no longer shows (the layer says them in its own words).
+    pub hides: tracing_subscriber::filter::Targets,
+}
+
+impl std::fmt::Debug for Watch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Watch")
+            .field("sees", &self.sees)
+            .field("hides", &self.hides)
+            .finish_non_exhaustive()
+    }
+}
+
+/// [`init_logging`], with a [`Watch`] beside the log.
+pub fn init_logging_with(default_filter: Option<&str>, watch: Option<Watch>) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .or_else(|_| {
+            tracing_subscriber::EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER))
+        })
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
+    let (subscriber, log_max) = subscriber(filter, watch, std::io::stderr, LogStyle::detect());
+    install_subscriber(subscriber, log_max);
+}
+
+/// The log (to `writer`, in `style`, showing what `filter` lets through less what the watch
+/// hides) and the watch beside it; and the most verbose level the log itself shows.
+fn subscriber<W>(
+    filter: tracing_subscriber::EnvFilter,
+    watch: Option<Watch>,
+    writer: W,
+    style: LogStyle,
+) -> (
+    Box<dyn tracing::Subscriber + Send + Sync>,
+    tracing::level_filters::LevelFilter,
+)
+where
+    W: for<'w> tracing_subscriber::fmt::MakeWriter<'w> + Send + Sync + 'static,
+{
+    use tracing_subscriber::Layer;
+    use tracing_subscriber::filter::FilterExt;
+    use tracing_subscriber::layer::SubscriberExt;
+    // rustdds's `log` records are made only up to the log's own level: a watch of Zenoh's
+    // DEBUG lines must not make every rustdds `debug!` format its arguments.
+    let log_max = filter
+        .max_level_hint()
+        .unwrap_or(tracing::level_filters::LevelFilter::TRACE);
+    let (watch, hides) = match watch {
+        Some(w) => (Some(w.layer.with_filter(w.sees)), w.hides),
+        None => (None, tracing_subscriber::filter::Targets::new()),
+    };
+    // An empty `Targets` enables nothing, so `not` of it hides nothing.
+    let shown = filter.and(hides.not());
+    let layer = tracing_subscriber::fmt::layer().with_writer(writer);
+    let registry = tracing_subscriber::registry().with(watch);
+    let subscriber: Box<dyn tracing::Subscriber + Send + Sync> = match style {
+        LogStyle::Terminal => Box::new(registry.with(layer.with_filter(shown))),
+        LogStyle::Plain => Box::new(registry.with(layer.with_ansi(false).with_filter(shown))),
         LogStyle::Journal => {
             let format = tracing_subscriber::fmt::format()
                 .without_time()
                 .with_ansi(false)
                 .with_level(false);
-            install_subscriber(
-                builder
-                    .with_ansi(false)
-                    .event_format(JournalFormat(format))
-                    .finish(),
+            Box::new(
+                registry.with(
+                    layer
+                        .with_ansi(false)
+                        .event_format(JournalFormat(format))
+                        .with_filter(shown),
+                ),
             )
         }
-    }
+    };
+    (subscriber, log_max)
 }
 
 /// Makes `subscriber` the process's, and routes `log` records (rustdds's) to it through
 /// [`crate::dds_log`], which rate-limits rustdds's per-datagram lines.
-fn install_subscriber<S>(subscriber: S)
+fn install_subscriber<S>(subscriber: S, log_max: tracing::level_filters::LevelFilter)
 where
     S: tracing::Subscriber + Send + Sync + 'static,
 {
@@ -254,7 +314,7 @@ where
         // Set up already (a test, or called twice): keep what is there.
         return;
     }
-    let max = tracing::level_filters::LevelFilter::current().as_log();
+    let max = log_max.as_log();
     // Fails only if a `log` logger was installed already; then that one stays.
     let _ = crate::dds_log::install(max);
 }
@@ -276,12 +336,16 @@ pub fn init_logging_to_file(
     let filter = EnvFilter::try_from_default_env()
         .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
         .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
+    let log_max = filter
+        .max_level_hint()
+        .unwrap_or(tracing::level_filters::LevelFilter::TRACE);
     install_subscriber(
         tracing_subscriber::fmt()
             .with_env_filter(filter)
             .with_ansi(false)
             .with_writer(std::sync::Mutex::new(file))
             .finish(),
+        log_max,
     );
     Ok(())
 }
@@ -550,6 +614,63 @@ mod tests {
         assert_eq!(dir(None, Some("relative"), true), Some(p("/run/rove")));
         let systemd = runtime_dir_from(Some(OsStr::new("/run/rove-vehicle")), None, true);
         assert_eq!(systemd.map(|d| d.create), Some(false), "systemd made it");
+    }
+
+    /// The bridge's watch sees what its filter names whatever the log shows, and what it hides
+    /// is not in the log (issue 49: Zenoh's misleading hint).
+    #[test]
+    fn a_watch_sees_past_the_log_and_hides_what_it_says_itself() {
+        use std::sync::{Arc, Mutex};
+        use tracing_subscriber::filter::Targets;
+        #[derive(Clone, Default)]
+        struct Buffer(Arc<Mutex<Vec<u8>>>);
+        impl std::io::Write for Buffer {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                lock(&self.0).extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        struct Seen(Arc<Mutex<Vec<String>>>);
+        impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for Seen {
+            fn on_event(
+                &self,
+                e: &tracing::Event<'_>,
+                _: tracing_subscriber::layer::Context<'_, S>,
+            ) {
+                lock(&self.0).push(e.metadata().target().to_string());
+            }
+        }
+        let (log, seen) = (Buffer::default(), Arc::new(Mutex::new(Vec::new())));
+        let watch = Watch {
+            layer: Box::new(Seen(Arc::clone(&seen))),
+            sees: Targets::new()
+                .with_target("watched", tracing::Level::DEBUG)
+                .with_target("hidden", tracing::Level::WARN),
+            hides: Targets::new().with_target("hidden", tracing::Level::WARN),
+        };
+        let writer = log.clone();
+        let (subscriber, max) = subscriber(
+            tracing_subscriber::EnvFilter::new("info"),
+            Some(watch),
+            move || writer.clone(),
+            LogStyle::Plain,
+        );
+        assert_eq!(max, tracing::level_filters::LevelFilter::INFO);
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::debug!(target: "watched", "watched debug");
+            tracing::warn!(target: "hidden", "hidden warn");
+            tracing::info!(target: "shown", "shown info");
+            tracing::debug!(target: "shown", "not shown debug");
+        });
+        let text = String::from_utf8_lossy(&lock(&log.0)).into_owned();
+        assert!(text.contains("shown info"), "{text}");
+        for absent in ["watched debug", "hidden warn", "not shown debug"] {
+            assert!(!text.contains(absent), "{absent}: {text}");
+        }
+        assert_eq!(*lock(&seen), ["watched", "hidden"]);
     }
 
     #[test]

@@ -15,6 +15,7 @@ mod inbound;
 mod link;
 mod local;
 mod proxy;
+mod tls;
 
 use crate::config::{BridgeConfig, Common};
 use crate::runtime::RateLimited;
@@ -32,6 +33,19 @@ use std::collections::{BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tracing::{info, warn};
+
+/// The bridge's watch of Zenoh's TLS failures ([`tls`]): for [`crate::runtime::init_logging_with`].
+pub fn tls_watch(config: &BridgeConfig) -> crate::runtime::Watch {
+    let (sees, hides) = tls::Watch::filters();
+    crate::runtime::Watch {
+        layer: Box::new(tls::Watch::new(
+            config.link.ca.clone(),
+            config.link.listen.clone(),
+        )),
+        sees,
+        hides,
+    }
+}
 
 /// How often proxies' DeviceInfo refreshes are checked and stale proxies dropped.
 const TICK: Duration = Duration::from_millis(500);

@@ -165,18 +165,6 @@ impl Node {
             warn!(cause = ?e, "cannot withdraw DeviceInfo");
         }
     }
-
-    /// Waits, at most `wait`, until every matched reader acknowledged our DeviceInfo writes
-    /// (the withdrawal, before the participant leaves).
-    ///
-    /// # Errors
-    /// rustdds cannot wait.
-    pub fn wait_for_withdrawal(
-        &self,
-        wait: std::time::Duration,
-    ) -> rustdds::dds::WriteResult<bool, ()> {
-        self.info.wait_for_acknowledgments(wait)
-    }
 }
 
 /// The participant a sample came from: who sent it is the DDS participant and writer, never a

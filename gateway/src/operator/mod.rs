@@ -49,7 +49,8 @@ use std::sync::Arc;
 use tracing::{info, warn};
 use ui::Ui;
 
-/// Longest wait, per writer, for peers to acknowledge the final FINISH and disposals on exit.
+/// Longest wait for peers to acknowledge the final FINISHes and releases on exit (one deadline
+/// for all writers).
 /// Loopback acknowledges in about a millisecond; 300 ms covers a loaded radio link without
 /// holding up a systemd stop noticeably. If it runs out, peers fall back to the command timeout.
 const SHUTDOWN_ACK_WAIT: std::time::Duration = std::time::Duration::from_millis(300);
@@ -465,7 +466,7 @@ impl<N: Net> Role<N> {
     }
 
     /// The stop: held grants finished, driven vehicles released, DeviceInfo withdrawn, and a
-    /// bounded wait for the peers to acknowledge all of it.
+    /// bounded wait for the peers to acknowledge the FINISHes and releases.
     fn leave(mut self) {
         info!("operator stopping: finishing grants and releasing vehicles");
         self.edges

@@ -19,7 +19,7 @@ use rustdds::StatusEvented;
 use rustdds::with_key::Sample;
 use std::collections::HashMap;
 use std::time::Duration;
-use tracing::warn;
+use tracing::{info, warn};
 
 /// What the operator heard, and from which participant.
 #[derive(Debug, Clone)]
@@ -292,32 +292,33 @@ impl Net for Dds {
 
     fn leave(&mut self, wait: Duration) {
         self.node.withdraw();
-        // The FINISHes and disposals are reliable writes; leaving the domain at once would drop
-        // them before every reader has them (seen: a replier never resumed). Wait, bounded,
-        // for the acknowledgments. Blocking is fine here: the event loop is over.
-        // Each writer is named: one that had nothing unacknowledged, or whose readers all
-        // answered, is quiet; a timeout means some matched reader (maybe one that has itself
-        // left) did not answer in time, and those peers fall back to the command timeout.
-        let mut acked = vec![
-            (
-                "RequestControl (FINISH)",
-                self.writers.requests.wait_for_acknowledgments(wait),
-            ),
-            (
-                "DeviceInfo (withdrawal)",
-                self.node.wait_for_withdrawal(wait),
-            ),
-        ];
+        // The FINISHes and releases (disposals) are reliable writes; leaving the domain at once
+        // would drop them before every reader has them (seen: a replier never resumed). So the
+        // stop waits for their acknowledgments, all under one deadline (not one per writer).
+        // Blocking is fine here: the event loop is over.
+        //
+        // The DeviceInfo withdrawal is sent but not waited for: it only updates lists (consoles,
+        // `rove status`), and the participant's own disposal, sent as it closes, does the same.
+        // Waiting for it cost every stop 300 ms whenever a peer had died within its lease (a
+        // killed `rove status --events`: its reader never answers), issue 49.
+        let deadline = std::time::Instant::now() + wait;
+        let left = || deadline.saturating_duration_since(std::time::Instant::now());
+        let mut acked = vec![(
+            "RequestControl (FINISH)",
+            self.writers.requests.wait_for_acknowledgments(left()),
+        )];
         for writer in self.writers.commands.values() {
             acked.push((
                 "ControlCommand (release)",
-                writer.wait_for_acknowledgments(wait),
+                writer.wait_for_acknowledgments(left()),
             ));
         }
         for (writer, result) in acked {
             match result {
                 Ok(true) => {}
-                Ok(false) => warn!(
+                // A reader that did not answer: its peer died or is unreachable; it falls back
+                // to its own timeout, which is what it does for a crashed operator anyway.
+                Ok(false) => info!(
                     writer,
                     wait_ms = wait.as_millis() as u64,
                     "a matched reader did not acknowledge before exit; it falls back to its timeout"

@@ -760,10 +760,18 @@ impl InnerPublisher {
   }
 
   pub(crate) fn remove_writer(&self, guid: GUID) {
-    self
+    // rove patch (ROVE-PATCH.md §29): an event loop that is gone (the participant stopped) has
+    // nothing left to remove; that is a clean stop, not an error.
+    match self
       .remove_writer_sender
       .try_send_timeout(guid, std::time::Duration::from_millis(20))
-      .unwrap_or_else(|e| error!("Cannot remove Writer {guid:?} : {e:?}"));
+    {
+      Ok(()) => {}
+      Err(e) if stopping(&e, self.participant().is_none()) => {
+        debug!("Writer {guid:?} not removed: the participant has stopped")
+      }
+      Err(e) => warn!("Cannot remove Writer {guid:?} : {e:?}"),
+    }
   }
 
   pub(crate) fn identity(&self) -> EntityId {
@@ -1410,10 +1418,17 @@ impl InnerSubscriber {
   }
 
   pub(crate) fn remove_reader(&self, guid: GUID) {
-    self
+    // rove patch (ROVE-PATCH.md §29), as `remove_writer`.
+    match self
       .sender_remove_reader
       .try_send_timeout(guid, std::time::Duration::from_millis(20))
-      .unwrap_or_else(|e| error!("Cannot remove Reader {guid:?} : {e:?}"));
+    {
+      Ok(()) => {}
+      Err(e) if stopping(&e, self.participant().is_none()) => {
+        debug!("Reader {guid:?} not removed: the participant has stopped")
+      }
+      Err(e) => warn!("Cannot remove Reader {guid:?} : {e:?}"),
+    }
   }
 
   fn unwrap_or_new_entity_id(
@@ -1433,3 +1448,10 @@ impl InnerSubscriber {
 
 #[cfg(test)]
 mod tests {}
+
+/// rove patch (ROVE-PATCH.md §29): whether a failed removal is the participant stopping: its
+/// event loop has hung up (`Disconnected`), or the participant itself is gone (`participant_gone`)
+/// and its loop is busy winding down (`Full`).
+fn stopping<T>(e: &std::sync::mpsc::TrySendError<T>, participant_gone: bool) -> bool {
+  matches!(e, std::sync::mpsc::TrySendError::Disconnected(_)) || participant_gone
+}

@@ -917,7 +917,8 @@ impl Discovery {
                   if let Some(dp) = self.domain_participant.clone().upgrade() {
                     self.spdp_publish(&dp);
                   } else {
-                    error!("DomainParticipant doesn't exist anymore, exiting Discovery.");
+                    // rove patch (ROVE-PATCH.md §29): the participant stopped; a clean end.
+                    debug!("DomainParticipant doesn't exist anymore, exiting Discovery.");
                     return;
                   };
                   // Only the periodic announce reschedules itself; the one-shot

@@ -1412,6 +1412,10 @@ impl Reader {
           .udp_sender
           .send_to_locator_list(&bytes, dst_locator_list);
       }
+      // rove patch (ROVE-PATCH.md §29): a peer that left has no crypto handle.
+      Err(e) if e.is_no_participant_crypto_handle() => {
+        debug!("Message to writers not sent: {e:?}")
+      }
       Err(e) => error!("Failed to send message to writers. Encoding failed: {e:?}"),
     }
   }

@@ -2020,6 +2020,10 @@ impl Writer {
           send_legacy!(self.extra_unicast_destinations);
         }
       }
+      // rove patch (ROVE-PATCH.md §29): a peer that left has no crypto handle.
+      Err(e) if e.is_no_participant_crypto_handle() => {
+        debug!("Message to readers not sent: {e:?}")
+      }
       Err(e) => error!("Failed to send message to readers. Encoding failed: {e:?}"),
     }
     blocked

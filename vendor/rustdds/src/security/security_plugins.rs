@@ -140,10 +140,12 @@ impl SecurityPlugins {
       .remote_participant_crypto_handle_cache
       .get(guid_prefix)
       .ok_or_else(|| {
-        create_security_error_and_log!(
-          "Could not find a ParticipantCryptoHandle for the GuidPrefix {:?}",
-          guid_prefix
-        )
+        // rove patch (ROVE-PATCH.md §29): a participant that left (or is not registered yet)
+        // has no handle; the callers say what they skipped, at DEBUG for this case.
+        debug!("Could not find a ParticipantCryptoHandle for the GuidPrefix {guid_prefix:?}");
+        SecurityError {
+          msg: format!("{NO_PARTICIPANT_CRYPTO_HANDLE} for the GuidPrefix {guid_prefix:?}"),
+        }
       })
       .copied()
   }

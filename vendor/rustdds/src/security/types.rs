@@ -35,6 +35,18 @@ pub struct SecurityError {
   pub(crate) msg: String,
 }
 
+/// rove patch (ROVE-PATCH.md §29): how the error for a remote participant without a crypto
+/// handle (it left, or is not registered yet) begins.
+pub(crate) const NO_PARTICIPANT_CRYPTO_HANDLE: &str = "Could not find a ParticipantCryptoHandle";
+
+impl SecurityError {
+  /// rove patch (ROVE-PATCH.md §29): the remote participant has no crypto handle (it left, or
+  /// is not registered yet): routine around a peer's stop or start, not an error to log.
+  pub(crate) fn is_no_participant_crypto_handle(&self) -> bool {
+    self.msg.starts_with(NO_PARTICIPANT_CRYPTO_HANDLE)
+  }
+}
+
 pub fn security_error(msg: &str) -> SecurityError {
   SecurityError {
     msg: msg.to_string(),
