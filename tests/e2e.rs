@@ -24,5 +24,6 @@ mod service;
 mod sites;
 mod spray;
 mod stop;
+mod tools;
 mod trust;
 mod web;

@@ -183,6 +183,8 @@ pub enum SecurityMode {
 /// # Errors
 /// The bench cannot set up its processes (namespaces need root), or a measurement failed.
 pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
+    // A bench stopped by a signal stops its processes and deletes its namespaces first.
+    harness::stop_on_signals()?;
     match what {
         Bench::Input { events, rate_hz } => bench::input_cli(rove, events, rate_hz),
         Bench::Chaos {
