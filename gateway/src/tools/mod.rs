@@ -11,6 +11,8 @@
 //! - [`chaos`]: `rove bench chaos`: random faults and packet loss, counted against the contract.
 //! - [`fleet`]: `rove bench scale`: a fleet of N vehicles and M operators, per-node cost,
 //!   handover and late-joiner times; [`sweep`]: `--idle-sweep`, idle fleets of several sizes.
+//! - [`soak`]: `rove bench soak`: memory, fds and threads of long-lived processes while
+//!   operators come and go.
 
 pub mod bench;
 pub mod chaos;
@@ -20,6 +22,7 @@ pub mod harness;
 pub mod procstat;
 #[cfg(all(feature = "remote", feature = "security"))]
 pub mod sites;
+pub mod soak;
 pub mod sweep;
 
 use std::path::Path;
@@ -118,6 +121,30 @@ pub enum Bench {
         /// bench.
         #[arg(long, default_value_t = 0)]
         starts: usize,
+        /// Write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
+    /// Memory, file descriptors and threads of a vehicle, its fallback operator and a
+    /// bystander while other operators join, preempt or request, and quit, cycle after cycle:
+    /// the growth per cycle after a warm-up (needs root).
+    Soak {
+        /// Join-and-leave cycles.
+        #[arg(long, default_value_t = 1000)]
+        cycles: usize,
+        /// Cycles before the growth is measured (default: a fifth of them).
+        #[arg(long)]
+        warmup: Option<usize>,
+        /// Cycles between samples.
+        #[arg(long, default_value_t = 10)]
+        sample_every: usize,
+        /// Every this many cycles a request (active handover) instead of a preemption; 0:
+        /// never.
+        #[arg(long, default_value_t = 5)]
+        request_every: usize,
+        /// Fail when a long-lived process grows by more than this many KiB per cycle.
+        #[arg(long)]
+        max_kib_per_cycle: Option<f64>,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -245,6 +272,23 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             } else {
                 sweep::cli(rove, &options, &idle_sweep, json.as_deref())
             }
+        }
+        Bench::Soak {
+            cycles,
+            warmup,
+            sample_every,
+            request_every,
+            max_kib_per_cycle,
+            json,
+        } => {
+            let options = soak::Options {
+                cycles,
+                warmup: warmup.unwrap_or(cycles / 5),
+                sample_every,
+                request_every,
+                max_kib_per_cycle,
+            };
+            soak::cli(rove, &options, json.as_deref())
         }
         Bench::Handover {
             remote: true,

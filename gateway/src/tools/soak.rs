@@ -1,0 +1,329 @@
+//! `rove bench soak`: does anything grow while operators come and go (issue 51)?
+//!
+//! A vehicle (sim) driven by a laptop, and a bystander desktop that drives nothing, run for the
+//! whole soak; each cycle a new operator participant joins and leaves:
+//! - a phone starts, preempts the laptop, and quits (SIGTERM): control falls back to the laptop;
+//! - every `request_every`-th cycle, a tablet asks for the vehicle instead (`--request`), the
+//!   laptop grants it, and the tablet quits: its FINISH gives the vehicle back.
+//!
+//! Each joiner is a new process, so a new DDS participant, as a phone that reconnects is.
+//!
+//! Every `sample_every` cycles the resident memory, open file descriptors and threads of each
+//! long-lived process are read from `/proc`. The growth per cycle is the least-squares slope of
+//! resident memory over the cycles after the warm-up ([`slope`], pure): a process that keeps
+//! something for every participant that left grows by that much per cycle.
+
+use super::harness::Rig;
+use super::procstat;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const VEHICLE: i64 = 100;
+const LAPTOP: i64 = 11;
+const DESKTOP: i64 = 14;
+/// Phones and tablets take their ids in turn from these: an id a participant just left stays
+/// pinned to it for a heartbeat (the trust rules' grace), so one id reused at once would make
+/// every cycle wait that long. The tables keyed by device id stay bounded by the rotation.
+const PHONES: std::ops::Range<i64> = 30..62;
+const TABLETS: std::ops::Range<i64> = 70..78;
+/// How long one owner change may take before the soak fails.
+const CHANGE_PATIENCE: Duration = Duration::from_secs(15);
+
+/// Options of a soak.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Join-and-leave cycles.
+    pub cycles: usize,
+    /// Cycles before the growth is measured (start-up allocations, caches filling).
+    pub warmup: usize,
+    /// Cycles between samples.
+    pub sample_every: usize,
+    /// Every this many cycles, a request (active handover) instead of a preemption; 0: never.
+    pub request_every: usize,
+    /// Fail when a long-lived process grows by more than this many KiB per cycle.
+    pub max_kib_per_cycle: Option<f64>,
+}
+
+/// One sample of one process.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Sample {
+    /// Cycles done.
+    pub cycle: usize,
+    /// Resident memory, KiB.
+    pub rss_kib: u64,
+    /// Open file descriptors.
+    pub fds: usize,
+    /// Threads.
+    pub threads: u64,
+}
+
+/// A long-lived process's samples and growth.
+#[derive(Debug, Clone, Serialize)]
+pub struct Process {
+    /// Its name.
+    pub name: String,
+    /// Its samples.
+    pub samples: Vec<Sample>,
+    /// Resident memory growth per cycle after the warm-up, KiB.
+    pub kib_per_cycle: f64,
+}
+
+/// What a soak found.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// Cycles run.
+    pub cycles: usize,
+    /// Warm-up cycles.
+    pub warmup: usize,
+    /// Owner changes seen (two per cycle).
+    pub handovers: usize,
+    /// Outputs to the safe state while the laptop lived (none expected).
+    pub failsafes: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+    /// The long-lived processes.
+    pub processes: Vec<Process>,
+}
+
+/// The least-squares slope of `y` over `x` (pure); 0 with fewer than two points.
+pub fn slope(points: &[(f64, f64)]) -> f64 {
+    let n = points.len() as f64;
+    if points.len() < 2 {
+        return 0.0;
+    }
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let (num, den) = points.iter().fold((0.0, 0.0), |(num, den), (x, y)| {
+        (num + (x - mx) * (y - my), den + (x - mx) * (x - mx))
+    });
+    if den == 0.0 { 0.0 } else { num / den }
+}
+
+/// Resident memory, fds and threads of `pid` after `cycle` cycles.
+fn sample(pid: u32, cycle: usize) -> Option<Sample> {
+    let (_, rss_kib) = procstat::sample(pid)?;
+    let fds = std::fs::read_dir(format!("/proc/{pid}/fd")).ok()?.count();
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let threads = (status.lines())
+        .find_map(|l| l.strip_prefix("Threads:"))
+        .and_then(|v| v.trim().parse().ok())?;
+    Some(Sample {
+        cycle,
+        rss_kib,
+        fds,
+        threads,
+    })
+}
+
+/// Reads a vehicle's record as it grows, keeping nothing but the last owner seen.
+struct Tail {
+    path: PathBuf,
+    offset: u64,
+    partial: String,
+    owner: Option<i64>,
+    changes: usize,
+    safe: usize,
+}
+
+impl Tail {
+    fn new(path: &Path) -> Tail {
+        Tail {
+            path: path.to_path_buf(),
+            offset: 0,
+            partial: String::new(),
+            owner: None,
+            changes: 0,
+            safe: 0,
+        }
+    }
+
+    fn poll(&mut self) {
+        use std::io::{Read, Seek, SeekFrom};
+        let Ok(mut file) = std::fs::File::open(&self.path) else {
+            return;
+        };
+        let mut fresh = String::new();
+        if file.seek(SeekFrom::Start(self.offset)).is_err()
+            || file.read_to_string(&mut fresh).is_err()
+        {
+            return;
+        }
+        self.offset += fresh.len() as u64;
+        self.partial.push_str(&fresh);
+        while let Some(end) = self.partial.find('\n') {
+            let line: String = self.partial.drain(..=end).collect();
+            let Ok(v) = serde_json::from_str::<serde_json::Value>(line.trim()) else {
+                continue;
+            };
+            if v["action"] == "safe" {
+                self.safe += 1;
+            }
+            let owner = v["owner"].as_i64();
+            if v["action"] == "apply" && owner != self.owner {
+                self.owner = owner;
+                self.changes += 1;
+            }
+        }
+    }
+
+    /// Waits until `owner` drives.
+    fn wait_owner(&mut self, owner: i64) -> anyhow::Result<()> {
+        let deadline = Instant::now() + CHANGE_PATIENCE;
+        loop {
+            self.poll();
+            if self.owner == Some(owner) {
+                return Ok(());
+            }
+            anyhow::ensure!(
+                Instant::now() < deadline,
+                "operator {owner} not driving after {CHANGE_PATIENCE:?} (owner {:?})",
+                self.owner
+            );
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+}
+
+/// Runs a soak with the `rove` binary at `rove`.
+///
+/// # Errors
+/// The rig cannot be set up (needs root), an owner change does not come, a long-lived process
+/// exits, or one grows by more than `max_kib_per_cycle`.
+pub fn run(rove: &Path, options: &Options, mut progress: impl FnMut(&str)) -> anyhow::Result<Report> {
+    let mut rig = Rig::new(rove, "soak")?;
+    let record = rig.vehicle_with_output(VEHICLE, "[output]\nadapter = \"sim\"\n");
+    let accept = "[handover]\nauto_accept = \"always\"\n";
+    rig.operator(LAPTOP, "stationary", "laptop", &[VEHICLE], 1000, accept, &[]);
+    rig.operator(DESKTOP, "stationary", "desktop", &[], 0, "", &[]);
+    let long_lived: Vec<(String, u32)> = (rig.procs.iter())
+        .map(|p| (p.name.clone(), p.pid()))
+        .collect();
+    let mut tail = Tail::new(&record);
+    tail.wait_owner(LAPTOP)?;
+    let mut processes: Vec<Process> = (long_lived.iter())
+        .map(|(name, _)| Process {
+            name: name.clone(),
+            samples: Vec::new(),
+            kib_per_cycle: 0.0,
+        })
+        .collect();
+    let started = Instant::now();
+    let safe_before = tail.safe;
+    for cycle in 0..=options.cycles {
+        if cycle % options.sample_every.max(1) == 0 || cycle == options.cycles {
+            for ((_, pid), process) in long_lived.iter().zip(&mut processes) {
+                let s = sample(*pid, cycle)
+                    .ok_or_else(|| anyhow::anyhow!("{} exited during the soak", process.name))?;
+                process.samples.push(s);
+            }
+            let rss: Vec<String> = (processes.iter())
+                .filter_map(|p| Some(format!("{} {} KiB", p.name, p.samples.last()?.rss_kib)))
+                .collect();
+            progress(&format!("cycle {cycle}: {}", rss.join(", ")));
+        }
+        if cycle == options.cycles {
+            break;
+        }
+        let request = options.request_every > 0 && cycle % options.request_every == 0;
+        let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
+        let (joiner, id) = if request {
+            let id = turn(TABLETS);
+            let args = ["--request", "100"];
+            let n = rig.operator(id, "remote", "tablet", &[], 3000, "", &args);
+            (n, id)
+        } else {
+            let id = turn(PHONES);
+            (rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]), id)
+        };
+        let t0 = Instant::now();
+        tail.wait_owner(id)?;
+        let t1 = t0.elapsed();
+        rig.procs[joiner].terminate();
+        let exited = rig.procs[joiner].wait_exit(CHANGE_PATIENCE);
+        anyhow::ensure!(exited.is_some(), "cycle {cycle}: the joiner did not stop");
+        let t2 = t0.elapsed();
+        tail.wait_owner(LAPTOP)?;
+        if std::env::var_os("ROVE_SOAK_TRACE").is_some() {
+            eprintln!("cycle {cycle} request={request}: took {t1:?}, stopped {t2:?}, back {:?}", t0.elapsed());
+        }
+        // The finished joiner's handle and log go: the rig must not grow either.
+        let gone = rig.procs.remove(joiner);
+        let _ = std::fs::remove_file(&gone.log);
+    }
+    for p in &mut processes {
+        let points: Vec<(f64, f64)> = (p.samples.iter())
+            .filter(|s| s.cycle >= options.warmup)
+            .map(|s| (s.cycle as f64, s.rss_kib as f64))
+            .collect();
+        p.kib_per_cycle = slope(&points);
+    }
+    let report = Report {
+        cycles: options.cycles,
+        warmup: options.warmup,
+        handovers: tail.changes,
+        failsafes: tail.safe - safe_before,
+        seconds: started.elapsed().as_secs_f64(),
+        processes,
+    };
+    if let Some(max) = options.max_kib_per_cycle {
+        for p in &report.processes {
+            anyhow::ensure!(
+                p.kib_per_cycle <= max,
+                "{} grows {:.2} KiB per cycle after {} cycles of warm-up (bound {max} KiB)",
+                p.name,
+                p.kib_per_cycle,
+                report.warmup
+            );
+        }
+    }
+    Ok(report)
+}
+
+/// `rove bench soak`: runs it, prints the curve and the growth, writes `json` if given.
+///
+/// # Errors
+/// As [`run`]; the JSON cannot be written.
+pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Result<()> {
+    let report = run(rove, options, |line| println!("{line}"))?;
+    println!(
+        "{} cycles in {:.0} s: {} owner changes, {} safe outputs while the laptop lived",
+        report.cycles, report.seconds, report.handovers, report.failsafes
+    );
+    for p in &report.processes {
+        let (first, last) = (p.samples.first(), p.samples.last());
+        let span = |f: fn(&Sample) -> String| match (first, last) {
+            (Some(a), Some(b)) => format!("{} → {}", f(a), f(b)),
+            _ => "-".into(),
+        };
+        println!(
+            "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {}; fds {}; threads {}",
+            p.name,
+            span(|s| s.rss_kib.to_string()),
+            p.kib_per_cycle,
+            report.warmup,
+            span(|s| s.fds.to_string()),
+            span(|s| s.threads.to_string()),
+        );
+    }
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_slope_is_the_growth_per_cycle() {
+        let line: Vec<(f64, f64)> = (0..10).map(|c| (c as f64, 1000.0 + 36.0 * c as f64)).collect();
+        assert!((slope(&line) - 36.0).abs() < 1e-9);
+        let flat: Vec<(f64, f64)> = (0..10).map(|c| (c as f64, 1000.0 + (c % 2) as f64)).collect();
+        assert!(slope(&flat).abs() < 0.2);
+        assert_eq!(slope(&[(1.0, 5.0)]), 0.0);
+        assert_eq!(slope(&[(1.0, 5.0), (1.0, 7.0)]), 0.0, "one x: no slope");
+    }
+}
