@@ -135,6 +135,12 @@ impl Freshness {
         self.writers.remove(&writer);
     }
 
+    /// Forgets every writer of a participant that left (its writers' own losses may never be
+    /// reported: a lease that ran out, a goodbye whose endpoint disposals were lost).
+    pub fn forget_participant(&mut self, participant: crate::sender::ParticipantId) {
+        self.writers.retain(|w, _| w.participant != participant);
+    }
+
     /// Writers remembered.
     pub fn len(&self) -> usize {
         self.writers.len()

@@ -26,12 +26,16 @@ pub struct Node {
     name: String,
     kind: DeviceType,
     refresh: Mutex<Refresh>,
-    /// Participants lost (at most [`MAX_LOST`]): one found again gets our DeviceInfo at once.
-    lost: Mutex<std::collections::BTreeSet<ParticipantId>>,
+    /// Participants lost, and when (at most [`MAX_LOST`], for [`LOST_KEPT`]): one found again
+    /// gets our DeviceInfo at once.
+    lost: Mutex<std::collections::BTreeMap<ParticipantId, std::time::Instant>>,
 }
 
 /// Most lost participants remembered for [`Node::observe`].
 const MAX_LOST: usize = 1024;
+/// How long a lost participant is remembered: one that comes back later is a newcomer (a
+/// restarted process has a new participant anyway), and nothing is kept for ever (issue 51).
+const LOST_KEPT: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// When our DeviceInfo goes out: at once when `controller_id` changed, else once every
 /// `every` ([`super::DEVICE_INFO_REFRESH`]). Presence is the participant's (its SPDP lease), so
@@ -103,7 +107,7 @@ impl Node {
                 every: super::DEVICE_INFO_REFRESH,
                 last: None,
             }),
-            lost: Mutex::new(std::collections::BTreeSet::new()),
+            lost: Mutex::new(std::collections::BTreeMap::new()),
         })
     }
 
@@ -143,13 +147,15 @@ impl Node {
         let mut lost = crate::runtime::lock(&self.lost);
         match event {
             DomainParticipantStatusEvent::ParticipantLost { id, .. } => {
+                let now = std::time::Instant::now();
+                lost.retain(|_, at| now.duration_since(*at) < LOST_KEPT);
                 if lost.len() >= MAX_LOST {
                     lost.clear();
                 }
-                lost.insert(participant_id(id.as_ref()));
+                lost.insert(participant_id(id.as_ref()), now);
             }
             DomainParticipantStatusEvent::ParticipantDiscovered { dpd }
-                if lost.remove(&participant_id(dpd.guid.prefix.as_ref())) =>
+                if lost.remove(&participant_id(dpd.guid.prefix.as_ref())).is_some() =>
             {
                 crate::runtime::lock(&self.refresh).forget()
             }

@@ -63,6 +63,14 @@ impl Intake {
         self.strengths.remove(&writer).is_some()
     }
 
+    /// Forgets every writer of a participant that left (issue 51: only writer losses were,
+    /// and a participant whose endpoint disposals never came left its writers here).
+    pub(super) fn forget_participant(&mut self, participant: ParticipantId) {
+        self.freshness.forget_participant(participant);
+        self.strengths
+            .retain(|&w, _| dds::writer_id(w).participant != participant);
+    }
+
     /// Whether a command writer of `participant` is known.
     pub(super) fn drives_from(&self, participant: ParticipantId) -> bool {
         (self.strengths.keys()).any(|&w| dds::writer_id(w).participant == participant)

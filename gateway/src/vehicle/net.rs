@@ -109,6 +109,7 @@ impl Dds {
                 if self.intake.drives_from(participant) {
                     tracing::info!(%participant, why, "participant of a command writer lost");
                 }
+                self.intake.forget_participant(participant);
                 vec![Event::ParticipantGone { participant }]
             }
         }

@@ -72,6 +72,11 @@ pub(crate) struct DiscoveryDB {
   // was lost due to time-out. If we have a
   external_topic_readers_attic: BTreeMap<GUID, DiscoveredReaderData>,
   external_topic_writers_attic: BTreeMap<GUID, DiscoveredWriterData>,
+  // rove patch (ROVE-PATCH.md §30): until when each participant's endpoints stay in the
+  // attic: one that is alive announces itself within its lease, so after two leases
+  // (at least ATTIC_MIN) it left for good (a restarted process comes back under a new
+  // GUID prefix) and its endpoints go.
+  attic_until: BTreeMap<GuidPrefix, Instant>,
 
   // Database of topic updates:
   // Outer level key is topic name
@@ -119,6 +124,8 @@ fn trim_attic<D>(attic: &mut BTreeMap<GUID, D>) {
 // (an entry is about 1 KiB, and each matched endpoint costs a proxy in every
 // local endpoint of its topic).
 const MAX_REMOTE_PARTICIPANTS: usize = 1024;
+// rove patch (ROVE-PATCH.md §30): the shortest stay in the attic.
+const ATTIC_MIN: StdDuration = StdDuration::from_secs(10);
 const MAX_REMOTE_ENDPOINTS: usize = 8192;
 // The longest participant lease believed, s (rustdds announces 20 s, DDS
 // implementations 10–300 s).
@@ -162,6 +169,7 @@ impl DiscoveryDB {
       external_topic_writers: BTreeMap::new(),
       external_topic_readers_attic: BTreeMap::new(),
       external_topic_writers_attic: BTreeMap::new(),
+      attic_until: BTreeMap::new(),
       topics: BTreeMap::new(),
       topic_updated_sender,
       participant_status_sender,
@@ -258,6 +266,7 @@ impl DiscoveryDB {
         &mut self.external_topic_writers_attic,
         &mut self.external_topic_writers,
       );
+      self.attic_until.remove(&guid.prefix);
     }
 
     // In any case:
@@ -296,13 +305,21 @@ impl DiscoveryDB {
   // participant timed out.
   pub fn remove_participant(&mut self, guid_prefix: GuidPrefix, active_disposal: bool) {
     info!("removing participant {guid_prefix:?}");
-    self.participant_proxies.remove(&guid_prefix);
+    let lease = (self.participant_proxies.remove(&guid_prefix))
+      .and_then(|p| p.lease_duration)
+      .unwrap_or(DEFAULT_PARTICIPANT_LEASE_DURATION)
+      .to_std();
     self.participant_last_life_signs.remove(&guid_prefix);
     #[cfg(feature = "security")]
     self.authentication_statuses.remove(&guid_prefix);
     #[cfg(feature = "security")]
     self.authenticated_at.remove(&guid_prefix);
 
+    // rove patch (ROVE-PATCH.md §30): what it said about topics goes with it (kept per
+    // endpoint, it was never dropped while the topic had a local endpoint).
+    for senders in self.topics.values_mut() {
+      senders.retain(|g, _| g.prefix != guid_prefix);
+    }
     if active_disposal {
       self.remove_topic_reader_with_prefix(guid_prefix);
       self.remove_topic_writer_with_prefix(guid_prefix);
@@ -322,6 +339,29 @@ impl DiscoveryDB {
       // timed out left its endpoints here for ever.
       trim_attic(&mut self.external_topic_readers_attic);
       trim_attic(&mut self.external_topic_writers_attic);
+      // rove patch (ROVE-PATCH.md §30): and for two of its leases only.
+      let keep = (lease * 2).max(ATTIC_MIN);
+      self.attic_until.insert(guid_prefix, Instant::now() + keep);
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): the endpoints of participants that have not come back
+  /// within two of their leases leave the attic.
+  fn attic_cleanup(&mut self, now: Instant) {
+    let expired: Vec<GuidPrefix> = (self.attic_until.iter())
+      .filter(|(_, until)| now >= **until)
+      .map(|(p, _)| *p)
+      .collect();
+    for prefix in expired {
+      self.attic_until.remove(&prefix);
+      let mut gone = BTreeMap::new();
+      move_by_guid_prefix(prefix, &mut self.external_topic_readers_attic, &mut gone);
+      let mut gone = BTreeMap::new();
+      move_by_guid_prefix(prefix, &mut self.external_topic_writers_attic, &mut gone);
+    }
+    // Entries trimmed from a full attic leave their deadline behind.
+    if self.attic_until.len() > MAX_REMOTE_PARTICIPANTS {
+      self.attic_until.pop_first();
     }
   }
 
@@ -370,6 +410,14 @@ impl DiscoveryDB {
   pub fn remove_topic_reader(&mut self, guid: GUID) {
     info!("remove_topic_reader {guid:?}");
     self.external_topic_readers.remove(&guid);
+    self.forget_topic_sender(guid);
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): an endpoint that left says nothing about topics.
+  fn forget_topic_sender(&mut self, guid: GUID) {
+    for senders in self.topics.values_mut() {
+      senders.remove(&guid);
+    }
   }
 
   #[cfg(feature = "security")]
@@ -397,6 +445,7 @@ impl DiscoveryDB {
 
   pub fn remove_topic_writer(&mut self, guid: GUID) {
     self.external_topic_writers.remove(&guid);
+    self.forget_topic_sender(guid);
   }
 
   // Delete participant proxies, if we have not heard of them within
@@ -405,6 +454,7 @@ impl DiscoveryDB {
     #[cfg(feature = "security")]
     const HANDSHAKE_LEASE: Duration = Duration::from_secs(30);
     let inow = Instant::now();
+    self.attic_cleanup(inow);
 
     let mut to_remove = Vec::new();
     // TODO: We are not cleaning up liast_life_signs table, but that should not be a

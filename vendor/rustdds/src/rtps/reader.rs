@@ -491,9 +491,12 @@ impl Reader {
   pub fn remove_writer_proxy(&mut self, writer_guid: GUID) {
     if self.matched_writers.contains_key(&writer_guid) {
       self.matched_writers.remove(&writer_guid);
-      self
-        .acquire_the_topic_cache_guard()
-        .forget_reliable_writer(writer_guid);
+      // rove patch (ROVE-PATCH.md §30): its samples go after a grace, its reassemblies now.
+      self.fragment_assemblers.remove(&writer_guid);
+      let mut cache = self.acquire_the_topic_cache_guard();
+      cache.forget_reliable_writer(writer_guid);
+      cache.writer_gone(writer_guid);
+      drop(cache);
       #[cfg(feature = "security")]
       if let Some(security_plugins_handle) = &self.security_plugins {
         security_plugins_handle
@@ -527,6 +530,17 @@ impl Reader {
     for writer in lost_writers {
       self.remove_writer_proxy(writer);
     }
+    // rove patch (ROVE-PATCH.md §30): also what a stateless reader heard from it, and any
+    // reassembly it left unfinished.
+    let assembling: Vec<GUID> = (self.fragment_assemblers.range(guid_prefix.range()))
+      .map(|(g, _)| *g)
+      .collect();
+    for writer in assembling {
+      self.fragment_assemblers.remove(&writer);
+    }
+    self
+      .acquire_the_topic_cache_guard()
+      .participant_gone(guid_prefix);
   }
 
   /// rove patch (ROVE-PATCH.md §7): how many remote writers this reader has matched.

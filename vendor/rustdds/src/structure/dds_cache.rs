@@ -167,7 +167,16 @@ pub(crate) struct TopicCache {
   // Therefore, data before the marker SN can be handed off to a Reliable DataReader.
   // Initially, we consider the marker for each Writer (GUID) to be SequenceNumber::new(1)
   received_reliably_before: BTreeMap<GUID, SequenceNumber>,
+
+  // rove patch (ROVE-PATCH.md §30): Writers that are gone (lost, or their participant
+  // left), and when they were seen to go. Their samples and indexes are dropped once they
+  // have been gone for WRITER_GONE_GRACE, unless they wrote again meanwhile.
+  gone: BTreeMap<GUID, Timestamp>,
 }
+
+/// rove patch (ROVE-PATCH.md §30): how long a gone Writer's samples stay, so that a local
+/// DataReader can still take what it sent last (its dispose, its final release).
+const WRITER_GONE_GRACE: crate::Duration = crate::Duration::from_secs(10);
 
 impl TopicCache {
   pub fn new(topic_name: String, topic_data_type: TypeDesc, topic_qos: &QosPolicies) -> Self {
@@ -185,6 +194,7 @@ impl TopicCache {
       last_added_instant: Timestamp::ZERO,
       sequence_numbers: BTreeMap::new(),
       received_reliably_before: BTreeMap::new(),
+      gone: BTreeMap::new(),
     };
 
     new_self.update_keep_limits(topic_qos);
@@ -262,6 +272,67 @@ impl TopicCache {
   pub fn forget_reliable_writer(&mut self, writer: GUID) {
     self.generation = self.generation.wrapping_add(1);
     self.received_reliably_before.remove(&writer);
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): how many Writers have samples here.
+  pub fn writer_count(&self) -> usize {
+    self.sequence_numbers.len()
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): whether `writer` has samples here.
+  pub fn has_writer(&self, writer: GUID) -> bool {
+    self.sequence_numbers.contains_key(&writer)
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): the Writer is gone (lost, or out of our partitions):
+  /// what it wrote is dropped after [`WRITER_GONE_GRACE`] unless it writes again.
+  pub fn writer_gone(&mut self, writer: GUID) {
+    if self.sequence_numbers.contains_key(&writer) {
+      self.gone.entry(writer).or_insert_with(Timestamp::now);
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): every Writer of the participant `prefix` is gone (it
+  /// left; a stateless reader has no Writer proxies to lose one by one).
+  pub fn participant_gone(&mut self, prefix: crate::structure::guid::GuidPrefix) {
+    let now = Timestamp::now();
+    let writers: Vec<GUID> = (self.sequence_numbers.range(prefix.range()))
+      .map(|(g, _)| *g)
+      .collect();
+    for writer in writers {
+      self.gone.entry(writer).or_insert(now);
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §30): drops the samples, indexes and markers of Writers gone
+  /// for longer than [`WRITER_GONE_GRACE`]. One that wrote after it was marked is not gone.
+  fn drop_gone_writers(&mut self, now: Timestamp) {
+    if self.gone.is_empty() {
+      return;
+    }
+    let mut drop = Vec::new();
+    let mut back = Vec::new();
+    for (writer, since) in &self.gone {
+      let newest = (self.sequence_numbers.get(writer))
+        .and_then(|sns| sns.values().max().copied());
+      match newest {
+        Some(ts) if ts > *since => back.push(*writer),
+        _ if now - *since > WRITER_GONE_GRACE => drop.push(*writer),
+        _ => {}
+      }
+    }
+    for writer in back {
+      self.gone.remove(&writer);
+    }
+    for writer in drop {
+      self.gone.remove(&writer);
+      self.received_reliably_before.remove(&writer);
+      if let Some(sns) = self.sequence_numbers.remove(&writer) {
+        for ts in sns.values() {
+          self.changes.remove(ts);
+        }
+      }
+    }
   }
 
   // The oldest change that a Reliable DataReader cannot yet take, because an
@@ -534,6 +605,7 @@ impl TopicCache {
   /// samples, whoever wrote them, until it has no more.
   pub fn remove_changes_before(&mut self, remove_before: Timestamp) {
     self.generation = self.generation.wrapping_add(1);
+    self.drop_gone_writers(Timestamp::now());
     // TODO: Currently, TopicCache does not know about Keys is Samples/CacheChanges,
     // because they are opaque binary blobs at this point. Therefore, we cannot
     // distinguish between instances, so cannot observe max instance counts.

@@ -45,6 +45,73 @@ pub(crate) enum ReaderCommand {
   ResetRequestedDeadlineStatus,
 }
 
+/// rove patch (ROVE-PATCH.md §30): the keys a reader decodes key hashes with (a dispose by
+/// key hash only names its instance by hash). Keys of disposed instances not written since are
+/// forgotten once [`DISPOSED_KEYS_KEPT`] later disposals have come, so that the map does not
+/// keep every instance ever seen; live instances are kept.
+pub(crate) struct KeyMemory<K> {
+  keys: BTreeMap<KeyHash, (K, u64)>,
+  disposed: std::collections::VecDeque<(KeyHash, u64)>,
+  stamp: u64,
+}
+
+/// rove patch (ROVE-PATCH.md §30): disposals remembered before the oldest one's key goes.
+const DISPOSED_KEYS_KEPT: usize = 256;
+
+impl<K> Default for KeyMemory<K> {
+  fn default() -> Self {
+    KeyMemory {
+      keys: BTreeMap::new(),
+      disposed: std::collections::VecDeque::new(),
+      stamp: 0,
+    }
+  }
+}
+
+impl<K: Key> KeyMemory<K> {
+  fn written(&mut self, key: K) {
+    self.stamp += 1;
+    self.keys.insert(key.hash_key(false), (key, self.stamp));
+  }
+
+  fn disposed_key(&mut self, key: &K) {
+    let hash = key.hash_key(false);
+    self.written(key.clone());
+    self.remember_disposal(hash);
+  }
+
+  fn disposed_hash(&mut self, hash: KeyHash) -> Option<K> {
+    let key = self.keys.get(&hash).map(|(k, _)| k.clone())?;
+    self.remember_disposal(hash);
+    Some(key)
+  }
+
+  fn remember_disposal(&mut self, hash: KeyHash) {
+    let Some((_, stamp)) = self.keys.get(&hash) else {
+      return;
+    };
+    self.disposed.push_back((hash, *stamp));
+    while self.disposed.len() > DISPOSED_KEYS_KEPT {
+      let Some((old, at)) = self.disposed.pop_front() else {
+        break;
+      };
+      // Written again since its disposal: alive, kept.
+      if self.keys.get(&old).is_some_and(|(_, s)| *s == at) {
+        self.keys.remove(&old);
+      }
+    }
+  }
+
+  #[cfg(test)]
+  pub(crate) fn len(&self) -> usize {
+    self.keys.len()
+  }
+}
+
+/// rove patch (ROVE-PATCH.md §30): read pointers kept beyond the writers the topic cache
+/// holds samples of, before the stale ones are dropped.
+const READ_POINTER_SLACK: usize = 16;
+
 // This is helper struct.
 // All mutable state needed for reading should go here.
 pub(crate) struct ReadState<K: Key> {
@@ -54,7 +121,9 @@ pub(crate) struct ReadState<K: Key> {
   /// hash_to_key_map is used for decoding received key hashes back to original
   /// key values. This is needed when we receive a dispose message via hash
   /// only.
-  hash_to_key_map: BTreeMap<KeyHash, K>, // TODO: garbage collect this somehow
+  // rove patch (ROVE-PATCH.md §30): bounded (it kept every key ever seen: two or three for
+  // each participant that came and went, on the discovery topics).
+  hash_to_key_map: KeyMemory<K>,
   /// rove patch (ROVE-PATCH.md §23): the topic cache's generation when a take
   /// last found nothing: until it changes, nothing new can be found.
   nothing_new_at: Option<u64>,
@@ -65,7 +134,7 @@ impl<K: Key> ReadState<K> {
     ReadState {
       latest_instant: Timestamp::ZERO,
       last_read_sn: BTreeMap::new(),
-      hash_to_key_map: BTreeMap::<KeyHash, K>::new(),
+      hash_to_key_map: KeyMemory::default(),
       nothing_new_at: None,
     }
   }
@@ -77,7 +146,7 @@ impl<K: Key> ReadState<K> {
     &mut self,
   ) -> (
     &mut BTreeMap<GUID, SequenceNumber>,
-    &mut BTreeMap<KeyHash, K>,
+    &mut KeyMemory<K>,
   ) {
     let ReadState {
       last_read_sn,
@@ -219,21 +288,21 @@ where
   }
 
   fn update_hash_to_key_map(
-    hash_to_key_map: &mut BTreeMap<KeyHash, D::K>,
+    hash_to_key_map: &mut KeyMemory<D::K>,
     deserialized: &Sample<D, D::K>,
   ) {
     let instance_key = match deserialized {
       Sample::Value(d) => d.key(),
       Sample::Dispose(k) => k.clone(),
     };
-    hash_to_key_map.insert(instance_key.hash_key(false), instance_key);
+    hash_to_key_map.written(instance_key);
   }
 
   fn deserialize_with<S>(
     &self,
     timestamp: Timestamp,
     cc: &CacheChange,
-    hash_to_key_map: &mut BTreeMap<KeyHash, D::K>,
+    hash_to_key_map: &mut KeyMemory<D::K>,
     decoder: S,
   ) -> ReadResult<DeserializedCacheChange<D>>
   where
@@ -293,9 +362,8 @@ where
           decoder,
         ) {
           Ok(key) => {
-            let k = Sample::Dispose(key);
-            Self::update_hash_to_key_map(hash_to_key_map, &k);
-            Ok(DeserializedCacheChange::new(timestamp, cc, k))
+            hash_to_key_map.disposed_key(&key);
+            Ok(DeserializedCacheChange::new(timestamp, cc, Sample::Dispose(key)))
           }
           Err(e) => Err(ReadError::Deserialization {
             reason: format!(
@@ -311,11 +379,11 @@ where
       DDSData::DisposeByKeyHash { key_hash, .. } => {
         // The cache should know hash -> key mapping even if the sample
         // has been disposed or .take()n
-        if let Some(key) = hash_to_key_map.get(&key_hash) {
+        if let Some(key) = hash_to_key_map.disposed_hash(key_hash) {
           Ok(DeserializedCacheChange::new(
             timestamp,
             cc,
-            Sample::Dispose(key.clone()),
+            Sample::Dispose(key),
           ))
         } else {
           Err(ReadError::UnknownKey {
@@ -363,6 +431,12 @@ where
       return Ok(None);
     }
     read_state_ref.nothing_new_at = None;
+    // rove patch (ROVE-PATCH.md §30): the read pointers of writers the cache no longer holds
+    // anything of (gone, §30, or emptied by their history) go: with nothing of theirs left to
+    // read again, a new sample of theirs is read from the start as it would be anyway.
+    if read_state_ref.last_read_sn.len() > topic_cache.writer_count() + READ_POINTER_SLACK {
+      (read_state_ref.last_read_sn).retain(|writer, _| topic_cache.has_writer(*writer));
+    }
     let latest_instant = read_state_ref.latest_instant;
     let (last_read_sn, hash_to_key_map) = read_state_ref.get_sn_map_and_hash_map();
 
