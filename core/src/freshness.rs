@@ -220,6 +220,25 @@ mod tests {
         assert_eq!(f.judge(writer(1), Some(ns(76 * 20)), ms(1_525)), None);
     }
 
+    /// Issue 51: a participant that left takes every baseline of its writers with it, even
+    /// when their own losses were never reported.
+    #[test]
+    fn a_departed_participant_leaves_no_baseline() {
+        let mut f = Freshness::new(LIMIT, 16);
+        let other = WriterId {
+            participant: ParticipantId(8),
+            entity: 1,
+        };
+        for w in [writer(1), writer(2), other] {
+            assert_eq!(f.judge(w, Some(ns(0)), ms(5)), None);
+        }
+        assert_eq!(f.len(), 3);
+        f.forget_participant(ParticipantId(7));
+        assert_eq!(f.len(), 1, "only the other participant's writer stays");
+        f.forget(other);
+        assert!(f.is_empty());
+    }
+
     #[test]
     fn drift_never_looks_like_delay() {
         // The writer's clock runs 80 ppm slow for an hour of samples at 10 Hz.

@@ -237,17 +237,11 @@ pub fn run(rove: &Path, options: &Options, mut progress: impl FnMut(&str)) -> an
             let id = turn(PHONES);
             (rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]), id)
         };
-        let t0 = Instant::now();
         tail.wait_owner(id)?;
-        let t1 = t0.elapsed();
         rig.procs[joiner].terminate();
         let exited = rig.procs[joiner].wait_exit(CHANGE_PATIENCE);
         anyhow::ensure!(exited.is_some(), "cycle {cycle}: the joiner did not stop");
-        let t2 = t0.elapsed();
         tail.wait_owner(LAPTOP)?;
-        if std::env::var_os("ROVE_SOAK_TRACE").is_some() {
-            eprintln!("cycle {cycle} request={request}: took {t1:?}, stopped {t2:?}, back {:?}", t0.elapsed());
-        }
         // The finished joiner's handle and log go: the rig must not grow either.
         let gone = rig.procs.remove(joiner);
         let _ = std::fs::remove_file(&gone.log);

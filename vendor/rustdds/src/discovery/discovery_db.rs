@@ -1169,6 +1169,39 @@ mod tests {
     );
   }
 
+  // rove patch (ROVE-PATCH.md §30): a participant that does not come back leaves the attic
+  // after two leases (ATTIC_MIN at least), and what it said about topics goes at once.
+  #[test]
+  fn a_participant_that_left_for_good_leaves_nothing() {
+    let (discovery_db_event_sender, _discovery_db_event_receiver) =
+      std::sync::mpsc::sync_channel::<()>(4);
+    let (status_sender, _status_receiver) = sync_status_channel(16).unwrap();
+    let mut discoverydb = DiscoveryDB::new(
+      GUID::new_participant_guid(),
+      discovery_db_event_sender,
+      status_sender,
+    );
+    let data = spdp_participant_data().unwrap();
+    let prefix = data.participant_guid.prefix;
+    discoverydb.update_participant(&data);
+    let mut reader = DiscoveredReaderData::default("some_topic".into(), "RandomData".into());
+    reader.reader_proxy.remote_reader_guid =
+      GUID::new(prefix, EntityId::new([0, 0, 1], EntityKind::READER_WITH_KEY_USER_DEFINED));
+    assert!(discoverydb.update_subscription(&reader).is_some());
+    let senders = |db: &DiscoveryDB| db.topics.values().map(BTreeMap::len).sum::<usize>();
+    assert_eq!(senders(&discoverydb), 1, "the reader's topic data is kept");
+
+    discoverydb.remove_participant(prefix, false);
+    assert_eq!(senders(&discoverydb), 0, "its topic data goes with it");
+    assert_eq!(discoverydb.external_topic_readers_attic.len(), 1);
+    discoverydb.attic_cleanup(Instant::now());
+    assert_eq!(discoverydb.external_topic_readers_attic.len(), 1, "within its stay");
+    let stay = discoverydb.attic_until[&prefix];
+    discoverydb.attic_cleanup(stay);
+    assert!(discoverydb.external_topic_readers_attic.is_empty());
+    assert!(discoverydb.attic_until.is_empty());
+  }
+
   #[test]
   fn discdb_writer_proxies() {
     let (discovery_db_event_sender, _discovery_db_event_receiver) =

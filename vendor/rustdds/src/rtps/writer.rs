@@ -2021,6 +2021,7 @@ impl Writer {
         }
       }
       // rove patch (ROVE-PATCH.md §29): a peer that left has no crypto handle.
+      #[cfg(feature = "security")]
       Err(e) if e.is_no_participant_crypto_handle() => {
         debug!("Message to readers not sent: {e:?}")
       }

@@ -988,6 +988,32 @@ mod tests {
     topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(1));
   }
 
+  // rove patch (ROVE-PATCH.md §30): a gone Writer's samples and indexes go after the grace;
+  // one that writes again is not gone; a participant's departure marks all its Writers.
+  #[test]
+  fn a_gone_writer_leaves_nothing_after_the_grace() {
+    let mut topic_cache = keep_last_topic_cache(8);
+    let (gone, stays, back) = (numbered_writer(1), numbered_writer(2), numbered_writer(3));
+    for sn in 1..=8 {
+      for w in [gone, stays, back] {
+        add(&mut topic_cache, w, sn);
+      }
+    }
+    topic_cache.mark_reliably_received_before(gone, SequenceNumber::new(9));
+    topic_cache.writer_gone(gone);
+    topic_cache.participant_gone(back.prefix);
+    add(&mut topic_cache, back, 9); // it spoke again
+    let later = Timestamp::now() + super::WRITER_GONE_GRACE + crate::Duration::from_secs(1);
+    topic_cache.drop_gone_writers(Timestamp::now());
+    assert!(topic_cache.has_writer(gone), "kept during the grace");
+    topic_cache.drop_gone_writers(later);
+    assert!(!topic_cache.has_writer(gone));
+    assert!(!topic_cache.received_reliably_before.contains_key(&gone));
+    assert!(topic_cache.has_writer(stays) && topic_cache.has_writer(back));
+    assert_eq!(topic_cache.changes.len(), 8 + 9);
+    assert!(topic_cache.gone.is_empty(), "the returned writer is not gone any more");
+  }
+
   #[test]
   fn reliably_received_marker_does_not_move_backwards() {
     let mut topic_cache = keep_all_topic_cache();
