@@ -33,7 +33,7 @@ pub fn state_dir() -> Option<PathBuf> {
         let first = std::env::split_paths(&dirs).next()?;
         return first.is_absolute().then_some(first);
     }
-    if crate::runtime::is_root() {
+    if crate::dirs::is_root() {
         return Some(PathBuf::from("/var/lib/rove"));
     }
     let xdg = std::env::var_os("XDG_STATE_HOME").map(PathBuf::from);

@@ -33,6 +33,7 @@ pub mod certs;
 pub mod config;
 pub mod dds;
 pub mod dds_log;
+pub mod dirs;
 pub mod doctor;
 pub mod host;
 pub mod operator;

@@ -431,7 +431,7 @@ fn operator_cmd(
 fn demo_cmd(in_process: bool, fast: bool, secure: bool) -> anyhow::Result<()> {
     if !in_process {
         let rove = std::env::current_exe()?;
-        harness::stop_on_signals()?;
+        tools::cleanup::stop_on_signals()?;
         match demo::run_processes(&rove, secure, &mut |line| println!("{line}")) {
             Ok(()) => return Ok(()),
             // Without namespaces (not root), fall back to the in-process story.

@@ -34,7 +34,8 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tracing::{info, warn};
 
-/// The bridge's watch of Zenoh's TLS failures ([`tls`]): for [`crate::runtime::init_logging_with`].
+/// The bridge's watch of Zenoh's TLS failures (`bridge/tls.rs`): for
+/// [`crate::runtime::init_logging_with`].
 pub fn tls_watch(config: &BridgeConfig) -> crate::runtime::Watch {
     let (sees, hides) = tls::Watch::filters();
     crate::runtime::Watch {

@@ -155,7 +155,9 @@ impl Node {
                 lost.insert(participant_id(id.as_ref()), now);
             }
             DomainParticipantStatusEvent::ParticipantDiscovered { dpd }
-                if lost.remove(&participant_id(dpd.guid.prefix.as_ref())).is_some() =>
+                if lost
+                    .remove(&participant_id(dpd.guid.prefix.as_ref()))
+                    .is_some() =>
             {
                 crate::runtime::lock(&self.refresh).forget()
             }

@@ -222,7 +222,7 @@ pub fn check(roots: &Roots, user: &str, config: Option<&AnyConfig>) -> Vec<Findi
     found.extend(network(roots, config));
     #[cfg(feature = "security")]
     found.extend(certificate(config));
-    found.extend(failsafe_memory(config, crate::runtime::runtime_location()));
+    found.extend(failsafe_memory(config, crate::dirs::runtime_location()));
     found
 }
 
@@ -230,7 +230,7 @@ pub fn check(roots: &Roots, user: &str, config: Option<&AnyConfig>) -> Vec<Findi
 /// address), or that nothing is kept and the failsafe waits for the autopilot.
 fn failsafe_memory(
     config: Option<&AnyConfig>,
-    runtime: Option<crate::runtime::RuntimeDir>,
+    runtime: Option<crate::dirs::RuntimeDir>,
 ) -> Option<Finding> {
     let Some(AnyConfig::Vehicle(v)) = config else {
         return None;

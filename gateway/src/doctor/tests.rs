@@ -276,7 +276,7 @@ fn a_mavlink_vehicle_is_told_where_the_failsafe_memory_lives() {
         &roots,
         "[output]\nadapter = \"mavlink\"\nconnection = \"udpin:127.0.0.1:14550\"\n",
     );
-    let root = crate::runtime::runtime_dir_from(None, None, true);
+    let root = crate::dirs::runtime_dir_from(None, None, true);
     let kept = failsafe_memory(Some(&mavlink), root).expect("a line");
     assert_eq!(kept.status, Status::Ok);
     assert_eq!(

@@ -254,12 +254,12 @@ pub(crate) fn kind(config: &OutputConfig) -> &'static str {
 }
 
 /// Gives a MAVLink output the file where its link keeps what it learns about the autopilot
-/// (its address and ids), in the [`crate::runtime::runtime_dir`]: `rove failsafe` for the same
+/// (its address and ids), in the [`crate::dirs::runtime_dir`]: `rove failsafe` for the same
 /// vehicle reads it and addresses the autopilot at once. Other outputs need nothing.
 pub fn keep_learned(config: &mut OutputConfig, vehicle_id: i64) {
     if let OutputConfig::Mavlink(c) = config {
-        c.memory = crate::runtime::runtime_dir()
-            .map(|dir| dir.join(format!("vehicle-{vehicle_id}-mavlink")));
+        c.memory =
+            crate::dirs::runtime_dir().map(|dir| dir.join(format!("vehicle-{vehicle_id}-mavlink")));
     }
 }
 

@@ -16,6 +16,7 @@
 
 pub mod bench;
 pub mod chaos;
+pub mod cleanup;
 pub mod demo;
 pub mod fleet;
 pub mod harness;
@@ -211,7 +212,7 @@ pub enum SecurityMode {
 /// The bench cannot set up its processes (namespaces need root), or a measurement failed.
 pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
     // A bench stopped by a signal stops its processes and deletes its namespaces first.
-    harness::stop_on_signals()?;
+    cleanup::stop_on_signals()?;
     match what {
         Bench::Input { events, rate_hz } => bench::input_cli(rove, events, rate_hz),
         Bench::Chaos {

@@ -191,11 +191,23 @@ impl Tail {
 /// # Errors
 /// The rig cannot be set up (needs root), an owner change does not come, a long-lived process
 /// exits, or one grows by more than `max_kib_per_cycle`.
-pub fn run(rove: &Path, options: &Options, mut progress: impl FnMut(&str)) -> anyhow::Result<Report> {
+pub fn run(
+    rove: &Path,
+    options: &Options,
+    mut progress: impl FnMut(&str),
+) -> anyhow::Result<Report> {
     let mut rig = Rig::new(rove, "soak")?;
     let record = rig.vehicle_with_output(VEHICLE, "[output]\nadapter = \"sim\"\n");
     let accept = "[handover]\nauto_accept = \"always\"\n";
-    rig.operator(LAPTOP, "stationary", "laptop", &[VEHICLE], 1000, accept, &[]);
+    rig.operator(
+        LAPTOP,
+        "stationary",
+        "laptop",
+        &[VEHICLE],
+        1000,
+        accept,
+        &[],
+    );
     rig.operator(DESKTOP, "stationary", "desktop", &[], 0, "", &[]);
     let long_lived: Vec<(String, u32)> = (rig.procs.iter())
         .map(|p| (p.name.clone(), p.pid()))
@@ -235,7 +247,10 @@ pub fn run(rove: &Path, options: &Options, mut progress: impl FnMut(&str)) -> an
             (n, id)
         } else {
             let id = turn(PHONES);
-            (rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]), id)
+            (
+                rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]),
+                id,
+            )
         };
         tail.wait_owner(id)?;
         rig.procs[joiner].terminate();
@@ -313,9 +328,13 @@ mod tests {
 
     #[test]
     fn the_slope_is_the_growth_per_cycle() {
-        let line: Vec<(f64, f64)> = (0..10).map(|c| (c as f64, 1000.0 + 36.0 * c as f64)).collect();
+        let line: Vec<(f64, f64)> = (0..10)
+            .map(|c| (c as f64, 1000.0 + 36.0 * c as f64))
+            .collect();
         assert!((slope(&line) - 36.0).abs() < 1e-9);
-        let flat: Vec<(f64, f64)> = (0..10).map(|c| (c as f64, 1000.0 + (c % 2) as f64)).collect();
+        let flat: Vec<(f64, f64)> = (0..10)
+            .map(|c| (c as f64, 1000.0 + (c % 2) as f64))
+            .collect();
         assert!(slope(&flat).abs() < 0.2);
         assert_eq!(slope(&[(1.0, 5.0)]), 0.0);
         assert_eq!(slope(&[(1.0, 5.0), (1.0, 7.0)]), 0.0, "one x: no slope");

@@ -211,6 +211,10 @@ impl SecurityPlugins {
     let old_opt = self
       .permissions_handle_cache
       .insert(participant_guidp, handle);
+    // rove patch (ROVE-PATCH.md §30): the replaced permissions are the plugin's to forget.
+    if let Some(old) = old_opt.filter(|old| *old != handle) {
+      self.access.forget_remote_permissions(old);
+    }
     if let Some(old) = old_opt {
       debug!(
         "Replaced PermissionsHandle for guid prefix {participant_guidp:?}. Old: {old}, new: \
@@ -898,9 +902,13 @@ impl SecurityPlugins {
     self
       .identity_handle_cache
       .remove(remote_participant_guid_prefix);
-    self
+    // rove patch (ROVE-PATCH.md §30): and its permissions.
+    if let Some(handle) = self
       .permissions_handle_cache
-      .remove(remote_participant_guid_prefix);
+      .remove(remote_participant_guid_prefix)
+    {
+      self.access.forget_remote_permissions(handle);
+    }
     self
       .handshake_handle_cache
       .remove(remote_participant_guid_prefix);

@@ -27,6 +27,10 @@ pub trait AccessControl:
 
 /// Group1 in 8.8.3
 pub trait ParticipantAccessControl: Send {
+  /// rove patch (ROVE-PATCH.md §30): the remote participant whose permissions `handle` holds is
+  /// gone (or authenticated again under a new handle): forget them.
+  fn forget_remote_permissions(&mut self, _handle: PermissionsHandle) {}
+
   /// validate_local_permissions: section 8.4.2.9.1 of the Security
   /// specification
   fn validate_local_permissions(

@@ -66,6 +66,16 @@ impl AccessControlBuiltin {
 
 // 9.4.3
 impl ParticipantAccessControl for AccessControlBuiltin {
+  // rove patch (ROVE-PATCH.md §30): every handshake validated the remote's permissions under a
+  // new handle, kept for ever.
+  fn forget_remote_permissions(&mut self, handle: PermissionsHandle) {
+    self.domain_participant_permissions.remove(&handle);
+    self.signed_permissions_documents.remove(&handle);
+    self.domain_rules.remove(&handle);
+    self.permissions_ca_certificates.remove(&handle);
+    self.identity_to_permissions.retain(|_, p| *p != handle);
+  }
+
   fn validate_local_permissions(
     &mut self,
     _auth_plugin: &dyn Authentication,
