@@ -2,7 +2,7 @@
 //!
 //! | call | sends |
 //! |---|---|
-//! | `apply` | the control message for the setpoint (RC_CHANNELS_OVERRIDE or MANUAL_CONTROL) at once — the failsafe content instead while a new mode waits for the autopilot to take it; a mode command when the wished mode changed |
+//! | `apply` | the control message for the setpoint (RC_CHANNELS_OVERRIDE or MANUAL_CONTROL) at once — nothing while a new mode waits for the autopilot to take it; a mode command when the wished mode changed |
 //! | `keepalive` (every `1/rate_hz`) | the GCS HEARTBEAT when 1 s has passed; while driving, the control message again unless one left within [`KEEPALIVE_SKIP`] of the period (one override per period, not one per command *plus* one per period); in failsafe, neutral sticks (`failsafe = "neutral"`) or the release message ([`RELEASE_SENDS`] times, then nothing); mode command resends |
 //! | `safe_state` | release or neutral at once; the safe mode, if rove was driving |
 //! | drop | as `safe_state`, then waits (bounded) for the safe mode's confirmation |
@@ -383,10 +383,13 @@ impl MavlinkVehicle {
     ///
     /// Sticks are meant for the mode they come with. Sent before the autopilot took it, they act
     /// in the mode before (seen: a Rover refusing AUTO ran the AUTO request's throttle in MANUAL
-    /// for ~60 ms), so until then the control message carries the configured failsafe content
-    /// (neutral sticks, or the release): the vehicle does nothing it was not asked to do in the
-    /// mode it is in. The cost is one COMMAND_ACK round trip (20–45 ms on ArduPilot) of no
-    /// driving at a mode change; a mode the autopilot already reports costs nothing.
+    /// for ~60 ms). So until then no control message leaves: the autopilot keeps what it last
+    /// had from rove in the mode it is in (an override lasts `RC_OVERRIDE_TIME`, 3 s; the wait
+    /// is bounded by the mode command's resends), and nothing it was not given for that mode
+    /// arrives — neither the new sticks nor a release (a vehicle starting under a streaming
+    /// operator must not blip the radio's values). The cost is one COMMAND_ACK round trip
+    /// (20–45 ms on ArduPilot) of the previous values at a mode change; a mode the autopilot
+    /// already reports costs nothing. A refusal then puts the outputs in their safe state.
     fn sticks_wait(&self) -> bool {
         let ModeState::Pending { mode, .. } = self.mode.state() else {
             return false;
@@ -394,18 +397,13 @@ impl MavlinkVehicle {
         (self.link.status().autopilot).is_none_or(|a| a.custom_mode != mode.custom_mode)
     }
 
-    /// The operator's sticks, or the failsafe content while they wait ([`Self::sticks_wait`]).
+    /// The operator's sticks, unless they wait for their mode ([`Self::sticks_wait`]).
     fn send_sticks(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
-        if !self.sticks_wait() {
-            return self.send_control(now, movement);
+        if self.sticks_wait() {
+            self.deferred = false;
+            return Ok(());
         }
-        match self.config.failsafe {
-            FailsafeAction::Neutral => self.send_control(now, &MovementCommand::CENTRED),
-            FailsafeAction::Release => {
-                self.deferred = false;
-                self.send_release(now)
-            }
-        }
+        self.send_control(now, movement)
     }
 
     fn send_release(&mut self, now: MonoTime) -> Result<(), LinkError> {

@@ -816,9 +816,10 @@ fn r20_the_start_up_release_still_goes_out_when_nobody_drives() {
 
 /// Issue 50: sticks that come with a new mode wait until the autopilot takes it. Refused (AUTO
 /// without a mission), they never reach it; taken (STEERING), the first override carrying them
-/// leaves after the autopilot answered. Until then the control message is the failsafe content
-/// (here the release: ch3 = 0). Against both autopilot models: the new mode in the next regular
-/// HEARTBEAT, and (ArduPilot's way) a HEARTBEAT at once before the COMMAND_ACK.
+/// leaves after the autopilot answered. Until then no control message leaves (the autopilot
+/// keeps MANUAL's last values; after a refusal the safe state's release). Against both
+/// autopilot models: the new mode in the next regular HEARTBEAT, and (ArduPilot's way) a
+/// HEARTBEAT at once before the COMMAND_ACK.
 fn sticks_for_a_new_mode_wait_for_the_autopilot(extra: &[&str]) {
     let clock = Clock::new();
     let mut args = vec!["--fail-modes", "10"];
