@@ -1,7 +1,8 @@
 //! `rove bench soak`: does anything grow while operators come and go (issue 51)?
 //!
-//! A vehicle (sim) driven by a laptop, and a bystander desktop that drives nothing, run for the
-//! whole soak; each cycle a new operator participant joins and leaves:
+//! A vehicle (sim) driven by a laptop, a bystander desktop that drives nothing and a browser
+//! console's host (no browser) run for the whole soak; each cycle a new operator participant
+//! joins and leaves:
 //! - a phone starts, preempts the laptop, and quits (SIGTERM): control falls back to the laptop;
 //! - every `request_every`-th cycle, a tablet asks for the vehicle instead (`--request`), the
 //!   laptop grants it, and the tablet quits: its FINISH gives the vehicle back.
@@ -22,6 +23,7 @@ use std::time::{Duration, Instant};
 const VEHICLE: i64 = 100;
 const LAPTOP: i64 = 11;
 const DESKTOP: i64 = 14;
+const WEB_HOST: i64 = 20;
 /// Phones and tablets take their ids in turn from these: an id a participant just left stays
 /// pinned to it for a heartbeat (the trust rules' grace), so one id reused at once would make
 /// every cycle wait that long. The tables keyed by device id stay bounded by the rotation.
@@ -209,6 +211,9 @@ pub fn run(
         &[],
     );
     rig.operator(DESKTOP, "stationary", "desktop", &[], 0, "", &[]);
+    // The browser console's host (its page served, a phone device configured, no browser).
+    let web = "[web]\nlisten = \"127.0.0.1:18443\"\n[[web.device]]\nid = 40\ndrive = [100]\n";
+    rig.operator(WEB_HOST, "stationary", "desktop", &[], 0, web, &[]);
     let long_lived: Vec<(String, u32)> = (rig.procs.iter())
         .map(|p| (p.name.clone(), p.pid()))
         .collect();
