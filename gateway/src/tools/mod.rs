@@ -146,6 +146,10 @@ pub enum Bench {
         /// Fail when a long-lived process grows by more than this many KiB per cycle.
         #[arg(long)]
         max_kib_per_cycle: Option<f64>,
+        /// Every this many cycles a remote operator at a second site requests the vehicle
+        /// through two bridges (measured too); 0: no second site.
+        #[arg(long, default_value_t = 0)]
+        remote_every: usize,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -280,9 +284,11 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             sample_every,
             request_every,
             max_kib_per_cycle,
+            remote_every,
             json,
         } => {
             let options = soak::Options {
+                remote_every,
                 cycles,
                 warmup: warmup.unwrap_or(cycles / 5),
                 sample_every,

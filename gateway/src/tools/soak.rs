@@ -7,7 +7,9 @@
 //! - every `request_every`-th cycle, a tablet asks for the vehicle instead (`--request`), the
 //!   laptop grants it, and the tablet quits: its FINISH gives the vehicle back.
 //!
-//! Each joiner is a new process, so a new DDS participant, as a phone that reconnects is.
+//! Each joiner is a new process, so a new DDS participant, as a phone that reconnects is. With
+//! `--remote-every N`, every N-th cycle's joiner is a remote operator at a second site that
+//! requests the vehicle through the two sites' bridges (long-lived, and measured too).
 //!
 //! Every `sample_every` cycles the resident memory, open file descriptors and threads of each
 //! long-lived process are read from `/proc`. The growth per cycle is the least-squares slope of
@@ -29,6 +31,7 @@ const WEB_HOST: i64 = 20;
 /// every cycle wait that long. The tables keyed by device id stay bounded by the rotation.
 const PHONES: std::ops::Range<i64> = 30..62;
 const TABLETS: std::ops::Range<i64> = 70..78;
+const REMOTES: std::ops::Range<i64> = 80..88;
 /// How long one owner change may take before the soak fails.
 const CHANGE_PATIENCE: Duration = Duration::from_secs(15);
 
@@ -45,6 +48,9 @@ pub struct Options {
     pub request_every: usize,
     /// Fail when a long-lived process grows by more than this many KiB per cycle.
     pub max_kib_per_cycle: Option<f64>,
+    /// Every this many cycles, a remote operator at another site (joined by two bridges,
+    /// docs/remote.md) requests the vehicle instead; 0: no second site, no bridges.
+    pub remote_every: usize,
 }
 
 /// One sample of one process.
@@ -188,6 +194,32 @@ impl Tail {
     }
 }
 
+/// With `every` > 0: a second site ("home") joined to the rig's ("lab") by a veth pair and the
+/// two sites' bridges, the lab offering the vehicle to home's remote operators.
+#[cfg(all(feature = "remote", feature = "security"))]
+fn remote_site(rove: &Path, lab: &mut Rig, every: usize) -> anyhow::Result<Option<Rig>> {
+    use super::sites::{self, Meet};
+    if every == 0 {
+        return Ok(None);
+    }
+    let mut home = Rig::new(rove, "soak-home")?;
+    sites::join(lab, &home)?;
+    let fleet = sites::fleet(&lab.dir.join("fleet"))?;
+    let remotes: Vec<i64> = REMOTES.collect();
+    let offered = sites::peer("home", &remotes, &[VEHICLE]);
+    sites::bridge(lab, "lab", Meet::Listen(sites::LAB_ADDRESS), &fleet.join("site-lab"), &offered);
+    let lab_ids = sites::peer("lab", &[VEHICLE, LAPTOP], &[]);
+    let home_dir = fleet.join("site-home");
+    sites::bridge(&mut home, "home", Meet::Connect(sites::LAB_ADDRESS), &home_dir, &lab_ids);
+    Ok(Some(home))
+}
+
+#[cfg(not(all(feature = "remote", feature = "security")))]
+fn remote_site(_: &Path, _: &mut Rig, every: usize) -> anyhow::Result<Option<Rig>> {
+    anyhow::ensure!(every == 0, "this build has no `rove bridge` (cargo feature `remote`)");
+    Ok(None)
+}
+
 /// Runs a soak with the `rove` binary at `rove`.
 ///
 /// # Errors
@@ -214,9 +246,13 @@ pub fn run(
     // The browser console's host (its page served, a phone device configured, no browser).
     let web = "[web]\nlisten = \"127.0.0.1:18443\"\n[[web.device]]\nid = 40\ndrive = [100]\n";
     rig.operator(WEB_HOST, "stationary", "desktop", &[], 0, web, &[]);
-    let long_lived: Vec<(String, u32)> = (rig.procs.iter())
+    let mut home = remote_site(rove, &mut rig, options.remote_every)?;
+    let mut long_lived: Vec<(String, u32)> = (rig.procs.iter())
         .map(|p| (p.name.clone(), p.pid()))
         .collect();
+    if let Some(home) = &home {
+        long_lived.extend((home.procs.iter()).map(|p| (format!("home {}", p.name), p.pid())));
+    }
     let mut tail = Tail::new(&record);
     tail.wait_owner(LAPTOP)?;
     let mut processes: Vec<Process> = (long_lived.iter())
@@ -243,8 +279,21 @@ pub fn run(
         if cycle == options.cycles {
             break;
         }
-        let request = options.request_every > 0 && cycle % options.request_every == 0;
         let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
+        if let Some(home) = home.as_mut().filter(|_| cycle % options.remote_every == 0) {
+            let id = turn(REMOTES);
+            let args = ["--request", "100"];
+            let n = home.operator(id, "remote", "laptop", &[], 3000, "", &args);
+            tail.wait_owner(id)?;
+            home.procs[n].terminate();
+            let exited = home.procs[n].wait_exit(CHANGE_PATIENCE);
+            anyhow::ensure!(exited.is_some(), "cycle {cycle}: the remote operator did not stop");
+            tail.wait_owner(LAPTOP)?;
+            let gone = home.procs.remove(n);
+            let _ = std::fs::remove_file(&gone.log);
+            continue;
+        }
+        let request = options.request_every > 0 && cycle % options.request_every == 0;
         let (joiner, id) = if request {
             let id = turn(TABLETS);
             let args = ["--request", "100"];
