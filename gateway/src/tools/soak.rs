@@ -207,17 +207,82 @@ fn remote_site(rove: &Path, lab: &mut Rig, every: usize) -> anyhow::Result<Optio
     let fleet = sites::fleet(&lab.dir.join("fleet"))?;
     let remotes: Vec<i64> = REMOTES.collect();
     let offered = sites::peer("home", &remotes, &[VEHICLE]);
-    sites::bridge(lab, "lab", Meet::Listen(sites::LAB_ADDRESS), &fleet.join("site-lab"), &offered);
+    sites::bridge(
+        lab,
+        "lab",
+        Meet::Listen(sites::LAB_ADDRESS),
+        &fleet.join("site-lab"),
+        &offered,
+    );
     let lab_ids = sites::peer("lab", &[VEHICLE, LAPTOP], &[]);
     let home_dir = fleet.join("site-home");
-    sites::bridge(&mut home, "home", Meet::Connect(sites::LAB_ADDRESS), &home_dir, &lab_ids);
+    sites::bridge(
+        &mut home,
+        "home",
+        Meet::Connect(sites::LAB_ADDRESS),
+        &home_dir,
+        &lab_ids,
+    );
     Ok(Some(home))
 }
 
 #[cfg(not(all(feature = "remote", feature = "security")))]
 fn remote_site(_: &Path, _: &mut Rig, every: usize) -> anyhow::Result<Option<Rig>> {
-    anyhow::ensure!(every == 0, "this build has no `rove bridge` (cargo feature `remote`)");
+    anyhow::ensure!(
+        every == 0,
+        "this build has no `rove bridge` (cargo feature `remote`)"
+    );
     Ok(None)
+}
+
+/// One cycle: a joiner (phone, tablet, or remote operator) takes the vehicle and quits; control
+/// is back with the laptop.
+fn one_cycle(
+    rig: &mut Rig,
+    home: Option<&mut Rig>,
+    tail: &mut Tail,
+    options: &Options,
+    cycle: usize,
+) -> anyhow::Result<()> {
+    let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
+    if let Some(home) = home.filter(|_| cycle % options.remote_every == 0) {
+        let id = turn(REMOTES);
+        let args = ["--request", "100"];
+        let n = home.operator(id, "remote", "laptop", &[], 3000, "", &args);
+        tail.wait_owner(id)?;
+        home.procs[n].terminate();
+        let exited = home.procs[n].wait_exit(CHANGE_PATIENCE);
+        anyhow::ensure!(
+            exited.is_some(),
+            "cycle {cycle}: the remote operator did not stop"
+        );
+        tail.wait_owner(LAPTOP)?;
+        let gone = home.procs.remove(n);
+        let _ = std::fs::remove_file(&gone.log);
+        return Ok(());
+    }
+    let request = options.request_every > 0 && cycle % options.request_every == 0;
+    let (joiner, id) = if request {
+        let id = turn(TABLETS);
+        let args = ["--request", "100"];
+        let n = rig.operator(id, "remote", "tablet", &[], 3000, "", &args);
+        (n, id)
+    } else {
+        let id = turn(PHONES);
+        (
+            rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]),
+            id,
+        )
+    };
+    tail.wait_owner(id)?;
+    rig.procs[joiner].terminate();
+    let exited = rig.procs[joiner].wait_exit(CHANGE_PATIENCE);
+    anyhow::ensure!(exited.is_some(), "cycle {cycle}: the joiner did not stop");
+    tail.wait_owner(LAPTOP)?;
+    // The finished joiner's handle and log go: the rig must not grow either.
+    let gone = rig.procs.remove(joiner);
+    let _ = std::fs::remove_file(&gone.log);
+    Ok(())
 }
 
 /// Runs a soak with the `rove` binary at `rove`.
@@ -279,41 +344,7 @@ pub fn run(
         if cycle == options.cycles {
             break;
         }
-        let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
-        if let Some(home) = home.as_mut().filter(|_| cycle % options.remote_every == 0) {
-            let id = turn(REMOTES);
-            let args = ["--request", "100"];
-            let n = home.operator(id, "remote", "laptop", &[], 3000, "", &args);
-            tail.wait_owner(id)?;
-            home.procs[n].terminate();
-            let exited = home.procs[n].wait_exit(CHANGE_PATIENCE);
-            anyhow::ensure!(exited.is_some(), "cycle {cycle}: the remote operator did not stop");
-            tail.wait_owner(LAPTOP)?;
-            let gone = home.procs.remove(n);
-            let _ = std::fs::remove_file(&gone.log);
-            continue;
-        }
-        let request = options.request_every > 0 && cycle % options.request_every == 0;
-        let (joiner, id) = if request {
-            let id = turn(TABLETS);
-            let args = ["--request", "100"];
-            let n = rig.operator(id, "remote", "tablet", &[], 3000, "", &args);
-            (n, id)
-        } else {
-            let id = turn(PHONES);
-            (
-                rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]),
-                id,
-            )
-        };
-        tail.wait_owner(id)?;
-        rig.procs[joiner].terminate();
-        let exited = rig.procs[joiner].wait_exit(CHANGE_PATIENCE);
-        anyhow::ensure!(exited.is_some(), "cycle {cycle}: the joiner did not stop");
-        tail.wait_owner(LAPTOP)?;
-        // The finished joiner's handle and log go: the rig must not grow either.
-        let gone = rig.procs.remove(joiner);
-        let _ = std::fs::remove_file(&gone.log);
+        one_cycle(&mut rig, home.as_mut(), &mut tail, options, cycle)?;
     }
     for p in &mut processes {
         let points: Vec<(f64, f64)> = (p.samples.iter())

@@ -2647,6 +2647,12 @@ impl SecureDiscovery {
 
     let sec_attr = match sec_info_opt.flatten() {
       Some(info) => EndpointSecurityAttributes::from(info),
+      // rove patch (ROVE-PATCH.md §29): our own endpoint, heard over loopback, is not in the
+      // table of remote ones; there are no keys to send to ourselves.
+      None if remote_endpoint_guid.prefix == local_endpoint_guid.prefix => {
+        debug!("No key exchange with our own endpoint {remote_endpoint_guid:?}");
+        return;
+      }
       None => {
         create_security_error_and_log!(
           "Could not find EndpointSecurityAttributes for remote {:?}",

@@ -945,12 +945,18 @@ impl DPEventLoop {
             remote_reader_sec_info_opt,
           );
           if !compatible {
-            security_warn!(
-              "Local writer {:?} and remote reader {:?} have incompatible security, ignoring the \
-               remote.",
-              writer.guid(),
-              remote_reader_guid
-            );
+            // rove patch (ROVE-PATCH.md §29): our own built-in reader, heard over loopback, is
+            // no remote: said at every secured start, it is no warning.
+            if remote_reader_guid.prefix == writer.guid().prefix {
+              debug!("Local writer {:?} not matched to our own reader", writer.guid());
+            } else {
+              security_warn!(
+                "Local writer {:?} and remote reader {:?} have incompatible security, ignoring \
+                 the remote.",
+                writer.guid(),
+                remote_reader_guid
+              );
+            }
             false // match_to_reader
           } else {
             // Signal Secure discovery to exchange keys with the remote
@@ -1034,12 +1040,17 @@ impl DPEventLoop {
           );
 
           if !compatible {
-            security_warn!(
-              "Local reader {:?} and remote writer {:?} have incompatible security, ignoring the \
-               remote.",
-              local_reader_guid,
-              remote_writer_guid
-            );
+            // rove patch (ROVE-PATCH.md §29): as for our own reader above.
+            if remote_writer_guid.prefix == local_reader_guid.prefix {
+              debug!("Local reader {local_reader_guid:?} not matched to our own writer");
+            } else {
+              security_warn!(
+                "Local reader {:?} and remote writer {:?} have incompatible security, ignoring \
+                 the remote.",
+                local_reader_guid,
+                remote_writer_guid
+              );
+            }
             false // match_to_writer
           } else {
             // Signal Secure discovery to exchange keys with the remote
