@@ -245,7 +245,7 @@ fn one_cycle(
     cycle: usize,
 ) -> anyhow::Result<()> {
     let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
-    if let Some(home) = home.filter(|_| cycle % options.remote_every == 0) {
+    if let Some(home) = home.filter(|_| cycle.is_multiple_of(options.remote_every)) {
         let id = turn(REMOTES);
         let args = ["--request", "100"];
         let n = home.operator(id, "remote", "laptop", &[], 3000, "", &args);
@@ -261,7 +261,7 @@ fn one_cycle(
         let _ = std::fs::remove_file(&gone.log);
         return Ok(());
     }
-    let request = options.request_every > 0 && cycle % options.request_every == 0;
+    let request = options.request_every > 0 && cycle.is_multiple_of(options.request_every);
     let (joiner, id) = if request {
         let id = turn(TABLETS);
         let args = ["--request", "100"];
