@@ -243,13 +243,17 @@ impl std::fmt::Debug for Watch {
 
 /// [`init_logging`], with a [`Watch`] beside the log.
 pub fn init_logging_with(default_filter: Option<&str>, watch: Option<Watch>) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .or_else(|_| {
-            tracing_subscriber::EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER))
-        })
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
+    let filter = env_filter(default_filter);
     let (subscriber, log_max) = subscriber(filter, watch, std::io::stderr, LogStyle::detect());
     install_subscriber(subscriber, log_max);
+}
+
+/// `RUST_LOG` when set (and valid), else `default_filter`, else [`DEFAULT_LOG_FILTER`].
+fn env_filter(default_filter: Option<&str>) -> tracing_subscriber::EnvFilter {
+    use tracing_subscriber::EnvFilter;
+    EnvFilter::try_from_default_env()
+        .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
+        .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER))
 }
 
 /// The log (to `writer`, in `style`, showing what `filter` lets through less what the watch
@@ -327,26 +331,15 @@ pub fn init_logging_to_file(
     default_filter: Option<&str>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
-    use tracing_subscriber::EnvFilter;
     let file = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(path)
         .map_err(|e| anyhow::anyhow!("log file {}: {e}", path.display()))?;
-    let filter = EnvFilter::try_from_default_env()
-        .or_else(|_| EnvFilter::try_new(default_filter.unwrap_or(DEFAULT_LOG_FILTER)))
-        .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
-    let log_max = filter
-        .max_level_hint()
-        .unwrap_or(tracing::level_filters::LevelFilter::TRACE);
-    install_subscriber(
-        tracing_subscriber::fmt()
-            .with_env_filter(filter)
-            .with_ansi(false)
-            .with_writer(std::sync::Mutex::new(file))
-            .finish(),
-        log_max,
-    );
+    let writer = std::sync::Mutex::new(file);
+    let (subscriber, log_max) =
+        subscriber(env_filter(default_filter), None, writer, LogStyle::Plain);
+    install_subscriber(subscriber, log_max);
     Ok(())
 }
 

@@ -450,13 +450,56 @@ pub fn wait_for_output(record: &Path, owner: Option<i64>, since_us: u64) -> Resu
     }
 }
 
+/// The complete JSON lines appended to a file since the last read (a line still being
+/// written waits for its end); what is read is not kept.
+#[derive(Debug)]
+pub(crate) struct Appended {
+    path: PathBuf,
+    offset: u64,
+    partial: String,
+}
+
+impl Appended {
+    /// Reads `path` from its start (it need not exist yet).
+    pub(crate) fn new(path: &Path) -> Appended {
+        Appended {
+            path: path.to_path_buf(),
+            offset: 0,
+            partial: String::new(),
+        }
+    }
+
+    /// The lines appended since the last read, parsed (a line that does not parse is skipped).
+    pub(crate) fn read(&mut self) -> Vec<Value> {
+        use std::io::{Read, Seek, SeekFrom};
+        let Ok(mut file) = std::fs::File::open(&self.path) else {
+            return Vec::new();
+        };
+        if file.seek(SeekFrom::Start(self.offset)).is_err() {
+            return Vec::new();
+        }
+        let mut fresh = String::new();
+        let Ok(n) = file.read_to_string(&mut fresh) else {
+            return Vec::new();
+        };
+        self.offset += n as u64;
+        self.partial.push_str(&fresh);
+        let mut lines = Vec::new();
+        while let Some(end) = self.partial.find('\n') {
+            let line: String = self.partial.drain(..=end).collect();
+            if let Ok(v) = serde_json::from_str::<Value>(line.trim()) {
+                lines.push(v);
+            }
+        }
+        lines
+    }
+}
+
 /// Follows a JSON-lines file another process appends to, parsing each line once (re-reading a
 /// whole record every poll costs enough CPU to disturb what a benchmark measures).
 #[derive(Debug)]
 pub struct Follow {
-    path: PathBuf,
-    offset: u64,
-    partial: String,
+    appended: Appended,
     /// Every complete line parsed so far, in file order.
     pub lines: Vec<Value>,
 }
@@ -465,39 +508,20 @@ impl Follow {
     /// Follows `path` from its start (it need not exist yet).
     pub fn new(path: &Path) -> Follow {
         Follow {
-            path: path.to_path_buf(),
-            offset: 0,
-            partial: String::new(),
+            appended: Appended::new(path),
             lines: Vec::new(),
         }
     }
 
     /// The file followed.
     pub fn path(&self) -> &Path {
-        &self.path
+        &self.appended.path
     }
 
     /// Reads what was appended since the last poll.
     pub fn poll(&mut self) {
-        use std::io::{Read, Seek, SeekFrom};
-        let Ok(mut file) = std::fs::File::open(&self.path) else {
-            return;
-        };
-        if file.seek(SeekFrom::Start(self.offset)).is_err() {
-            return;
-        }
-        let mut fresh = String::new();
-        let Ok(n) = file.read_to_string(&mut fresh) else {
-            return;
-        };
-        self.offset += n as u64;
-        self.partial.push_str(&fresh);
-        while let Some(end) = self.partial.find('\n') {
-            let line: String = self.partial.drain(..=end).collect();
-            if let Ok(v) = serde_json::from_str::<Value>(line.trim()) {
-                self.lines.push(v);
-            }
-        }
+        let fresh = self.appended.read();
+        self.lines.extend(fresh);
     }
 
     /// The first line at or after wall time `since_us` (lines are in time order) that matches.

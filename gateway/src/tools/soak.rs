@@ -16,10 +16,10 @@
 //! resident memory over the cycles after the warm-up ([`slope`], pure): a process that keeps
 //! something for every participant that left grows by that much per cycle.
 
-use super::harness::Rig;
+use super::harness::{Appended, Rig};
 use super::procstat;
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 const VEHICLE: i64 = 100;
@@ -127,9 +127,7 @@ fn sample(pid: u32, cycle: usize) -> Option<Sample> {
 
 /// Reads a vehicle's record as it grows, keeping nothing but the last owner seen.
 struct Tail {
-    path: PathBuf,
-    offset: u64,
-    partial: String,
+    appended: Appended,
     owner: Option<i64>,
     changes: usize,
     safe: usize,
@@ -138,9 +136,7 @@ struct Tail {
 impl Tail {
     fn new(path: &Path) -> Tail {
         Tail {
-            path: path.to_path_buf(),
-            offset: 0,
-            partial: String::new(),
+            appended: Appended::new(path),
             owner: None,
             changes: 0,
             safe: 0,
@@ -148,23 +144,7 @@ impl Tail {
     }
 
     fn poll(&mut self) {
-        use std::io::{Read, Seek, SeekFrom};
-        let Ok(mut file) = std::fs::File::open(&self.path) else {
-            return;
-        };
-        let mut fresh = String::new();
-        if file.seek(SeekFrom::Start(self.offset)).is_err()
-            || file.read_to_string(&mut fresh).is_err()
-        {
-            return;
-        }
-        self.offset += fresh.len() as u64;
-        self.partial.push_str(&fresh);
-        while let Some(end) = self.partial.find('\n') {
-            let line: String = self.partial.drain(..=end).collect();
-            let Ok(v) = serde_json::from_str::<serde_json::Value>(line.trim()) else {
-                continue;
-            };
+        for v in self.appended.read() {
             if v["action"] == "safe" {
                 self.safe += 1;
             }

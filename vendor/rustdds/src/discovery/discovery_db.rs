@@ -109,6 +109,14 @@ fn move_by_guid_prefix<D>(
   }
 }
 
+// The entries of participant `guid_prefix`, removed.
+fn remove_by_guid_prefix<D>(guid_prefix: GuidPrefix, from: &mut BTreeMap<GUID, D>) {
+  let to_remove: Vec<GUID> = from.range(guid_prefix.range()).map(|(g, _)| *g).collect();
+  for guid in to_remove {
+    from.remove(&guid);
+  }
+}
+
 // rove patch (ROVE-PATCH.md §16): the attic holds at most MAX_REMOTE_ENDPOINTS of
 // a kind; beyond, the entries of the lowest GUIDs go (any will do: the attic only
 // speeds up the return of a participant whose loss was not real).
@@ -354,10 +362,8 @@ impl DiscoveryDB {
       .collect();
     for prefix in expired {
       self.attic_until.remove(&prefix);
-      let mut gone = BTreeMap::new();
-      move_by_guid_prefix(prefix, &mut self.external_topic_readers_attic, &mut gone);
-      let mut gone = BTreeMap::new();
-      move_by_guid_prefix(prefix, &mut self.external_topic_writers_attic, &mut gone);
+      remove_by_guid_prefix(prefix, &mut self.external_topic_readers_attic);
+      remove_by_guid_prefix(prefix, &mut self.external_topic_writers_attic);
     }
     // Entries trimmed from a full attic leave their deadline behind.
     if self.attic_until.len() > MAX_REMOTE_PARTICIPANTS {
@@ -395,16 +401,7 @@ impl DiscoveryDB {
   }
 
   fn remove_topic_reader_with_prefix(&mut self, guid_prefix: GuidPrefix) {
-    // TODO: Implement this using .drain_filter() in BTreeMap once it lands in
-    // stable.
-    let to_remove: Vec<GUID> = self
-      .external_topic_readers
-      .range(guid_prefix.range())
-      .map(|(g, _)| *g)
-      .collect();
-    for guid in to_remove {
-      self.external_topic_readers.remove(&guid);
-    }
+    remove_by_guid_prefix(guid_prefix, &mut self.external_topic_readers);
   }
 
   pub fn remove_topic_reader(&mut self, guid: GUID) {
@@ -431,16 +428,7 @@ impl DiscoveryDB {
   }
 
   fn remove_topic_writer_with_prefix(&mut self, guid_prefix: GuidPrefix) {
-    // TODO: Implement this using .drain_filter() in BTreeMap once it lands in
-    // stable.
-    let to_remove: Vec<GUID> = self
-      .external_topic_writers
-      .range(guid_prefix.range())
-      .map(|(g, _)| *g)
-      .collect();
-    for guid in to_remove {
-      self.external_topic_writers.remove(&guid);
-    }
+    remove_by_guid_prefix(guid_prefix, &mut self.external_topic_writers);
   }
 
   pub fn remove_topic_writer(&mut self, guid: GUID) {

@@ -101,11 +101,6 @@ impl<K: Key> KeyMemory<K> {
       }
     }
   }
-
-  #[cfg(test)]
-  pub(crate) fn len(&self) -> usize {
-    self.keys.len()
-  }
 }
 
 /// rove patch (ROVE-PATCH.md §30): read pointers kept beyond the writers the topic cache
