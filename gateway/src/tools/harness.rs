@@ -177,8 +177,13 @@ impl Rig {
             .arg("exec")
             .arg(&self.ns)
             // The child gets SIGTERM when the thread that started it ends (util-linux): a bench
-            // or test that dies leaves no `rove` behind (see also [`super::cleanup`]).
+            // or test that dies leaves no `rove` behind (see also [`super::cleanup`]). A parent
+            // that died before `setpriv` armed the signal (between fork and prctl) sends none:
+            // the shell, started after the prctl, checks that its parent is still this process
+            // and otherwise runs nothing.
             .args(["setpriv", "--pdeathsig", "TERM"])
+            .args(["sh", "-c", r#"test "$PPID" = "$0" && exec "$@""#])
+            .arg(std::process::id().to_string())
             .args(chrt.iter().flatten())
             .arg(&self.rove)
             .args(args)
