@@ -502,3 +502,146 @@ fn the_two_sites_walk_through_runs_on_the_shipped_files() {
             .unwrap_or("every reader acknowledged")
     );
 }
+
+/// Both sites secured (issue 44): every device has its fleet certificate, each bridge joins its
+/// site as the site and shows the other site's devices under proxy certificates the fleet CA
+/// issued (`rove keys site --proxies`). A remote operator drives, a local phone preempts, and
+/// control comes back; a participant at the lab holding a proxy certificate (level remote)
+/// that claims to be a mobile phone drives nothing; another fleet's site certificate is refused.
+#[test]
+fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_refused() {
+    const ROGUE: i64 = 22;
+    let mut sites = Sites::new("sites-secured");
+    let fleet = path(&sites.fleet).to_string();
+    for id in [V, PHONE, REMOTE] {
+        keys(&["add", "--dir", &fleet, "--id", &id.to_string()]);
+    }
+    // The lab's bridge shows home's operators; home's shows the lab's vehicle and phone.
+    keys(&[
+        "site",
+        "--dir",
+        &fleet,
+        "--name",
+        "lab",
+        "--proxies",
+        "21,22",
+    ]);
+    let home_proxies = format!("{V},{PHONE}");
+    keys(&[
+        "site",
+        "--dir",
+        &fleet,
+        "--name",
+        "home",
+        "--proxies",
+        &home_proxies,
+    ]);
+    let secured = |site: &str| {
+        format!(
+            "[security]\ndir = {:?}\n",
+            sites.fleet.join(format!("site-{site}"))
+        )
+    };
+    let security = |id: i64| rove_gateway::tools::harness::security_toml(Some(&sites.fleet), id);
+    let lab_peers = sites::peer("home", &[REMOTE, REMOTE2], &[V]) + &secured("lab");
+    let lab_dir = sites.fleet.join("site-lab");
+    sites::bridge(
+        &mut sites.lab,
+        "lab",
+        Meet::Listen(LAB),
+        &lab_dir,
+        &lab_peers,
+    );
+    let home_peers = sites::peer("lab", &[V, PHONE], &[]) + &secured("home");
+    let home_dir = sites.fleet.join("site-home");
+    sites::bridge(
+        &mut sites.home,
+        "home",
+        Meet::Connect(LAB),
+        &home_dir,
+        &home_peers,
+    );
+
+    let output = format!("{}[output]\nadapter = \"sim\"\n", security(V));
+    let record = sites.lab.vehicle_with_output(V, &output);
+    let started = wall_us();
+    (sites.home).operator(
+        REMOTE,
+        "remote",
+        "laptop",
+        &[V],
+        1000,
+        &security(REMOTE),
+        &[],
+    );
+    let out = wait_for_output(&record, Some(REMOTE), 0).expect("the remote laptop drives");
+    assert_eq!(out.throttle, Some(1000));
+    eprintln!(
+        "secured remote laptop started → applied after {:.1} ms",
+        ms_since(started, out.wall_us)
+    );
+    let phone = (sites.lab).operator(PHONE, "mobile", "phone", &[V], 2000, &security(PHONE), &[]);
+    wait_for_output(&record, Some(PHONE), 0).expect("the local phone preempts");
+    let quit = wall_us();
+    sites.lab.procs[phone].terminate();
+    let back = wait_for_output(&record, Some(REMOTE), quit).expect("back to the remote laptop");
+    eprintln!(
+        "phone quits → remote laptop applied after {:.1} ms",
+        ms_since(quit, back.wall_us)
+    );
+
+    // A participant at the lab under the lab's proxy certificate of home's operator 22 (level
+    // remote), claiming to be a mobile phone: the vehicle believes the certificate, not the
+    // claim, so the remote laptop keeps driving.
+    let rogue_dir = format!("[security]\ndir = {:?}\n", lab_dir.join("proxies/22"));
+    let rogue = (sites.lab).operator(ROGUE, "mobile", "phone", &[V], 3000, &rogue_dir, &[]);
+    let since = wall_us();
+    eventually(
+        "the vehicle refuses the proxy's claim above its level",
+        || {
+            let log = sites.lab.log_of(&format!("vehicle-{V}"));
+            let refused = log.contains("above the level its proxy certificate allows");
+            refused.then_some(()).ok_or(log)
+        },
+    );
+    let after = wait_for_output(&record, Some(REMOTE), wall_us()).expect("the laptop drives on");
+    assert!(
+        records(&record)
+            .iter()
+            .all(|o| o.owner != Some(ROGUE) || o.wall_us < since),
+        "the proxy certificate drove above its level"
+    );
+    assert_eq!(after.throttle, Some(1000));
+    sites.lab.procs[rogue].terminate();
+
+    // The vehicle's audit names each driver by the certificate it holds.
+    eventually("the audit names the remote operator's proxy certificate", || {
+        let out = std::process::Command::new(crate::util::ROVE)
+            .args(["audit", "--json", "--vehicle", &V.to_string(), "--dir"])
+            .arg(sites.lab.state_dir())
+            .output()
+            .map_err(|e| e.to_string())?;
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        let told = text.contains("site proxy certificate of device 21 (up to Remote)")
+            && text.contains("certificate of device 31");
+        told.then_some(()).ok_or(text)
+    });
+
+    // A bridge with another fleet's certificate for the name home: refused in the handshake.
+    let stranger = sites.home.dir.join("stranger");
+    keys(&["init", "--dir", path(&stranger), "--fleet", "strangers"]);
+    keys(&["site", "--dir", path(&stranger), "--name", "home"]);
+    let peers = sites::peer("lab", &[V, PHONE], &[]);
+    let refused = sites::bridge(
+        &mut sites.home,
+        "home",
+        Meet::Connect(LAB),
+        &stranger.join("site-home"),
+        &peers,
+    );
+    eventually("the stranger's bridge is refused", || {
+        let log = std::fs::read_to_string(&sites.home.procs[refused].log).unwrap_or_default();
+        let told = log.contains("site link refused in the TLS handshake with the bridge at");
+        told.then_some(()).ok_or(log)
+    });
+}

@@ -36,7 +36,7 @@ use crate::msg::{
     Ack, CommandType, ControlCommand, DeviceId, Mode, MovementCommand, RequestControl, TimeT,
 };
 use crate::time::MonoTime;
-use crate::trust::{Access, Identities, Suspect, TrustConfig};
+use crate::trust::{Access, Distrust, Identities, Suspect, TrustConfig};
 use crate::watchdog::{CommandTimeout, Watchdog};
 use std::fmt;
 
@@ -682,9 +682,18 @@ impl Arbiter {
         (self.access)
             .check_strength(command.src_id, strength)
             .map_err(suspect)?;
-        (self.identities)
-            .claim(now, command.src_id, writer.participant)
+        let level = (self.identities)
+            .claim_level(now, command.src_id, writer.participant)
             .map_err(suspect)?;
+        if let Some(level) = level
+            && !self.access.within_level(strength, level)
+        {
+            return Err(suspect(Distrust::AboveSite {
+                claimed: strength,
+                level,
+            })
+            .into());
+        }
         if now.saturating_since(arrival) >= self.config.command_timeout.get() {
             return Err(Ignored::Stale.into());
         }

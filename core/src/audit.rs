@@ -50,8 +50,9 @@ pub struct Who {
     pub device: Option<i64>,
     /// Its DDS participant (GUID prefix, hex), who sent it on the wire.
     pub participant: Option<String>,
-    /// How the id is known: the fleet certificate that names it (`"certificate of device 11"`)
-    /// or, unsecured, `"unsecured id 11"`; `"failsafe"`.
+    /// How the id is known: the fleet certificate that names it (`"certificate of device 11"`,
+    /// or `"site proxy certificate of device 21 (up to Remote)"` for another site's device) or,
+    /// unsecured, `"unsecured id 11"`; `"failsafe"`.
     pub identity: String,
     /// Its ownership strength (0: the failsafe).
     pub strength: u16,
@@ -87,9 +88,11 @@ impl Why {
 
 impl Who {
     /// Who `owner` is. Its device id is the one the arbiter believed: under DDS Security
-    /// (`secured`) only from the participant whose certificate names it, so the certificate is
-    /// the identity; else only the id.
-    pub fn of(owner: &crate::arbiter::Owner, secured: bool) -> Who {
+    /// (`certifier`) only from a participant whose certificate names it, so the certificate is
+    /// the identity (the device's own, or a site proxy's: another site's device shown by this
+    /// site's bridge); else only the id.
+    pub fn of(owner: &crate::arbiter::Owner, certifier: Option<&crate::trust::Certifier>) -> Who {
+        use crate::trust::Certified;
         match owner {
             crate::arbiter::Owner::Failsafe => Who {
                 device: None,
@@ -100,9 +103,15 @@ impl Who {
             crate::arbiter::Owner::Controller(c) => Who {
                 device: Some(c.device),
                 participant: Some(c.writer.participant.to_string()),
-                identity: match secured {
-                    true => format!("certificate of device {}", c.device),
-                    false => format!("unsecured id {}", c.device),
+                identity: match certifier.map(|f| f(c.device, c.writer.participant)) {
+                    None => format!("unsecured id {}", c.device),
+                    Some(Certified::Device) => format!("certificate of device {}", c.device),
+                    Some(Certified::Proxy(level)) => format!(
+                        "site proxy certificate of device {} (up to {level:?})",
+                        c.device
+                    ),
+                    // The arbiter believed none such; said, should it happen.
+                    Some(Certified::No) => format!("uncertified id {}", c.device),
                 },
                 strength: c.strength.0,
             },

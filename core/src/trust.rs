@@ -76,6 +76,14 @@ pub enum Distrust {
         /// The highest the id may have.
         max: Strength,
     },
+    /// Under DDS Security: another site's device, shown here by this site's bridge, streams
+    /// above the level its proxy certificate allows.
+    AboveSite {
+        /// The strength claimed.
+        claimed: Strength,
+        /// The highest level the certificate allows.
+        level: Level,
+    },
 }
 
 /// A message that was not believed: which id it claimed, who sent it, and why.
@@ -119,13 +127,30 @@ impl fmt::Display for Suspect {
                 "participant {sender} streams as device {id} at strength {claimed}, above its \
                  [access] rank ({max} at most)"
             ),
+            Distrust::AboveSite { claimed, level } => write!(
+                f,
+                "participant {sender} streams as another site's device {id} at strength \
+                 {claimed}, above the level its proxy certificate allows ({level:?})"
+            ),
         }
     }
 }
 
-/// Whether a participant holds the certificate of a device id (under DDS Security; the
-/// binding derives it from the authenticated participant's GUID).
-pub type Certifier = std::sync::Arc<dyn Fn(DeviceId, ParticipantId) -> bool + Send + Sync>;
+/// What an authenticated participant's certificate makes it, for one device id.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Certified {
+    /// Its certificate names another device (or none).
+    No,
+    /// It holds the device's own certificate.
+    Device,
+    /// It holds a site proxy certificate for the device: this site's bridge shows another
+    /// site's device here (docs/remote.md), at most at `level`.
+    Proxy(Level),
+}
+
+/// What a participant's certificate makes it for a device id (under DDS Security; the binding
+/// derives it from the authenticated participant's GUID).
+pub type Certifier = std::sync::Arc<dyn Fn(DeviceId, ParticipantId) -> Certified + Send + Sync>;
 
 #[derive(Debug, Clone, Copy)]
 struct Pin {
@@ -186,22 +211,36 @@ impl Identities {
         device: DeviceId,
         participant: ParticipantId,
     ) -> Result<(), Distrust> {
+        self.claim_level(now, device, participant).map(|_| ())
+    }
+
+    /// [`Identities::claim`], with the highest level the participant may claim for `device`:
+    /// `Some` for another site's device shown by this site's bridge under a proxy certificate
+    /// ([`Certified::Proxy`]), `None` for no bound beyond `[access]`.
+    pub fn claim_level(
+        &mut self,
+        now: MonoTime,
+        device: DeviceId,
+        participant: ParticipantId,
+    ) -> Result<Option<Level>, Distrust> {
         let until = now + self.config.hold;
         if let Some(certifier) = &self.certifier {
-            if !certifier(device, participant) {
-                return Err(Distrust::NotCertified);
-            }
+            let level = match certifier(device, participant) {
+                Certified::No => return Err(Distrust::NotCertified),
+                Certified::Device => None,
+                Certified::Proxy(level) => Some(level),
+            };
             // Certified: the pin follows the certificate (a restarted device takes its id back
             // at once); kept for `owner`.
             if self.pins.contains_key(&device) || self.pins.len() < self.config.max_ids {
                 self.pins.insert(device, Pin { participant, until });
             }
-            return Ok(());
+            return Ok(level);
         }
         match self.pins.get_mut(&device) {
             Some(pin) if pin.participant == participant => {
                 pin.until = pin.until.max(until);
-                return Ok(());
+                return Ok(None);
             }
             Some(pin) if now < pin.until => {
                 return Err(Distrust::IdOfAnotherParticipant {
@@ -217,7 +256,7 @@ impl Identities {
             }
         }
         self.pins.insert(device, Pin { participant, until });
-        Ok(())
+        Ok(None)
     }
 
     /// [`Identities::claim`] as a [`Suspect`] report.
@@ -358,6 +397,13 @@ impl Access {
             _ => Ok(()),
         }
     }
+
+    /// Whether `strength` stays within `level` (a priority grant's strength always does: the
+    /// arbiter lets it drive only while the id holds a grant).
+    pub fn within_level(&self, strength: Strength, level: Level) -> bool {
+        strength == Strength::PRIORITY
+            || (self.hierarchy.rank_of(strength)).is_some_and(|(at, _, _)| at <= level)
+    }
 }
 
 #[cfg(test)]
@@ -445,8 +491,9 @@ mod tests {
     #[test]
     fn under_a_certifier_only_the_certified_participant_speaks_for_an_id() {
         let mut ids = ids();
-        ids.certify(std::sync::Arc::new(|device, p| {
-            (device, p) == (11, A) || (device, p) == (12, B)
+        ids.certify(std::sync::Arc::new(|device, p| match (device, p) {
+            (11, A) | (12, B) => Certified::Device,
+            _ => Certified::No,
         }));
         assert_eq!(
             ids.claim(at(0), 11, B),
@@ -457,6 +504,45 @@ mod tests {
         assert_eq!(ids.claim(at(2), 12, A), Err(Distrust::NotCertified));
         assert_eq!(ids.claim(at(3), 12, B), Ok(()));
         assert_eq!(ids.owner(at(3), 11), Some(A));
+    }
+
+    #[test]
+    fn a_proxy_certificate_speaks_for_its_id_with_its_level() {
+        let mut ids = ids();
+        ids.certify(std::sync::Arc::new(|device, p| match (device, p) {
+            (21, A) => Certified::Proxy(Level::Remote),
+            (12, B) => Certified::Device,
+            _ => Certified::No,
+        }));
+        assert_eq!(ids.claim_level(at(0), 21, A), Ok(Some(Level::Remote)));
+        assert_eq!(ids.claim_level(at(0), 12, B), Ok(None));
+        assert_eq!(ids.claim_level(at(0), 21, B), Err(Distrust::NotCertified));
+        assert_eq!(ids.owner(at(1), 21), Some(A));
+    }
+
+    #[test]
+    fn within_a_level_means_at_or_below_it_and_priority_always() {
+        let h = Hierarchy::STANDARD;
+        let access = Access::open(h.clone());
+        for level in Level::ALL {
+            for class in DeviceClass::ALL {
+                for at in Level::ALL {
+                    let s = h.base(at, class);
+                    assert_eq!(
+                        access.within_level(s, level),
+                        at <= level,
+                        "{at:?} in {level:?}"
+                    );
+                    let top = Strength(s.0 + u16::from(MAX_OFFSET));
+                    assert_eq!(access.within_level(top, level), at <= level);
+                }
+            }
+            assert!(access.within_level(Strength::PRIORITY, level));
+            assert!(
+                !access.within_level(Strength(7), level),
+                "outside the hierarchy"
+            );
+        }
     }
 
     #[test]

@@ -11,7 +11,7 @@ use rove_core::arbiter::{
 };
 use rove_core::hierarchy::{DeviceClass, Hierarchy, Level, Strength};
 use rove_core::msg::{CommandType, Mode, TimeT};
-use rove_core::trust::{Access, Distrust, Grant, Suspect};
+use rove_core::trust::{Access, Certified, Distrust, Grant, Suspect};
 
 /// The stamp of the handovers in these tests.
 const S: TimeT = TimeT(7);
@@ -257,6 +257,31 @@ fn strengths_the_hierarchy_cannot_give_are_ignored_and_an_access_list_limits_ids
     );
     assert_eq!(d.suspect.map(|s| s.why), Some(Distrust::NotAllowed));
     assert_eq!(rig.arb.grant_holder(), None);
+}
+
+/// Under DDS Security, another site's operator (its bridge's proxy certificate, docs/remote.md)
+/// drives only up to the level that certificate allows, whatever its writer claims.
+#[test]
+fn a_proxy_certificate_bounds_the_level_its_operator_may_claim() {
+    let mut rig = Rig::new();
+    rig.arb
+        .certify(std::sync::Arc::new(|device, _| match device {
+            OP_A => Certified::Proxy(Level::Remote),
+            _ => Certified::Device,
+        }));
+    let d = rig.drive(0, w(1), OP_A, 340, 1);
+    assert_eq!(
+        d.suspect.map(|s| s.why),
+        Some(Distrust::AboveSite {
+            claimed: Strength(340),
+            level: Level::Remote
+        })
+    );
+    assert_eq!(rig.arb.owner(), Owner::Failsafe);
+    rig.drive(1, w(1), OP_A, 140, 1);
+    assert_eq!(rig.arb.controller_id(), OP_A, "at its level it drives");
+    rig.drive(2, w(2), OP_B, 340, 2);
+    assert_eq!(rig.arb.controller_id(), OP_B, "a local phone preempts it");
 }
 
 // ---- Liveness: release, departure, timeout -----------------------------------------------

@@ -184,17 +184,26 @@ impl AuditLog {
 /// A vehicle's audit as its control loop keeps it: the log, if it could be opened (an error is
 /// in the journal, never a reason to leave the vehicle without its gateway), and how its
 /// drivers' ids are known.
-#[derive(Debug)]
 pub struct Recorder {
     log: Option<AuditLog>,
     vehicle: i64,
-    /// Under DDS Security an id is believed only from the participant its certificate names.
-    secured: bool,
+    /// Under DDS Security an id is believed only from a participant whose certificate names it.
+    certifier: Option<rove_core::trust::Certifier>,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("log", &self.log)
+            .field("vehicle", &self.vehicle)
+            .field("secured", &self.certifier.is_some())
+            .finish()
+    }
 }
 
 impl Recorder {
     /// Vehicle `vehicle`'s log in [`state_dir`].
-    pub fn open(vehicle: i64, secured: bool) -> Recorder {
+    pub fn open(vehicle: i64, certifier: Option<rove_core::trust::Certifier>) -> Recorder {
         let log = match state_dir() {
             Some(dir) => AuditLog::open(&dir, vehicle)
                 .inspect_err(|e| tracing::error!("audit of control not kept: {e:#}"))
@@ -210,7 +219,7 @@ impl Recorder {
         Recorder {
             log,
             vehicle,
-            secured,
+            certifier,
         }
     }
 
@@ -219,7 +228,7 @@ impl Recorder {
         Recorder {
             log: None,
             vehicle,
-            secured: false,
+            certifier: None,
         }
     }
 
@@ -234,7 +243,7 @@ impl Recorder {
         let event = Event {
             wall_us,
             vehicle: self.vehicle,
-            who: Who::of(owner, self.secured),
+            who: Who::of(owner, self.certifier.as_ref()),
             why,
         };
         self.keep(|log| log.record(event));

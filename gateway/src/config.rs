@@ -449,6 +449,7 @@ rove_core::config_types! {
             site's vehicles believe (absent: docs/design.md §3); another site's operators are \
             taken at most at its `level`.",
         zenoh: ZenohSection => "`[zenoh]`: the link to other sites.",
+        security: Option<SecuritySection> => "`[security]`: a secured site (DDS Security):             `dir` is the site's directory from `rove keys site --proxies` (`DIR/site-NAME`).",
     }
 
     /// `[site]`.
@@ -520,6 +521,7 @@ pub fn load_bridge(path: &Path) -> anyhow::Result<BridgeConfig> {
 impl BridgeConfig {
     /// Makes the link's files relative to the config file's directory.
     pub fn resolve_paths(&mut self, config_path: &Path) {
+        self.common.resolve_paths(config_path);
         let dir = config_path.parent().unwrap_or(Path::new("."));
         let link = &mut self.link;
         for file in [&mut link.ca, &mut link.certificate, &mut link.key] {
@@ -579,6 +581,7 @@ impl RawBridge {
         };
         let mut common = validate_common(&mut device, &mut self.network, &self.log, &mut errors);
         common.id = 0;
+        common.security = self.security.as_ref().map(|s| s.dir.clone());
         let hierarchy = errors.section("hierarchy", Hierarchy::from_table(&self.hierarchy));
         let z = &mut self.zenoh;
         if z.listen.is_empty() && z.connect.is_empty() {
@@ -1326,15 +1329,19 @@ mod tests {
         ] {
             assert!(message.contains(want), "missing {want:?} in\n{message}");
         }
-        // An unknown key names its line; `[security]` is not a bridge's (docs/remote.md).
+        // An unknown key names its line; a secured site's `[security] dir` is the config's.
         let text = "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/a:1\"]\nca = \"a\"\n\
                     certificate = \"b\"\nkey = \"c\"\n[security]\ndir = \"d\"\n";
+        let path = write("s.toml", text);
+        let security = load_bridge(&path).expect("loads").common.security;
+        assert_eq!(security, Some(path.parent().expect("dir").join("d")));
+        let text = text.replace("dir =", "directory =");
         let message = format!(
             "{:#}",
-            load_bridge(&write("s.toml", text)).expect_err("bad")
+            load_bridge(&write("s.toml", &text)).expect_err("bad")
         );
         assert!(
-            message.contains("s.toml:8: unknown field `security`"),
+            message.contains("s.toml:9: unknown field `directory`"),
             "{message}"
         );
         // A relative key file is the config file's directory's.

@@ -94,7 +94,13 @@ impl Bridge {
             }
             None if full => Err("too many devices".into()),
             None => {
-                let proxy = Proxy::join(&self.common, site, info, &self.read_tx)
+                let security = match &self.secured {
+                    Some(secured) => Some(secured.proxy(id).ok_or_else(|| {
+                        format!("device {id}: this secured site has no proxy certificate for it")
+                    })?),
+                    None => None,
+                };
+                let proxy = Proxy::join(&self.common, site, info, security, &self.read_tx)
                     .map_err(|e| format!("cannot join as device {id}: {e:#}"))?;
                 info!(id, %site, name = %proxy.info.name, kind = ?proxy.info.device_type, "device of another site joined here");
                 self.ours.insert(proxy.participant(), id);

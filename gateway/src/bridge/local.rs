@@ -47,15 +47,19 @@ pub(super) struct Local {
 }
 
 impl Local {
-    /// Joins the site's domain (no DDS Security: docs/remote.md) and opens the readers.
+    /// Joins the site's domain (as the site, with the DDS Security files in `security` on a
+    /// secured site) and opens the readers.
     ///
     /// # Errors
     /// rustdds cannot create the participant, a topic or a reader.
-    pub(super) fn join(common: &Common) -> anyhow::Result<Local> {
+    pub(super) fn join(
+        common: &Common,
+        security: Option<&std::path::Path>,
+    ) -> anyhow::Result<Local> {
         let domain = Domain::join(
             common.domain_id,
             &common.interfaces,
-            None,
+            security,
             false,
             common.presence,
         )?;

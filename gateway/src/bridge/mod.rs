@@ -15,6 +15,7 @@ mod inbound;
 mod link;
 mod local;
 mod proxy;
+mod secured;
 mod tls;
 
 use crate::config::{BridgeConfig, Common};
@@ -29,6 +30,7 @@ use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
 use rove_core::site::{Key, Policy, SiteName, Subject, wire};
 use rustdds::GUID;
 use rustdds::with_key::Sample;
+use secured::Secured;
 use std::collections::{BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -72,7 +74,8 @@ pub async fn run(
     mut notify: Notifier,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let mut local = Local::join(&config.common)?;
+    let secured = Secured::load(&config.common, &config.policy)?.map(std::sync::Arc::new);
+    let mut local = Local::join(&config.common, secured.as_deref().map(Secured::own))?;
     let (link, mut arrived) = Link::open(&config.policy, &config.link).await?;
     let (read_tx, mut read) = mpsc::channel(4096);
     let policy = &config.policy;
@@ -95,6 +98,7 @@ pub async fn run(
         "bridge started"
     );
     let mut bridge = Bridge::new(config.common.clone(), config.policy.clone(), link, read_tx);
+    bridge.secured = secured;
     let mut tick = tokio::time::interval(TICK);
     let mut keepalive = notify.keepalive_timer();
     let mut shown = bridge.counts();
@@ -164,6 +168,8 @@ struct Bridge {
     missing: Instant,
     /// Sites just up, shown everything again at these instants.
     reshow: HashMap<SiteName, Instant>,
+    /// A secured site's identities (`[security]`).
+    secured: Option<std::sync::Arc<Secured>>,
 }
 
 /// The devices of `map` not heard (`heard`) for three DeviceInfo refreshes.
@@ -199,6 +205,7 @@ impl Bridge {
             dropped_seen: 0,
             missing: Instant::now(),
             reshow: HashMap::new(),
+            secured: None,
         }
     }
 
@@ -325,6 +332,14 @@ impl Bridge {
 
     async fn local_info(&mut self, info: DeviceInfo, from: ParticipantId) {
         let id = info.device_id;
+        if let Some(secured) = &self.secured
+            && !secured.is_device(id, from)
+        {
+            self.ignored.warn(&format!(
+                "participant {from} claims device {id}, which its certificate does not name"
+            ));
+            return;
+        }
         if self.proxies.contains_key(&id) {
             self.ignored.warn(&format!(
                 "device {id} here has the id of another site's device"

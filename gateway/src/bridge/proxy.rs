@@ -60,8 +60,9 @@ pub(super) struct Proxy {
 }
 
 impl Proxy {
-    /// Joins this site's network as `info`'s device of `site` and publishes its DeviceInfo; a
-    /// vehicle's proxy sends what its command reader reads to `read`.
+    /// Joins this site's network as `info`'s device of `site` (under its proxy certificate in
+    /// `security`, on a secured site) and publishes its DeviceInfo; a vehicle's proxy sends
+    /// what its command reader reads to `read`.
     ///
     /// # Errors
     /// rustdds cannot create the participant or an endpoint.
@@ -69,12 +70,13 @@ impl Proxy {
         common: &Common,
         site: &SiteName,
         info: DeviceInfo,
+        security: Option<&std::path::Path>,
         read: &mpsc::Sender<Read>,
     ) -> anyhow::Result<Proxy> {
         let common = Common {
             id: info.device_id,
             name: rove_core::site::proxy_name(&info.name, site),
-            security: None,
+            security: security.map(std::path::Path::to_path_buf),
             ..common.clone()
         };
         let node = Node::join(&common, info.device_type, false)?;

@@ -99,7 +99,7 @@ pub enum KeysCommand {
         days: u32,
     },
     /// Issue a site bridge's certificate for the link between sites (CN=rove-site-NAME), in
-    /// DIR/site-NAME/ (docs/remote.md).
+    /// DIR/site-NAME/ (docs/remote.md); with --proxies, a secured site's DDS identities too.
     Site {
         /// The fleet's directory.
         #[arg(long)]
@@ -110,6 +110,15 @@ pub enum KeysCommand {
         /// A name or address the site's bridge is reached by (repeat for more; optional).
         #[arg(long = "host")]
         hosts: Vec<String>,
+        /// For a secured site: the ids of other sites' devices its bridge shows here, each
+        /// given a proxy certificate (comma-separated; the link's certificate is made only if
+        /// absent).
+        #[arg(long, value_delimiter = ',')]
+        proxies: Vec<rove_core::msg::DeviceId>,
+        /// The highest level the proxies' operators may claim here: the site's `level` in
+        /// the bridge file.
+        #[arg(long, default_value = "remote", value_parser = parse_level)]
+        level: rove_core::hierarchy::Level,
         /// Days the certificate is valid.
         #[arg(long, default_value_t = certs::Lifetime::DEVICE.days)]
         days: u32,
@@ -206,15 +215,28 @@ pub fn run(what: KeysCommand) -> anyhow::Result<()> {
             dir,
             name,
             hosts,
+            proxies,
+            level,
             days,
         } => {
             let site = rove_core::site::SiteName::new(&name)
                 .map_err(|rule| anyhow::anyhow!("--name {name:?}: {rule}"))?;
-            let out = certs::site(&dir, &site, &hosts, certs::Lifetime::days(days))?;
-            println!(
-                "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
-                out.display()
-            );
+            let lifetime = certs::Lifetime::days(days);
+            let link = dir.join(format!("site-{site}")).join("cert.pem");
+            if proxies.is_empty() || !link.exists() {
+                let out = certs::site(&dir, &site, &hosts, lifetime)?;
+                println!(
+                    "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
+                    out.display()
+                );
+            }
+            if !proxies.is_empty() {
+                let out = certs::site_proxies(&dir, &site, &proxies, level, lifetime)?;
+                println!(
+                    "site {site} DDS identities in {0} (proxies of {proxies:?} at most {level:?}): [security] dir = \"{0}\"",
+                    out.display()
+                );
+            }
             Ok(())
         }
         KeysCommand::Web { dir, hosts, days } => {
@@ -226,4 +248,12 @@ pub fn run(what: KeysCommand) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// A hierarchy level's name, as in the config files.
+fn parse_level(text: &str) -> Result<rove_core::hierarchy::Level, String> {
+    use rove_core::hierarchy::Level;
+    (Level::ALL.into_iter())
+        .find(|l| format!("{l:?}").eq_ignore_ascii_case(text))
+        .ok_or_else(|| format!("{text:?}: one of remote, stationary, mobile"))
 }

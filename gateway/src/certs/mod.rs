@@ -41,15 +41,19 @@ use openssl::stack::Stack;
 use openssl::x509::extension::{BasicConstraints, KeyUsage};
 use openssl::x509::{X509, X509Builder, X509Name, X509NameBuilder};
 use rove_core::arbiter::ParticipantId;
+use rove_core::hierarchy::Level;
 use rove_core::msg::DeviceId;
+use rove_core::trust::Certified;
 use std::path::{Path, PathBuf};
 
 mod lifetime;
 mod revocation;
+mod site;
 
 pub use enrol::{REQUEST_FILE, request, sign_request};
 pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
 pub use revocation::{CRL_FILE, Revoked, revoke};
+pub use site::{SiteIdentity, site, site_proxies};
 
 /// The topics every device may publish and subscribe.
 const TOPICS: [&str; 4] = [
@@ -136,13 +140,8 @@ fn issue_device<K: openssl::pkey::HasPublic>(
     if id <= 0 {
         bail!("device id {id}: must be positive");
     }
-    let read = |name: &str| fleet_file(dir, name);
-    let (ca, ca_key) = fleet_ca(dir)?;
-    let domain: u16 = String::from_utf8_lossy(&read("domain")?)
-        .trim()
-        .parse()
-        .context("the fleet's domain file")?;
-    let fleet = fleet_of(&ca)?;
+    let domain = fleet_domain(dir)?;
+    let fleet = fleet_of(&fleet_ca(dir)?.0)?;
     let out = dir.join(id.to_string());
     if out.join("cert.pem").exists() {
         if !renew {
@@ -159,9 +158,27 @@ fn issue_device<K: openssl::pkey::HasPublic>(
             }
         }
     }
-    std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
     let name = subject(&fleet, &common_name(id))?;
-    let mut cert = builder(&name, ca.subject_name(), public_key, lifetime)?;
+    let grant = format!("CN={},O={fleet}", common_name(id));
+    issue_identity(dir, &out, (&name, &grant), public_key, lifetime, domain)?;
+    Ok(out)
+}
+
+/// Writes a DDS identity in `out`: a certificate for `public_key` with subject `name`, signed by
+/// the fleet CA in `dir`, its permissions (granted to `grant`, the subject as a string) for
+/// `domain`, and copies of the CA, the governance and the revocation list: everything a
+/// participant needs but its private key.
+fn issue_identity<K: openssl::pkey::HasPublic>(
+    dir: &Path,
+    out: &Path,
+    (name, grant): (&X509Name, &str),
+    public_key: &openssl::pkey::PKeyRef<K>,
+    lifetime: Lifetime,
+    domain: u16,
+) -> anyhow::Result<()> {
+    let (ca, ca_key) = fleet_ca(dir)?;
+    std::fs::create_dir_all(out).with_context(|| format!("create {}", out.display()))?;
+    let mut cert = builder(name, ca.subject_name(), public_key, lifetime)?;
     cert.append_extension(BasicConstraints::new().critical().build()?)?;
     cert.append_extension(
         KeyUsage::new()
@@ -173,7 +190,7 @@ fn issue_device<K: openssl::pkey::HasPublic>(
     cert.sign(&ca_key, MessageDigest::sha256())?;
     let cert = cert.build();
     write(&out.join("cert.pem"), &cert.to_pem()?, false)?;
-    let permissions = permissions_xml(&fleet, id, domain);
+    let permissions = permissions_xml(grant, domain);
     write(
         &out.join("permissions.p7s"),
         &sign(&ca, &ca_key, &permissions)?,
@@ -182,13 +199,24 @@ fn issue_device<K: openssl::pkey::HasPublic>(
     let ca_pem = ca.to_pem()?;
     write(&out.join("identity_ca.cert.pem"), &ca_pem, false)?;
     write(&out.join("permissions_ca.cert.pem"), &ca_pem, false)?;
-    write(&out.join("governance.p7s"), &read("governance.p7s")?, false)?;
+    write(
+        &out.join("governance.p7s"),
+        &fleet_file(dir, "governance.p7s")?,
+        false,
+    )?;
     // A fleet made before revocation lists gets its (empty) list now.
     if !dir.join(CRL_FILE).exists() {
         revocation::write_list(dir, &ca, &ca_key, None)?;
     }
-    revocation::copy_to(dir, &out)?;
-    Ok(out)
+    revocation::copy_to(dir, out)
+}
+
+/// The fleet's DDS domain (its `domain` file).
+fn fleet_domain(dir: &Path) -> anyhow::Result<u16> {
+    String::from_utf8_lossy(&fleet_file(dir, "domain")?)
+        .trim()
+        .parse()
+        .context("the fleet's domain file")
 }
 
 /// Issues the browser console's server certificate (docs/web.md), signed by the fleet CA, for
@@ -212,38 +240,6 @@ pub fn web(dir: &Path, hosts: &[String], lifetime: Lifetime) -> anyhow::Result<P
     let name = subject(&fleet_of(&ca)?, first)?;
     let usage = ExtendedKeyUsage::new().server_auth().build()?;
     issue_tls(&out, (&ca, &ca_key), &name, hosts, usage, lifetime)?;
-    Ok(out)
-}
-
-/// Issues a site bridge's certificate for the link between sites (docs/remote.md), signed by
-/// the fleet CA, subject `O=<fleet>, CN=rove-site-NAME`, for both ends of a TLS link (server
-/// and client authentication), with the names and addresses in `hosts` as subject alternative
-/// names. Writes `DIR/site-NAME/` (`cert.pem`, `key.pem`, and the fleet's `ca.cert.pem`): point
-/// `[zenoh] certificate`, `key` and `ca` there. The other sites' bridges let the common name
-/// speak only under the site's own name, and for the ids configured for it.
-///
-/// # Errors
-/// `dir` holds no fleet, the files exist, or OpenSSL fails.
-pub fn site(
-    dir: &Path,
-    name: &rove_core::site::SiteName,
-    hosts: &[String],
-    lifetime: Lifetime,
-) -> anyhow::Result<PathBuf> {
-    use openssl::x509::extension::ExtendedKeyUsage;
-    let (ca, ca_key) = fleet_ca(dir)?;
-    let out = dir.join(format!("site-{name}"));
-    if out.join("cert.pem").exists() {
-        bail!("{} exists already", out.join("cert.pem").display());
-    }
-    std::fs::create_dir_all(&out).with_context(|| format!("create {}", out.display()))?;
-    let subject_name = subject(&fleet_of(&ca)?, &name.common_name())?;
-    let usage = ExtendedKeyUsage::new()
-        .server_auth()
-        .client_auth()
-        .build()?;
-    issue_tls(&out, (&ca, &ca_key), &subject_name, hosts, usage, lifetime)?;
-    write(&out.join("ca.cert.pem"), &ca.to_pem()?, false)?;
     Ok(out)
 }
 
@@ -297,6 +293,21 @@ pub const DEVICE_FILES: [&str; 6] = [
 /// # Errors
 /// A file is missing or unreadable, or the certificate is another device's.
 pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Result<FleetIdentity> {
+    let (cn, who) = (common_name(id), format!("device {id}"));
+    check_identity(dir, (!any_id).then_some((cn.as_str(), who.as_str())))
+}
+
+/// [`check_device_dir`] for a directory whose certificate has the common name `expected`.
+///
+/// # Errors
+/// As [`check_device_dir`].
+fn check_identity_dir(dir: &Path, expected: &str) -> anyhow::Result<FleetIdentity> {
+    check_identity(dir, Some((expected, expected)))
+}
+
+/// [`check_device_dir`]: the certificate's common name must be `expected.0` (`expected.1` says
+/// whose it should be), if given.
+fn check_identity(dir: &Path, expected: Option<(&str, &str)>) -> anyhow::Result<FleetIdentity> {
     for name in DEVICE_FILES {
         let path = dir.join(name);
         std::fs::metadata(&path)
@@ -308,11 +319,12 @@ pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Resul
         .map(|e| e.data().to_string())
         .transpose()?
         .unwrap_or_default();
-    if cn != common_name(id) && !any_id {
+    if let Some((expected, who)) = expected
+        && cn != expected
+    {
         bail!(
-            "[security] {}: the certificate is {cn:?}'s, not device {id}'s ({:?})",
+            "[security] {}: the certificate is {cn:?}'s, not {who}'s ({expected:?})",
             dir.display(),
-            common_name(id)
         );
     }
     // A certificate signed for another request than this key's (`rove keys sign`).
@@ -336,10 +348,14 @@ pub fn check_device_dir(dir: &Path, id: DeviceId, any_id: bool) -> anyhow::Resul
 #[derive(Debug)]
 pub struct FleetIdentity {
     fleet: String,
-    /// The expected GUID start per id, computed once: [`FleetIdentity::speaks_for`] runs for
+    /// The expected GUID starts per id, computed once: [`FleetIdentity::speaks_for`] runs for
     /// every sample. Bounded: a flood of invented ids starts it afresh.
-    starts: std::sync::Mutex<std::collections::HashMap<DeviceId, Option<[u8; 6]>>>,
+    starts: std::sync::Mutex<std::collections::HashMap<DeviceId, Starts>>,
 }
+
+/// The GUID starts of the certificates that speak for one id: its own, and a site proxy's at
+/// each level (in [`Level::ALL`] order).
+type Starts = [Option<[u8; 6]>; 4];
 
 /// Most ids whose GUID start [`FleetIdentity`] remembers.
 const MAX_CACHED_IDS: usize = 4096;
@@ -366,25 +382,44 @@ impl FleetIdentity {
     /// # Errors
     /// OpenSSL fails to encode the subject.
     pub fn guid_start(&self, id: DeviceId) -> anyhow::Result<[u8; 6]> {
-        let der = subject(&self.fleet, &common_name(id))?.to_der()?;
-        let digest = hash(MessageDigest::sha256(), &der)?;
-        let mut first = [0u8; 8];
-        first.copy_from_slice(&digest[..8]);
-        let bits = (u64::from_be_bytes(first) >> 1) | (1 << 63);
-        let mut start = [0u8; 6];
-        start.copy_from_slice(&bits.to_be_bytes()[..6]);
-        Ok(start)
+        guid_start_for(&*subject(&self.fleet, &common_name(id))?)
     }
 
-    /// Whether `participant` (authenticated by DDS Security) holds device `id`'s certificate.
-    pub fn speaks_for(&self, id: DeviceId, participant: ParticipantId) -> bool {
+    /// What `participant` (authenticated by DDS Security) is for device `id`: the device
+    /// itself, another site's device shown by this site's bridge (a site proxy certificate,
+    /// `rove keys site --proxies`), or neither.
+    pub fn speaks_for(&self, id: DeviceId, participant: ParticipantId) -> Certified {
         let mut starts = crate::runtime::lock(&self.starts);
         if starts.len() >= MAX_CACHED_IDS && !starts.contains_key(&id) {
             starts.clear();
         }
-        let expected = *starts.entry(id).or_insert_with(|| self.guid_start(id).ok());
-        expected.is_some_and(|start| guid_start_of(participant) == start)
+        let expected = *starts.entry(id).or_insert_with(|| {
+            let own = self.guid_start(id).ok();
+            let proxy = |level| {
+                site::proxy_subject(&self.fleet, id, level).and_then(|s| guid_start_for(&s))
+            };
+            let [remote, stationary, mobile] = Level::ALL.map(|l| proxy(l).ok());
+            [own, remote, stationary, mobile]
+        });
+        let start = guid_start_of(participant);
+        match expected.iter().position(|e| *e == Some(start)) {
+            Some(0) => Certified::Device,
+            Some(i) => Certified::Proxy(Level::ALL[i - 1]),
+            None => Certified::No,
+        }
     }
+}
+
+/// The first six bytes of the GUID prefix of a participant whose certificate has `subject`
+/// (DDS Security §9.3.3).
+fn guid_start_for(subject: &openssl::x509::X509NameRef) -> anyhow::Result<[u8; 6]> {
+    let digest = hash(MessageDigest::sha256(), &subject.to_der()?)?;
+    let mut first = [0u8; 8];
+    first.copy_from_slice(&digest[..8]);
+    let bits = (u64::from_be_bytes(first) >> 1) | (1 << 63);
+    let mut start = [0u8; 6];
+    start.copy_from_slice(&bits.to_be_bytes()[..6]);
+    Ok(start)
 }
 
 /// The first six bytes of `participant`'s GUID prefix (which `ParticipantId` holds in its low
@@ -495,20 +530,21 @@ fn governance_xml(domain: u16) -> String {
     )
 }
 
-fn permissions_xml(fleet: &str, id: DeviceId, domain: u16) -> String {
+/// The permissions of the participant whose subject is `grant` (as `CN=…,O=…`): rove's topics
+/// in `domain`, both ways.
+fn permissions_xml(grant: &str, domain: u16) -> String {
     let topics: String = TOPICS
         .iter()
         .map(|t| format!("                        <topic>{t}</topic>\n"))
         .collect();
     let not_before = "2020-01-01T00:00:00";
     let not_after = "9999-01-01T00:00:00";
-    let cn = common_name(id);
     format!(
         r#"<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-Security/20170901/omg_shared_ca_permissions.xsd">
     <permissions>
-        <grant name="{cn}">
-            <subject_name>CN={cn},O={fleet}</subject_name>
+        <grant name="{grant}">
+            <subject_name>{grant}</subject_name>
             <validity>
                 <not_before>{not_before}</not_before>
                 <not_after>{not_after}</not_after>

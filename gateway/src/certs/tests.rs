@@ -120,6 +120,50 @@ fn the_guid_start_names_one_device() {
     let mut prefix = [0u8; 16];
     prefix[4..10].copy_from_slice(&a);
     let participant = ParticipantId(u128::from_be_bytes(prefix));
-    assert!(fleet.speaks_for(11, participant));
-    assert!(!fleet.speaks_for(12, participant));
+    assert_eq!(fleet.speaks_for(11, participant), Certified::Device);
+    assert_eq!(fleet.speaks_for(12, participant), Certified::No);
+}
+
+#[test]
+fn a_secured_sites_proxies_speak_for_their_ids_at_their_level_only() {
+    let dir = scratch("proxies");
+    init(&dir, "test fleet", 0).expect("init");
+    let home = rove_core::site::SiteName::new("home").expect("name");
+    let out = site_proxies(&dir, &home, &[100, 12], Level::Stationary, Lifetime::DEVICE)
+        .expect("proxies");
+    assert!(
+        site_proxies(&dir, &home, &[12], Level::Remote, Lifetime::DEVICE).is_err(),
+        "never overwritten"
+    );
+    site_proxies(&dir, &home, &[13], Level::Remote, Lifetime::DEVICE).expect("one more");
+    let identity = SiteIdentity::load(&out, &home).expect("loads");
+    let other = rove_core::site::SiteName::new("lab").expect("name");
+    assert!(SiteIdentity::load(&out, &other).is_err(), "not lab's");
+    assert_eq!(identity.proxy(12).map(|p| p.1), Some(Level::Stationary));
+    assert_eq!(identity.proxy(13).map(|p| p.1), Some(Level::Remote));
+    assert_eq!(identity.proxy(11), None);
+    // Each proxy directory is a device directory for its id, under rustdds's file names.
+    check_device_dir(&out.join("proxies/12"), 12, false).expect("a device directory");
+    // The GUID a participant under the proxy certificate of 12 gets: a proxy of 12 at its
+    // level, nobody's device.
+    let cert = X509::from_pem(&std::fs::read(out.join("proxies/12/cert.pem")).expect("read"))
+        .expect("pem");
+    let start = guid_start_for(cert.subject_name()).expect("hash");
+    let mut prefix = [0u8; 16];
+    prefix[4..10].copy_from_slice(&start);
+    let participant = ParticipantId(u128::from_be_bytes(prefix));
+    let fleet = &identity.fleet;
+    assert_eq!(
+        fleet.speaks_for(12, participant),
+        Certified::Proxy(Level::Stationary)
+    );
+    assert_eq!(fleet.speaks_for(100, participant), Certified::No);
+    // The bridge's own certificate speaks for no id.
+    let own = X509::from_pem(&std::fs::read(out.join("dds/cert.pem")).expect("read")).expect("pem");
+    let start = guid_start_for(own.subject_name()).expect("hash");
+    prefix[4..10].copy_from_slice(&start);
+    let bridge = ParticipantId(u128::from_be_bytes(prefix));
+    for id in [12, 13, 100, 0] {
+        assert_eq!(fleet.speaks_for(id, bridge), Certified::No);
+    }
 }

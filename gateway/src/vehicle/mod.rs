@@ -147,7 +147,7 @@ pub async fn run(
         log.record(&clock, "safe", Owner::Failsafe, None);
     }
     let net = Dds::join(&config)?;
-    let audit = Recorder::open(config.common.id, net.certifier().is_some());
+    let audit = Recorder::open(config.common.id, net.certifier());
     info!(
         audit = ?audit.path(),
         config = %options.config_path.display(),
