@@ -615,16 +615,36 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
     sites.lab.procs[rogue].terminate();
 
     // The vehicle's audit names each driver by the certificate it holds.
-    eventually("the audit names the remote operator's proxy certificate", || {
-        let out = std::process::Command::new(crate::util::ROVE)
-            .args(["audit", "--json", "--vehicle", &V.to_string(), "--dir"])
-            .arg(sites.lab.state_dir())
-            .output()
-            .map_err(|e| e.to_string())?;
-        let text = String::from_utf8_lossy(&out.stdout).into_owned();
-        let told = text.contains("site proxy certificate of device 21 (up to Remote)")
-            && text.contains("certificate of device 31");
-        told.then_some(()).ok_or(text)
+    eventually(
+        "the audit names the remote operator's proxy certificate",
+        || {
+            let out = std::process::Command::new(crate::util::ROVE)
+                .args(["audit", "--json", "--vehicle", &V.to_string(), "--dir"])
+                .arg(sites.lab.state_dir())
+                .output()
+                .map_err(|e| e.to_string())?;
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            let told = text.contains("site proxy certificate of device 21 (up to Remote)")
+                && text.contains("certificate of device 31");
+            told.then_some(()).ok_or(text)
+        },
+    );
+
+    // Home is revoked while its operator drives: the lab's bridge reads the new list of revoked
+    // sites and cuts home off; its operator's proxy leaves and the vehicle goes to its safe
+    // state.
+    let revoked = wall_us();
+    keys(&["revoke", "--dir", &fleet, "--site", "home"]);
+    let safe = wait_for_safe(&record, revoked);
+    eprintln!(
+        "home revoked → the vehicle safe after {:.1} ms",
+        ms_since(revoked, safe)
+    );
+    eventually("the lab's bridge cuts home off", || {
+        let log = sites.lab.log_of("bridge-lab");
+        log.contains("site revoked: cut off")
+            .then_some(())
+            .ok_or(log)
     });
 
     // A bridge with another fleet's certificate for the name home: refused in the handshake.
@@ -644,4 +664,40 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
         let told = log.contains("site link refused in the TLS handshake with the bridge at");
         told.then_some(()).ok_or(log)
     });
+}
+
+/// A secured site's bridge checks its directory at start: an id another site may speak for
+/// without a proxy certificate, or with one of another level, stops it with the fix.
+#[test]
+fn a_secured_bridge_without_a_proxy_certificate_for_an_id_does_not_start_and_says_why() {
+    let sites = Sites::new("sites-secured-missing");
+    let fleet = path(&sites.fleet).to_string();
+    keys(&["site", "--dir", &fleet, "--name", "home", "--proxies", "100"]);
+    let home = sites.fleet.join("site-home");
+    let start = |peer: &str| {
+        let toml = format!(
+            "[site]\nname = \"home\"\n[zenoh]\nconnect = [\"tls/{LAB}:7447\"]\n{}\n{peer}\
+             [security]\ndir = {:?}\n",
+            link_files(&home),
+            home
+        );
+        let config = sites.home.write("bridge-secured.toml", &toml);
+        let out = (sites.home.command(&["bridge", "-c", path(&config)]))
+            .output()
+            .expect("run");
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = start(&sites::peer("lab", &[V, PHONE], &[]));
+    assert!(
+        err.contains("no proxy certificate for site lab's device 31")
+            && err.contains("rove keys site --name home --proxies 31 --level remote"),
+        "{err}"
+    );
+    let stationary = sites::peer("lab", &[V], &[]) + "level = \"stationary\"\n";
+    let err = start(&stationary);
+    assert!(
+        err.contains("device 100 is for level Remote, the site's level is Stationary"),
+        "{err}"
+    );
 }

@@ -4,10 +4,10 @@
 use super::{Bridge, MAX_DEVICES, proxy::Proxy};
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, DeviceType};
-use rove_core::site::SiteName;
-use rove_core::site::wire::Inbound;
+use rove_core::site::{SiteName, Subject, wire};
 use std::collections::HashMap;
 use tracing::info;
+use wire::Inbound;
 
 impl Bridge {
     /// A message from another site, read and checked by [`rove_core::site::Policy::inbound`],
@@ -110,12 +110,43 @@ impl Bridge {
         }
     }
 
+    /// Every device of `site` leaves this site.
+    pub(super) fn drop_site(&mut self, site: &SiteName) {
+        let gone: Vec<DeviceId> = (self.proxies.iter())
+            .filter(|(_, p)| &p.site == site)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in gone {
+            self.drop_proxy(id);
+        }
+    }
+
     pub(super) fn drop_proxy(&mut self, id: DeviceId) {
         if let Some(proxy) = self.proxies.remove(&id) {
             info!(id, site = %proxy.site, "device of another site left");
             // Its participant stays ours until discovery reports it gone: what it published
             // last may still be on its way to us, and is not this site's.
             proxy.leave();
+        }
+    }
+
+    /// Sends `site` everything of ours it may see.
+    pub(super) async fn show_all(&mut self, site: &SiteName) {
+        let Some(peer) = self.policy.peer(site) else {
+            return;
+        };
+        let mut messages = Vec::new();
+        for (id, device) in &self.devices {
+            if self.policy.shows(peer, &device.info) {
+                messages.push((Subject::Info(*id), wire::encode(&device.info)));
+                if let Some(status) = &device.status {
+                    messages.push((Subject::Status(*id), wire::encode(status)));
+                }
+            }
+        }
+        for (subject, payload) in messages {
+            let key = self.key(site, subject);
+            self.link.send(&key, Some(payload)).await;
         }
     }
 }

@@ -15,6 +15,7 @@ mod inbound;
 mod link;
 mod local;
 mod proxy;
+mod revoked;
 mod secured;
 mod tls;
 
@@ -24,6 +25,7 @@ use crate::sdnotify::Notifier;
 use link::{Arrived, Link};
 use local::{Heard, Local};
 use proxy::{Proxy, Read};
+use revoked::Revocations;
 use rove_core::arbiter::ParticipantId;
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
@@ -74,11 +76,13 @@ pub async fn run(
     mut notify: Notifier,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let secured = Secured::load(&config.common, &config.policy)?.map(std::sync::Arc::new);
+    let revoked = Revocations::load(&config.link, &config.policy.me)?;
+    let policy = revoked.apply(config.policy.clone());
+    let secured = Secured::load(&config.common, &policy)?.map(std::sync::Arc::new);
     let mut local = Local::join(&config.common, secured.as_deref().map(Secured::own))?;
-    let (link, mut arrived) = Link::open(&config.policy, &config.link).await?;
+    let (link, mut arrived) = Link::open(&policy, &config.link).await?;
     let (read_tx, mut read) = mpsc::channel(4096);
-    let policy = &config.policy;
+    let policy = &policy;
     let peers: Vec<String> = (policy.peers.iter())
         .map(|p| {
             format!(
@@ -97,7 +101,13 @@ pub async fn run(
         watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "bridge started"
     );
-    let mut bridge = Bridge::new(config.common.clone(), config.policy.clone(), link, read_tx);
+    let mut bridge = Bridge::new(
+        config.common.clone(),
+        policy.clone(),
+        link,
+        read_tx,
+        revoked,
+    );
     bridge.secured = secured;
     let mut tick = tokio::time::interval(TICK);
     let mut keepalive = notify.keepalive_timer();
@@ -170,6 +180,8 @@ struct Bridge {
     reshow: HashMap<SiteName, Instant>,
     /// A secured site's identities (`[security]`).
     secured: Option<std::sync::Arc<Secured>>,
+    /// The revoked sites.
+    revoked: Revocations,
 }
 
 /// The devices of `map` not heard (`heard`) for three DeviceInfo refreshes.
@@ -187,7 +199,13 @@ const RESHOW: Duration = Duration::from_secs(1);
 const MISSING_REPORT: Duration = Duration::from_secs(5);
 
 impl Bridge {
-    fn new(common: Common, policy: Policy, link: Link, read_tx: mpsc::Sender<Read>) -> Bridge {
+    fn new(
+        common: Common,
+        policy: Policy,
+        link: Link,
+        read_tx: mpsc::Sender<Read>,
+        revoked: Revocations,
+    ) -> Bridge {
         Bridge {
             common,
             policy,
@@ -206,6 +224,7 @@ impl Bridge {
             missing: Instant::now(),
             reshow: HashMap::new(),
             secured: None,
+            revoked,
         }
     }
 
@@ -489,42 +508,17 @@ impl Bridge {
                 } else {
                     info!(%site, "site gone: its devices leave this site");
                     self.up.remove(&site);
-                    let gone: Vec<DeviceId> = (self.proxies.iter())
-                        .filter(|(_, p)| p.site == site)
-                        .map(|(id, _)| *id)
-                        .collect();
-                    for id in gone {
-                        self.drop_proxy(id);
-                    }
+                    self.drop_site(&site);
                 }
             }
             Arrived::Site { .. } => {}
         }
     }
 
-    /// Sends `site` everything of ours it may see.
-    async fn show_all(&mut self, site: &SiteName) {
-        let Some(peer) = self.policy.peer(site) else {
-            return;
-        };
-        let mut messages = Vec::new();
-        for (id, device) in &self.devices {
-            if self.policy.shows(peer, &device.info) {
-                messages.push((Subject::Info(*id), wire::encode(&device.info)));
-                if let Some(status) = &device.status {
-                    messages.push((Subject::Status(*id), wire::encode(status)));
-                }
-            }
-        }
-        for (subject, payload) in messages {
-            let key = self.key(site, subject);
-            self.link.send(&key, Some(payload)).await;
-        }
-    }
-
     // ---- time ----------------------------------------------------------------------------
 
     async fn tick(&mut self) {
+        self.cut_off_revoked();
         for proxy in self.proxies.values() {
             proxy.refresh();
         }

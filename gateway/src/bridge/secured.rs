@@ -48,11 +48,11 @@ impl Secured {
                         ),
                         None => anyhow::bail!(
                             "[security] {}: no proxy certificate for site {}'s device {id} \
-                             (rove keys site --name {} --proxies {id} --level {:?})",
+                             (rove keys site --name {} --proxies {id} --level {})",
                             dir.display(),
                             peer.name,
                             policy.me,
-                            peer.level
+                            format!("{:?}", peer.level).to_lowercase()
                         ),
                     }
                 }

@@ -76,8 +76,13 @@ pub enum KeysCommand {
         #[arg(long)]
         dir: std::path::PathBuf,
         /// The device id.
+        #[arg(long, required_unless_present = "site", conflicts_with = "site")]
+        id: Option<i64>,
+        /// A site instead (docs/remote.md): its link certificate and DDS identities are
+        /// revoked, and every bridge refuses its name on the link (revoked-sites.p7s, copied
+        /// into every site directory).
         #[arg(long)]
-        id: i64,
+        site: Option<String>,
     },
     /// List a fleet's devices, how long each certificate is valid, and which are revoked.
     List {
@@ -184,23 +189,7 @@ pub fn run(what: KeysCommand) -> anyhow::Result<()> {
             );
             Ok(())
         }
-        KeysCommand::Revoke { dir, id } => {
-            let done = certs::revoke(&dir, id)?;
-            let plural =
-                |n: usize, what: &str| format!("{n} {what}{}", if n == 1 { "" } else { "s" });
-            println!(
-                "device {id} revoked: {} now names {}; copied into {} — copy {} to every device \
-                 (running devices read it again)",
-                dir.join(certs::CRL_FILE).display(),
-                plural(done.listed, "certificate"),
-                match done.copied.len() {
-                    1 => "1 device directory".to_string(),
-                    n => format!("{n} device directories"),
-                },
-                certs::CRL_FILE
-            );
-            Ok(())
-        }
+        KeysCommand::Revoke { dir, id, site } => revoke(&dir, id, site),
         KeysCommand::List { dir } => {
             let issued = certs::list(&dir)?;
             println!("{:>8}  certificate", "device");
@@ -218,27 +207,7 @@ pub fn run(what: KeysCommand) -> anyhow::Result<()> {
             proxies,
             level,
             days,
-        } => {
-            let site = rove_core::site::SiteName::new(&name)
-                .map_err(|rule| anyhow::anyhow!("--name {name:?}: {rule}"))?;
-            let lifetime = certs::Lifetime::days(days);
-            let link = dir.join(format!("site-{site}")).join("cert.pem");
-            if proxies.is_empty() || !link.exists() {
-                let out = certs::site(&dir, &site, &hosts, lifetime)?;
-                println!(
-                    "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
-                    out.display()
-                );
-            }
-            if !proxies.is_empty() {
-                let out = certs::site_proxies(&dir, &site, &proxies, level, lifetime)?;
-                println!(
-                    "site {site} DDS identities in {0} (proxies of {proxies:?} at most {level:?}): [security] dir = \"{0}\"",
-                    out.display()
-                );
-            }
-            Ok(())
-        }
+        } => site(&dir, &name, &hosts, &proxies, level, days),
         KeysCommand::Web { dir, hosts, days } => {
             let out = certs::web(&dir, &hosts, certs::Lifetime::days(days))?;
             println!(
@@ -256,4 +225,61 @@ fn parse_level(text: &str) -> Result<rove_core::hierarchy::Level, String> {
     (Level::ALL.into_iter())
         .find(|l| format!("{l:?}").eq_ignore_ascii_case(text))
         .ok_or_else(|| format!("{text:?}: one of remote, stationary, mobile"))
+}
+
+/// `rove keys revoke`: device `id` or `site`.
+fn revoke(dir: &std::path::Path, id: Option<i64>, site: Option<String>) -> anyhow::Result<()> {
+    let (what, done) = match (id, site) {
+        (Some(id), _) => (format!("device {id}"), certs::revoke(dir, id)?),
+        (None, Some(name)) => {
+            let site = rove_core::site::SiteName::new(&name)
+                .map_err(|rule| anyhow::anyhow!("--site {name:?}: {rule}"))?;
+            (format!("site {site}"), certs::revoke_site(dir, &site)?)
+        }
+        (None, None) => anyhow::bail!("name --id or --site"),
+    };
+    let plural = |n: usize, what: &str| format!("{n} {what}{}", if n == 1 { "" } else { "s" });
+    println!(
+        "{what} revoked: {} now names {}; copied into {} — copy {} to every device and \
+         {} to every site's bridge (running devices and bridges read them again)",
+        dir.join(certs::CRL_FILE).display(),
+        plural(done.listed, "certificate"),
+        match done.copied.len() {
+            1 => "1 directory".to_string(),
+            n => format!("{n} directories"),
+        },
+        certs::CRL_FILE,
+        certs::REVOKED_SITES_FILE,
+    );
+    Ok(())
+}
+
+/// `rove keys site`: the link's certificate if absent or no `proxies`, then the proxies.
+fn site(
+    dir: &std::path::Path,
+    name: &str,
+    hosts: &[String],
+    proxies: &[rove_core::msg::DeviceId],
+    level: rove_core::hierarchy::Level,
+    days: u32,
+) -> anyhow::Result<()> {
+    let site = rove_core::site::SiteName::new(name)
+        .map_err(|rule| anyhow::anyhow!("--name {name:?}: {rule}"))?;
+    let lifetime = certs::Lifetime::days(days);
+    let link = dir.join(format!("site-{site}")).join("cert.pem");
+    if proxies.is_empty() || !link.exists() {
+        let out = certs::site(dir, &site, hosts, lifetime)?;
+        println!(
+            "site {site} certificate in {0}: [zenoh] certificate = \"{0}/cert.pem\", key = \"{0}/key.pem\", ca = \"{0}/ca.cert.pem\"",
+            out.display()
+        );
+    }
+    if !proxies.is_empty() {
+        let out = certs::site_proxies(dir, &site, proxies, level, lifetime)?;
+        println!(
+            "site {site} DDS identities in {0} (proxies of {proxies:?} at most {level:?}): [security] dir = \"{0}\"",
+            out.display()
+        );
+    }
+    Ok(())
 }

@@ -52,7 +52,7 @@ mod site;
 
 pub use enrol::{REQUEST_FILE, request, sign_request};
 pub use lifetime::{BACKDATE_S, Expiry, Issued, Lifetime, WARN_DAYS, list};
-pub use revocation::{CRL_FILE, Revoked, revoke};
+pub use revocation::{CRL_FILE, REVOKED_SITES_FILE, Revoked, revoke, revoke_site, revoked_sites};
 pub use site::{SiteIdentity, site, site_proxies};
 
 /// The topics every device may publish and subscribe.
@@ -105,7 +105,7 @@ pub fn init(dir: &Path, fleet: &str, domain: u16) -> anyhow::Result<()> {
         &sign(&cert, &key, &governance)?,
         false,
     )?;
-    revocation::write_list(dir, &cert, &key, None)?;
+    revocation::write_list(dir, &cert, &key, &[])?;
     write(&dir.join("domain"), domain.to_string().as_bytes(), false)
 }
 
@@ -206,7 +206,7 @@ fn issue_identity<K: openssl::pkey::HasPublic>(
     )?;
     // A fleet made before revocation lists gets its (empty) list now.
     if !dir.join(CRL_FILE).exists() {
-        revocation::write_list(dir, &ca, &ca_key, None)?;
+        revocation::write_list(dir, &ca, &ca_key, &[])?;
     }
     revocation::copy_to(dir, out)
 }

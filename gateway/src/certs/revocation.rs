@@ -19,13 +19,13 @@ use std::path::{Path, PathBuf};
 /// The list's file name, in the fleet directory and in each device directory.
 pub const CRL_FILE: &str = "crl.pem";
 
-/// Writes the fleet's list: what it revoked before, and `also` (a certificate to revoke now).
+/// Writes the fleet's list: what it revoked before, and `also` (certificates to revoke now).
 /// Returns how many certificates it names.
 pub(super) fn write_list(
     dir: &Path,
     ca: &X509,
     key: &PKey<Private>,
-    also: Option<&X509>,
+    also: &[X509],
 ) -> anyhow::Result<usize> {
     let mut builder = X509CrlBuilder::new()?;
     builder.set_issuer_name(ca.subject_name())?;
@@ -41,7 +41,7 @@ pub(super) fn write_list(
             count += 1;
         }
     }
-    if let Some(cert) = also {
+    for cert in also {
         let mut entry = X509RevokedBuilder::new()?;
         entry.set_serial_number(cert.serial_number())?;
         let now = Asn1Time::days_from_now(0)?;
@@ -174,12 +174,127 @@ pub fn revoke(dir: &Path, id: DeviceId) -> anyhow::Result<Revoked> {
         bail!("device {id}'s certificate is revoked already");
     }
     let cert = X509::from_pem(&pem)?;
-    let listed = write_list(dir, &ca, &key, Some(&cert))?;
+    let listed = write_list(dir, &ca, &key, std::slice::from_ref(&cert))?;
+    let copied = distribute(dir)?;
+    Ok(Revoked { listed, copied })
+}
+
+/// Copies the fleet's list into every identity directory of the fleet (each device's, each
+/// secured site's `dds/` and `proxies/ID/`), and its revoked site names into every site
+/// directory (beside the link's `ca.cert.pem`); returns the directories written.
+fn distribute(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut copied = Vec::new();
     for issued in super::list(dir)? {
         let out = dir.join(issued.id.to_string());
         copy_to(dir, &out)?;
         copied.push(out);
     }
+    let sites = std::fs::read_dir(dir).with_context(|| format!("read {}", dir.display()))?;
+    for site in sites.flatten() {
+        let is_site = site.file_name().to_string_lossy().starts_with("site-");
+        if !is_site || !site.path().join("ca.cert.pem").exists() {
+            continue;
+        }
+        let proxies = std::fs::read_dir(site.path().join("proxies"));
+        let identities = std::iter::once(site.path().join("dds"))
+            .chain(proxies.into_iter().flatten().flatten().map(|e| e.path()));
+        for out in identities.filter(|d| d.join("cert.pem").exists()) {
+            copy_to(dir, &out)?;
+            copied.push(out);
+        }
+        let names = dir.join(REVOKED_SITES_FILE);
+        if names.exists() {
+            let target = site.path().join(REVOKED_SITES_FILE);
+            let _ = std::fs::remove_file(&target);
+            write(&target, &std::fs::read(&names)?, false)?;
+            copied.push(site.path());
+        }
+    }
+    Ok(copied)
+}
+
+/// The file naming the fleet's revoked sites, one per line, S/MIME signed by the fleet CA: in
+/// the fleet directory and, from `rove keys revoke --site`, in every site directory beside
+/// `ca.cert.pem`. A bridge refuses a site it names on the link (docs/remote.md).
+pub const REVOKED_SITES_FILE: &str = "revoked-sites.p7s";
+
+/// Revokes site `name`: the fleet's list names its link certificate and, for a secured site,
+/// its DDS identities (so every device drops its bridge's participants, ROVE-PATCH.md §14);
+/// the signed list of revoked sites names it (so every bridge refuses it on the link). Both go
+/// to every directory of the fleet.
+///
+/// # Errors
+/// `dir` holds no fleet or no such site, the site is revoked already, or a file cannot be
+/// read or written.
+pub fn revoke_site(dir: &Path, name: &rove_core::site::SiteName) -> anyhow::Result<Revoked> {
+    let (ca, key) = fleet_ca(dir)?;
+    let site = dir.join(format!("site-{name}"));
+    let mut names = match dir.join(REVOKED_SITES_FILE).exists() {
+        true => revoked_sites(&dir.join("ca.cert.pem"), &dir.join(REVOKED_SITES_FILE))?,
+        false => Default::default(),
+    };
+    if !names.insert(name.to_string()) {
+        bail!("site {name} is revoked already");
+    }
+    let proxies = std::fs::read_dir(site.join("proxies"));
+    let files = [site.join("cert.pem"), site.join("dds/cert.pem")]
+        .into_iter()
+        .chain((proxies.into_iter().flatten().flatten()).map(|e| e.path().join("cert.pem")));
+    let mut certs = Vec::new();
+    for file in files.filter(|f| f.exists()) {
+        let pem = std::fs::read(&file).with_context(|| format!("read {}", file.display()))?;
+        if !is_revoked(dir, &pem)? {
+            certs.push(X509::from_pem(&pem)?);
+        }
+    }
+    if certs.is_empty() && !site.join("cert.pem").exists() {
+        bail!("site {name}: no {} (is it in this fleet?)", site.display());
+    }
+    let listed = write_list(dir, &ca, &key, &certs)?;
+    let text: String = names.iter().map(|n| format!("{n}\n")).collect();
+    let path = dir.join(REVOKED_SITES_FILE);
+    let _ = std::fs::remove_file(&path);
+    write(&path, &super::sign(&ca, &key, &text)?, false)?;
+    let copied = distribute(dir)?;
     Ok(Revoked { listed, copied })
+}
+
+/// The site names in a [`REVOKED_SITES_FILE`] at `file`, checked to be signed by the CA
+/// certificate at `ca`.
+///
+/// # Errors
+/// A file cannot be read, or the list is not signed by that CA.
+pub fn revoked_sites(ca: &Path, file: &Path) -> anyhow::Result<std::collections::BTreeSet<String>> {
+    use openssl::pkcs7::{Pkcs7, Pkcs7Flags};
+    use openssl::stack::Stack;
+    use openssl::x509::store::X509StoreBuilder;
+    let ca = X509::from_pem(&std::fs::read(ca).with_context(|| format!("read {}", ca.display()))?)?;
+    let bytes = std::fs::read(file).with_context(|| format!("read {}", file.display()))?;
+    let refuse = || format!("{}: not signed by the fleet CA", file.display());
+    let (signed, content) = Pkcs7::from_smime(&bytes).with_context(refuse)?;
+    // The CA signs with a certificate-signing key: check the signature with the CA itself
+    // (NOVERIFY skips the chain's purpose check), then that the signer is the CA.
+    let mut store = X509StoreBuilder::new()?;
+    store.add_cert(ca.clone())?;
+    let mut out = Vec::new();
+    let flags = Pkcs7Flags::TEXT | Pkcs7Flags::NOVERIFY;
+    let none: Stack<X509> = Stack::new()?;
+    (signed.verify(
+        &none,
+        &store.build(),
+        content.as_deref(),
+        Some(&mut out),
+        flags,
+    ))
+    .with_context(refuse)?;
+    let signers = signed
+        .signers(&none, Pkcs7Flags::empty())
+        .with_context(refuse)?;
+    let by_ca = signers.iter().all(|s| s.to_der().ok() == ca.to_der().ok()) && signers.len() == 1;
+    anyhow::ensure!(by_ca, refuse());
+    Ok((String::from_utf8_lossy(&out).lines())
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .map(str::to_string)
+        .collect())
 }

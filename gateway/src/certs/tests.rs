@@ -167,3 +167,51 @@ fn a_secured_sites_proxies_speak_for_their_ids_at_their_level_only() {
         assert_eq!(fleet.speaks_for(id, bridge), Certified::No);
     }
 }
+
+#[test]
+fn a_revoked_site_is_named_in_a_signed_list_and_its_identities_in_the_crl() {
+    let dir = scratch("revoke-site");
+    init(&dir, "test fleet", 0).expect("init");
+    add(&dir, 11, Lifetime::DEVICE, false).expect("add");
+    let home = rove_core::site::SiteName::new("home").expect("name");
+    let lab = rove_core::site::SiteName::new("lab").expect("name");
+    site(&dir, &home, &[], Lifetime::DEVICE).expect("site");
+    site_proxies(&dir, &home, &[100], Level::Remote, Lifetime::DEVICE).expect("proxies");
+    site(&dir, &lab, &[], Lifetime::DEVICE).expect("site");
+    assert!(revoke_site(&dir, &lab).is_ok());
+    let done = revoke_site(&dir, &home).expect("revoke");
+    assert!(revoke_site(&dir, &home).is_err(), "once");
+    assert_eq!(
+        done.listed, 4,
+        "lab's link, home's link, its own and its proxy's identity"
+    );
+    let ca = dir.join("ca.cert.pem");
+    for copy in [dir.clone(), dir.join("site-home"), dir.join("site-lab")] {
+        let names = revoked_sites(&ca, &copy.join(REVOKED_SITES_FILE)).expect("verifies");
+        assert_eq!(names.into_iter().collect::<Vec<_>>(), ["home", "lab"]);
+    }
+    // Every identity directory has the new list, which names the proxy's certificate.
+    let crl = X509Crl::from_pem(&std::fs::read(dir.join("11").join(CRL_FILE)).expect("read"))
+        .expect("crl");
+    let proxy =
+        X509::from_pem(&std::fs::read(dir.join("site-home/proxies/100/cert.pem")).expect("read"))
+            .expect("pem");
+    assert!(!matches!(
+        crl.get_by_cert(&proxy),
+        openssl::x509::CrlStatus::NotRevoked
+    ));
+    let copy = std::fs::read(dir.join("site-home/proxies/100").join(CRL_FILE)).expect("copied");
+    assert_eq!(copy, std::fs::read(dir.join(CRL_FILE)).expect("read"));
+    // An edited list, or one signed by another fleet's CA, is refused.
+    let file = dir.join(REVOKED_SITES_FILE);
+    let text = String::from_utf8(std::fs::read(&file).expect("read")).expect("text");
+    let edited = dir.join("edited.p7s");
+    std::fs::write(&edited, text.replacen("home", "hume", 1)).expect("write");
+    assert!(revoked_sites(&ca, &edited).is_err(), "edited");
+    let stranger = scratch("revoke-site-stranger");
+    init(&stranger, "strangers", 0).expect("init");
+    assert!(
+        revoked_sites(&stranger.join("ca.cert.pem"), &file).is_err(),
+        "another CA"
+    );
+}
