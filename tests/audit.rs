@@ -151,3 +151,46 @@ fn the_vehicle_audits_who_drove_and_a_tampered_log_fails_the_check() {
 fn a_secured_vehicle_audits_each_driver_by_its_certificate() {
     audit_story(true);
 }
+
+/// The output's device fails (the sysfs PWM tree goes away) as a phone takes over from a laptop,
+/// and comes back: the audit says the failsafe held the vehicle (`output_down`), then that the
+/// phone drives (`output_back`).
+#[test]
+fn an_output_that_goes_down_and_comes_back_is_in_the_audit() {
+    let mut rig = Rig::new("audit-output");
+    let root = crate::util::fake_sysfs(&rig.dir);
+    let config = crate::util::eyedrive_sysfs(&root);
+    let record = rig.vehicle_with_output(V, &config);
+    rig.operator(11, "stationary", "laptop", &[V], 1000, "", &[]);
+    wait_for_output(&record, Some(11), 0).expect("the laptop drives");
+    let chip = root.join("pwmchip0");
+    let away = root.join("pwmchip0-away");
+    std::fs::rename(&chip, &away).expect("the device goes away");
+    // The adapter writes only what changes: a phone's sticks make it write (and fail).
+    rig.operator(12, "mobile", "phone", &[V], 2000, "", &[]);
+    let dir = rig.state_dir();
+    crate::util::eventually("the audit says the output went down", || {
+        let found = story(&entries(&dir));
+        let down = ("output_down".to_string(), None, "failsafe".to_string());
+        found
+            .contains(&down)
+            .then_some(())
+            .ok_or(format!("{found:?}"))
+    });
+    std::fs::rename(&away, &chip).expect("the device comes back");
+    crate::util::eventually("the audit says the output is back with the phone", || {
+        let found = story(&entries(&dir));
+        let back = (
+            "output_back".to_string(),
+            Some(12),
+            "unsecured id 12".to_string(),
+        );
+        let at = found.iter().position(|f| f.0 == "output_down");
+        let after = at.map(|i| found[i..].contains(&back));
+        after
+            .unwrap_or(false)
+            .then_some(())
+            .ok_or(format!("{found:?}"))
+    });
+    assert!(verify(&dir).0, "the chain verifies");
+}

@@ -672,7 +672,15 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
 fn a_secured_bridge_without_a_proxy_certificate_for_an_id_does_not_start_and_says_why() {
     let sites = Sites::new("sites-secured-missing");
     let fleet = path(&sites.fleet).to_string();
-    keys(&["site", "--dir", &fleet, "--name", "home", "--proxies", "100"]);
+    keys(&[
+        "site",
+        "--dir",
+        &fleet,
+        "--name",
+        "home",
+        "--proxies",
+        "100",
+    ]);
     let home = sites.fleet.join("site-home");
     let start = |peer: &str| {
         let toml = format!(

@@ -39,6 +39,8 @@ pub enum Why {
     Finish,
     /// The output adapter failed: the vehicle is held safe.
     OutputDown,
+    /// The output adapter works again: the owner's commands reach the vehicle again.
+    OutputBack,
     /// The vehicle's gateway stopped: outputs to their safe state.
     Stop,
 }

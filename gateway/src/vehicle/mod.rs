@@ -117,6 +117,8 @@ struct Vehicle<N, O> {
     stall: Option<Duration>,
     /// Who drove, when and why ([`crate::audit`]).
     audit: Recorder,
+    /// Whether the output was down at the last look: the audit records each change.
+    output_down: bool,
 }
 
 /// Runs the vehicle role on `clock` until `shutdown` completes: opens the output (which
@@ -206,6 +208,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
             heartbeat: config.common.heartbeat,
             stall,
             audit: Recorder::none(me),
+            output_down: false,
         }
     }
 
@@ -243,6 +246,8 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         // The outputs are safe (or held safe while their device is reopened), the participant
         // is up and the signal handlers are in place: ready.
         let clock = self.clock;
+        // Down while it opens is not an event: the start's entry says the failsafe holds.
+        self.output_down = is_down(&self.output.report());
         self.shown = status_line(&self.arbiter, &self.output.report(), clock.now());
         self.publish_status();
         self.notify.ready(&self.shown);
@@ -299,12 +304,26 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         self.net.publish_owner(self.arbiter.controller_id());
         let report = self.output.report();
         self.hung.observe(&report);
+        self.audit_output(&report);
         self.publish_status();
         let line = status_line(&self.arbiter, &report, self.clock.now());
         let line = self.hung.annotate(self.suspects.annotate(line));
         if line != self.shown {
             self.notify.status(&line);
             self.shown = line;
+        }
+    }
+
+    /// Records in the audit an output that went down (the vehicle is held safe: the failsafe
+    /// holds it, whoever owns) or came back (the owner drives again).
+    fn audit_output(&mut self, report: &crate::output::OutputReport) {
+        let down = is_down(report);
+        if down != self.output_down {
+            self.output_down = down;
+            match down {
+                true => self.audit(&Owner::Failsafe, Why::OutputDown),
+                false => self.audit(&self.arbiter.owner(), Why::OutputBack),
+            }
         }
     }
 
@@ -371,6 +390,12 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         self.net.publish_owner(self.me);
         self.net.withdraw();
     }
+}
+
+/// Whether the output's device failed (it is being reopened; a call that is only slow, hung,
+/// is the watchdog's and `STATUS=`'s, not the audit's: on a busy machine it comes and goes).
+fn is_down(report: &crate::output::OutputReport) -> bool {
+    matches!(report.health, rove_core::adapter::Health::Down(_))
 }
 
 /// How long stopping waits for the output's safe state.
