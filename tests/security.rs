@@ -405,3 +405,42 @@ fn a_secured_request_is_driven_through_the_requesters_priority_writer() {
     );
     keeps_driving(&record, 13, 1000);
 }
+
+/// A secured pair that authenticated but cannot decode each other (key material out of step, a
+/// crossed handshake's leftovers; forced by a test hook of debug builds that makes every
+/// message of the vehicle's first peer fail to decode, for that peer's first session): the
+/// vehicle drops the laptop after 2 s of failures and authenticates it again (ROVE-PATCH.md
+/// §31), and the laptop drives. Before §31 the pair stayed deaf for good.
+#[test]
+fn a_secured_pair_whose_messages_stop_decoding_authenticates_again() {
+    let mut rig = Rig::new("secure-undecodable");
+    let fleet = fleet(&rig, &[V, 11]);
+    rig.env = vec![("ROVE_TEST_DEAF_TO_FIRST_PEER".into(), "1".into())];
+    let output = format!("{}[output]\nadapter = \"sim\"\n", security(&fleet, V));
+    let record = rig.vehicle_with_output(V, &output);
+    rig.env.clear();
+    let started = wall_us();
+    rig.operator(
+        11,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        &security(&fleet, 11),
+        &[],
+    );
+    let out = wait_for_output(&record, Some(11), 0).expect("the laptop drives after all");
+    let log = rig.log_of(&format!("vehicle-{V}"));
+    assert!(
+        log.contains("test hook: no message of participant"),
+        "{log}"
+    );
+    assert!(
+        log.contains("none of its messages decoded for 2 s"),
+        "driven without the repair: {log}"
+    );
+    eprintln!(
+        "laptop started → applied after {:.1} ms (deaf, dropped, authenticated again)",
+        (out.wall_us.saturating_sub(started)) as f64 / 1000.0
+    );
+}

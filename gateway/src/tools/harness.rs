@@ -109,6 +109,8 @@ pub struct Rig {
     pub dir: PathBuf,
     /// Started processes, in order.
     pub procs: Vec<Proc>,
+    /// Environment variables every `rove` started from now on gets (a test hook's).
+    pub env: Vec<(String, String)>,
 }
 
 impl Rig {
@@ -127,6 +129,7 @@ impl Rig {
             ns: ns.clone(),
             dir,
             procs: Vec::new(),
+            env: Vec::new(),
         };
         super::cleanup::alive(&ns);
         // Constructed first, so that a failure half-way still deletes the namespace on drop.
@@ -194,6 +197,7 @@ impl Rig {
                 "RUST_LOG",
                 std::env::var("ROVE_RIG_LOG").unwrap_or_else(|_| "info,rustdds=warn".into()),
             )
+            .envs(self.env.iter().map(|(k, v)| (k, v)))
             .stdin(Stdio::null());
         command
     }

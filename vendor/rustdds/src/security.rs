@@ -9,6 +9,8 @@ mod private_key;
 mod revocation;
 pub mod security_plugins;
 pub mod types;
+// rove patch (ROVE-PATCH.md §31)
+pub(crate) mod undecodable;
 
 pub use types::*;
 // export top-level plugin interfaces

@@ -423,7 +423,7 @@ impl MessageReceiver {
       }
 
       Some(security_plugins_handle) => {
-        let security_plugins = security_plugins_handle.get_plugins();
+        let mut security_plugins = security_plugins_handle.get_plugins();
 
         // If the first submessage is SecureRTPSPrefix, the message has to be decoded
         // using the cryptographic plugin

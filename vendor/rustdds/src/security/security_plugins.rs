@@ -53,6 +53,24 @@ pub(crate) struct SecurityPlugins {
   rtps_not_protected: HashSet<GuidPrefix>,
   submessage_not_protected: HashSet<GUID>,
   payload_not_protected: HashSet<GUID>,
+
+  // rove patch (ROVE-PATCH.md §31): decode failure streaks per remote participant.
+  undecodable: super::undecodable::Undecodable,
+  // rove patch (ROVE-PATCH.md §31): the test hook's deaf peer, see `deaf_for_test`.
+  test_deaf: TestDeaf,
+}
+
+/// rove patch (ROVE-PATCH.md §31), a test hook of debug builds: with the environment variable
+/// `ROVE_TEST_DEAF_TO_FIRST_PEER` set, none of the messages of the first remote participant
+/// this process decodes from decodes, until that participant is unregistered (dropped or
+/// lost): the state key material out of step leaves a pair in, forced. Its next session
+/// decodes. Release builds decode everything.
+#[derive(Debug, Default)]
+enum TestDeaf {
+  #[default]
+  Unarmed,
+  Deaf(GuidPrefix),
+  Done,
 }
 
 impl SecurityPlugins {
@@ -76,7 +94,40 @@ impl SecurityPlugins {
       rtps_not_protected: HashSet::new(),
       submessage_not_protected: HashSet::new(),
       payload_not_protected: HashSet::new(),
+      undecodable: Default::default(),
+      test_deaf: Default::default(),
     }
+  }
+
+  /// The test hook ([`TestDeaf`]): whether a message of `source` is to fail to decode.
+  fn deaf_for_test(&mut self, source: &GuidPrefix) -> bool {
+    if !cfg!(debug_assertions) {
+      return false;
+    }
+    match self.test_deaf {
+      TestDeaf::Unarmed if std::env::var_os("ROVE_TEST_DEAF_TO_FIRST_PEER").is_some() => {
+        log::warn!("test hook: no message of participant {source:?} decodes, until it is dropped");
+        self.test_deaf = TestDeaf::Deaf(*source);
+        true
+      }
+      TestDeaf::Deaf(deaf) => deaf == *source,
+      _ => false,
+    }
+  }
+
+  /// rove patch (ROVE-PATCH.md §31): counts `outcome` of decoding a message of `source`
+  /// towards its streak of failures.
+  fn count_decode<T>(
+    &mut self,
+    source: &GuidPrefix,
+    outcome: SecurityResult<DecodeOutcome<T>>,
+  ) -> SecurityResult<DecodeOutcome<T>> {
+    match &outcome {
+      Ok(DecodeOutcome::Success(_)) => self.undecodable.decoded(source),
+      Err(_) => self.undecodable.failed(*source, std::time::Instant::now()),
+      Ok(_) => {}
+    }
+    outcome
   }
 
   fn get_identity_handle(&self, guidp: &GuidPrefix) -> SecurityResult<IdentityHandle> {
@@ -933,13 +984,27 @@ impl SecurityPlugins {
   /// identity is no longer acceptable (certificate expired, or revoked by a list read since
   /// the last call), with the reason. The list is checked only when a new one was read: the
   /// plugins' lock, which the event loop needs for every protected message, is held briefly.
-  pub fn unacceptable_remote_participants(&self) -> Vec<(GuidPrefix, String)> {
+  pub fn unacceptable_remote_participants(&mut self) -> Vec<(GuidPrefix, String)> {
     let revocation = self.auth.refresh_revocation();
-    (self.identity_handle_cache.iter())
+    let mut unacceptable: Vec<(GuidPrefix, String)> = (self.identity_handle_cache.iter())
       .filter_map(|(prefix, handle)| {
         (self.auth.still_acceptable(*handle, revocation).err()).map(|e| (*prefix, e.msg))
       })
-      .collect()
+      .collect();
+    // rove patch (ROVE-PATCH.md §31): an authenticated participant none of whose messages has
+    // decoded for a while is dropped too; it authenticates again at its next announcement.
+    for (prefix, failures) in self.undecodable.take_undecodable(std::time::Instant::now()) {
+      if self.identity_handle_cache.contains_key(&prefix)
+        && !unacceptable.iter().any(|(p, _)| *p == prefix)
+      {
+        let why = format!(
+          "none of its messages decoded for {} s ({failures} failures): authenticating it again",
+          super::undecodable::UNDECODABLE_AFTER.as_secs()
+        );
+        unacceptable.push((prefix, why));
+      }
+    }
+    unacceptable
   }
 
   pub fn unregister_remote_participant(
@@ -952,6 +1017,10 @@ impl SecurityPlugins {
     // (The crypto plugin unregisters them with the participant, below.)
     (self.remote_endpoint_crypto_handle_cache)
       .retain(|(_, remote), _| remote.prefix != *remote_participant_guid_prefix);
+    self.undecodable.forget(remote_participant_guid_prefix);
+    if matches!(self.test_deaf, TestDeaf::Deaf(p) if p == *remote_participant_guid_prefix) {
+      self.test_deaf = TestDeaf::Done;
+    }
     if let Some(handle) = self
       .identity_handle_cache
       .remove(remote_participant_guid_prefix)
@@ -1282,11 +1351,18 @@ impl SecurityPlugins {
   // can be decoded.
   // TODO: add support for other destinations as well?
   pub fn decode_rtps_message(
-    &self,
+    &mut self,
     encoded_message: Message,
     source_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<DecodeOutcome<Message>> {
-    self
+    // (A peer we did a handshake with: never ourselves, whose loopback also decodes here.)
+    if self.handshake_handle_cache.contains_key(source_guid_prefix)
+      && self.deaf_for_test(source_guid_prefix)
+    {
+      let outcome = Err(security_error("test hook: deaf to this participant"));
+      return self.count_decode(source_guid_prefix, outcome);
+    }
+    let outcome = self
       .remote_participant_crypto_handle_cache
       .get(source_guid_prefix)
       .map_or(
@@ -1300,18 +1376,26 @@ impl SecurityPlugins {
             *source_crypto_handle,
           )
         },
-      )
+      );
+    self.count_decode(source_guid_prefix, outcome)
   }
 
   // Currently only those submessages whose destination is the local participant
   // can be preprocessed. TODO: add support for other destinations as well?
 
   pub fn decode_submessage(
-    &self,
+    &mut self,
     encoded_rtps_submessage: (SecurePrefix, Submessage, SecurePostfix),
     source_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<DecodeOutcome<DecodedSubmessage>> {
-    self
+    // (A peer we did a handshake with: never ourselves, whose loopback also decodes here.)
+    if self.handshake_handle_cache.contains_key(source_guid_prefix)
+      && self.deaf_for_test(source_guid_prefix)
+    {
+      let outcome = Err(security_error("test hook: deaf to this participant"));
+      return self.count_decode(source_guid_prefix, outcome);
+    }
+    let outcome = self
       .remote_participant_crypto_handle_cache
       .get(source_guid_prefix)
       .map_or(
@@ -1325,7 +1409,8 @@ impl SecurityPlugins {
             *source_crypto_handle,
           )
         },
-      )
+      );
+    self.count_decode(source_guid_prefix, outcome)
   }
 
   pub fn decode_serialized_payload(
