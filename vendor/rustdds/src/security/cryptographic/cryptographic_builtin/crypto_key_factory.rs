@@ -687,3 +687,51 @@ impl CryptoKeyFactory for CryptographicBuiltin {
     Ok(())
   }
 }
+
+#[cfg(test)]
+mod tests {
+  use super::*;
+  use crate::security::authentication::types::{Challenge, SharedSecret, SharedSecretHandle};
+
+  fn secret() -> SharedSecretHandle {
+    SharedSecretHandle {
+      shared_secret: SharedSecret::from([7u8; 32]),
+      challenge1: Challenge::from([1u8; 32]),
+      challenge2: Challenge::from([2u8; 32]),
+    }
+  }
+
+  // rove patch (ROVE-PATCH.md §26): two writers of one remote participant, both matched to one
+  // local reader (rove's operator: a regular and a priority command writer; the vehicle: one
+  // reader), each get a handle and keys of their own. Before §26 the second got the first's
+  // handle, and its key materials were refused.
+  #[test]
+  fn a_participants_second_writer_on_one_reader_gets_its_own_handle_and_keys() {
+    let mut crypto = CryptographicBuiltin::new();
+    let local = crypto
+      .register_local_participant(1, 1, &[], ParticipantSecurityAttributes::empty())
+      .expect("local participant");
+    let remote = crypto
+      .register_matched_remote_participant(local, 2, 2, secret())
+      .expect("remote participant");
+    let mut attributes = EndpointSecurityAttributes::empty();
+    attributes.is_submessage_protected = true;
+    let reader = crypto
+      .register_local_datareader(local, &[], attributes)
+      .expect("local reader");
+    let first = crypto
+      .register_matched_remote_datawriter(reader, remote, secret())
+      .expect("the first writer");
+    let second = crypto
+      .register_matched_remote_datawriter(reader, remote, secret())
+      .expect("the second writer: its key materials are not refused");
+    assert_ne!(first, second, "a handle of its own");
+    let first_tokens = crypto
+      .create_local_datareader_crypto_tokens(reader, first)
+      .expect("the reader's keys for the first writer");
+    let second_tokens = crypto
+      .create_local_datareader_crypto_tokens(reader, second)
+      .expect("the reader's keys for the second writer");
+    assert!(!first_tokens.is_empty() && !second_tokens.is_empty());
+  }
+}
