@@ -227,13 +227,7 @@ impl AxisMap {
         if self.reverse {
             x = -x;
         }
-        let magnitude = x.abs();
-        let magnitude = if magnitude <= self.deadband {
-            0.0
-        } else {
-            (magnitude - self.deadband) / (1.0 - self.deadband)
-        };
-        let shaped = (1.0 - self.expo) * magnitude + self.expo * magnitude.powi(3);
+        let shaped = deadband_expo(x.abs(), self.deadband, self.expo);
         let centre = f64::from(self.centre_us);
         let pulse = if x >= 0.0 {
             centre + shaped * (f64::from(self.max_us) - centre)
@@ -245,6 +239,18 @@ impl AxisMap {
             .round()
             .clamp(f64::from(self.min_us), f64::from(self.max_us)) as u16
     }
+}
+
+/// Dead band, then expo, on a stick magnitude in 0..=1 (outputs and inputs share it): the first
+/// `deadband` of the travel (below 1) gives 0 and the rest is rescaled to 0..=1, so there is no
+/// jump at its edge; then `(1 − expo)·m + expo·m³` (0 linear, 1 cubic).
+pub fn deadband_expo(magnitude: f64, deadband: f64, expo: f64) -> f64 {
+    let m = if magnitude <= deadband {
+        0.0
+    } else {
+        (magnitude - deadband) / (1.0 - deadband)
+    };
+    (1.0 - expo) * m + expo * m.powi(3)
 }
 
 /// Limits how fast an output may change, for gentle starts on servos and ESCs.

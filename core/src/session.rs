@@ -678,7 +678,7 @@ impl OperatorSession {
             }
             SessionEvent::Tick => {
                 let actions = self.handover.tick(now);
-                self.carry_out(stamp, actions, &mut out);
+                self.push_actions(stamp, actions, &mut out);
                 self.consider_request(now, stamp, &mut out);
             }
         }
@@ -691,7 +691,7 @@ impl OperatorSession {
         let mut out = Out::default();
         for vehicle in self.priority.clone() {
             if let Ok(actions) = self.handover.finish(vehicle) {
-                self.carry_out(stamp, actions, &mut out);
+                self.push_actions(stamp, actions, &mut out);
             }
         }
         for v in std::mem::take(&mut self.driving)
@@ -895,7 +895,7 @@ impl OperatorSession {
         });
         for v in self.priority.clone() {
             let actions = self.handover.finish(v).unwrap_or_default();
-            self.carry_out(stamp, actions, out);
+            self.push_actions(stamp, actions, out);
         }
     }
 
@@ -994,7 +994,7 @@ impl OperatorSession {
                     }
                     if self.priority.contains(&v) {
                         let actions = self.handover.finish(v).unwrap_or_default();
-                        self.carry_out(stamp, actions, out);
+                        self.push_actions(stamp, actions, out);
                     }
                 }
             }
@@ -1006,7 +1006,7 @@ impl OperatorSession {
                 Some(owner) => match self.handover.request(now, vehicle, owner, stamp) {
                     Ok(actions) => {
                         out.report(Report::RequestSent { vehicle, owner });
-                        self.carry_out(stamp, actions, out);
+                        self.push_actions(stamp, actions, out);
                     }
                     Err(e) => out.refuse(format!("cannot request {vehicle}: {e}")),
                 },
@@ -1019,7 +1019,7 @@ impl OperatorSession {
                 let wanted = matches!(command, Command::Accept { .. });
                 match self.handover.decide(now, vehicle, wanted && ours) {
                     Ok(actions) => {
-                        self.carry_out(stamp, actions, out);
+                        self.push_actions(stamp, actions, out);
                         if wanted && !ours {
                             out.refuse(format!(
                                 "vehicle {vehicle} is no longer ours to give: the request was \
@@ -1031,7 +1031,7 @@ impl OperatorSession {
                 }
             }
             Command::Finish { vehicle } => match self.handover.finish(vehicle) {
-                Ok(actions) => self.carry_out(stamp, actions, out),
+                Ok(actions) => self.push_actions(stamp, actions, out),
                 Err(e) => out.refuse(format!("cannot finish {vehicle}: {e}")),
             },
         }
@@ -1093,7 +1093,7 @@ impl OperatorSession {
                 .any(|(w, s)| w.participant == p && i32::from(s.0) == msg.src_priority)
         });
         let actions = self.handover.on_message_checked(now, msg, verified);
-        self.carry_out(stamp, actions, out);
+        self.push_actions(stamp, actions, out);
     }
 
     /// Whether the vehicle table may hold `vehicle` (see [`MAX_VEHICLES`]), making room if it
@@ -1136,7 +1136,7 @@ impl OperatorSession {
             if self.has_room_for_vehicle(now, info.device_id) {
                 self.vehicles.insert(info.device_id, info);
             }
-            self.carry_out(stamp, actions, out);
+            self.push_actions(stamp, actions, out);
         }
         self.consider_request(now, stamp, out);
     }
@@ -1198,7 +1198,7 @@ impl OperatorSession {
             match self.handover.request(now, vehicle, owner, stamp) {
                 Ok(actions) => {
                     out.report(Report::RequestSent { vehicle, owner });
-                    self.carry_out(stamp, actions, out);
+                    self.push_actions(stamp, actions, out);
                 }
                 Err(e) => out.report(Report::RequestFailed {
                     vehicle,
@@ -1209,7 +1209,8 @@ impl OperatorSession {
         }
     }
 
-    fn carry_out(&mut self, stamp: TimeT, actions: Vec<Action>, out: &mut Out) {
+    /// The handover machine's `actions` as this turn's effects (and prompts) in `out`.
+    fn push_actions(&mut self, stamp: TimeT, actions: Vec<Action>, out: &mut Out) {
         for action in actions {
             match action {
                 Action::Send(msg) => out.push(Effect::Send(msg)),

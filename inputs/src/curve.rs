@@ -143,10 +143,7 @@ impl Shaping {
             x = -x;
         }
         let d = clamp01(self.deadzone).min(0.5);
-        let mag = x.abs();
-        let mag = if mag <= d { 0.0 } else { (mag - d) / (1.0 - d) };
-        let e = clamp01(self.expo);
-        let mag = (1.0 - e) * mag + e * mag * mag * mag;
+        let mag = rove_core::mapping::deadband_expo(x.abs(), d, clamp01(self.expo));
         let mag = mag * clamp01(self.scale);
         clamp_unit(mag.copysign(x))
     }

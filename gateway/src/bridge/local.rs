@@ -81,13 +81,10 @@ impl Local {
         let mut discovery = listener.as_async_status_stream();
         let heard = tokio::select! {
             sample = self.infos.next() => match sample {
-                Some(Ok(s)) => {
-                    let from = dds::sender(s.sample_info());
-                    match s.into_value() {
-                        Sample::Value(KeyedDeviceInfo(info)) => Heard::Info { info, from },
-                        Sample::Dispose(id) => Heard::InfoGone { id, from },
-                    }
-                }
+                Some(Ok(s)) => match dds::device_info(s) {
+                    (Sample::Value(info), from) => Heard::Info { info, from },
+                    (Sample::Dispose(id), from) => Heard::InfoGone { id, from },
+                },
                 Some(Err(e)) => {
                     self.malformed.warn(&e);
                     Heard::Nothing

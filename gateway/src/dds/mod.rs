@@ -43,6 +43,23 @@ use rustdds::{
 use serde::{Deserialize, Serialize};
 use std::net::Ipv4Addr;
 
+/// A DeviceInfo sample as the roles read it: the device's DeviceInfo, or (a dispose) the id
+/// of the device that withdrew it; and the participant it came from.
+pub fn device_info(
+    sample: rustdds::with_key::DataSample<KeyedDeviceInfo>,
+) -> (
+    rustdds::with_key::Sample<DeviceInfo, DeviceId>,
+    ParticipantId,
+) {
+    use rustdds::with_key::Sample;
+    let from = sender(sample.sample_info());
+    let value = match sample.into_value() {
+        Sample::Value(KeyedDeviceInfo(info)) => Sample::Value(info),
+        Sample::Dispose(id) => Sample::Dispose(id),
+    };
+    (value, from)
+}
+
 /// DeviceInfo keyed by `device_id`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(transparent)]
@@ -348,25 +365,12 @@ impl Domain {
         &self,
         me: DeviceId,
     ) -> anyhow::Result<rustdds::with_key::DataReaderCdr<KeyedControlCommand>> {
-        // Every operator writes the same instance (key = the vehicle's id). Stock rustdds kept
-        // one history per instance, not per writer: with the topic's KEEP_LAST 1 a sample from
-        // one writer was overwritten by the next writer's before the loop took it (a new grant
-        // holder's first sample lost to a standing-by owner's PROBE in ~10 % of handovers), and
-        // with 64 a flood pushed the owner's samples out whenever the loop fell 64 samples
-        // behind. rove's rustdds keeps the depth per writer (ROVE-PATCH.md §12): a writer's
-        // samples evict only its own. History depth is not a requested/offered QoS, so
-        // matching is unchanged.
-        //
-        // Best effort, whatever the writers offer (a best-effort reader matches reliable and
-        // best-effort writers alike): a reliable reader hands over no sample while an earlier
-        // one from the same writer is missing, so one lost packet held back the owner's stream
-        // until its repair, often past the command timeout, and the next operator drove for a
-        // moment (measured: 10 owner changes a minute at 10 % loss). A control stream needs
-        // its newest sample, not every sample; a lost release is covered by the sender's
-        // repeats and, at worst, by the command timeout (docs/design.md).
-        //
-        // Partitions: its own, where rove operators send its commands, and the default one,
-        // where a peer that knows no partitions sends (a reader in both matches either).
+        // Every operator writes the same instance (key = the vehicle's id): the history depth
+        // is per writer (ROVE-PATCH.md §12), so a writer's samples evict only its own.
+        // Best effort, whatever the writers offer: a control stream needs its newest sample,
+        // and a reliable reader holds back a stream behind one lost packet (docs/design.md §2,
+        // "ControlCommand's reliability"). Partitions: its own, where rove operators send its
+        // commands, and the default one, where a peer that knows no partitions sends.
         let qos = QosPolicyBuilder::new()
             .reliability(Reliability::BestEffort)
             .history(History::KeepLast {

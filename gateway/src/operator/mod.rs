@@ -276,7 +276,7 @@ impl<N: Net> Role<N> {
         mut self,
         shutdown: impl std::future::Future<Output = ()>,
     ) -> anyhow::Result<()> {
-        let result = self.run(shutdown).await;
+        let result = self.control_loop(shutdown).await;
         self.leave();
         result
     }
@@ -295,7 +295,10 @@ impl<N: Net> Role<N> {
     }
 
     /// The loop: until `shutdown`, or the network is gone (an error).
-    async fn run(&mut self, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+    async fn control_loop(
+        &mut self,
+        shutdown: impl std::future::Future<Output = ()>,
+    ) -> anyhow::Result<()> {
         let clock = self.edges.clock;
         let mut stream_timer = tokio::time::interval(self.config.stream_period);
         stream_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -361,7 +364,7 @@ impl<N: Net> Role<N> {
             };
             let changed =
                 heartbeat_due || effects.iter().any(|e| !matches!(e, Effect::Write { .. }));
-            self.carry_out(effects, reply, &mut selected);
+            self.finish_turn(effects, reply, &mut selected);
             if polled && self.ui.watched() {
                 link = self.link();
             }
@@ -378,7 +381,7 @@ impl<N: Net> Role<N> {
     }
 
     /// Carries out a turn's effects and answers the command that caused them, if one did.
-    fn carry_out(
+    fn finish_turn(
         &mut self,
         effects: Vec<Effect>,
         reply: Option<tokio::sync::oneshot::Sender<Result<(), String>>>,

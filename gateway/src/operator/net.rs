@@ -215,13 +215,10 @@ impl Net for Dds {
         let mut discovery = listener.as_async_status_stream();
         let heard = tokio::select! {
             sample = infos.next() => match sample {
-                Some(Ok(sample)) => {
-                    let from = dds::sender(sample.sample_info());
-                    match sample.into_value() {
-                        Sample::Value(KeyedDeviceInfo(info)) => Heard::Info { info, from },
-                        Sample::Dispose(id) => Heard::InfoGone { id, from },
-                    }
-                }
+                Some(Ok(sample)) => match dds::device_info(sample) {
+                    (Sample::Value(info), from) => Heard::Info { info, from },
+                    (Sample::Dispose(id), from) => Heard::InfoGone { id, from },
+                },
                 Some(Err(e)) => {
                     self.malformed.warn(&e);
                     Heard::Nothing

@@ -4,6 +4,7 @@ use crate::dds::{self, Domain, KeyedControlCommand};
 use crate::runtime::RateLimited;
 use rove_core::arbiter::{Event, ParticipantId};
 use rove_core::freshness::Freshness;
+use rove_core::msg::DeviceId;
 use rustdds::with_key::Sample;
 use std::collections::HashMap;
 use std::time::Duration;
@@ -19,7 +20,7 @@ pub(super) const MAX_BATCH: usize = 256;
 /// earlier ones (a control stream needs the newest command, not every one), and a sample that
 /// queued up longer than the command timeout (`rove_core::freshness`) is dropped and counted.
 pub(super) struct Intake {
-    me: i64,
+    me: DeviceId,
     strengths: HashMap<rustdds::GUID, rove_core::hierarchy::Strength>,
     freshness: Freshness,
     stale: RateLimited,
@@ -29,7 +30,7 @@ pub(super) struct Intake {
 }
 
 impl Intake {
-    pub(super) fn new(me: i64, command_timeout: Duration) -> Intake {
+    pub(super) fn new(me: DeviceId, command_timeout: Duration) -> Intake {
         Intake {
             me,
             strengths: HashMap::new(),

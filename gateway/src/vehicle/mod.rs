@@ -56,6 +56,7 @@ use report::{HungWatch, StatusWatch, Suspects, status_line};
 use rove_core::MonoTime;
 use rove_core::arbiter::{Arbiter, Decision, Event, Output, Owner, Setpoint};
 use rove_core::audit::Why;
+use rove_core::msg::DeviceId;
 use std::path::PathBuf;
 use std::time::Duration;
 use tracing::{info, warn};
@@ -101,7 +102,7 @@ impl Outputs for OutputWorker {
 
 /// The vehicle as its loop holds it: the arbiter, its edges, and what it tells.
 struct Vehicle<N, O> {
-    me: i64,
+    me: DeviceId,
     clock: Clock,
     net: N,
     arbiter: Arbiter,
@@ -222,13 +223,16 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         mut self,
         shutdown: impl std::future::Future<Output = ()>,
     ) -> anyhow::Result<()> {
-        let result = self.run(shutdown).await;
+        let result = self.control_loop(shutdown).await;
         self.stop();
         result
     }
 
     /// The loop: until `shutdown`, or the network is gone (an error).
-    async fn run(&mut self, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+    async fn control_loop(
+        &mut self,
+        shutdown: impl std::future::Future<Output = ()>,
+    ) -> anyhow::Result<()> {
         /// What woke the loop.
         enum Wake {
             Heard(anyhow::Result<Vec<Event>>),
@@ -345,7 +349,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         }
         let decision = self.arbiter.step(clock.now(), event);
         let net = &self.net;
-        carry_out(
+        apply_decision(
             self.me,
             &decision,
             &self.output,
@@ -401,8 +405,10 @@ fn is_down(report: &crate::output::OutputReport) -> bool {
 /// How long stopping waits for the output's safe state.
 const STOP_WAIT: Duration = Duration::from_millis(500);
 
-fn carry_out(
-    me: i64,
+/// Carries out the arbiter's `decision` at once: publishes a new owner, writes the output (and
+/// its log).
+fn apply_decision(
+    me: DeviceId,
     decision: &Decision,
     output: &impl Outputs,
     log: Option<&mut OutputLog>,

@@ -4,7 +4,7 @@
 use crate::output::OutputReport;
 
 use rove_core::arbiter::{Arbiter, Owner, ParticipantId};
-use rove_core::msg::VehicleStatus;
+use rove_core::msg::{DeviceId, VehicleStatus};
 use rove_core::trust::Suspect;
 use std::collections::HashMap;
 use std::time::Duration;
@@ -13,7 +13,7 @@ use tracing::{info, warn};
 /// The vehicle's VehicleStatus as last published: a new one is published when it changes
 /// (checked on every owner change and every heartbeat).
 pub(super) struct StatusWatch {
-    me: i64,
+    me: DeviceId,
     /// The mode last applied.
     pub(super) mode: rove_core::msg::Mode,
     /// `[vehicle] battery_low_pct`.
@@ -28,7 +28,7 @@ pub(super) struct StatusWatch {
 pub(super) const HEALTH_PERIOD: Duration = Duration::from_secs(1);
 
 impl StatusWatch {
-    pub(super) fn new(me: i64, battery_low_pct: u8) -> StatusWatch {
+    pub(super) fn new(me: DeviceId, battery_low_pct: u8) -> StatusWatch {
         StatusWatch {
             me,
             mode: rove_core::msg::Mode::Manual,
@@ -70,7 +70,7 @@ impl StatusWatch {
 /// autopilot that refused the owner's mode; issue 30), the output's health, and what its
 /// device says of the vehicle (battery, autopilot; `battery_low` is the caller's to judge).
 pub(super) fn vehicle_status(
-    me: i64,
+    me: DeviceId,
     arbiter: &Arbiter,
     mode: rove_core::msg::Mode,
     report: &OutputReport,
