@@ -83,6 +83,12 @@ fn link_files(site: &Path) -> String {
     )
 }
 
+/// `rove keys site` for site `name` of the fleet in `fleet`, with proxy certificates for the
+/// ids `proxies` (comma-separated).
+fn site_proxies(fleet: &str, name: &str, proxies: &str) {
+    keys(&["site", "--dir", fleet, "--name", name, "--proxies", proxies]);
+}
+
 /// Milliseconds since `since_us`.
 fn ms_since(since_us: u64, at_us: u64) -> f64 {
     at_us.saturating_sub(since_us) as f64 / 1000.0
@@ -517,25 +523,9 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
         keys(&["add", "--dir", &fleet, "--id", &id.to_string()]);
     }
     // The lab's bridge shows home's operators; home's shows the lab's vehicle and phone.
-    keys(&[
-        "site",
-        "--dir",
-        &fleet,
-        "--name",
-        "lab",
-        "--proxies",
-        "21,22",
-    ]);
+    site_proxies(&fleet, "lab", "21,22");
     let home_proxies = format!("{V},{PHONE}");
-    keys(&[
-        "site",
-        "--dir",
-        &fleet,
-        "--name",
-        "home",
-        "--proxies",
-        &home_proxies,
-    ]);
+    site_proxies(&fleet, "home", &home_proxies);
     let secured = |site: &str| {
         format!(
             "[security]\ndir = {:?}\n",
@@ -672,15 +662,7 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
 fn a_secured_bridge_without_a_proxy_certificate_for_an_id_does_not_start_and_says_why() {
     let sites = Sites::new("sites-secured-missing");
     let fleet = path(&sites.fleet).to_string();
-    keys(&[
-        "site",
-        "--dir",
-        &fleet,
-        "--name",
-        "home",
-        "--proxies",
-        "100",
-    ]);
+    site_proxies(&fleet, "home", "100");
     let home = sites.fleet.join("site-home");
     let start = |peer: &str| {
         let toml = format!(
