@@ -89,6 +89,20 @@ fn site_proxies(fleet: &str, name: &str, proxies: &str) {
     keys(&["site", "--dir", fleet, "--name", name, "--proxies", proxies]);
 }
 
+/// The lab's phone (its config `extra_toml` added) preempts the remote laptop and quits:
+/// control comes back to the remote laptop.
+fn phone_preempts_and_quits(sites: &mut Sites, record: &Path, extra_toml: &str) {
+    let phone = (sites.lab).operator(PHONE, "mobile", "phone", &[V], 2000, extra_toml, &[]);
+    wait_for_output(record, Some(PHONE), 0).expect("the local phone preempts");
+    let quit = wall_us();
+    sites.lab.procs[phone].terminate();
+    let back = wait_for_output(record, Some(REMOTE), quit).expect("back to the remote laptop");
+    eprintln!(
+        "phone quits → remote laptop applied after {:.1} ms",
+        ms_since(quit, back.wall_us)
+    );
+}
+
 /// Milliseconds since `since_us`.
 fn ms_since(since_us: u64, at_us: u64) -> f64 {
     at_us.saturating_sub(since_us) as f64 / 1000.0
@@ -135,17 +149,7 @@ fn a_remote_operator_drives_a_local_phone_preempts_and_control_comes_back_then_a
             .is_some_and(|n| n.ends_with("@lab"))
     );
 
-    let phone = sites
-        .lab
-        .operator(PHONE, "mobile", "phone", &[V], 2000, "", &[]);
-    wait_for_output(&record, Some(PHONE), 0).expect("the local phone preempts");
-    let quit = wall_us();
-    sites.lab.procs[phone].terminate();
-    let back = wait_for_output(&record, Some(REMOTE), quit).expect("back to the remote laptop");
-    eprintln!(
-        "phone quits → remote laptop applied after {:.1} ms",
-        ms_since(quit, back.wall_us)
-    );
+    phone_preempts_and_quits(&mut sites, &record, "");
 
     // The remote laptop is killed: the remote desktop drives within about a command timeout.
     let kill = wall_us();
@@ -570,15 +574,8 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
         "secured remote laptop started → applied after {:.1} ms",
         ms_since(started, out.wall_us)
     );
-    let phone = (sites.lab).operator(PHONE, "mobile", "phone", &[V], 2000, &security(PHONE), &[]);
-    wait_for_output(&record, Some(PHONE), 0).expect("the local phone preempts");
-    let quit = wall_us();
-    sites.lab.procs[phone].terminate();
-    let back = wait_for_output(&record, Some(REMOTE), quit).expect("back to the remote laptop");
-    eprintln!(
-        "phone quits → remote laptop applied after {:.1} ms",
-        ms_since(quit, back.wall_us)
-    );
+    let phone_toml = security(PHONE);
+    phone_preempts_and_quits(&mut sites, &record, &phone_toml);
 
     // A participant at the lab under the lab's proxy certificate of home's operator 22 (level
     // remote), claiming to be a mobile phone: the vehicle believes the certificate, not the
