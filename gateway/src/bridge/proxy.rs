@@ -79,7 +79,7 @@ impl Proxy {
             security: security.map(std::path::Path::to_path_buf),
             ..common.clone()
         };
-        let node = Node::join(&common, info.device_type, false)?;
+        let node = Node::join(&common.node(), info.device_type, false)?;
         let (status, reader) = match info.device_type {
             DeviceType::Vehicle => {
                 let status = node.domain.vehicle_status_writer()?;

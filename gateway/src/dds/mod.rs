@@ -26,7 +26,7 @@
 mod node;
 mod routes;
 
-pub use node::{Discovery, Node, certifier, sender};
+pub use node::{Discovery, Node, NodeSettings, certifier, sender};
 pub use routes::{Route, Routes, VEHICLE_PARTITION_PREFIX, vehicle_partition};
 
 use anyhow::Context;

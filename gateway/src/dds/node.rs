@@ -3,7 +3,6 @@
 //! events as the roles read them ([`Discovery`]).
 
 use super::{Domain, KeyedDeviceInfo, participant_id, strength_of, writer_id};
-use crate::config::Common;
 use rove_core::arbiter::ParticipantId;
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, DeviceType, topic_names};
@@ -84,7 +83,11 @@ impl Node {
     /// # Errors
     /// The security files are incomplete or another device's, or rustdds cannot create the
     /// participant, a topic or the writer.
-    pub fn join(common: &Common, kind: DeviceType, any_certificate: bool) -> anyhow::Result<Node> {
+    pub fn join(
+        common: &NodeSettings,
+        kind: DeviceType,
+        any_certificate: bool,
+    ) -> anyhow::Result<Node> {
         let certifier = certifier(common, any_certificate)?;
         let domain = Domain::join(
             common.domain_id,
@@ -249,6 +252,24 @@ fn lost_why(reason: &rustdds::LostReason) -> String {
     }
 }
 
+/// Who a node is and where it joins: what [`Node::join`] needs. The DDS layer owns it; the
+/// config fills it (`config::Common::node`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeSettings {
+    /// Device id.
+    pub id: rove_core::msg::DeviceId,
+    /// Device name.
+    pub name: String,
+    /// DDS domain.
+    pub domain_id: u16,
+    /// Interfaces DDS is confined to.
+    pub interfaces: Vec<std::net::Ipv4Addr>,
+    /// The SPDP period.
+    pub presence: std::time::Duration,
+    /// The DDS Security directory, if the node joins authenticated.
+    pub security: Option<std::path::PathBuf>,
+}
+
 /// Under `[security]`: checks this device's DDS Security directory and returns who may speak
 /// for which id (a participant only for the id in its certificate, `certs::FleetIdentity`).
 /// `None` without `[security]`. `any_id` (a test hook) lets a device run with another device's
@@ -257,7 +278,7 @@ fn lost_why(reason: &rustdds::LostReason) -> String {
 /// # Errors
 /// The directory is incomplete, the certificate is another device's, or this build has no
 /// security.
-pub fn certifier(common: &Common, any_id: bool) -> anyhow::Result<Option<Certifier>> {
+pub fn certifier(common: &NodeSettings, any_id: bool) -> anyhow::Result<Option<Certifier>> {
     let Some(dir) = &common.security else {
         tracing::warn!(
             "no [security] in the config: participants are not authenticated, device ids are \

@@ -128,7 +128,11 @@ impl Dds {
         request: Option<DeviceId>,
         any_certificate: bool,
     ) -> anyhow::Result<Dds> {
-        let node = Node::join(&config.common, DeviceType::Controller, any_certificate)?;
+        let node = Node::join(
+            &config.common.node(),
+            DeviceType::Controller,
+            any_certificate,
+        )?;
         let domain = &node.domain;
         let mut writers = Writers {
             strength: config.strength,

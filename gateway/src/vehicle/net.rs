@@ -66,7 +66,7 @@ impl Dds {
     /// The participant, a topic, a reader or writer cannot be created.
     pub(crate) fn join(config: &VehicleConfig) -> anyhow::Result<Dds> {
         let me = config.common.id;
-        let node = Node::join(&config.common, DeviceType::Vehicle, false)?;
+        let node = Node::join(&config.common.node(), DeviceType::Vehicle, false)?;
         let domain = &node.domain;
         let status = domain
             .vehicle_status_writer()
