@@ -318,6 +318,16 @@ fn check_package(deb: &Path) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("unexpected argument"), "{stderr}");
+    // Nor be told to stall its control loop on SIGUSR1 (issue 45: the packages carry no test
+    // hook).
+    let out = run_any_arch(&binary)
+        .args(["vehicle", "--test-stall-on-sigusr1", "100", "-c"])
+        .arg(root.join("etc/rove/vehicle.toml"))
+        .output()
+        .expect("run the packaged rove");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("unexpected argument"), "{stderr}");
 }
 
 /// Runs `postinst configure` twice (install, then as an upgrade) with a copy of `/etc` mounted

@@ -37,8 +37,11 @@ enum Command {
         /// Append every output (apply / safe, owner, values, times) as JSON lines to this file.
         #[arg(long)]
         record: Option<std::path::PathBuf>,
-        /// Test hook, hidden from --help: SIGUSR1 blocks the control loop for MS milliseconds
-        /// (as a hung device write would), so a test can see the watchdog keep-alives stop.
+        /// Test hook, hidden from --help and only in debug builds (what `cargo test` runs; a
+        /// release build such as the package has no such flag): SIGUSR1 blocks the control
+        /// loop for MS milliseconds (as a hung device write would), so a test can see the
+        /// watchdog keep-alives stop.
+        #[cfg(debug_assertions)]
         #[arg(long, hide = true, value_name = "MS")]
         test_stall_on_sigusr1: Option<u64>,
     },
@@ -220,8 +223,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Vehicle {
             config,
             record,
+            #[cfg(debug_assertions)]
             test_stall_on_sigusr1,
-        } => vehicle_cmd(config, record, test_stall_on_sigusr1),
+        } => {
+            #[cfg(not(debug_assertions))]
+            let test_stall_on_sigusr1 = None;
+            vehicle_cmd(config, record, test_stall_on_sigusr1)
+        }
         Command::Failsafe { config } => failsafe_cmd(&config),
         Command::Audit {
             vehicle,
