@@ -633,6 +633,14 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
             .then_some(())
             .ok_or(log)
     });
+    // Home's bridge, started again with the new list, does not start (a config error).
+    let home_config = sites.home.dir.join("bridge-home-0.toml");
+    let out = (sites.home.command(&["bridge", "-c", path(&home_config)]))
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(78), "{err}");
+    assert!(err.contains("site home's certificate is revoked"), "{err}");
 
     // A bridge with another fleet's certificate for the name home: refused in the handshake.
     let stranger = sites.home.dir.join("stranger");
@@ -672,8 +680,10 @@ fn a_secured_bridge_without_a_proxy_certificate_for_an_id_does_not_start_and_say
         let out = (sites.home.command(&["bridge", "-c", path(&config)]))
             .output()
             .expect("run");
-        assert!(!out.status.success());
-        String::from_utf8_lossy(&out.stderr).into_owned()
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        // A config error: systemd does not restart it (RestartPreventExitStatus=78).
+        assert_eq!(out.status.code(), Some(78), "{err}");
+        err
     };
     let err = start(&sites::peer("lab", &[V, PHONE], &[]));
     assert!(

@@ -360,6 +360,8 @@ fn bridge_cmd(path: &std::path::Path) -> anyhow::Result<()> {
     let config = config::load_bridge(path).map_err(bad_config)?;
     // Missing or unreadable keys are a config error (exit 78): restarting cannot help.
     config.link.check_files().map_err(bad_config)?;
+    // So are a revoked site and a secured site's missing proxy certificates.
+    rove_gateway::bridge::check(&config).map_err(bad_config)?;
     let filter = match config.common.log_filter.as_deref() {
         Some(f) if f.contains("zenoh") => f.to_string(),
         Some(f) => format!("{f},zenoh=warn"),

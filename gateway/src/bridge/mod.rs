@@ -58,14 +58,27 @@ const TICK: Duration = Duration::from_millis(500);
 /// Most devices of other sites proxied here, and most local devices followed.
 const MAX_DEVICES: usize = 1024;
 
+/// What `rove bridge` checks before it starts: this site is not revoked, and on a secured site
+/// its DDS identities are complete ([`run`] checks them again).
+///
+/// # Errors
+/// This site is revoked, the revoked sites' list is not the fleet CA's, or a secured site's
+/// directory is incomplete: a config error, which a restart cannot fix.
+pub fn check(config: &BridgeConfig) -> anyhow::Result<()> {
+    let revoked = Revocations::load(&config.link, &config.policy.me)?;
+    Secured::load(&config.common, &revoked.apply(config.policy.clone()))?;
+    Ok(())
+}
+
 /// Runs the bridge until `shutdown`. Needs a multi-thread runtime (Zenoh's rule).
 ///
 /// Under systemd (see [`crate::sdnotify`]): `READY=1` once the DDS participant and the link
 /// are open, a `STATUS=` line whenever the sites up or the device counts change, keep-alives
 /// from the loop, `STOPPING=1` before the proxies leave.
 ///
-/// The link's certificate files are checked before ([`ZenohLink::check_files`]): `rove bridge`
-/// does so ahead of the runtime, so that a missing one is a config error (exit 78).
+/// The link's certificate files are checked before ([`ZenohLink::check_files`]), and so is
+/// [`check`]: `rove bridge` does so ahead of the runtime, so that a missing file, a revoked site
+/// or a missing proxy certificate is a config error (exit 78).
 ///
 /// # Errors
 /// The DDS participant or the link cannot be opened, or a DDS stream ended.
