@@ -9,6 +9,7 @@
 use rove_console::model::{DeviceKind, InputStatus, Outcome};
 use rove_console::{ApiSocket, Command, CommandRequest, ConsoleState, Event, Identity, Stamped};
 use rove_core::MonoTime;
+use rove_core::handover::Prompt;
 use rove_core::hierarchy::{DeviceClass, Level, Strength};
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -76,10 +77,10 @@ async fn run() -> std::io::Result<()> {
             }
             _ = &mut ask_at, if !asked => {
                 asked = true;
-                emit(Event::RequestIncoming {
-                    vehicle: 100, from: 7, src_priority: 340,
+                emit(Event::RequestIncoming(Prompt {
+                    vehicle: 100, requester: 7, src_priority: 340,
                     deadline: clock() + Duration::from_secs(10),
-                });
+                }));
             }
             request = requests.recv() => {
                 let Some(CommandRequest { command, reply, .. }) = request else { break };

@@ -11,6 +11,7 @@ use crate::model::{Event, Stamped};
 use crate::standing::Standing;
 use crate::view::{autopilot_text, battery_text, mode_name};
 use rove_core::MonoTime;
+use rove_core::handover::Prompt;
 use rove_core::msg::{DeviceId, Mode, VehicleHealth};
 use serde_json::{Map, Value, json};
 
@@ -314,12 +315,12 @@ pub fn event_json(stamped: &Stamped) -> Option<String> {
             "event": "driving", "driving": driving, "holding": holding,
             "standby": standby, "paused": paused,
         }),
-        Event::RequestIncoming {
+        Event::RequestIncoming(Prompt {
             vehicle,
-            from,
+            requester: from,
             src_priority,
             deadline,
-        } => json!({
+        }) => json!({
             "event": "request_incoming", "vehicle": vehicle, "from": from,
             "src_priority": src_priority, "deadline_ms": millis(*deadline),
             "timeout_ms": millis(*deadline).saturating_sub(t_ms),
@@ -471,12 +472,12 @@ mod tests {
         let at = MonoTime::from_millis(1_500);
         let line = event_json(&Stamped {
             at,
-            event: Event::RequestIncoming {
+            event: Event::RequestIncoming(Prompt {
                 vehicle: 100,
-                from: 7,
+                requester: 7,
                 src_priority: 340,
                 deadline: MonoTime::from_millis(11_500),
-            },
+            }),
         });
         let v: Value = serde_json::from_str(line.as_deref().unwrap_or("")).unwrap_or_default();
         assert_eq!(v["event"], "request_incoming");

@@ -240,6 +240,7 @@ mod tests {
     use super::*;
     use crate::model::tests::{me, ms, seen};
     use crate::model::{DeviceKind, Event};
+    use rove_core::handover::Prompt;
 
     fn key(c: char) -> KeyEvent {
         KeyEvent::from(KeyCode::Char(c))
@@ -383,12 +384,12 @@ mod tests {
     fn incoming(s: &mut ConsoleState, at: u64) {
         s.apply(
             ms(at),
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle: 100,
-                from: 7,
+                requester: 7,
                 src_priority: 340,
                 deadline: ms(at + 10_000),
-            },
+            }),
         );
     }
 

@@ -7,6 +7,7 @@
 //! server keeps its own mirror of it to greet late clients with a snapshot.
 
 use rove_core::MonoTime;
+use rove_core::handover::Prompt;
 use rove_core::hierarchy::{DeviceClass, Level, Strength};
 use rove_core::msg::{DeviceId, DeviceType, Mode, MovementCommand, OutputState, VehicleHealth};
 use std::collections::{BTreeMap, VecDeque};
@@ -182,16 +183,7 @@ pub enum Event {
         paused: Vec<DeviceId>,
     },
     /// Someone asks us for a vehicle we own ([`rove_core::handover::Action::AskOperator`]).
-    RequestIncoming {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// The requester.
-        from: DeviceId,
-        /// Its priority.
-        src_priority: i32,
-        /// When the request is refused automatically (the consent timeout).
-        deadline: MonoTime,
-    },
+    RequestIncoming(Prompt),
     /// The consent prompt for `vehicle` closed ([`rove_core::handover::Action::PromptClosed`]).
     PromptClosed {
         /// The vehicle.
@@ -500,12 +492,12 @@ impl ConsoleState {
                     }
                 }
             }
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle,
-                from,
+                requester: from,
                 src_priority,
                 deadline,
-            } => self.request_incoming(now, vehicle, from, src_priority, deadline),
+            }) => self.request_incoming(now, vehicle, from, src_priority, deadline),
             Event::PromptClosed { vehicle, outcome } => {
                 if let Some(req) = self.incoming.remove(&vehicle) {
                     let text = format!(
@@ -765,12 +757,12 @@ impl ConsoleState {
         for req in self.incoming.values() {
             events.push(Stamped {
                 at: req.opened,
-                event: Event::RequestIncoming {
+                event: Event::RequestIncoming(Prompt {
                     vehicle: req.vehicle,
-                    from: req.from,
+                    requester: req.from,
                     src_priority: req.src_priority,
                     deadline: req.deadline,
-                },
+                }),
             });
         }
         for (&vehicle, req) in &self.outgoing {
@@ -921,12 +913,12 @@ pub(crate) mod tests {
         });
         s.apply(
             ms(5),
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle: 101,
-                from: 2,
+                requester: 2,
                 src_priority: 330,
                 deadline: ms(10_005),
-            },
+            }),
         );
         assert_eq!(s.confirm, None);
         assert_eq!(s.prompt().map(|r| r.from), Some(2));
@@ -991,12 +983,12 @@ pub(crate) mod tests {
         );
         s.apply(
             ms(1),
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle: 101,
-                from: 2,
+                requester: 2,
                 src_priority: 330,
                 deadline: ms(10_000),
-            },
+            }),
         );
         let mut copy = ConsoleState::new(me(), Duration::from_secs(3));
         for e in s.snapshot() {

@@ -500,6 +500,7 @@ mod tests {
     use crate::model::{Event, InputStatus};
     use ratatui::Terminal;
     use ratatui::backend::TestBackend;
+    use rove_core::handover::Prompt;
     use rove_core::msg::MovementCommand;
 
     /// Wide enough for every column at its width (a narrower terminal shrinks them).
@@ -642,12 +643,12 @@ mod tests {
         let mut s = script();
         s.apply(
             ms(1_000),
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle: 100,
-                from: 7,
+                requester: 7,
                 src_priority: 340,
                 deadline: ms(11_000),
-            },
+            }),
         );
         let text = screen(&s, ms(1_000));
         assert!(text.contains("CONTROL REQUEST"), "{text}");
@@ -960,12 +961,12 @@ mod tests {
         let mut s = script();
         s.apply(
             ms(1_000),
-            Event::RequestIncoming {
+            Event::RequestIncoming(Prompt {
                 vehicle: 100,
-                from: 7,
+                requester: 7,
                 src_priority: 340,
                 deadline: ms(11_000),
-            },
+            }),
         );
         for (w, h) in [(1, 1), (10, 5), (40, 12), (80, 24)] {
             let Ok(mut terminal) = Terminal::new(TestBackend::new(w, h)) else {

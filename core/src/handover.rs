@@ -184,6 +184,20 @@ impl Outcome {
     }
 }
 
+/// A request a person must decide: someone asks us for a vehicle we drive. One type for the
+/// handover machine ([`Action::AskOperator`]), the session's report and the consoles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Prompt {
+    /// The vehicle.
+    pub vehicle: DeviceId,
+    /// Who asks.
+    pub requester: DeviceId,
+    /// Its priority.
+    pub src_priority: i32,
+    /// When the request is refused automatically (the consent timeout).
+    pub deadline: MonoTime,
+}
+
 /// What the operator role must do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Action {
@@ -191,16 +205,7 @@ pub enum Action {
     Send(RequestControl),
     /// Show the consent prompt: `requester` asks for `vehicle`; refused automatically at
     /// `deadline`.
-    AskOperator {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Who asks.
-        requester: DeviceId,
-        /// Its priority.
-        src_priority: i32,
-        /// When the prompt times out.
-        deadline: MonoTime,
-    },
+    AskOperator(Prompt),
     /// Close the prompt for `vehicle`.
     PromptClosed {
         /// The vehicle.
@@ -746,12 +751,12 @@ impl Handover {
                             deadline,
                         },
                     );
-                    vec![Action::AskOperator {
+                    vec![Action::AskOperator(Prompt {
                         vehicle,
                         requester,
                         src_priority: msg.src_priority,
                         deadline,
-                    }]
+                    })]
                 }
             },
             // A FINISH ends the handover it names (requester and stamp): a late FINISH of an

@@ -33,7 +33,7 @@
 
 use crate::adapter::{InputAction, InputEvent};
 use crate::arbiter::{Event as ArbiterEvent, ParticipantId, WriterId};
-use crate::handover::{Action, Handover, HandoverConfig, Outcome};
+use crate::handover::{Action, Handover, HandoverConfig, Outcome, Prompt};
 use crate::hierarchy::Strength;
 use crate::msg::{
     CommandType, ControlCommand, DeviceId, DeviceInfo, DeviceType, Mode, MovementCommand,
@@ -339,16 +339,7 @@ pub enum Report {
         reason: String,
     },
     /// Someone asks us for a vehicle we own and a person must decide.
-    Prompt {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Who asks.
-        requester: DeviceId,
-        /// Its priority.
-        src_priority: i32,
-        /// When the request is refused automatically.
-        deadline: MonoTime,
-    },
+    Prompt(Prompt),
     /// The consent prompt for `vehicle` closed.
     PromptClosed {
         /// The vehicle.
@@ -436,7 +427,7 @@ impl Report {
             | Report::Released { vehicle }
             | Report::RequestSent { vehicle, .. }
             | Report::RequestFailed { vehicle, .. }
-            | Report::Prompt { vehicle, .. }
+            | Report::Prompt(Prompt { vehicle, .. })
             | Report::PromptClosed { vehicle, .. }
             | Report::RequestEnded { vehicle, .. }
             | Report::GrantStarted { vehicle }
@@ -480,12 +471,12 @@ impl fmt::Display for Report {
                 owner,
                 reason,
             } => write!(f, "cannot request vehicle {vehicle} from {owner}: {reason}"),
-            Report::Prompt {
+            Report::Prompt(Prompt {
                 vehicle,
                 requester,
                 src_priority,
                 ..
-            } => write!(
+            }) => write!(
                 f,
                 "{requester} (priority {src_priority}) requests vehicle {vehicle}: consent needed \
                  (accept / refuse; refused at the timeout)"
@@ -1214,19 +1205,9 @@ impl OperatorSession {
         for action in actions {
             match action {
                 Action::Send(msg) => out.push(Effect::Send(msg)),
-                Action::AskOperator {
-                    vehicle,
-                    requester,
-                    src_priority,
-                    deadline,
-                } => {
-                    self.prompt = Some(vehicle);
-                    out.report(Report::Prompt {
-                        vehicle,
-                        requester,
-                        src_priority,
-                        deadline,
-                    });
+                Action::AskOperator(prompt) => {
+                    self.prompt = Some(prompt.vehicle);
+                    out.report(Report::Prompt(prompt));
                 }
                 Action::PromptClosed { vehicle, outcome } => {
                     if self.prompt == Some(vehicle) {

@@ -362,12 +362,12 @@ fn a_weaker_requester_prompts_and_the_person_decides() {
     assert!(sent(&out).is_empty());
     assert!(matches!(
         out.as_slice(),
-        [Effect::Report(Report::Prompt {
+        [Effect::Report(Report::Prompt(Prompt {
             vehicle: V,
             requester: OTHER,
             src_priority: 130,
             ..
-        })]
+        }))]
     ));
     // The accept button acts on the open prompt.
     let out = step(
@@ -748,10 +748,10 @@ fn a_priority_that_discovery_does_not_confirm_is_put_to_a_person() {
     assert!(sent(&out).is_empty(), "not auto-accepted: {out:?}");
     assert!(matches!(
         out[..],
-        [Effect::Report(Report::Prompt {
+        [Effect::Report(Report::Prompt(Prompt {
             requester: OTHER,
             ..
-        })]
+        }))]
     ));
     assert!(s.streams_to(V));
 }
@@ -885,7 +885,7 @@ fn a_prompt_answered_after_the_vehicle_is_no_longer_ours_refuses() {
     step(&mut s, 1, vehicle(V, ME));
     // A person must decide (the priority is unconfirmed)…
     let out = step(&mut s, 2, request_from(OTHER, 340, 2));
-    assert!(matches!(out[..], [Effect::Report(Report::Prompt { .. })]));
+    assert!(matches!(out[..], [Effect::Report(Report::Prompt(_))]));
     // …but meanwhile the vehicle went to someone else: accepting would hand out a grant the
     // vehicle never honours.
     step(&mut s, 3, vehicle(V, 13));

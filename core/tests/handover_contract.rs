@@ -7,7 +7,7 @@ mod common;
 use common::{VEHICLE, command, ms, pw, w};
 use rove_core::arbiter::{Arbiter, ArbiterConfig, Event, ParticipantId, WriterId};
 use rove_core::handover::{
-    Action, AutoAccept, Handover, HandoverConfig, HandoverSettings, Outcome, Refusal,
+    Action, AutoAccept, Handover, HandoverConfig, HandoverSettings, Outcome, Prompt, Refusal,
 };
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{Ack, CommandType, RequestControl, TimeT};
@@ -248,12 +248,12 @@ fn asks_the_operator_when_priority_is_not_higher_and_accepts_on_consent() {
     let actions = a.on_message(ms(0), &msg(B, Ack::Request, 220, STAMP));
     assert_eq!(
         actions,
-        [Action::AskOperator {
+        [Action::AskOperator(Prompt {
             vehicle: VEHICLE,
             requester: B,
             src_priority: 220,
             deadline: ms(10_000)
-        }]
+        })]
     );
     let actions = a.decide(ms(10), VEHICLE, true).expect("prompt open");
     assert_eq!(
@@ -306,7 +306,7 @@ fn policy_always_and_never() {
     assert_eq!(sent(&actions), [(B, Ack::Accept)]);
     let mut a = owner_a(AutoAccept::Never);
     let actions = a.on_message(ms(0), &msg(B, Ack::Request, 65535, STAMP));
-    assert!(matches!(actions[..], [Action::AskOperator { .. }]));
+    assert!(matches!(actions[..], [Action::AskOperator(_)]));
 }
 
 #[test]
@@ -322,7 +322,7 @@ fn a_resent_request_does_not_prompt_twice_and_gets_the_same_answer_again() {
     );
     // A *new* request (new stamp) asks the person again.
     let actions = a.on_message(ms(2000), &msg(B, Ack::Request, 120, TimeT(2_000)));
-    assert!(matches!(actions[..], [Action::AskOperator { .. }]));
+    assert!(matches!(actions[..], [Action::AskOperator(_)]));
 }
 
 #[test]
@@ -419,7 +419,7 @@ fn a_grant_holder_is_always_asked_before_its_grant_is_passed_on() {
     let actions = b.on_message(ms(2), &to_b);
     assert!(matches!(
         actions[..],
-        [Action::AskOperator { requester: C, .. }]
+        [Action::AskOperator(Prompt { requester: C, .. })]
     ));
     // On consent the grant passes on: B stops its priority stream and yields.
     let actions = b.decide(ms(10), VEHICLE, true).expect("prompt open");

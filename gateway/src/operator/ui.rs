@@ -84,17 +84,7 @@ impl Ui {
         let event = match report {
             Report::Selected { vehicle } => Event::Selected { vehicle },
             Report::RequestSent { vehicle, owner } => Event::RequestSent { vehicle, owner },
-            Report::Prompt {
-                vehicle,
-                requester,
-                src_priority,
-                deadline,
-            } => Event::RequestIncoming {
-                vehicle,
-                from: requester,
-                src_priority,
-                deadline,
-            },
+            Report::Prompt(prompt) => Event::RequestIncoming(prompt),
             Report::PromptClosed { vehicle, outcome } => Event::PromptClosed { vehicle, outcome },
             Report::RequestEnded { vehicle, outcome } => Event::RequestEnded { vehicle, outcome },
             Report::Untrusted(suspect) => Event::Notice {
