@@ -32,7 +32,7 @@ use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
 use rove_core::site::{Key, Policy, SiteName, Subject, wire};
 use rustdds::GUID;
 use rustdds::with_key::Sample;
-use secured::Secured;
+use secured::{Secured, identities};
 use std::collections::{BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -65,9 +65,7 @@ const MAX_DEVICES: usize = 1024;
 /// This site is revoked, the revoked sites' list is not the fleet CA's, or a secured site's
 /// directory is incomplete: a config error, which a restart cannot fix.
 pub fn check(config: &BridgeConfig) -> anyhow::Result<()> {
-    let revoked = Revocations::load(&config.link, &config.policy.me)?;
-    Secured::load(&config.common, &revoked.apply(config.policy.clone()))?;
-    Ok(())
+    identities(config).map(|_| ())
 }
 
 /// Runs the bridge until `shutdown`. Needs a multi-thread runtime (Zenoh's rule).
@@ -89,10 +87,8 @@ pub async fn run(
     mut notify: Notifier,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
-    let revoked = Revocations::load(&config.link, &config.policy.me)?;
-    let policy = revoked.apply(config.policy.clone());
-    let secured = Secured::load(&config.common, &policy)?.map(std::sync::Arc::new);
-    let mut local = Local::join(&config.common, secured.as_deref().map(Secured::own))?;
+    let (revoked, policy, secured) = identities(&config)?;
+    let mut local = Local::join(&config.common, secured.as_ref().map(Secured::own))?;
     let (link, mut arrived) = Link::open(&policy, &config.link).await?;
     let (read_tx, mut read) = mpsc::channel(4096);
     let policy = &policy;
@@ -114,14 +110,14 @@ pub async fn run(
         watchdog_keepalive_ms = notify.watchdog_period().map(|p| p.as_millis() as u64),
         "bridge started"
     );
+    let identities = (revoked, secured);
     let mut bridge = Bridge::new(
         config.common.clone(),
         policy.clone(),
         link,
         read_tx,
-        revoked,
+        identities,
     );
-    bridge.secured = secured;
     let mut tick = tokio::time::interval(TICK);
     let mut keepalive = notify.keepalive_timer();
     let mut shown = bridge.counts();
@@ -192,7 +188,7 @@ struct Bridge {
     /// Sites just up, shown everything again at these instants.
     reshow: HashMap<SiteName, Instant>,
     /// A secured site's identities (`[security]`).
-    secured: Option<std::sync::Arc<Secured>>,
+    secured: Option<Secured>,
     /// The revoked sites.
     revoked: Revocations,
 }
@@ -217,7 +213,7 @@ impl Bridge {
         policy: Policy,
         link: Link,
         read_tx: mpsc::Sender<Read>,
-        revoked: Revocations,
+        (revoked, secured): (Revocations, Option<Secured>),
     ) -> Bridge {
         Bridge {
             common,
@@ -236,7 +232,7 @@ impl Bridge {
             dropped_seen: 0,
             missing: Instant::now(),
             reshow: HashMap::new(),
-            secured: None,
+            secured,
             revoked,
         }
     }

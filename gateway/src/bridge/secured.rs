@@ -3,11 +3,22 @@
 //! certificate, and carries a local device's messages only from the participant holding the
 //! device's own certificate.
 
-use crate::config::Common;
+use super::revoked::Revocations;
+use crate::config::{BridgeConfig, Common};
 use rove_core::arbiter::ParticipantId;
 use rove_core::msg::DeviceId;
 use rove_core::site::Policy;
 use std::path::Path;
+
+/// The revoked sites, the policy without them, and a secured site's identities.
+pub(super) fn identities(
+    config: &BridgeConfig,
+) -> anyhow::Result<(Revocations, Policy, Option<Secured>)> {
+    let revoked = Revocations::load(&config.link, &config.policy.me)?;
+    let policy = revoked.apply(config.policy.clone());
+    let secured = Secured::load(&config.common, &policy)?;
+    Ok((revoked, policy, secured))
+}
 
 /// A secured bridge's identities, checked at start.
 #[derive(Debug)]

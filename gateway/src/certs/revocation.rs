@@ -141,9 +141,22 @@ pub(super) fn names(list: Option<&X509Crl>, pem: &[u8]) -> anyhow::Result<bool> 
 
 /// Copies the fleet's list into the device directory `out`.
 pub(super) fn copy_to(dir: &Path, out: &Path) -> anyhow::Result<()> {
-    let target = out.join(CRL_FILE);
+    copy_fleet_file(dir, out, CRL_FILE)
+}
+
+/// Copies the fleet's file `name` into `out`, replacing the copy there.
+fn copy_fleet_file(dir: &Path, out: &Path, name: &str) -> anyhow::Result<()> {
+    let target = out.join(name);
     let _ = std::fs::remove_file(&target);
-    write(&target, &fleet_file(dir, CRL_FILE)?, false)
+    write(&target, &fleet_file(dir, name)?, false)
+}
+
+/// A secured site's DDS identity directories in `site` (`DIR/site-NAME`): the bridge's own
+/// (`dds/`) and each proxy's (`proxies/ID/`), whether issued or not.
+fn site_identities(site: &Path) -> impl Iterator<Item = PathBuf> {
+    let proxies = std::fs::read_dir(site.join("proxies"));
+    std::iter::once(site.join("dds"))
+        .chain((proxies.into_iter().flatten().flatten()).map(|e| e.path()))
 }
 
 /// What `rove keys revoke` did.
@@ -195,18 +208,12 @@ fn distribute(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         if !is_site || !site.path().join("ca.cert.pem").exists() {
             continue;
         }
-        let proxies = std::fs::read_dir(site.path().join("proxies"));
-        let identities = std::iter::once(site.path().join("dds"))
-            .chain(proxies.into_iter().flatten().flatten().map(|e| e.path()));
-        for out in identities.filter(|d| d.join("cert.pem").exists()) {
+        for out in site_identities(&site.path()).filter(|d| d.join("cert.pem").exists()) {
             copy_to(dir, &out)?;
             copied.push(out);
         }
-        let names = dir.join(REVOKED_SITES_FILE);
-        if names.exists() {
-            let target = site.path().join(REVOKED_SITES_FILE);
-            let _ = std::fs::remove_file(&target);
-            write(&target, &std::fs::read(&names)?, false)?;
+        if dir.join(REVOKED_SITES_FILE).exists() {
+            copy_fleet_file(dir, &site.path(), REVOKED_SITES_FILE)?;
             copied.push(site.path());
         }
     }
@@ -236,10 +243,8 @@ pub fn revoke_site(dir: &Path, name: &rove_core::site::SiteName) -> anyhow::Resu
     if !names.insert(name.to_string()) {
         bail!("site {name} is revoked already");
     }
-    let proxies = std::fs::read_dir(site.join("proxies"));
-    let files = [site.join("cert.pem"), site.join("dds/cert.pem")]
-        .into_iter()
-        .chain((proxies.into_iter().flatten().flatten()).map(|e| e.path().join("cert.pem")));
+    let files = std::iter::once(site.join("cert.pem"))
+        .chain(site_identities(&site).map(|d| d.join("cert.pem")));
     let mut certs = Vec::new();
     for file in files.filter(|f| f.exists()) {
         let pem = std::fs::read(&file).with_context(|| format!("read {}", file.display()))?;

@@ -65,12 +65,23 @@ pub(crate) struct SecurityPlugins {
 /// this process decodes from decodes, until that participant is unregistered (dropped or
 /// lost): the state key material out of step leaves a pair in, forced. Its next session
 /// decodes. Release builds decode everything.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 enum TestDeaf {
-  #[default]
+  /// No hook (a release build, or the variable unset): decided once, at start.
+  Off,
   Unarmed,
   Deaf(GuidPrefix),
   Done,
+}
+
+impl TestDeaf {
+  fn from_env() -> TestDeaf {
+    if cfg!(debug_assertions) && std::env::var_os("ROVE_TEST_DEAF_TO_FIRST_PEER").is_some() {
+      TestDeaf::Unarmed
+    } else {
+      TestDeaf::Off
+    }
+  }
 }
 
 impl SecurityPlugins {
@@ -95,17 +106,16 @@ impl SecurityPlugins {
       submessage_not_protected: HashSet::new(),
       payload_not_protected: HashSet::new(),
       undecodable: Default::default(),
-      test_deaf: Default::default(),
+      test_deaf: TestDeaf::from_env(),
     }
   }
 
   /// The test hook ([`TestDeaf`]): whether a message of `source` is to fail to decode.
+  /// The hook arms on a peer we did a handshake with: never ourselves, whose loopback also
+  /// decodes here.
   fn deaf_for_test(&mut self, source: &GuidPrefix) -> bool {
-    if !cfg!(debug_assertions) {
-      return false;
-    }
     match self.test_deaf {
-      TestDeaf::Unarmed if std::env::var_os("ROVE_TEST_DEAF_TO_FIRST_PEER").is_some() => {
+      TestDeaf::Unarmed if self.handshake_handle_cache.contains_key(source) => {
         log::warn!("test hook: no message of participant {source:?} decodes, until it is dropped");
         self.test_deaf = TestDeaf::Deaf(*source);
         true
@@ -1355,10 +1365,7 @@ impl SecurityPlugins {
     encoded_message: Message,
     source_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<DecodeOutcome<Message>> {
-    // (A peer we did a handshake with: never ourselves, whose loopback also decodes here.)
-    if self.handshake_handle_cache.contains_key(source_guid_prefix)
-      && self.deaf_for_test(source_guid_prefix)
-    {
+    if self.deaf_for_test(source_guid_prefix) {
       let outcome = Err(security_error("test hook: deaf to this participant"));
       return self.count_decode(source_guid_prefix, outcome);
     }
@@ -1388,10 +1395,7 @@ impl SecurityPlugins {
     encoded_rtps_submessage: (SecurePrefix, Submessage, SecurePostfix),
     source_guid_prefix: &GuidPrefix,
   ) -> SecurityResult<DecodeOutcome<DecodedSubmessage>> {
-    // (A peer we did a handshake with: never ourselves, whose loopback also decodes here.)
-    if self.handshake_handle_cache.contains_key(source_guid_prefix)
-      && self.deaf_for_test(source_guid_prefix)
-    {
+    if self.deaf_for_test(source_guid_prefix) {
       let outcome = Err(security_error("test hook: deaf to this participant"));
       return self.count_decode(source_guid_prefix, outcome);
     }
