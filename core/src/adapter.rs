@@ -10,6 +10,7 @@ use crate::error::LinkError;
 use crate::msg::{Mode, MovementCommand};
 use crate::time::MonoTime;
 use std::fmt;
+use std::path::PathBuf;
 use std::time::Duration;
 
 /// Health of an output link or input device, for status displays.
@@ -32,6 +33,96 @@ impl fmt::Display for Health {
             Health::Down(why) => write!(f, "down: {why}"),
         }
     }
+}
+
+/// What an output adapter crate exports so that the gateway offers it with one line of its
+/// list (docs/design.md, "Adding an output adapter"): the name `[output] adapter` spells, the
+/// adapter's other `[output]` keys, and how they validate into an [`OutputSpec`]. The gateway
+/// knows nothing else of an adapter.
+pub trait OutputKind {
+    /// `[output] adapter = "NAME"`.
+    const NAME: &'static str;
+    /// One line for the reference of adapters (`rove check-config --adapters`).
+    const SUMMARY: &'static str;
+    /// The adapter's `[output]` keys as written; unknown keys are rejected by serde, and the
+    /// effective config is these settings written back.
+    type Settings: serde::Serialize
+        + serde::de::DeserializeOwned
+        + fmt::Debug
+        + Clone
+        + Send
+        + Sync
+        + 'static;
+    /// Checks `settings`, filling every default in place (so the effective config shows it).
+    ///
+    /// # Errors
+    /// [`crate::Error::Config`] listing every invalid key, named as `output.<key>`.
+    fn validate(settings: &mut Self::Settings) -> crate::Result<Box<dyn OutputSpec>>;
+}
+
+/// A validated `[output]`: everything the gateway does with an adapter it otherwise knows
+/// nothing about.
+pub trait OutputSpec: fmt::Debug + Send + Sync {
+    /// Opens the device; the adapter writes its safe state before returning.
+    ///
+    /// # Errors
+    /// The device cannot be opened (a [`crate::error::Disposition::Fatal`] error ends the
+    /// start: the configuration must change), or the safe state cannot be written.
+    fn open(&self, now: MonoTime) -> Result<Box<dyn OutputAdapter>, LinkError>;
+
+    /// `rove failsafe` (systemd's `ExecStopPost`): opens the device, which writes the safe
+    /// state, writes it once more and closes it (adapters write it again on drop). Returns
+    /// what was made safe. An adapter whose device must be found or answer first overrides it.
+    ///
+    /// # Errors
+    /// The device cannot be opened or written.
+    fn failsafe(&self) -> Result<String, LinkError> {
+        let mut adapter = self.open(MonoTime::ZERO)?;
+        adapter.safe_state(MonoTime::ZERO)?;
+        Ok(adapter.describe())
+    }
+
+    /// What the adapter needs of the computer, for `rove doctor`.
+    fn needs(&self) -> Vec<Need> {
+        Vec::new()
+    }
+
+    /// Gives an adapter that asks for [`Need::Memory`] the file to keep it in.
+    fn remember_in(&mut self, _file: PathBuf) {}
+
+    /// A copy (a vehicle's config is cloned into its output thread).
+    fn clone_spec(&self) -> Box<dyn OutputSpec>;
+}
+
+impl Clone for Box<dyn OutputSpec> {
+    fn clone(&self) -> Self {
+        self.clone_spec()
+    }
+}
+
+/// Something of the computer an output needs: `rove doctor` checks each.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Need {
+    /// A Raspberry Pi's GPIO and PWM registers (rppal): a Pi and `/dev/gpiochip*`.
+    RaspberryPi,
+    /// A channel of the kernel's PWM class, `root/pwmchip<chip>/pwm<channel>`.
+    PwmChannel {
+        /// The channel's name in the config.
+        name: String,
+        /// The class directory (`/sys/class/pwm`, or a test tree).
+        root: PathBuf,
+        /// The chip number.
+        chip: u32,
+        /// The channel on the chip.
+        channel: u32,
+    },
+    /// A serial port (`/dev/ttyACM0`).
+    Serial(String),
+    /// A CAN network interface (`can0`).
+    Can(String),
+    /// A file in the runtime directory where the adapter keeps what it learns of its device,
+    /// so that `rove failsafe` reaches the device at once ([`OutputSpec::remember_in`]).
+    Memory,
 }
 
 /// A vehicle's output: turns setpoints into actuator signals.

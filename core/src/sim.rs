@@ -1,7 +1,7 @@
 //! Simulated devices for tests, benchmarks and the laptop demo: an output that records what it
 //! was told, with time stamps, and an input that plays a script.
 
-use crate::adapter::{Health, InputEvent, InputSource, OutputAdapter};
+use crate::adapter::{Health, InputEvent, InputSource, OutputAdapter, OutputKind, OutputSpec};
 use crate::arbiter::Setpoint;
 use crate::error::LinkError;
 use crate::time::MonoTime;
@@ -23,6 +23,38 @@ pub struct SimRecord {
     pub at: MonoTime,
     /// What.
     pub action: SimAction,
+}
+
+/// `[output] adapter = "sim"`: the recording output, for tests, demos and benchmarks.
+#[derive(Debug, Clone, Copy)]
+pub struct Sim;
+
+/// `[output] adapter = "sim"` takes no other keys.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSettings {}
+
+impl OutputKind for Sim {
+    const NAME: &'static str = "sim";
+    const SUMMARY: &'static str = "Records outputs in memory, for tests, demos and benchmarks \
+        (`--record` writes them out).";
+    type Settings = SimSettings;
+
+    fn validate(_: &mut SimSettings) -> crate::Result<Box<dyn OutputSpec>> {
+        Ok(Box::new(Sim))
+    }
+}
+
+impl OutputSpec for Sim {
+    fn open(&self, now: MonoTime) -> Result<Box<dyn OutputAdapter>, LinkError> {
+        let mut sim = SimOutput::default();
+        sim.safe_state(now)?;
+        Ok(Box::new(sim))
+    }
+
+    fn clone_spec(&self) -> Box<dyn OutputSpec> {
+        Box::new(*self)
+    }
 }
 
 /// An output adapter that records every call, keeping the most recent `capacity` records

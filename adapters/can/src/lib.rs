@@ -15,6 +15,8 @@
 //! - `socket` (feature `socketcan`, default): [`SocketCanBus`], the Linux SocketCAN bus.
 //! - [`vehicle`]: [`CanVehicle`], the [`rove_core::adapter::OutputAdapter`].
 //! - [`error`]: the crate's error, [`FrameError`] (a frame that cannot be built).
+//! - `kind.rs`: [`Can`], the adapter as the gateway offers it
+//!   ([`rove_core::adapter::OutputKind`]).
 //!
 //! This crate does no arbitration and reads no clock: time comes in as `now`. It never depends
 //! on the gateway. The pure modules do no I/O.
@@ -82,6 +84,7 @@ pub mod bus;
 pub mod config;
 pub mod dronecan;
 pub mod error;
+mod kind;
 pub mod protocol;
 pub mod raw;
 pub mod scale;
@@ -94,6 +97,7 @@ pub use bus::{
 };
 pub use config::{CanConfig, CanSettings};
 pub use error::FrameError;
+pub use kind::Can;
 #[cfg(feature = "socketcan")]
 pub use socket::SocketCanBus;
 pub use vehicle::CanVehicle;

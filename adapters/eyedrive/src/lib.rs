@@ -10,7 +10,9 @@
 //! - [`config`]: `[output]` for `adapter = "eyedrive"` ([`EyedriveSettings`]), validated into
 //!   the generic [`rove_pwm::PwmVehicleConfig`] that [`rove_pwm::PwmVehicle`] drives.
 //!
-//! No I/O here: the gateway opens the backend with [`rove_pwm::open_backend`].
+//! - [`Eyedrive`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]).
+//!
+//! No I/O here: the validated config opens through [`rove_pwm`].
 //!
 //! # Channels
 //!
@@ -38,3 +40,20 @@
 pub mod config;
 
 pub use config::{EyedriveChannelSettings, EyedriveSettings};
+
+use rove_core::adapter::{OutputKind, OutputSpec};
+
+/// `[output] adapter = "eyedrive"`: the preset validates into a [`rove_pwm::PwmVehicleConfig`],
+/// which opens and reports itself as `adapter = "pwm"` does.
+#[derive(Debug, Clone, Copy)]
+pub struct Eyedrive;
+
+impl OutputKind for Eyedrive {
+    const NAME: &'static str = "eyedrive";
+    const SUMMARY: &'static str = "The Eyedrive UGV: steering and throttle servos.";
+    type Settings = EyedriveSettings;
+
+    fn validate(settings: &mut EyedriveSettings) -> rove_core::Result<Box<dyn OutputSpec>> {
+        Ok(Box::new(settings.validate()?))
+    }
+}

@@ -17,6 +17,8 @@
 //! - [`memory`]: what the link learned (the autopilot's address and ids), kept on disk so that
 //!   `rove failsafe` addresses the autopilot at once.
 //! - [`vehicle`]: [`MavlinkVehicle`], the [`rove_core::adapter::OutputAdapter`].
+//! - `kind.rs`: [`Mavlink`], the adapter as the gateway offers it
+//!   ([`rove_core::adapter::OutputKind`]).
 //!
 //! Measured against ArduPilot Rover SITL: the reader decodes the `ardupilotmega`
 //! dialect and resynchronises at once on bytes that are not a message ([`frame`]), TCP links have
@@ -39,10 +41,12 @@
 pub mod config;
 pub mod encode;
 pub mod frame;
+mod kind;
 pub mod link;
 pub mod memory;
 pub mod mode;
 pub mod vehicle;
 
 pub use config::{MavlinkConfig, MavlinkSettings};
+pub use kind::Mavlink;
 pub use vehicle::{MavlinkVehicle, failsafe};

@@ -13,8 +13,9 @@
 //! - [`vehicle`]: [`NazaVehicle`], the [`rove_core::adapter::OutputAdapter`], with the CSC and
 //!   land-ramp state machine on an injected clock.
 //! - [`error`]: the crate's error type, [`NazaError`].
+//! - [`Naza`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]).
 //!
-//! No I/O here beyond the backend the gateway opens with [`rove_pwm::open_backend`].
+//! No I/O here beyond the backend opened with [`rove_pwm::open_backend`].
 //!
 //! # Channels and defaults
 //!
@@ -63,3 +64,36 @@ pub mod vehicle;
 pub use config::{CscPattern, FailsafeMode, FailsafePolicy, NazaConfig, NazaSettings};
 pub use error::NazaError;
 pub use vehicle::{MotorCommand, NazaState, NazaVehicle};
+
+use rove_core::MonoTime;
+use rove_core::adapter::{Need, OutputAdapter, OutputKind, OutputSpec};
+use rove_core::error::LinkError;
+
+/// `[output] adapter = "naza"`.
+#[derive(Debug, Clone, Copy)]
+pub struct Naza;
+
+impl OutputKind for Naza {
+    const NAME: &'static str = "naza";
+    const SUMMARY: &'static str = "The DJI Naza-M multirotor autopilot: A/E/T/R/U channels.";
+    type Settings = NazaSettings;
+
+    fn validate(settings: &mut NazaSettings) -> rove_core::Result<Box<dyn OutputSpec>> {
+        Ok(Box::new(settings.validate()?))
+    }
+}
+
+impl OutputSpec for NazaConfig {
+    fn open(&self, now: MonoTime) -> Result<Box<dyn OutputAdapter>, LinkError> {
+        let backend = rove_pwm::open_backend(&self.pwm)?;
+        Ok(Box::new(NazaVehicle::new(self.clone(), backend, now)?))
+    }
+
+    fn needs(&self) -> Vec<Need> {
+        self.pwm.needs()
+    }
+
+    fn clone_spec(&self) -> Box<dyn OutputSpec> {
+        Box::new(self.clone())
+    }
+}

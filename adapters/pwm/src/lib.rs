@@ -10,6 +10,7 @@
 //! - [`sysfs`]: `/sys/class/pwm` ([`SysfsBackend`]).
 //! - `rppal` (feature `rppal`): Raspberry Pi hardware and software PWM (`RppalBackend`).
 //! - [`vehicle`]: [`PwmVehicle`], the [`rove_core::adapter::OutputAdapter`].
+//! - `kind.rs`: [`Pwm`], the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]).
 //!
 //! This crate does no arbitration and reads no clock: time comes in as `now`. It never
 //! depends on the gateway.
@@ -51,6 +52,7 @@
 
 pub mod backend;
 pub mod config;
+mod kind;
 mod open;
 #[cfg(all(feature = "rppal", target_os = "linux"))]
 pub mod rppal;
@@ -63,6 +65,7 @@ pub use config::{
     ChannelSourceKind, Polarity, PwmAddressSettings, PwmBackendSettings, PwmVehicleConfig,
     PwmVehicleSettings, ServoChannelSettings,
 };
+pub use kind::Pwm;
 pub use open::open_backend;
 pub use sysfs::SysfsBackend;
 pub use vehicle::PwmVehicle;

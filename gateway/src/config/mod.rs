@@ -9,11 +9,13 @@
 //! - this file: the sections every role shares (`[device]`, `[network]`, `[log]`,
 //!   `[security]`), [`Common`], and loading a file of any role;
 //! - `vehicle.rs`, `operator.rs`, `web.rs`, `bridge.rs`: each role's file;
+//! - `output.rs`: the list of output adapters and `[output]` read through it;
 //! - `locate.rs`: reading a file, and naming the line of a key in errors.
 
 mod bridge;
 mod locate;
 mod operator;
+mod output;
 mod vehicle;
 mod web;
 
@@ -21,6 +23,7 @@ pub use bridge::*;
 pub use locate::key_line;
 use locate::*;
 pub use operator::*;
+pub use output::*;
 pub use vehicle::*;
 pub use web::*;
 

@@ -89,7 +89,7 @@ fn every_shipped_config_loads() {
 #[test]
 fn each_output_adapter_loads_from_its_shipped_example() {
     let kind = |name: &str| match load_vehicle(&shipped(name)) {
-        Ok(c) => crate::output::kind(&c.output),
+        Ok(c) => c.output.adapter(),
         Err(e) => panic!("{e:#}"),
     };
     assert_eq!(kind("vehicle-sim.toml"), "sim");
@@ -435,7 +435,25 @@ fn unknown_adapter_is_rejected_naming_the_line() {
         "[device]\nid = 100\n[output]\nadapter = \"warp\"\n",
     );
     let err = format!("{:#}", load_vehicle(&path).expect_err("no such adapter"));
-    assert!(err.contains("adapter.toml:4:"), "{err}");
+    assert!(
+        err.contains("adapter.toml:4: output.adapter = \"warp\""),
+        "{err}"
+    );
+    // The message lists every adapter of the gateway's list, with what it drives.
+    for adapter in ADAPTERS {
+        let line = format!("{:?}: {}", adapter.name, adapter.summary);
+        assert!(err.contains(&line), "{line} not in {err}");
+    }
+    // A missing adapter names `[output]`'s line.
+    let path = write(
+        "none.toml",
+        "[device]\nid = 100\n\n[output]\nbackend = \"sim\"\n",
+    );
+    let err = format!("{:#}", load_vehicle(&path).expect_err("no adapter"));
+    assert!(
+        err.contains("none.toml:4: output.adapter = (absent)"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -1,5 +1,6 @@
-//! A vehicle's file (`rove vehicle`): `[vehicle]`, `[access]`, `[output]` (read in two steps so that
-//! errors inside an adapter's settings keep their lines) and the validated [`VehicleConfig`].
+//! A vehicle's file (`rove vehicle`): `[vehicle]`, `[access]`, `[output]` (read by `output.rs`
+//! in two steps so that errors inside an adapter's settings keep their lines) and the validated
+//! [`VehicleConfig`].
 
 use super::*;
 
@@ -22,129 +23,6 @@ rove_core::config_types! {
         #[serde(default)] operators: Vec<Grant> => "The operators allowed to drive, each with \
             the highest level and device class it may claim (`[[access.operators]]`).",
     }
-
-    /// `[output]`: `adapter` names the output adapter; the other keys are that adapter's.
-    ///
-    /// Files are not read through this tagged enum (serde buffers a tagged table and loses
-    /// every line inside it) but through `parse_vehicle`; it remains for errors about
-    /// `adapter` itself.
-    #[derive(Debug, Clone, Serialize, Deserialize)]
-    #[serde(tag = "adapter", rename_all = "lowercase")]
-    pub enum OutputSection {
-        Sim => "Records outputs in memory, for tests, demos and benchmarks (`--record` writes \
-            them out)." (SimSection),
-        Pwm => "A PWM vehicle described by its channel list (a new vehicle type needs only \
-            TOML)." (Box<rove_pwm::PwmVehicleSettings>),
-        Eyedrive => "The Eyedrive UGV: steering and throttle servos."
-            (Box<rove_eyedrive::EyedriveSettings>),
-        Naza => "The DJI Naza-M multirotor autopilot: A/E/T/R/U channels."
-            (Box<rove_naza::NazaSettings>),
-        Mavlink => "An ArduPilot or PX4 autopilot over MAVLink (RC override or MANUAL_CONTROL)."
-            (Box<rove_mavlink::MavlinkSettings>),
-        Can => "CAN servos and ESCs: raw frames defined by config, DroneCAN actuator commands."
-            (Box<rove_can::CanSettings>),
-    }
-
-    /// `[output] adapter = "sim"` takes no other keys.
-    #[derive(Debug, Clone, Default, Serialize, Deserialize)]
-    #[serde(deny_unknown_fields)]
-    pub struct SimSection {}
-
-    /// A validated output adapter choice.
-    #[derive(Debug, Clone)]
-    pub enum OutputConfig {
-        Sim => "The core's recording sim output.",
-        Pwm => "A config-defined PWM vehicle." (rove_pwm::PwmVehicleConfig),
-        Eyedrive => "The Eyedrive preset (a PWM vehicle underneath)." (rove_pwm::PwmVehicleConfig),
-        Naza => "The Naza-M." (rove_naza::NazaConfig),
-        Mavlink => "A MAVLink autopilot." (Box<rove_mavlink::MavlinkConfig>),
-        Can => "A CAN bus." (Box<rove_can::CanConfig>),
-    }
-}
-
-impl OutputSection {
-    pub(super) fn validate(&mut self, errors: &mut ConfigErrors) -> OutputConfig {
-        let config = match self {
-            OutputSection::Sim(_) => Ok(OutputConfig::Sim),
-            OutputSection::Pwm(s) => s.validate().map(OutputConfig::Pwm),
-            OutputSection::Eyedrive(s) => s.validate().map(OutputConfig::Eyedrive),
-            OutputSection::Naza(s) => s.validate().map(OutputConfig::Naza),
-            OutputSection::Mavlink(s) => s.validate().map(|c| OutputConfig::Mavlink(Box::new(c))),
-            OutputSection::Can(s) => s.validate().map(|c| OutputConfig::Can(Box::new(c))),
-        };
-        errors
-            .section("output", config)
-            .unwrap_or(OutputConfig::Sim)
-    }
-}
-
-/// Reads a vehicle file in two steps so that errors inside `[output]` keep their lines: first
-/// `adapter`, then the same text, with the `adapter` key blanked (every byte offset and line
-/// unchanged), as that adapter's settings. An unknown or missing adapter is reported by the
-/// tagged [`OutputSection`].
-pub(super) fn parse_vehicle(path: &Path, text: &str) -> anyhow::Result<RawVehicle<OutputSection>> {
-    #[derive(Deserialize)]
-    struct Probe {
-        output: Option<ProbeOutput>,
-    }
-    #[derive(Deserialize)]
-    struct ProbeOutput {
-        adapter: Option<toml::Spanned<String>>,
-    }
-    pub(super) fn read<T: for<'de> Deserialize<'de>>(
-        path: &Path,
-        text: &str,
-        wrap: fn(T) -> OutputSection,
-    ) -> anyhow::Result<RawVehicle<OutputSection>> {
-        let file: RawVehicle<T> = parse(path, text)?;
-        Ok(RawVehicle {
-            device: file.device,
-            network: file.network,
-            log: file.log,
-            vehicle: file.vehicle,
-            hierarchy: file.hierarchy,
-            access: file.access,
-            security: file.security,
-            output: wrap(file.output),
-        })
-    }
-    let probe: Probe = parse(path, text)?;
-    let Some(adapter) = probe.output.and_then(|o| o.adapter) else {
-        return parse(path, text);
-    };
-    let blanked = blank_key_value(text, adapter.span());
-    match adapter.get_ref().as_str() {
-        "sim" => read(path, &blanked, OutputSection::Sim),
-        "pwm" => read(path, &blanked, |s| OutputSection::Pwm(Box::new(s))),
-        "eyedrive" => read(path, &blanked, |s| OutputSection::Eyedrive(Box::new(s))),
-        "naza" => read(path, &blanked, |s| OutputSection::Naza(Box::new(s))),
-        "mavlink" => read(path, &blanked, |s| OutputSection::Mavlink(Box::new(s))),
-        "can" => read(path, &blanked, |s| OutputSection::Can(Box::new(s))),
-        _ => parse(path, text),
-    }
-}
-
-/// `text` with the key/value pair whose value spans `value` replaced by spaces (newlines
-/// kept), together with the comma that separates it in an inline table.
-pub(super) fn blank_key_value(text: &str, value: std::ops::Range<usize>) -> String {
-    let bytes = text.as_bytes();
-    let is_key = |b: u8| b.is_ascii_alphanumeric() || b"_-.\"' \t=".contains(&b);
-    let mut start = value.start.min(bytes.len());
-    while start > 0 && is_key(bytes[start - 1]) {
-        start -= 1;
-    }
-    let mut end = value.end.min(bytes.len());
-    let after = text[end..].trim_start_matches([' ', '\t']);
-    if after.starts_with(',') {
-        end = text.len() - after.len() + 1;
-    } else if text[..start].trim_end_matches([' ', '\t']).ends_with(',') {
-        start = text[..start].trim_end_matches([' ', '\t']).len() - 1;
-    }
-    // One space per byte (newlines kept), so no offset or line after the blank moves.
-    let blank: String = (text[start..end].chars())
-        .flat_map(|c| std::iter::repeat_n(if c == '\n' { c } else { ' ' }, c.len_utf8()))
-        .collect();
-    format!("{}{blank}{}", &text[..start], &text[end..])
 }
 
 rove_core::config_types! {
@@ -172,6 +50,22 @@ rove_core::config_types! {
         output_deadline: Duration => "`[vehicle] output_deadline_ms`.",
         output_hung_limit: Duration => "`[vehicle] output_hung_limit_ms`.",
         battery_low_pct: u8 => "`[vehicle] battery_low_pct`.",
+    }
+}
+
+impl<O> RawVehicle<O> {
+    /// The same file with `[output]` read as `wrap` makes it.
+    pub(super) fn with_output<P>(self, wrap: impl FnOnce(O) -> P) -> RawVehicle<P> {
+        RawVehicle {
+            device: self.device,
+            network: self.network,
+            log: self.log,
+            vehicle: self.vehicle,
+            hierarchy: self.hierarchy,
+            access: self.access,
+            security: self.security,
+            output: wrap(self.output),
+        }
     }
 }
 

@@ -6,10 +6,10 @@
 //! `/etc/group` (the service user's groups) and `/proc/net/fib_trie` (the local IPv4
 //! addresses). All of them sit under one [`Roots`] so the tests run it on a fake tree.
 
-use crate::config::{AnyConfig, InputChoice, OutputConfig};
+use crate::config::{AnyConfig, InputChoice};
+use rove_core::adapter::Need;
 use rove_inputs::SourceConfig;
 use rove_inputs::config::DeviceSelector;
-use rove_pwm::{BackendConfig, ChannelAddress, PwmVehicleConfig};
 use std::collections::BTreeSet;
 use std::fmt;
 use std::net::Ipv4Addr;
@@ -235,15 +235,14 @@ fn failsafe_memory(
     let Some(AnyConfig::Vehicle(v)) = config else {
         return None;
     };
-    let OutputConfig::Mavlink(_) = &v.output else {
+    if !v.output.needs().contains(&Need::Memory) {
         return None;
-    };
+    }
+    let file = format!("vehicle-{}-{}", v.common.id, v.output.adapter());
     Some(match runtime {
         Some(dir) => ok(format!(
             "failsafe memory: {} ({})",
-            dir.path
-                .join(format!("vehicle-{}-mavlink", v.common.id))
-                .display(),
+            dir.path.join(file).display(),
             dir.source
         )),
         None => bad(
@@ -290,21 +289,18 @@ fn read_user<'a>(roots: &Roots, name: &'a str, found: &mut Vec<Finding>) -> User
     user
 }
 
-fn pwm_configs(config: Option<&AnyConfig>) -> Option<&PwmVehicleConfig> {
+/// What the vehicle's output needs of the computer (nothing for other configs).
+fn needs(config: Option<&AnyConfig>) -> Vec<Need> {
     match config {
-        Some(AnyConfig::Vehicle(v)) => match &v.output {
-            OutputConfig::Pwm(c) | OutputConfig::Eyedrive(c) => Some(c),
-            OutputConfig::Naza(c) => Some(&c.pwm),
-            _ => None,
-        },
-        _ => None,
+        Some(AnyConfig::Vehicle(v)) => v.output.needs(),
+        _ => Vec::new(),
     }
 }
 
 fn model_and_gpio(roots: &Roots, user: &User, config: Option<&AnyConfig>) -> Vec<Finding> {
     let model = (roots.read("/proc/device-tree/model"))
         .or_else(|| roots.read("/sys/firmware/devicetree/base/model"));
-    let rppal = pwm_configs(config).is_some_and(|c| c.backend == BackendConfig::Rppal);
+    let rppal = needs(config).contains(&Need::RaspberryPi);
     let mut found = vec![match (&model, rppal) {
         (Some(m), true) if !m.contains("Raspberry Pi") => bad(
             Status::Wrong,
@@ -350,22 +346,18 @@ fn pwm(roots: &Roots, config: Option<&AnyConfig>) -> Vec<Finding> {
             ))
         })
         .collect();
-    let Some(c) = pwm_configs(config) else {
-        return found;
-    };
-    let BackendConfig::Sysfs { root } = &c.backend else {
-        return found;
-    };
-    for channel in &c.channels {
-        let ChannelAddress::Sysfs { chip, channel: n } = channel.address else {
+    for need in needs(config) {
+        let Need::PwmChannel {
+            name,
+            root,
+            chip,
+            channel: n,
+        } = need
+        else {
             continue;
         };
-        let dir = roots.at(root).join(format!("pwmchip{chip}"));
-        let what = format!(
-            "pwm: {:?} on {}/pwmchip{chip}/pwm{n}",
-            channel.name,
-            root.display()
-        );
+        let dir = roots.at(&root).join(format!("pwmchip{chip}"));
+        let what = format!("pwm: {name:?} on {}/pwmchip{chip}/pwm{n}", root.display());
         let npwm: Option<u32> = std::fs::read_to_string(dir.join("npwm"))
             .ok()
             .and_then(|t| t.trim().parse().ok());
@@ -393,15 +385,12 @@ fn serial(roots: &Roots, user: &User, config: Option<&AnyConfig>) -> Vec<Finding
         .flat_map(|p| roots.entries("/dev", p))
         .map(|n| format!("/dev/{n}"))
         .collect();
-    let mut needed = None;
-    if let Some(AnyConfig::Vehicle(v)) = config
-        && let OutputConfig::Mavlink(m) = &v.output
-        && let rove_mavlink::config::Endpoint::Serial { device, .. } = &m.endpoint
-    {
-        needed = Some(device.clone());
-        if !ports.contains(device) {
-            ports.push(device.clone());
-        }
+    let needed = needs(config).into_iter().find_map(|n| match n {
+        Need::Serial(device) => Some(device),
+        _ => None,
+    });
+    if let Some(device) = needed.as_ref().filter(|d| !ports.contains(d)) {
+        ports.push(device.clone());
     }
     (ports.iter())
         .map(|p| match user.access("serial", p, &roots.at(p)) {
@@ -420,13 +409,10 @@ fn can(roots: &Roots, config: Option<&AnyConfig>) -> Vec<Finding> {
     // ARPHRD_CAN.
     let is_can = |i: &String| roots.read(format!("{net}/{i}/type")).as_deref() == Some("280");
     let mut interfaces: Vec<String> = roots.entries(net, "").into_iter().filter(is_can).collect();
-    let wanted = match config {
-        Some(AnyConfig::Vehicle(v)) => match &v.output {
-            OutputConfig::Can(c) => Some(c.interface.clone()),
-            _ => None,
-        },
+    let wanted = needs(config).into_iter().find_map(|n| match n {
+        Need::Can(interface) => Some(interface),
         _ => None,
-    };
+    });
     if let Some(w) = wanted.as_ref().filter(|w| !interfaces.contains(w)) {
         interfaces.push(w.clone());
     }

@@ -18,10 +18,9 @@ pub use worker::{OutputReport, OutputWorker, WriteLimits};
 
 use crate::config::OutputConfig;
 use rove_core::MonoTime;
-use rove_core::adapter::{Health, OutputAdapter};
+use rove_core::adapter::{Health, Need, OutputAdapter};
 use rove_core::arbiter::Setpoint;
 use rove_core::error::{Disposition, LinkError};
-use rove_core::sim::SimOutput;
 use std::time::Duration;
 use tracing::{info, warn};
 
@@ -33,28 +32,7 @@ pub const RETRY: Duration = Duration::from_millis(250);
 /// # Errors
 /// The device cannot be opened or the safe state cannot be written.
 pub fn open(config: &OutputConfig, now: MonoTime) -> Result<Box<dyn OutputAdapter>, LinkError> {
-    Ok(match config {
-        OutputConfig::Sim => {
-            let mut sim = SimOutput::default();
-            sim.safe_state(now)?;
-            Box::new(sim)
-        }
-        OutputConfig::Pwm(c) | OutputConfig::Eyedrive(c) => {
-            let backend = rove_pwm::open_backend(c)?;
-            Box::new(rove_pwm::PwmVehicle::new(c.clone(), backend, now)?)
-        }
-        OutputConfig::Naza(c) => {
-            let backend = rove_pwm::open_backend(&c.pwm)?;
-            Box::new(rove_naza::NazaVehicle::new(c.clone(), backend, now)?)
-        }
-        OutputConfig::Mavlink(c) => {
-            Box::new(rove_mavlink::MavlinkVehicle::new((**c).clone(), now)?)
-        }
-        OutputConfig::Can(c) => {
-            let bus = rove_can::open_bus(c)?;
-            Box::new(rove_can::CanVehicle::new((**c).clone(), bus, now)?)
-        }
-    })
+    config.spec().open(now)
 }
 
 /// The output adapter with the gateway's failure policy around it.
@@ -103,7 +81,7 @@ impl ManagedOutput {
     pub fn describe(&self) -> String {
         match &self.adapter {
             Some(a) => a.describe(),
-            None => format!("{:?} (not open yet)", kind(&self.config)),
+            None => format!("{:?} (not open yet)", self.config.adapter()),
         }
     }
 
@@ -241,25 +219,15 @@ impl ManagedOutput {
     }
 }
 
-/// The adapter's name as `[output] adapter` spells it.
-pub(crate) fn kind(config: &OutputConfig) -> &'static str {
-    match config {
-        OutputConfig::Sim => "sim",
-        OutputConfig::Pwm(_) => "pwm",
-        OutputConfig::Eyedrive(_) => "eyedrive",
-        OutputConfig::Naza(_) => "naza",
-        OutputConfig::Mavlink(_) => "mavlink",
-        OutputConfig::Can(_) => "can",
-    }
-}
-
-/// Gives a MAVLink output the file where its link keeps what it learns about the autopilot
-/// (its address and ids), in the [`crate::dirs::runtime_dir`]: `rove failsafe` for the same
-/// vehicle reads it and addresses the autopilot at once. Other outputs need nothing.
+/// Gives an output that keeps what it learns about its device ([`Need::Memory`]: a MAVLink
+/// link keeps the autopilot's address and ids) its file in the [`crate::dirs::runtime_dir`]:
+/// `rove failsafe` for the same vehicle reads it and reaches the device at once.
 pub fn keep_learned(config: &mut OutputConfig, vehicle_id: i64) {
-    if let OutputConfig::Mavlink(c) = config {
-        c.memory =
-            crate::dirs::runtime_dir().map(|dir| dir.join(format!("vehicle-{vehicle_id}-mavlink")));
+    if config.needs().contains(&Need::Memory)
+        && let Some(dir) = crate::dirs::runtime_dir()
+    {
+        let file = dir.join(format!("vehicle-{vehicle_id}-{}", config.adapter()));
+        config.remember_in(file);
     }
 }
 
@@ -269,14 +237,7 @@ pub fn keep_learned(config: &mut OutputConfig, vehicle_id: i64) {
 /// # Errors
 /// The outputs cannot be opened or written.
 pub fn failsafe(config: &OutputConfig) -> Result<String, LinkError> {
-    if let OutputConfig::Mavlink(c) = config {
-        // An autopilot must be found first, and its safe mode confirmed.
-        return rove_mavlink::failsafe(c);
-    }
-    let now = MonoTime::ZERO;
-    let mut adapter = open(config, now)?;
-    adapter.safe_state(now)?;
-    Ok(adapter.describe())
+    config.spec().failsafe()
 }
 
 #[cfg(test)]

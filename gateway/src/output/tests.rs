@@ -95,7 +95,7 @@ fn gated_worker(
     };
     OutputWorker::start_with(clock, limits, "gated", move |_| {
         Ok(ManagedOutput {
-            config: OutputConfig::Sim,
+            config: OutputConfig::sim(),
             adapter: Some(Box::new(adapter)),
             hold_until: None,
             next_keepalive: None,
@@ -210,7 +210,7 @@ fn stopping_gives_up_on_a_device_that_does_not_return() {
 fn r20_a_successful_apply_ends_the_hold() {
     let calls = Arc::new(Mutex::new(Vec::new()));
     let mut out = ManagedOutput {
-        config: OutputConfig::Sim,
+        config: OutputConfig::sim(),
         adapter: Some(Box::new(Flaky(Arc::clone(&calls)))),
         hold_until: None,
         next_keepalive: None,

@@ -1,7 +1,7 @@
 //! The output on a thread of its own ([`OutputWorker`]), and what the control loop knows of it
 //! ([`OutputReport`]).
 
-use super::{ManagedOutput, kind};
+use super::ManagedOutput;
 use crate::config::OutputConfig;
 use rove_core::MonoTime;
 use rove_core::adapter::Health;
@@ -121,7 +121,7 @@ impl OutputWorker {
         clock: crate::runtime::Clock,
         limits: WriteLimits,
     ) -> anyhow::Result<OutputWorker> {
-        let name = kind(&config);
+        let name = config.adapter();
         Self::start_with(clock, limits, name, move |now| {
             ManagedOutput::open(config, now)
         })
