@@ -64,7 +64,7 @@ fn audit_story(secured: bool) {
     let mut rig = Rig::new(if secured { "audit-secured" } else { "audit" });
     let fleet = rig.dir.join("fleet");
     let security = |id: i64| match secured {
-        true => rove_gateway::tools::harness::security_toml(Some(&fleet), id),
+        true => rove_tools::harness::security_toml(Some(&fleet), id),
         false => String::new(),
     };
     if secured {

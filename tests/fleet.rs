@@ -84,7 +84,7 @@ fn each_vehicle_hears_only_its_own_commands_and_a_seed_vehicle_is_still_driven()
 /// again, and its vehicle was driven by the desktop or by nobody (4 of 4 runs).
 #[test]
 fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
-    let options = rove_gateway::tools::fleet::Options {
+    let options = rove_tools::fleet::Options {
         vehicles: 4,
         operators: 8,
         idle: false,
@@ -98,7 +98,7 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
         secure: false,
     };
     let rove = std::path::Path::new(crate::util::ROVE);
-    let report = rove_gateway::tools::fleet::run(rove, &options, &mut |line| eprintln!("{line}"))
+    let report = rove_tools::fleet::run(rove, &options, &mut |line| eprintln!("{line}"))
         .unwrap_or_else(|e| panic!("the fleet never became steady: {e:#}"));
     eprintln!("{report:?}");
     assert_eq!(

@@ -256,7 +256,7 @@ fn the_secure_demo_tells_the_same_story_with_certificates() {
 fn demo_story(secure: bool) {
     let mut lines = Vec::new();
     let mut print = |l: &str| lines.push(l.to_string());
-    rove_gateway::tools::demo::run_processes(Path::new(ROVE), secure, &mut print)
+    rove_tools::demo::run_processes(Path::new(ROVE), secure, &mut print)
         .unwrap_or_else(|e| panic!("{e:#}"));
     let story = lines.join("\n");
     for expected in [

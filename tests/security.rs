@@ -46,7 +46,7 @@ fn fleet(rig: &Rig, ids: &[i64]) -> PathBuf {
 }
 
 fn security(fleet: &Path, id: i64) -> String {
-    rove_gateway::tools::harness::security_toml(Some(fleet), id)
+    rove_tools::harness::security_toml(Some(fleet), id)
 }
 
 /// The secured vehicle, and the secured laptop (11) driving it; returns the vehicle's record.
@@ -313,7 +313,7 @@ fn a_secured_pair_that_lost_one_another_one_way_authenticates_again() {
     let mut near = Rig::new("secure-oneway-near");
     let mut far = Rig::new("secure-oneway-far");
     let fleet = fleet(&near, &[V, 11]);
-    rove_gateway::tools::harness::veth(&near, &far, "10.78.0.1/24", "10.78.0.2/24", true)
+    rove_tools::harness::veth(&near, &far, "10.78.0.1/24", "10.78.0.2/24", true)
         .expect("veth pair");
     let output = format!(
         "[network]\ninterfaces = [\"10.78.0.1\"]\n{}[output]\nadapter = \"sim\"\n",

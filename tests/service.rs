@@ -756,9 +756,9 @@ fn after_sigkill_a_template_instances_exec_stop_post_makes_its_outputs_safe() {
 #[cfg(all(feature = "remote", feature = "security"))]
 #[test]
 fn a_bridge_notifies_ready_status_keepalives_and_stopping() {
-    use rove_gateway::tools::sites;
+    use rove_tools::sites;
     let mut rig = Rig::new("bridge-notify");
-    let fleet = sites::fleet(&rig.dir.join("fleet")).expect("keys");
+    let fleet = sites::fleet(&rig.rove, &rig.dir.join("fleet")).expect("keys");
     let files = fleet.join("site-lab");
     let toml = format!(
         "[site]\nname = \"lab\"\n[zenoh]\nlisten = [\"tls/127.0.0.1:7447\"]\nca = \"{}\"\n\

@@ -4,7 +4,7 @@
 //! the link (no multicast route over it). Latencies are measured and printed, never asserted.
 
 use crate::util::{Rig, eventually, keys, records, wait_for_output, wall_us};
-use rove_gateway::tools::sites::{self, Cut, Meet};
+use rove_tools::sites::{self, Cut, Meet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -32,7 +32,7 @@ impl Sites {
         let lab = Rig::new(&format!("{test}-lab"));
         let home = Rig::new(&format!("{test}-home"));
         let lab_veth = sites::join(&lab, &home).expect("veth pair");
-        let fleet = sites::fleet(&lab.dir.join("fleet")).expect("keys");
+        let fleet = sites::fleet(&lab.rove, &lab.dir.join("fleet")).expect("keys");
         Sites {
             lab,
             home,
@@ -536,7 +536,7 @@ fn both_sites_secured_a_remote_operator_drives_a_phone_preempts_and_rogues_are_r
             sites.fleet.join(format!("site-{site}"))
         )
     };
-    let security = |id: i64| rove_gateway::tools::harness::security_toml(Some(&sites.fleet), id);
+    let security = |id: i64| rove_tools::harness::security_toml(Some(&sites.fleet), id);
     let lab_peers = sites::peer("home", &[REMOTE, REMOTE2], &[V]) + &secured("lab");
     let lab_dir = sites.fleet.join("site-lab");
     sites::bridge(

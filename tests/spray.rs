@@ -246,7 +246,7 @@ pub(crate) fn captured_driving_fleet_with(
     let fleet: Option<PathBuf> =
         secured.then(|| rig.fleet(&[V, LAPTOP]).expect("rove keys for 100 and 11"));
     let security = |id| {
-        let toml = rove_gateway::tools::harness::security_toml(fleet.as_deref(), id);
+        let toml = rove_tools::harness::security_toml(fleet.as_deref(), id);
         format!("{toml}{extra_toml}")
     };
 

@@ -107,7 +107,7 @@ fn a_clean_stop_logs_no_error_and_waits_for_no_dead_peer() {
 fn a_clean_secured_stop_logs_no_error() {
     let mut rig = Rig::new("stop-secured");
     let fleet = rig.fleet(&[V, LAPTOP, PHONE]).expect("a fleet");
-    let security = |id| rove_gateway::tools::harness::security_toml(Some(&fleet), id);
+    let security = |id| rove_tools::harness::security_toml(Some(&fleet), id);
     let ([phone, laptop, vehicle], errors) = stops(&mut rig, security, false);
     eprintln!("secured stops: phone {phone:.1} ms, laptop {laptop:.1} ms, vehicle {vehicle:.1} ms");
     assert_eq!(

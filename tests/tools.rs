@@ -86,3 +86,10 @@ fn a_bench_stopped_with_sigint_leaves_nothing() {
 fn a_killed_bench_leaves_no_process() {
     a_bench_ended_by("-KILL", true);
 }
+
+/// The tools report the presence period a bench ran with; when it set none, the gateway's.
+#[test]
+fn the_tools_default_presence_is_the_gateways() {
+    let gateway = rove_gateway::dds::DEFAULT_PRESENCE.as_millis();
+    assert_eq!(u128::from(rove_tools::DEFAULT_PRESENCE_MS), gateway);
+}

@@ -2,7 +2,7 @@
 //! namespace of the test's own), config builders, the fake sysfs PWM class, the fake autopilot
 //! and the deadline poller.
 //!
-//! The process harness itself ([`rove_gateway::tools::harness`]) ships in the library because `rove
+//! The process harness itself ([`rove_tools::harness`]) ships in the library because `rove
 //! demo` and `rove bench` run on it too; what only tests need lives here, or in `rove-testkit`
 //! when another crate's tests need it as well.
 
@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-pub use rove_gateway::tools::harness::{records, wait_for_output, wall_us};
 pub use rove_testkit::{FakeAutopilot, PATIENCE, eventually, repo_root};
+pub use rove_tools::harness::{records, wait_for_output, wall_us};
 
 /// The `rove` binary under test: Cargo builds it for this test target, which is declared in
 /// `gateway/Cargo.toml`, the package of the binary.
@@ -24,10 +24,10 @@ pub const ROVE: &str = env!("CARGO_BIN_EXE_rove");
 // The rig
 
 /// A fresh network namespace (loopback with multicast) and directory, running [`ROVE`]:
-/// [`rove_gateway::tools::harness::Rig`] plus what only tests ask of it. Children are killed and the
+/// [`rove_tools::harness::Rig`] plus what only tests ask of it. Children are killed and the
 /// namespace deleted on drop; if the test failed, every child's log is printed.
 #[derive(Debug)]
-pub struct Rig(rove_gateway::tools::harness::Rig);
+pub struct Rig(rove_tools::harness::Rig);
 
 impl Rig {
     /// A rig named after `test`.
@@ -35,10 +35,7 @@ impl Rig {
     /// # Panics
     /// The namespace cannot be created (needs root and iproute2).
     pub fn new(test: &str) -> Rig {
-        Rig(
-            rove_gateway::tools::harness::Rig::new(Path::new(ROVE), test)
-                .unwrap_or_else(|e| panic!("{e}")),
-        )
+        Rig(rove_tools::harness::Rig::new(Path::new(ROVE), test).unwrap_or_else(|e| panic!("{e}")))
     }
 
     /// Runs a shell command inside the namespace (e.g. to send raw datagrams).
@@ -120,7 +117,7 @@ impl Rig {
 }
 
 impl Deref for Rig {
-    type Target = rove_gateway::tools::harness::Rig;
+    type Target = rove_tools::harness::Rig;
     fn deref(&self) -> &Self::Target {
         &self.0
     }

@@ -821,7 +821,7 @@ fn in_a_secured_fleet_a_paired_phone_drives_as_its_own_certified_participant() {
         rove_gateway::certs::Lifetime::DEVICE,
     )
     .expect("web cert");
-    let security = |id| rove_gateway::tools::harness::security_toml(Some(&fleet), id);
+    let security = |id| rove_tools::harness::security_toml(Some(&fleet), id);
     let output = format!("{}[output]\nadapter = \"sim\"\n", security(VEHICLE));
     let record = rig.vehicle_with_output(VEHICLE, &output);
     let device_dir = fleet.join(PHONE.to_string());

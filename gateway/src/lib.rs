@@ -14,8 +14,6 @@
 //!   Zenoh, each remote device a participant of its own here.
 //! - [`web`]: the browser operator console (`[web]`): pairing, HTTPS, WebSocket, the page.
 //! - [`status`]: device list and ownership, table / JSON / event stream.
-//! - [`tools`]: apart from the roles: the demo, the benches (`handover`, `input`, `chaos`,
-//!   `scale`) and the process harness they and the multi-process tests share.
 //! - [`audit`]: each vehicle's hash-chained log of who drove it, `rove audit`.
 //! - [`doctor`]: `rove doctor`, what a board offers and what a config needs.
 //! - `certs` (with the `security` feature): `rove keys`, a fleet's DDS Security files (CA,
@@ -41,6 +39,5 @@ pub mod output;
 pub mod runtime;
 pub mod sdnotify;
 pub mod status;
-pub mod tools;
 pub mod vehicle;
 pub mod web;

@@ -2,8 +2,8 @@
 //! the demo (docs/design.md §8). `main` only parses and maps the result to an exit code.
 
 use clap::{Parser, Subcommand};
-use rove_gateway::tools::{self, demo, harness};
 use rove_gateway::{config, doctor, host, operator, output, runtime, status, vehicle};
+use rove_tools::{self as tools, demo, harness};
 use std::process::ExitCode;
 
 /// rove — share control of robots between operators, safely.

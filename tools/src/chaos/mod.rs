@@ -30,7 +30,7 @@ mod fleet;
 
 pub use contract::{Counts, Fault, Logged, analyse};
 
-use crate::tools::harness::{Rig, records, wall_us};
+use crate::harness::{Rig, records, wall_us};
 use fleet::{Fleet, Rng, VETH_FAR, VETH_NEAR, far_namespace, set_cut, set_loss};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -56,7 +56,7 @@ pub const HEAL_US: u64 = 1_000_000;
 
 /// The `(level, class)` of each operator, weakest first: distinct strengths (docs/design.md §3),
 /// the handover bench's ranks.
-const LADDER: [(&str, &str); 12] = crate::tools::bench::RANKS;
+const LADDER: [(&str, &str); 12] = crate::bench::RANKS;
 
 /// Options of `rove bench chaos`.
 #[derive(Debug, Clone)]
@@ -210,7 +210,7 @@ fn start(
         fleet.start(id);
     }
     let strongest = ids[ids.len() - 1];
-    crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), 0)
+    crate::harness::wait_for_output(&fleet.record, Some(strongest), 0)
         .map_err(|e| anyhow::anyhow!("the fleet never started: {e}"))?;
     progress(&format!(
         "{} operators ({ids:?}, weakest first) drive vehicle {VEHICLE}; {} faults, one every ~{:?}",
@@ -303,7 +303,7 @@ fn loss_phase(
     fleet.heal(&started.ids);
     let strongest = started.ids[started.ids.len() - 1];
     let since = wall_us();
-    crate::tools::harness::wait_for_output(&fleet.record, Some(strongest), since)
+    crate::harness::wait_for_output(&fleet.record, Some(strongest), since)
         .map_err(|e| anyhow::anyhow!("after the chaos, the strongest never drove: {e}"))?;
     // Let every restarted operator be discovered and drive its turn… it never will: the
     // strongest drives. One heartbeat of quiet, then the loss.
@@ -338,7 +338,7 @@ fn partition_phase(
     let at = wall_us();
     far.operator(far_id, level, class, &[VEHICLE], 3000, &network, &[]);
     fleet.note(at, Fault::Start { id: far_id });
-    crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), 0)
+    crate::harness::wait_for_output(&fleet.record, Some(far_id), 0)
         .map_err(|e| anyhow::anyhow!("the far operator never drove: {e}"))?;
     for n in 0..3 {
         progress(&format!(
@@ -353,7 +353,7 @@ fn partition_phase(
         let healed = wall_us();
         set_cut(far, false)?;
         fleet.note(healed, Fault::Heal { id: far_id });
-        let back = crate::tools::harness::wait_for_output(&fleet.record, Some(far_id), healed)
+        let back = crate::harness::wait_for_output(&fleet.record, Some(far_id), healed)
             .map_err(|e| anyhow::anyhow!("the far operator never drove after the heal: {e}"))?;
         recovery_ms.push((back.wall_us - healed) as f64 / 1000.0);
         std::thread::sleep(Duration::from_secs(1));
@@ -384,7 +384,7 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             c.failsafe_under_loss.get(pct).copied().unwrap_or(0)
         );
     }
-    if let Some(stats) = crate::tools::bench::Stats::of(&report.failsafe_ms) {
+    if let Some(stats) = crate::bench::Stats::of(&report.failsafe_ms) {
         println!(
             "  rove failsafe (supervisor): {} runs, p50 {:.1} ms, max {:.1} ms",
             report.failsafe_ms.len(),

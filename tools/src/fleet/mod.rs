@@ -31,9 +31,9 @@ mod owners;
 mod start;
 pub mod starts;
 
-use crate::tools::bench::Stats;
-use crate::tools::harness::{self, Rig, wall_us};
-use crate::tools::procstat::{clock_ticks, sample};
+use crate::bench::Stats;
+use crate::harness::{self, Rig, wall_us};
+use crate::procstat::{clock_ticks, sample};
 pub use owners::{Incident, MAX_INCIDENTS, PhaseCount, count};
 use owners::{SETTLE_PATIENCE, settle, tally};
 use serde::Serialize;
@@ -268,9 +268,7 @@ pub fn run(
         operators: f.operators.len(),
         idle: options.idle,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
-        presence_ms: options
-            .presence_ms
-            .unwrap_or(crate::dds::DEFAULT_PRESENCE.as_millis() as u64),
+        presence_ms: options.presence_ms.unwrap_or(crate::DEFAULT_PRESENCE_MS),
         vehicle_rt: options.vehicle_rt,
         window_s: elapsed,
         cpu_total_pct: measured.iter().map(|m| m.0).sum(),

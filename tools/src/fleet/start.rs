@@ -3,7 +3,7 @@
 
 use super::owners::{Assignment, assign, drives_of, is_laptop};
 use super::{FIRST_OPERATOR, FIRST_VEHICLE, Options, PHONE, PHONES};
-use crate::tools::harness::{self, Rig, wall_us};
+use crate::harness::{self, Rig, wall_us};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};

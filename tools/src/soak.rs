@@ -184,7 +184,7 @@ fn remote_site(rove: &Path, lab: &mut Rig, every: usize) -> anyhow::Result<Optio
     }
     let mut home = Rig::new(rove, "soak-home")?;
     sites::join(lab, &home)?;
-    let fleet = sites::fleet(&lab.dir.join("fleet"))?;
+    let fleet = sites::fleet(&lab.rove, &lab.dir.join("fleet"))?;
     let remotes: Vec<i64> = REMOTES.collect();
     let offered = sites::peer("home", &remotes, &[VEHICLE]);
     sites::bridge(

@@ -2,7 +2,7 @@
 
 use super::report::{Stats, ms};
 use super::{VEHICLE, read_events};
-use crate::tools::harness::{Rig, records};
+use crate::harness::{Rig, records};
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::{Duration, Instant};

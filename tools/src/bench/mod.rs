@@ -23,7 +23,7 @@ pub use input::{input_cli, input_latency};
 pub use remote::{Options as RemoteOptions, RemoteReport, Row, remote, remote_cli};
 pub use report::{Report, Stats, count_ping_pong, seed_figure, svg, table, write_json};
 
-use crate::tools::harness::{self, Follow, Rig, records, wall_us};
+use crate::harness::{self, Follow, Rig, records, wall_us};
 use report::{ms, report};
 use serde::Serialize;
 use serde_json::Value;

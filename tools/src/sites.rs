@@ -3,7 +3,7 @@
 //! its loopback), joined by a veth pair that carries nothing but the bridges' link (no
 //! multicast route over it). For the sites tests and `rove bench handover --remote`.
 
-use crate::tools::harness::{self, Rig};
+use crate::harness::{self, Rig};
 use std::path::{Path, PathBuf};
 
 /// The lab's end of the veth pair, where its bridge listens.
@@ -21,18 +21,27 @@ pub fn join(lab: &Rig, home: &Rig) -> anyhow::Result<String> {
     Ok(harness::veth(lab, home, &near, &far, false)?.0)
 }
 
-/// A fleet in `dir` with a site certificate for the lab (naming its address, which connecting
+/// A fleet in `dir` (`rove keys`, run from `rove`) with a site certificate for the lab (naming its address, which connecting
 /// bridges check) and for home; returns the fleet's directory.
 ///
 /// # Errors
 /// The keys cannot be made.
-pub fn fleet(dir: &Path) -> anyhow::Result<PathBuf> {
-    use crate::certs::{self, Lifetime};
-    use rove_core::site::SiteName;
-    let name = |n: &str| SiteName::new(n).map_err(anyhow::Error::msg);
-    certs::init(dir, "rove sites", 0)?;
-    certs::site(dir, &name("lab")?, &[LAB_ADDRESS.into()], Lifetime::DEVICE)?;
-    certs::site(dir, &name("home")?, &[], Lifetime::DEVICE)?;
+pub fn fleet(rove: &Path, dir: &Path) -> anyhow::Result<PathBuf> {
+    let shown = dir.display().to_string();
+    harness::keys(rove, &["init", "--dir", &shown, "--fleet", "rove sites"])?;
+    harness::keys(
+        rove,
+        &[
+            "site",
+            "--dir",
+            &shown,
+            "--name",
+            "lab",
+            "--host",
+            LAB_ADDRESS,
+        ],
+    )?;
+    harness::keys(rove, &["site", "--dir", &shown, "--name", "home"])?;
     Ok(dir.to_path_buf())
 }
 

@@ -8,6 +8,13 @@ use std::time::{Duration, Instant};
 static LIVE: std::sync::Mutex<std::collections::BTreeSet<String>> =
     std::sync::Mutex::new(std::collections::BTreeSet::new());
 
+/// The live rigs' namespaces, the lock taken even if a panic poisoned it (every holder leaves
+/// the set consistent).
+fn live() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<String>> {
+    LIVE.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// Makes SIGTERM, SIGINT and SIGHUP stop every rig of this process before it exits: each
 /// namespace's processes get SIGTERM (a clean stop), then SIGKILL after a second, and the
 /// namespace is deleted. For `rove bench` and `rove demo`, whose rigs would otherwise outlive
@@ -40,7 +47,7 @@ pub fn stop_on_signals() -> anyhow::Result<()> {
                     _ = hup.recv() => 129,
                 }
             });
-            let live: Vec<String> = crate::runtime::lock(&LIVE).iter().cloned().collect();
+            let live: Vec<String> = live().iter().cloned().collect();
             eprintln!("stopping {} rig(s) on a signal", live.len());
             stop_namespaces(&live);
             std::process::exit(code);
@@ -83,10 +90,10 @@ fn stop_namespaces(live: &[String]) {
 
 /// A rig's namespace `ns` was made.
 pub(crate) fn alive(ns: &str) {
-    crate::runtime::lock(&LIVE).insert(ns.to_string());
+    live().insert(ns.to_string());
 }
 
 /// A rig's namespace `ns` was deleted.
 pub(crate) fn gone(ns: &str) {
-    crate::runtime::lock(&LIVE).remove(ns);
+    live().remove(ns);
 }

@@ -15,8 +15,8 @@
 
 use super::input::{Replay, replay_to};
 use super::report::{Stats, ms};
-use crate::tools::harness::{Rig, wait_for_output, wall_us};
-use crate::tools::sites::{self, Cut, Meet};
+use crate::harness::{Rig, wait_for_output, wall_us};
+use crate::sites::{self, Cut, Meet};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -109,7 +109,7 @@ impl Sites {
         let mut lab = Rig::new(rove, "bench-remote-lab")?;
         let mut home = Rig::new(rove, "bench-remote-home")?;
         let veth = sites::join(&lab, &home)?;
-        let fleet = sites::fleet(&lab.dir.join("fleet"))?;
+        let fleet = sites::fleet(&lab.rove, &lab.dir.join("fleet"))?;
         let streamers = (STREAMERS..).take(options.operators);
         let vehicles: Vec<i64> = (VEHICLE..).take(options.operators + 1).collect();
         let mine = [REMOTE.replay, REMOTE.owner, REMOTE.backup, CUT_OWNER];
@@ -327,14 +327,14 @@ fn streaming_cpu(sites: &mut Sites, operators: usize) -> anyhow::Result<(f64, f6
         sites.lab.procs[sites.bridges.0].pid(),
         sites.home.procs[sites.bridges.1].pid(),
     ];
-    let cpu = crate::tools::procstat::cpu_of(&pids, Duration::from_secs(10))?;
+    let cpu = crate::procstat::cpu_of(&pids, Duration::from_secs(10))?;
     Ok((cpu[0], cpu[1]))
 }
 
 /// Each bridge's resident memory, KiB: (lab, home).
 fn bridges_rss(sites: &Sites) -> anyhow::Result<(u64, u64)> {
     let rss = |rig: &Rig, index: usize| {
-        crate::tools::procstat::sample(rig.procs[index].pid())
+        crate::procstat::sample(rig.procs[index].pid())
             .map(|(_, rss)| rss)
             .ok_or_else(|| anyhow::anyhow!("a bridge exited"))
     };

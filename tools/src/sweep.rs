@@ -3,7 +3,7 @@
 //! one: CPU per node, and its growth from the smallest fleet to the largest, which is what each
 //! peer adds to every node (issue 33; docs/design.md, "Fleet scale").
 
-use crate::tools::fleet::{self, Options, Percentiles};
+use crate::fleet::{self, Options, Percentiles};
 use serde::Serialize;
 use std::path::Path;
 
@@ -83,9 +83,7 @@ pub fn run(
         fleets,
         growth,
         heartbeat_ms: options.heartbeat_ms.unwrap_or(500),
-        presence_ms: options
-            .presence_ms
-            .unwrap_or(crate::dds::DEFAULT_PRESENCE.as_millis() as u64),
+        presence_ms: options.presence_ms.unwrap_or(crate::DEFAULT_PRESENCE_MS),
     })
 }
 

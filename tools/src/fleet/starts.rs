@@ -4,7 +4,7 @@
 //! a secured fleet must converge in every start, within 2× the unsecured time).
 
 use super::{Options, Percentiles, Report, Started, driven, start};
-use crate::tools::harness::Rig;
+use crate::harness::Rig;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Duration;

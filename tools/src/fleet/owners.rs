@@ -2,7 +2,7 @@
 //! wrong owner (an apply from anyone but the vehicle's laptop) or a failsafe entry.
 
 use super::{PHONE, PHONES};
-use crate::tools::harness::{self, Out, wall_us};
+use crate::harness::{self, Out, wall_us};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;

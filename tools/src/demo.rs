@@ -287,7 +287,7 @@ pub fn run_processes(
     secure: bool,
     print: &mut dyn FnMut(&str),
 ) -> anyhow::Result<()> {
-    use crate::tools::harness::{Rig, security_toml, wait_for_output, wall_us};
+    use crate::harness::{Rig, security_toml, wait_for_output, wall_us};
     let mut rig = Rig::new(rove, "demo")?;
     let fleet = if secure {
         let dir = rig.fleet(&[VEHICLE, 11, 12, 13])?;

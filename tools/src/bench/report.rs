@@ -1,7 +1,7 @@
 //! What `rove bench handover` reports: statistics, the table, the box plot and the JSON.
 
 use super::{Options, PING_PONG_WINDOW_US, Scenario};
-use crate::tools::harness::Out;
+use crate::harness::Out;
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::PathBuf;

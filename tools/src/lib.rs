@@ -1,6 +1,9 @@
-//! Tools around the product, apart from it: what runs the README's demo, measures the gateway
-//! and checks its contract under faults. Nothing here is part of a shipped role; the roles
-//! ([`crate::vehicle`], [`crate::operator`]) never import it.
+//! `rove-tools`: the tools around the product, apart from it: what runs the README's demo,
+//! measures the gateway and checks its contract under faults, and the process harness the
+//! top-level tests share. It knows rove only as a binary (the path of `rove`, run as processes,
+//! `rove keys` included) and through rove-core; the gateway's library does not depend on it.
+//! The `rove` binary links it for `rove demo` and `rove bench` (docs/design.md, "The product
+//! apart from its tools").
 //!
 //! # Layout
 //! - [`harness`]: real `rove` processes in a private network namespace it creates (tests, demo,
@@ -27,6 +30,11 @@ pub mod soak;
 pub mod sweep;
 
 use std::path::Path;
+
+/// `[network] presence_ms` when a config leaves it out, as the gateway's
+/// `dds::DEFAULT_PRESENCE` says (a top-level test checks they agree): what the reports show
+/// when a bench did not set it.
+pub const DEFAULT_PRESENCE_MS: u64 = 250;
 
 /// `rove bench …`.
 #[derive(Debug, clap::Subcommand)]

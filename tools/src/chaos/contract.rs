@@ -2,7 +2,7 @@
 //! output ([`Out`]). Pure and unit-tested.
 
 use super::{COMMAND_TIMEOUT_US, GRACE_US, HEAL_US};
-use crate::tools::harness::Out;
+use crate::harness::Out;
 use serde::Serialize;
 use std::collections::BTreeMap;
 

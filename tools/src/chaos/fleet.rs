@@ -3,7 +3,7 @@
 
 use super::contract::{Fault, Logged};
 use super::{LADDER, VEHICLE};
-use crate::tools::harness::{Rig, wall_us};
+use crate::harness::{Rig, wall_us};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
@@ -138,7 +138,7 @@ pub(super) const VETH_FAR: &str = "10.77.0.2";
 pub(super) fn far_namespace(rove: &Path, near: &Rig) -> anyhow::Result<Rig> {
     let far = Rig::new(rove, "bench-chaos-far")?;
     let (near_addr, far_addr) = (format!("{VETH_NEAR}/24"), format!("{VETH_FAR}/24"));
-    crate::tools::harness::veth(near, &far, &near_addr, &far_addr, true)?;
+    crate::harness::veth(near, &far, &near_addr, &far_addr, true)?;
     Ok(far)
 }
 
