@@ -80,16 +80,10 @@ impl Local {
         let listener = self.domain.participant.status_listener();
         let mut discovery = listener.as_async_status_stream();
         let heard = tokio::select! {
-            sample = self.infos.next() => match sample {
-                Some(Ok(s)) => match dds::device_info(s) {
-                    (Sample::Value(info), from) => Heard::Info { info, from },
-                    (Sample::Dispose(id), from) => Heard::InfoGone { id, from },
-                },
-                Some(Err(e)) => {
-                    self.malformed.warn(&e);
-                    Heard::Nothing
-                }
-                None => anyhow::bail!("DeviceInfo stream ended"),
+            sample = self.infos.next() => match dds::device_info(sample, &mut self.malformed)? {
+                Some((Sample::Value(info), from)) => Heard::Info { info, from },
+                Some((Sample::Dispose(id), from)) => Heard::InfoGone { id, from },
+                None => Heard::Nothing,
             },
             sample = self.statuses.next() => match sample {
                 Some(Ok(s)) => {

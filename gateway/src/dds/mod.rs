@@ -43,21 +43,36 @@ use rustdds::{
 use serde::{Deserialize, Serialize};
 use std::net::Ipv4Addr;
 
-/// A DeviceInfo sample as the roles read it: the device's DeviceInfo, or (a dispose) the id
-/// of the device that withdrew it; and the participant it came from.
+/// A DeviceInfo stream's next item as the roles take it: the device's DeviceInfo, or (a dispose)
+/// the id of the device that withdrew it, and the participant it came from; `None` for a
+/// malformed sample, warned about through `malformed`.
+///
+/// # Errors
+/// The stream ended.
 pub fn device_info(
-    sample: rustdds::with_key::DataSample<KeyedDeviceInfo>,
-) -> (
-    rustdds::with_key::Sample<DeviceInfo, DeviceId>,
-    ParticipantId,
-) {
+    item: Option<rustdds::dds::ReadResult<rustdds::with_key::DataSample<KeyedDeviceInfo>>>,
+    malformed: &mut crate::runtime::RateLimited,
+) -> anyhow::Result<
+    Option<(
+        rustdds::with_key::Sample<DeviceInfo, DeviceId>,
+        ParticipantId,
+    )>,
+> {
     use rustdds::with_key::Sample;
+    let sample = match item {
+        Some(Ok(sample)) => sample,
+        Some(Err(e)) => {
+            malformed.warn(&e);
+            return Ok(None);
+        }
+        None => anyhow::bail!("DeviceInfo stream ended"),
+    };
     let from = sender(sample.sample_info());
     let value = match sample.into_value() {
         Sample::Value(KeyedDeviceInfo(info)) => Sample::Value(info),
         Sample::Dispose(id) => Sample::Dispose(id),
     };
-    (value, from)
+    Ok(Some((value, from)))
 }
 
 /// DeviceInfo keyed by `device_id`.

@@ -218,16 +218,10 @@ impl Net for Dds {
         let listener = self.node.domain.participant.status_listener();
         let mut discovery = listener.as_async_status_stream();
         let heard = tokio::select! {
-            sample = infos.next() => match sample {
-                Some(Ok(sample)) => match dds::device_info(sample) {
-                    (Sample::Value(info), from) => Heard::Info { info, from },
-                    (Sample::Dispose(id), from) => Heard::InfoGone { id, from },
-                },
-                Some(Err(e)) => {
-                    self.malformed.warn(&e);
-                    Heard::Nothing
-                }
-                None => anyhow::bail!("DeviceInfo stream ended"),
+            sample = infos.next() => match dds::device_info(sample, &mut self.malformed)? {
+                Some((Sample::Value(info), from)) => Heard::Info { info, from },
+                Some((Sample::Dispose(id), from)) => Heard::InfoGone { id, from },
+                None => Heard::Nothing,
             },
             Some(sample) = next_status(statuses) => match sample {
                 Ok(s) => match s.value() {
