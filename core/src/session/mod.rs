@@ -1296,5 +1296,4 @@ impl Out {
 }
 
 #[cfg(test)]
-#[path = "session_tests.rs"]
 mod tests;
