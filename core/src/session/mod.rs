@@ -30,84 +30,67 @@
 //!   for a vehicle we drive and whose DeviceInfo names us; auto-accept believes `src_priority`
 //!   only when a ControlCommand writer of the requester's participant has that strength; a
 //!   FINISH or a DeviceInfo resumes only a vehicle we yielded.
+//!
+//! # Roles
+//!
+//! What the session does with each vehicle is one role (`roles::Role`), kept in one table;
+//! a vehicle it has nothing to do with has none:
+//! - **Driving**: ours on the regular writer. It is driven while the input is live and
+//!   *paused* while it is not: released, and driven again once the input is live. Paused is not
+//!   a role of its own: input liveness is one fact for the whole session, so every vehicle we
+//!   drive is paused exactly while the input is not live.
+//! - **Yielded**: we gave it to a grant holder; with a flag for the standby (PROBEs on the
+//!   regular writer keep us its fallback), which ends when the input goes or the holder never
+//!   takes over, while the vehicle stays yielded. A yielded vehicle is never driven on the
+//!   regular writer: it is driven again only by the grant's end (FINISH, or the vehicle's
+//!   DeviceInfo) or a `drive` command.
+//! - **Granted**: we hold a grant for it and drive it with the priority writer.
+//!
+//! The grant is a fact of its own, beside the regular writer's part: `Driving` and `Yielded`
+//! carry a `grant` flag, and `Granted` is a grant alone. Each combination occurs:
+//! - a grant for a vehicle we drive, or that is paused: we still stream to a vehicle a stronger
+//!   operator has taken over, ask that owner (as its DeviceInfo names it) and are granted it;
+//!   or a vehicle we yielded comes back to us while we hold a grant for it;
+//! - a grant for a vehicle we yielded: we asked its holder for it back and were granted it.
+//!
+//! What cannot occur cannot be written: a vehicle both driven and paused, driven or paused
+//! while yielded, a standby for a vehicle not yielded. A vehicle is `Yielded` exactly while the
+//! handover machine has yielded it ([`Handover::has_yielded`]), and has a grant exactly while
+//! the machine holds one for it ([`Handover::holds_grant`]): the machine decides both, and the
+//! roles follow its actions.
+//!
+//! # Layout
+//! - `mod.rs`: the session's events, settings and state; [`OperatorSession::step`] and
+//!   [`OperatorSession::stop`].
+//! - `roles.rs`: one role per vehicle (above), and the only code that changes roles.
+//! - `driving.rs`: streaming, input liveness (pause and resume), and what we stream to.
+//! - `commands.rs`: [`Command`]s, from the console, the local API or a button.
+//! - `handover.rs`: REQUESTs we answer, and the handover machine's actions carried out.
+//! - `requests.rs`: the vehicles seen (DeviceInfo) and `--request` (ask once the owner is known).
+//! - `effects.rs`: what a step answers: [`Effect`]s and [`Report`]s.
 
-use crate::adapter::{InputAction, InputEvent};
-use crate::arbiter::{Event as ArbiterEvent, ParticipantId, WriterId};
-use crate::handover::{Action, Handover, HandoverConfig, Outcome, Prompt};
+mod commands;
+mod driving;
+mod effects;
+mod handover;
+mod requests;
+mod roles;
+
+pub use commands::Command;
+pub use effects::{DriveReason, Effect, Report, Writer};
+
+use crate::adapter::InputEvent;
+use crate::arbiter::{ParticipantId, WriterId};
+use crate::handover::{Handover, HandoverConfig};
 use crate::hierarchy::Strength;
 use crate::msg::{
-    CommandType, ControlCommand, DeviceId, DeviceInfo, DeviceType, Mode, MovementCommand,
-    RequestControl, TimeT,
+    ControlCommand, DeviceId, DeviceInfo, Mode, MovementCommand, RequestControl, TimeT,
 };
 use crate::time::MonoTime;
-use crate::trust::{Identities, Suspect, TrustConfig};
-use std::collections::{BTreeMap, BTreeSet};
-use std::fmt;
+use crate::trust::{Identities, TrustConfig};
+use roles::Roles;
+use std::collections::BTreeMap;
 use std::time::Duration;
-
-/// What a front end (the console's keys, joystick buttons, an API client) asks the operator to
-/// do: the single path by which a person changes what the operator does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Command {
-    /// Make `vehicle` the one that buttons act on. Moves nothing.
-    Select {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Start driving `vehicle` (it must be free: its failsafe or this operator owns it).
-    Drive {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Stop driving (explicit release; a held grant is finished). `None`: every vehicle.
-    Release {
-        /// The vehicle, or `None` for all.
-        vehicle: Option<DeviceId>,
-    },
-    /// Ask the owner of `vehicle` for control (REQUEST).
-    Request {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Accept the open request for `vehicle` (ACCEPT): the requester drives it.
-    Accept {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Refuse the open request for `vehicle` (REFUSE).
-    Refuse {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Give back the grant held for `vehicle` (FINISH).
-    Finish {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// Send `mode`. `None`: to every vehicle this operator drives (the operator has one mode).
-    Mode {
-        /// The vehicle, or `None` for all driven ones.
-        vehicle: Option<DeviceId>,
-        /// The mode.
-        mode: Mode,
-    },
-}
-
-impl Command {
-    /// The command's name as the local API spells it (`"drive"`, `"release"`, …).
-    pub fn name(&self) -> &'static str {
-        match self {
-            Command::Select { .. } => "select",
-            Command::Drive { .. } => "drive",
-            Command::Release { .. } => "release",
-            Command::Request { .. } => "request",
-            Command::Accept { .. } => "accept",
-            Command::Refuse { .. } => "refuse",
-            Command::Finish { .. } => "finish",
-            Command::Mode { .. } => "mode",
-        }
-    }
-}
 
 /// Where the operator's sticks come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -191,338 +174,6 @@ pub enum SessionEvent {
     Tick,
 }
 
-/// Which of the operator's two ControlCommand writers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Writer {
-    /// The regular writer, at the hierarchy's strength.
-    Regular,
-    /// The priority writer (strength 65535), for vehicles we hold a grant for.
-    Priority,
-}
-
-impl Writer {
-    /// The stream's identity when the session's effects go straight to an arbiter, as in the
-    /// in-process demo and the tests: writer 1 (regular) or 2 (priority) of `participant`.
-    /// Over DDS the binding derives writer ids from GUIDs instead.
-    pub fn id(self, participant: ParticipantId) -> WriterId {
-        WriterId {
-            participant,
-            entity: match self {
-                Writer::Regular => 1,
-                Writer::Priority => 2,
-            },
-        }
-    }
-}
-
-/// What the operator loop must do.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Effect {
-    /// Write this ControlCommand sample with `writer`.
-    Write {
-        /// Which writer.
-        writer: Writer,
-        /// The sample.
-        command: ControlCommand,
-    },
-    /// Release `vehicle`'s instance on `writer` (dispose): the vehicle hands over at once.
-    Release {
-        /// Which writer.
-        writer: Writer,
-        /// The vehicle (the instance key).
-        vehicle: DeviceId,
-    },
-    /// Publish this RequestControl sample.
-    Send(RequestControl),
-    /// Tell the log and the console.
-    Report(Report),
-    /// A button was pressed while a console runs: the console confirms it and sends the
-    /// command back.
-    Confirm(InputAction),
-    /// The command in this step was not carried out, and why (for the person or API client).
-    Refused(String),
-}
-
-impl Effect {
-    /// What this effect, delivered straight to `vehicle`'s arbiter at `arrival`, means to it:
-    /// a sample or a release of one of `participant`'s writers (the regular one at
-    /// `strength`, the priority one at [`Strength::PRIORITY`]), or a grant event for a
-    /// RequestControl ([`ArbiterEvent::from_request_control`]). For the in-process demo and
-    /// the tests; the operator loop carries effects out over DDS instead.
-    pub fn arbiter_event(
-        &self,
-        vehicle: DeviceId,
-        participant: ParticipantId,
-        strength: Strength,
-        arrival: MonoTime,
-    ) -> Option<ArbiterEvent> {
-        match self {
-            Effect::Write { writer, command } => Some(ArbiterEvent::Sample {
-                writer: writer.id(participant),
-                strength: match writer {
-                    Writer::Regular => strength,
-                    Writer::Priority => Strength::PRIORITY,
-                },
-                command: *command,
-                arrival,
-            }),
-            // A release is per instance: another vehicle's means nothing here.
-            Effect::Release { writer, vehicle: v } if *v == vehicle => {
-                Some(ArbiterEvent::Released {
-                    writer: writer.id(participant),
-                })
-            }
-            Effect::Send(msg) => Some(ArbiterEvent::from_request_control(
-                vehicle,
-                msg,
-                participant,
-            )),
-            Effect::Release { .. }
-            | Effect::Report(_)
-            | Effect::Confirm(_)
-            | Effect::Refused(_) => None,
-        }
-    }
-}
-
-/// Something worth telling the operator's log and console.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Report {
-    /// The input became live: the paused vehicles are driven again.
-    InputLive {
-        /// Vehicles driven again.
-        vehicles: Vec<DeviceId>,
-    },
-    /// The input cannot be trusted (lost, deadman let go): everything driven was released.
-    InputNotLive {
-        /// Why.
-        reason: String,
-        /// Vehicles released (driven again when the input is live).
-        vehicles: Vec<DeviceId>,
-    },
-    /// Buttons now act on this vehicle.
-    Selected {
-        /// The vehicle, if any.
-        vehicle: Option<DeviceId>,
-    },
-    /// The operator's mode changed.
-    ModeSelected {
-        /// The mode.
-        mode: Mode,
-    },
-    /// We drive this vehicle now (a free vehicle, on a command or on `--request`).
-    Driving {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Why.
-        why: DriveReason,
-    },
-    /// The operator released this vehicle.
-    Released {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// A REQUEST went out to `owner` for `vehicle`.
-    RequestSent {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Its owner.
-        owner: DeviceId,
-    },
-    /// A request could not be made.
-    RequestFailed {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Its owner.
-        owner: DeviceId,
-        /// Why.
-        reason: String,
-    },
-    /// Someone asks us for a vehicle we own and a person must decide.
-    Prompt(Prompt),
-    /// The consent prompt for `vehicle` closed.
-    PromptClosed {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// How.
-        outcome: Outcome,
-    },
-    /// A message was not believed (its id belongs to another participant): a spoofing attempt
-    /// or a misconfigured duplicate id.
-    Untrusted(Suspect),
-    /// A REQUEST for a vehicle we do not drive (or whose DeviceInfo does not name us) got no
-    /// answer: only the owner answers.
-    RequestIgnored {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// Who asked.
-        requester: DeviceId,
-    },
-    /// Our own request for `vehicle` ended.
-    RequestEnded {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// How.
-        outcome: Outcome,
-    },
-    /// We hold a grant for `vehicle` and drive it with the priority writer.
-    GrantStarted {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// We gave the grant for `vehicle` back.
-    GrantEnded {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// We yielded `vehicle` to a grant holder and stand by (PROBEs).
-    Yielded {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// The grant holder never took over: the standby stops.
-    StandbyEnded {
-        /// The vehicle.
-        vehicle: DeviceId,
-    },
-    /// The grant on `vehicle` is over: we drive it again (at once if the input is live).
-    Resumed {
-        /// The vehicle.
-        vehicle: DeviceId,
-        /// The input is live, so samples go out now.
-        live: bool,
-    },
-}
-
-/// Why the session started driving a vehicle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DriveReason {
-    /// A `drive` command for a free vehicle.
-    Commanded,
-    /// `--request` found the vehicle free.
-    Free,
-    /// `--request` found we already drive it.
-    AlreadyOurs,
-}
-
-impl Report {
-    /// Whether the log shows it as a warning.
-    pub fn is_warning(&self) -> bool {
-        matches!(
-            self,
-            Report::InputNotLive { .. } | Report::RequestFailed { .. } | Report::Untrusted(_)
-        )
-    }
-
-    /// The vehicle it concerns, if one.
-    pub fn vehicle(&self) -> Option<DeviceId> {
-        match self {
-            Report::InputLive { .. }
-            | Report::InputNotLive { .. }
-            | Report::ModeSelected { .. }
-            | Report::Untrusted(_) => None,
-            Report::RequestIgnored { vehicle, .. } => Some(*vehicle),
-            Report::Selected { vehicle } => *vehicle,
-            Report::Driving { vehicle, .. }
-            | Report::Released { vehicle }
-            | Report::RequestSent { vehicle, .. }
-            | Report::RequestFailed { vehicle, .. }
-            | Report::Prompt(Prompt { vehicle, .. })
-            | Report::PromptClosed { vehicle, .. }
-            | Report::RequestEnded { vehicle, .. }
-            | Report::GrantStarted { vehicle }
-            | Report::GrantEnded { vehicle }
-            | Report::Yielded { vehicle }
-            | Report::StandbyEnded { vehicle }
-            | Report::Resumed { vehicle, .. } => Some(*vehicle),
-        }
-    }
-}
-
-impl fmt::Display for Report {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Report::InputLive { vehicles } => write!(f, "input live: driving {vehicles:?}"),
-            Report::InputNotLive { reason, vehicles } => write!(
-                f,
-                "input not live: releasing control of {vehicles:?} ({reason}) until it is live"
-            ),
-            Report::Selected { vehicle: Some(v) } => write!(f, "vehicle {v} selected"),
-            Report::Selected { vehicle: None } => write!(f, "no vehicle selected"),
-            Report::ModeSelected { mode } => write!(f, "mode {mode:?} selected"),
-            Report::Driving { vehicle, why } => match why {
-                DriveReason::Commanded => write!(f, "driving vehicle {vehicle}"),
-                DriveReason::Free => {
-                    write!(
-                        f,
-                        "vehicle {vehicle} is free: driving it, no request needed"
-                    )
-                }
-                DriveReason::AlreadyOurs => {
-                    write!(f, "already driving vehicle {vehicle}: no request needed")
-                }
-            },
-            Report::Released { vehicle } => write!(f, "vehicle {vehicle} released by the operator"),
-            Report::RequestSent { vehicle, owner } => {
-                write!(f, "requesting control of vehicle {vehicle} from {owner}")
-            }
-            Report::RequestFailed {
-                vehicle,
-                owner,
-                reason,
-            } => write!(f, "cannot request vehicle {vehicle} from {owner}: {reason}"),
-            Report::Prompt(Prompt {
-                vehicle,
-                requester,
-                src_priority,
-                ..
-            }) => write!(
-                f,
-                "{requester} (priority {src_priority}) requests vehicle {vehicle}: consent needed \
-                 (accept / refuse; refused at the timeout)"
-            ),
-            Report::PromptClosed { vehicle, outcome } => {
-                write!(
-                    f,
-                    "consent prompt for vehicle {vehicle} closed: {outcome:?}"
-                )
-            }
-            Report::Untrusted(suspect) => write!(f, "not believed: {suspect}"),
-            Report::RequestIgnored { vehicle, requester } => write!(
-                f,
-                "{requester} requests vehicle {vehicle}, which we do not drive: not answered"
-            ),
-            Report::RequestEnded { vehicle, outcome } => {
-                write!(f, "request ended: {outcome:?} (vehicle {vehicle})")
-            }
-            Report::GrantStarted { vehicle } => write!(
-                f,
-                "grant for vehicle {vehicle} received: driving with the priority writer"
-            ),
-            Report::GrantEnded { vehicle } => write!(f, "grant for vehicle {vehicle} given back"),
-            Report::Yielded { vehicle } => write!(
-                f,
-                "yielding vehicle {vehicle} to the grant holder (standing by)"
-            ),
-            Report::StandbyEnded { vehicle } => write!(
-                f,
-                "grant holder never took over vehicle {vehicle}: standby ends"
-            ),
-            Report::Resumed {
-                vehicle,
-                live: true,
-            } => write!(f, "grant on vehicle {vehicle} over: driving again"),
-            Report::Resumed {
-                vehicle,
-                live: false,
-            } => write!(
-                f,
-                "grant on vehicle {vehicle} over: driving again once the input is live"
-            ),
-        }
-    }
-}
-
 /// What the operator streams to, as the console shows it ("you drive").
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Streams {
@@ -546,15 +197,8 @@ pub struct OperatorSession {
     mode: Mode,
     /// The input may drive (constant input: always; a device: live and deadman held).
     input_live: bool,
-    /// Vehicles driven with the regular writer.
-    driving: BTreeSet<DeviceId>,
-    /// Vehicles released while the input is not live; driven again when it is.
-    paused: BTreeSet<DeviceId>,
-    /// Vehicles driven with the priority writer (grants held).
-    priority: BTreeSet<DeviceId>,
-    /// Vehicles yielded to a grant holder: PROBEs on the regular writer keep us the vehicle's
-    /// fallback, so it returns to us (not to a bystander) when the grant ends.
-    standby: BTreeSet<DeviceId>,
+    /// What we do with each vehicle (module docs, "Roles").
+    roles: Roles,
     /// The vehicle that buttons act on.
     selected: Option<DeviceId>,
     /// The vehicle whose control request waits for our answer.
@@ -576,8 +220,6 @@ pub struct OperatorSession {
     /// Strengths of the ControlCommand writers discovery found, to check a REQUEST's
     /// `src_priority` against (bounded: see [`MAX_WRITERS`]).
     writers: BTreeMap<WriterId, Strength>,
-    /// Vehicles we yielded to a grant holder: the only ones a FINISH or DeviceInfo may resume.
-    yielded: BTreeSet<DeviceId>,
 }
 
 /// Most ControlCommand writers remembered for checking priorities: a flood of writers beyond
@@ -593,7 +235,6 @@ pub const MAX_VEHICLES: usize = 1024;
 impl OperatorSession {
     /// A session starting at `now`.
     pub fn new(config: SessionConfig, now: MonoTime) -> Self {
-        let configured: BTreeSet<DeviceId> = config.drive.iter().copied().collect();
         let (movement, mode, live) = match config.input {
             SessionInput::Constant(movement, mode) => (movement, mode, true),
             SessionInput::Device => (MovementCommand::CENTRED, Mode::Manual, false),
@@ -605,14 +246,7 @@ impl OperatorSession {
             movement,
             mode,
             input_live: live,
-            driving: if live {
-                configured.clone()
-            } else {
-                BTreeSet::new()
-            },
-            paused: if live { BTreeSet::new() } else { configured },
-            priority: BTreeSet::new(),
-            standby: BTreeSet::new(),
+            roles: Roles::driving(&config.drive),
             selected: config.drive.first().copied(),
             prompt: None,
             vehicles: BTreeMap::new(),
@@ -626,7 +260,6 @@ impl OperatorSession {
                 ids
             },
             writers: BTreeMap::new(),
-            yielded: BTreeSet::new(),
         }
     }
 
@@ -663,9 +296,7 @@ impl OperatorSession {
             SessionEvent::Command(command) => self.on_command(now, stamp, command, &mut out),
             SessionEvent::StreamTick => {
                 self.send_driven(stamp, &mut out);
-                for &v in &self.standby {
-                    out.write(Writer::Regular, self.command(v, CommandType::Probe, stamp));
-                }
+                self.send_probes(stamp, &mut out);
             }
             SessionEvent::Tick => {
                 let actions = self.handover.tick(now);
@@ -680,27 +311,31 @@ impl OperatorSession {
     /// drives nothing afterwards (until commanded again).
     pub fn stop(&mut self, stamp: TimeT) -> Vec<Effect> {
         let mut out = Out::default();
-        for vehicle in self.priority.clone() {
+        let granted: Vec<DeviceId> = self.roles.granted().collect();
+        for vehicle in granted {
             if let Ok(actions) = self.handover.finish(vehicle) {
                 self.push_actions(stamp, actions, &mut out);
             }
         }
-        for v in std::mem::take(&mut self.driving)
-            .into_iter()
-            .chain(std::mem::take(&mut self.standby))
-        {
+        // Paused vehicles were released when the input went.
+        let driving = self.roles.stop_driving_all();
+        let driven = if self.input_live { driving } else { Vec::new() };
+        for v in driven.into_iter().chain(self.roles.end_standby_all()) {
             out.push(Effect::Release {
                 writer: Writer::Regular,
                 vehicle: v,
             });
         }
-        for v in std::mem::take(&mut self.priority) {
+        // Every grant is the handover machine's, so the finishes above leave none; should one
+        // be left, its stream is released all the same.
+        let granted: Vec<DeviceId> = self.roles.granted().collect();
+        for v in granted {
+            self.roles.set_grant(v, false);
             out.push(Effect::Release {
                 writer: Writer::Priority,
                 vehicle: v,
             });
         }
-        self.paused.clear();
         out.0
     }
 
@@ -714,28 +349,6 @@ impl OperatorSession {
     /// The sticks and mode we send, and whether the input is live.
     pub fn input(&self) -> (MovementCommand, Mode, bool) {
         (self.movement, self.mode, self.input_live)
-    }
-
-    /// What we stream to now.
-    pub fn streams(&self) -> Streams {
-        let list = |s: &BTreeSet<DeviceId>| s.iter().copied().collect();
-        Streams {
-            driving: list(&self.driving),
-            holding: list(&self.priority),
-            standby: list(&self.standby),
-            paused: list(&self.paused),
-        }
-    }
-
-    /// Whether a [`SessionEvent::StreamTick`] has anything to send: a vehicle we drive, hold a
-    /// grant for, or stand by for. An operator that streams nothing need not tick.
-    pub fn streams_anything(&self) -> bool {
-        !(self.driving.is_empty() && self.priority.is_empty() && self.standby.is_empty())
-    }
-
-    /// Whether we send samples to `vehicle` (regular or priority writer).
-    pub fn streams_to(&self, vehicle: DeviceId) -> bool {
-        self.driving.contains(&vehicle) || self.priority.contains(&vehicle)
     }
 
     /// The vehicles seen, with their last DeviceInfo.
@@ -770,506 +383,6 @@ impl OperatorSession {
     /// The handover state (for tests and status).
     pub fn handover(&self) -> &Handover {
         &self.handover
-    }
-
-    /// The `STATUS=` line, e.g. `driving 100; holding a grant for 101; 3 vehicles seen`.
-    pub fn status_line(&self) -> String {
-        let list = |set: &BTreeSet<DeviceId>| {
-            set.iter()
-                .map(DeviceId::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let mut parts = Vec::new();
-        if self.driving.is_empty() && self.priority.is_empty() && self.standby.is_empty() {
-            parts.push("driving nothing".to_string());
-        }
-        if !self.driving.is_empty() {
-            parts.push(format!("driving {}", list(&self.driving)));
-        }
-        if !self.priority.is_empty() {
-            parts.push(format!("holding a grant for {}", list(&self.priority)));
-        }
-        if !self.standby.is_empty() {
-            parts.push(format!("standing by for {}", list(&self.standby)));
-        }
-        parts.push(match self.vehicles.len() {
-            1 => "1 vehicle seen".to_string(),
-            n => format!("{n} vehicles seen"),
-        });
-        parts.join("; ")
-    }
-
-    fn command(&self, vehicle: DeviceId, kind: CommandType, stamp: TimeT) -> ControlCommand {
-        ControlCommand {
-            src_id: self.me,
-            dest_id: vehicle,
-            command_type: kind,
-            movement_command: self.movement,
-            mode: self.mode,
-            timestamp: stamp,
-        }
-    }
-
-    /// A fresh sample to every vehicle we drive (not the standby PROBEs).
-    fn send_driven(&self, stamp: TimeT, out: &mut Out) {
-        for &v in &self.driving {
-            out.write(
-                Writer::Regular,
-                self.command(v, CommandType::Movement, stamp),
-            );
-        }
-        for &v in &self.priority {
-            out.write(
-                Writer::Priority,
-                self.command(v, CommandType::Movement, stamp),
-            );
-        }
-    }
-
-    fn on_input(&mut self, now: MonoTime, stamp: TimeT, event: InputEvent, out: &mut Out) {
-        match event {
-            InputEvent::Axes(movement) => {
-                self.movement = movement;
-                if !self.input_live {
-                    self.input_live = true;
-                    let resumed: Vec<DeviceId> =
-                        std::mem::take(&mut self.paused).into_iter().collect();
-                    self.driving.extend(resumed.iter().copied());
-                    out.report(Report::InputLive { vehicles: resumed });
-                }
-                // Event-driven: the change leaves now, not on the next keep-alive tick.
-                self.send_driven(stamp, out);
-            }
-            InputEvent::Deadman(true) => {}
-            InputEvent::Deadman(false) => self.stop_driving("deadman released", stamp, out),
-            InputEvent::Lost { reason } => self.stop_driving(&reason, stamp, out),
-            InputEvent::Action(action) if self.confirm_actions => {
-                out.push(Effect::Confirm(action));
-            }
-            InputEvent::Action(action) => {
-                if let Some(command) = self.action_to_command(action, out) {
-                    self.on_command(now, stamp, command, out);
-                }
-            }
-        }
-    }
-
-    /// The input cannot be trusted: release everything we drive, explicitly, so the vehicles
-    /// hand over at once; grants are finished. Driving resumes on live input.
-    fn stop_driving(&mut self, why: &str, stamp: TimeT, out: &mut Out) {
-        if !self.input_live {
-            return;
-        }
-        self.input_live = false;
-        let regular: Vec<DeviceId> = std::mem::take(&mut self.driving).into_iter().collect();
-        for &v in &regular {
-            out.push(Effect::Release {
-                writer: Writer::Regular,
-                vehicle: v,
-            });
-        }
-        self.paused.extend(regular.iter().copied());
-        // Vehicles we stand by for: our PROBEs would make the vehicle fall back to us (and to
-        // our last values) when the grant ends, but we cannot drive. Stop them and release;
-        // the yield itself stands, so the grant's end still brings them back to us (paused
-        // until the input is live).
-        for v in std::mem::take(&mut self.standby) {
-            out.push(Effect::Release {
-                writer: Writer::Regular,
-                vehicle: v,
-            });
-        }
-        out.report(Report::InputNotLive {
-            reason: why.to_string(),
-            vehicles: regular,
-        });
-        for v in self.priority.clone() {
-            let actions = self.handover.finish(v).unwrap_or_default();
-            self.push_actions(stamp, actions, out);
-        }
-    }
-
-    /// A button or key without the console: the command it means for the selected vehicle.
-    fn action_to_command(&mut self, action: InputAction, out: &mut Out) -> Option<Command> {
-        let selected = self.selected;
-        match action {
-            InputAction::Mode(mode) => Some(Command::Mode {
-                vehicle: None,
-                mode,
-            }),
-            InputAction::NextVehicle | InputAction::PreviousVehicle => {
-                let ids: Vec<DeviceId> = self.vehicles.keys().copied().collect();
-                let at = selected.and_then(|s| ids.iter().position(|&v| v == s));
-                let next = match (action, at) {
-                    (_, None) => ids.first().copied(),
-                    (InputAction::NextVehicle, Some(i)) => ids.get((i + 1) % ids.len()).copied(),
-                    (_, Some(i)) => ids.get((i + ids.len() - 1) % ids.len()).copied(),
-                };
-                self.selected = next;
-                out.report(Report::Selected { vehicle: next });
-                None
-            }
-            InputAction::RequestControl => selected.map(|vehicle| Command::Request { vehicle }),
-            InputAction::Accept => self.prompt.map(|vehicle| Command::Accept { vehicle }),
-            InputAction::Refuse => self.prompt.map(|vehicle| Command::Refuse { vehicle }),
-            InputAction::Finish => {
-                let held = selected.filter(|s| self.priority.contains(s)).or(self
-                    .priority
-                    .iter()
-                    .next()
-                    .copied());
-                held.map(|vehicle| Command::Finish { vehicle })
-            }
-            InputAction::Release => Some(Command::Release { vehicle: selected }),
-        }
-    }
-
-    fn on_command(&mut self, now: MonoTime, stamp: TimeT, command: Command, out: &mut Out) {
-        let owner_of = |s: &Self, v: DeviceId| s.vehicles.get(&v).map(|i| i.controller_id);
-        match command {
-            Command::Select { vehicle } => {
-                self.selected = Some(vehicle);
-                out.report(Report::Selected {
-                    vehicle: Some(vehicle),
-                });
-            }
-            Command::Mode { mode, .. } => {
-                self.mode = mode;
-                out.report(Report::ModeSelected { mode });
-                self.send_driven(stamp, out);
-            }
-            Command::Drive { vehicle } => {
-                if self.streams_to(vehicle) {
-                    return;
-                }
-                match owner_of(self, vehicle) {
-                    None => out.refuse(format!("vehicle {vehicle} has not been seen")),
-                    Some(owner) if owner != vehicle && owner != self.me => out.refuse(format!(
-                        "vehicle {vehicle} is driven by {owner}: request control instead"
-                    )),
-                    Some(_) => {
-                        // Still ours after we yielded it (the holder never took over): the
-                        // person takes it back, so the standby ends and a late FINISH is moot.
-                        self.yielded.remove(&vehicle);
-                        let probing =
-                            self.handover.resume(vehicle) && self.standby.remove(&vehicle);
-                        self.selected = Some(vehicle);
-                        out.report(Report::Driving {
-                            vehicle,
-                            why: DriveReason::Commanded,
-                        });
-                        self.drive_or_pause(vehicle, probing, stamp, out);
-                    }
-                }
-            }
-            Command::Release { vehicle } => {
-                let targets: Vec<DeviceId> = match vehicle {
-                    Some(v) => vec![v],
-                    None => self
-                        .driving
-                        .iter()
-                        .chain(&self.paused)
-                        .chain(&self.priority)
-                        .copied()
-                        .collect(),
-                };
-                for v in targets {
-                    out.report(Report::Released { vehicle: v });
-                    self.paused.remove(&v);
-                    if self.driving.remove(&v) {
-                        out.push(Effect::Release {
-                            writer: Writer::Regular,
-                            vehicle: v,
-                        });
-                    }
-                    if self.priority.contains(&v) {
-                        let actions = self.handover.finish(v).unwrap_or_default();
-                        self.push_actions(stamp, actions, out);
-                    }
-                }
-            }
-            Command::Request { vehicle } => match owner_of(self, vehicle) {
-                None => out.refuse(format!("vehicle {vehicle} has not been seen")),
-                Some(owner) if owner == vehicle || owner == self.me => {
-                    self.on_command(now, stamp, Command::Drive { vehicle }, out);
-                }
-                Some(owner) => match self.handover.request(now, vehicle, owner, stamp) {
-                    Ok(actions) => {
-                        out.report(Report::RequestSent { vehicle, owner });
-                        self.push_actions(stamp, actions, out);
-                    }
-                    Err(e) => out.refuse(format!("cannot request {vehicle}: {e}")),
-                },
-            },
-            Command::Accept { vehicle } | Command::Refuse { vehicle } => {
-                // Only what we still own can be given: a prompt answered after we released
-                // the vehicle (or lost it) is refused, or the requester would hold a grant the
-                // vehicle never honours.
-                let ours = owner_of(self, vehicle) == Some(self.me);
-                let wanted = matches!(command, Command::Accept { .. });
-                match self.handover.decide(now, vehicle, wanted && ours) {
-                    Ok(actions) => {
-                        self.push_actions(stamp, actions, out);
-                        if wanted && !ours {
-                            out.refuse(format!(
-                                "vehicle {vehicle} is no longer ours to give: the request was \
-                                 refused"
-                            ));
-                        }
-                    }
-                    Err(e) => out.refuse(format!("no answer taken for {vehicle}: {e}")),
-                }
-            }
-            Command::Finish { vehicle } => match self.handover.finish(vehicle) {
-                Ok(actions) => self.push_actions(stamp, actions, out),
-                Err(e) => out.refuse(format!("cannot finish {vehicle}: {e}")),
-            },
-        }
-    }
-
-    /// Drives `vehicle` with the regular writer now, or once the input is live.
-    fn drive(&mut self, vehicle: DeviceId, why: DriveReason, stamp: TimeT, out: &mut Out) {
-        out.report(Report::Driving { vehicle, why });
-        self.drive_or_pause(vehicle, false, stamp, out);
-    }
-
-    /// Streams to `vehicle` now if the input is live, else pauses it until it is. `probing`:
-    /// our standby PROBEs kept us live on the vehicle, so a pause releases it, and the vehicle
-    /// hands over at once rather than after a command timeout.
-    fn drive_or_pause(&mut self, vehicle: DeviceId, probing: bool, stamp: TimeT, out: &mut Out) {
-        if self.input_live {
-            self.driving.insert(vehicle);
-            out.write(
-                Writer::Regular,
-                self.command(vehicle, CommandType::Movement, stamp),
-            );
-        } else {
-            self.paused.insert(vehicle);
-            if probing {
-                out.push(Effect::Release {
-                    writer: Writer::Regular,
-                    vehicle,
-                });
-            }
-        }
-    }
-
-    /// A believed RequestControl: REQUESTs to us are answered only for a vehicle we drive and
-    /// whose DeviceInfo names us (or while we answer that vehicle's request already), and a
-    /// REQUEST's priority counts for auto-accept only if discovery agrees with it.
-    fn on_request_control(
-        &mut self,
-        now: MonoTime,
-        stamp: TimeT,
-        msg: &RequestControl,
-        out: &mut Out,
-    ) {
-        let to_us = msg.current_controller_id == self.me && msg.src_id != self.me;
-        if to_us && msg.ack == crate::msg::Ack::Request {
-            let vehicle = msg.dest_id;
-            let drives = self.streams_to(vehicle) || self.paused.contains(&vehicle);
-            let names_us =
-                (self.vehicles.get(&vehicle)).is_some_and(|i| i.controller_id == self.me);
-            if !(self.handover.is_replying(vehicle) || drives && names_us) {
-                out.report(Report::RequestIgnored {
-                    vehicle,
-                    requester: msg.src_id,
-                });
-                return;
-            }
-        }
-        let verified = (self.identities.owner(now, msg.src_id)).is_some_and(|p| {
-            (self.writers.iter())
-                .any(|(w, s)| w.participant == p && i32::from(s.0) == msg.src_priority)
-        });
-        let actions = self.handover.on_message_checked(now, msg, verified);
-        self.push_actions(stamp, actions, out);
-    }
-
-    /// Whether the vehicle table may hold `vehicle` (see [`MAX_VEHICLES`]), making room if it
-    /// must by forgetting vehicles that are neither pinned to a live participant nor ours in
-    /// any way (driven, paused, standing by, held, yielded, selected, prompted or requested).
-    fn has_room_for_vehicle(&mut self, now: MonoTime, vehicle: DeviceId) -> bool {
-        if self.vehicles.len() < MAX_VEHICLES || self.vehicles.contains_key(&vehicle) {
-            return true;
-        }
-        let ours = |v: &DeviceId| {
-            [
-                &self.driving,
-                &self.paused,
-                &self.priority,
-                &self.standby,
-                &self.yielded,
-            ]
-            .iter()
-            .any(|set| set.contains(v))
-                || self.selected == Some(*v)
-                || self.prompt == Some(*v)
-                || self.pending_request.is_some_and(|(r, _)| r == *v)
-        };
-        let gone: Vec<DeviceId> = (self.vehicles.keys())
-            .filter(|v| !ours(v) && self.identities.owner(now, **v).is_none())
-            .copied()
-            .collect();
-        for v in gone {
-            self.vehicles.remove(&v);
-        }
-        self.vehicles.len() < MAX_VEHICLES
-    }
-
-    fn on_device_info(&mut self, now: MonoTime, stamp: TimeT, info: DeviceInfo, out: &mut Out) {
-        if info.device_type == DeviceType::Vehicle {
-            // A yielded vehicle's published owner can show that its grant is over.
-            let actions = self
-                .handover
-                .on_vehicle_owner(info.device_id, info.controller_id);
-            if self.has_room_for_vehicle(now, info.device_id) {
-                self.vehicles.insert(info.device_id, info);
-            }
-            self.push_actions(stamp, actions, out);
-        }
-        self.consider_request(now, stamp, out);
-    }
-
-    /// When the `--request` decision may next be made without a new DeviceInfo: a heartbeat
-    /// after start and after the vehicle's first sample, and for a vehicle that looks free, when
-    /// it counts as free. `None` when it waits for a sample (or there is none to make).
-    fn request_deadline(&self) -> Option<MonoTime> {
-        let (wanted, free_after) = self.pending_request?;
-        let v = self.vehicles.get(&wanted)?;
-        let decide = self.ask_after.max(self.request_seen? + self.heartbeat);
-        if v.controller_id == wanted {
-            Some(decide.max(free_after))
-        } else if v.controller_id == self.me {
-            None // waits for a fresher sample (see `consider_request`)
-        } else {
-            Some(decide)
-        }
-    }
-
-    /// `--request`: ask once the vehicle and its owner are known from a live sample, on a
-    /// DeviceInfo or at [`Self::request_deadline`]. An unchanged DeviceInfo is published only
-    /// every few seconds, so the decision is not left to the next sample.
-    fn consider_request(&mut self, now: MonoTime, stamp: TimeT, out: &mut Out) {
-        let Some((wanted, free_after)) = self.pending_request else {
-            return;
-        };
-        let Some(v) = self.vehicles.get(&wanted) else {
-            return;
-        };
-        if self.identities.owner(now, wanted).is_none() {
-            // Its participant left since: wait for a live sample (no deadline until then).
-            self.request_seen = None;
-            return;
-        }
-        let first_seen = *self.request_seen.get_or_insert(now);
-        if now < self.ask_after || now < first_seen + self.heartbeat {
-            return;
-        }
-        let (vehicle, owner) = (v.device_id, v.controller_id);
-        if owner == self.me {
-            // Names us: true only if we stream to it; otherwise it is an older sample (a
-            // previous process with our id), so wait for a fresher one.
-            if self.streams_to(vehicle) {
-                self.pending_request = None;
-                out.report(Report::Driving {
-                    vehicle,
-                    why: DriveReason::AlreadyOurs,
-                });
-            }
-        } else if owner == vehicle {
-            // Looks free, but may be an old sample until two heartbeats have passed.
-            if now >= free_after {
-                self.pending_request = None;
-                self.drive(vehicle, DriveReason::Free, stamp, out);
-            }
-        } else {
-            self.pending_request = None;
-            match self.handover.request(now, vehicle, owner, stamp) {
-                Ok(actions) => {
-                    out.report(Report::RequestSent { vehicle, owner });
-                    self.push_actions(stamp, actions, out);
-                }
-                Err(e) => out.report(Report::RequestFailed {
-                    vehicle,
-                    owner,
-                    reason: e.to_string(),
-                }),
-            }
-        }
-    }
-
-    /// The handover machine's `actions` as this turn's effects (and prompts) in `out`.
-    fn push_actions(&mut self, stamp: TimeT, actions: Vec<Action>, out: &mut Out) {
-        for action in actions {
-            match action {
-                Action::Send(msg) => out.push(Effect::Send(msg)),
-                Action::AskOperator(prompt) => {
-                    self.prompt = Some(prompt.vehicle);
-                    out.report(Report::Prompt(prompt));
-                }
-                Action::PromptClosed { vehicle, outcome } => {
-                    if self.prompt == Some(vehicle) {
-                        self.prompt = None;
-                    }
-                    out.report(Report::PromptClosed { vehicle, outcome });
-                }
-                Action::RequestEnded { vehicle, outcome } => {
-                    out.report(Report::RequestEnded { vehicle, outcome });
-                }
-                Action::StartPriorityDriving { vehicle } => {
-                    self.priority.insert(vehicle);
-                    out.report(Report::GrantStarted { vehicle });
-                    out.write(
-                        Writer::Priority,
-                        self.command(vehicle, CommandType::Movement, stamp),
-                    );
-                }
-                Action::StopPriorityDriving { vehicle } => {
-                    self.priority.remove(&vehicle);
-                    out.report(Report::GrantEnded { vehicle });
-                    out.push(Effect::Release {
-                        writer: Writer::Priority,
-                        vehicle,
-                    });
-                }
-                Action::Yield { vehicle } => {
-                    self.yielded.insert(vehicle);
-                    self.driving.remove(&vehicle);
-                    self.paused.remove(&vehicle);
-                    out.report(Report::Yielded { vehicle });
-                    if self.input_live {
-                        self.standby.insert(vehicle);
-                        out.write(
-                            Writer::Regular,
-                            self.command(vehicle, CommandType::Probe, stamp),
-                        );
-                    } else {
-                        // No standby without live input: the vehicle must not fall back to
-                        // us when the grant ends (see `stop_driving`).
-                        out.push(Effect::Release {
-                            writer: Writer::Regular,
-                            vehicle,
-                        });
-                    }
-                }
-                Action::EndStandby { vehicle } => {
-                    self.standby.remove(&vehicle);
-                    out.report(Report::StandbyEnded { vehicle });
-                }
-                Action::Resume { vehicle } => {
-                    // Only a vehicle we yielded: never a role we did not hold.
-                    if !self.yielded.remove(&vehicle) {
-                        continue;
-                    }
-                    self.standby.remove(&vehicle);
-                    let live = self.input_live;
-                    out.report(Report::Resumed { vehicle, live });
-                    self.drive_or_pause(vehicle, true, stamp, out);
-                }
-            }
-        }
     }
 }
 
