@@ -1,8 +1,12 @@
 //! Unit tests of the operator session: one behaviour each, effects compared in full.
 
 use super::*;
-use crate::handover::AutoAccept;
-use crate::msg::Ack;
+// Named here since the session's code moved into submodules (`super::*` no longer brings them).
+use crate::adapter::InputAction;
+use crate::arbiter::Event as ArbiterEvent;
+use crate::handover::{AutoAccept, Outcome, Prompt};
+use crate::msg::{Ack, CommandType, DeviceType};
+use crate::trust::Suspect;
 
 const ME: DeviceId = 11;
 const OTHER: DeviceId = 12;
