@@ -60,10 +60,18 @@ impl OperatorSession {
                 Action::StartPriorityDriving { vehicle } => {
                     self.roles.set_grant(vehicle, true);
                     out.report(Report::GrantStarted { vehicle });
-                    out.write(
-                        Writer::Priority,
-                        self.command(vehicle, CommandType::Movement, stamp),
-                    );
+                    if self.input_live {
+                        out.write(
+                            Writer::Priority,
+                            self.command(vehicle, CommandType::Movement, stamp),
+                        );
+                    } else {
+                        // The input was lost after the request went out: give the grant back
+                        // at once, as a lost input does with the grants it holds, rather than
+                        // drive the vehicle with the sticks the device last reported.
+                        let finish = self.handover.finish(vehicle).unwrap_or_default();
+                        self.push_actions(stamp, finish, out);
+                    }
                 }
                 Action::StopPriorityDriving { vehicle } => {
                     self.roles.set_grant(vehicle, false);

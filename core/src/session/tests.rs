@@ -444,6 +444,42 @@ fn a_grant_is_driven_with_the_priority_writer_and_finished_when_the_input_is_los
     assert!(!s.streams_to(W) && !s.streams_to(V));
 }
 
+/// A grant that arrives while the input is not live (the request went out, then the joystick
+/// was unplugged) is given back at once: nothing moves on the priority writer with the sticks
+/// the device last reported.
+#[test]
+fn a_grant_accepted_after_the_input_was_lost_is_finished_not_driven() {
+    let mut s = device();
+    step(&mut s, 1, SessionEvent::Input(InputEvent::Axes(sticks(7))));
+    step(&mut s, 2, vehicle(W, OTHER));
+    let out = step(
+        &mut s,
+        3,
+        SessionEvent::Command(Command::Request { vehicle: W }),
+    );
+    let request = sent(&out)[0];
+    let lost = InputEvent::Lost {
+        reason: "gone".into(),
+    };
+    step(&mut s, 4, SessionEvent::Input(lost));
+    let accept = RequestControl {
+        ack: Ack::Accept,
+        ..request
+    };
+    let out = step(&mut s, 5, rc(accept));
+    assert_eq!(writes(&out), vec![], "nothing driven without live input");
+    assert_eq!(
+        sent(&out)
+            .iter()
+            .map(|m| (m.ack, m.dest_id))
+            .collect::<Vec<_>>(),
+        vec![(Ack::Finish, W)]
+    );
+    assert!(!s.streams_to(W));
+    let out = step(&mut s, 20, SessionEvent::StreamTick);
+    assert_eq!(writes(&out), vec![]);
+}
+
 #[test]
 fn mode_changes_go_out_at_once_and_stay() {
     let mut s = constant();
