@@ -18,22 +18,31 @@
 //! On a serial link the control messages are kept within [`SERIAL_SHARE`] of the link's bytes
 //! (8N1: baud / 10 bytes/s): a rate above it is lowered, with a logged note, and commands that
 //! come faster are coalesced (the newest is sent when the budget allows).
+//!
+//! # Layout
+//! - this file: [`MavlinkVehicle`], its start, what it makes of what the link hears (mode
+//!   confirmations, refusals, the link coming and going), and its [`OutputAdapter`] calls.
+//! - `send.rs`: the messages it sends: HEARTBEAT, the control message within the serial
+//!   budget, release, the mode command, the failsafe content.
+//! - `stop.rs`: stopping: the drop's bounded wait for the safe mode, and [`failsafe`] (`rove
+//!   failsafe`).
+
+mod send;
+mod stop;
+
+pub use stop::failsafe;
 
 use crate::config::AutopilotMode;
-use crate::config::{Endpoint, FailsafeAction, MavlinkConfig, Method, OnModeRefused};
-use crate::encode::{RC_CHANNELS, manual_control_values, override_values, release_values};
+use crate::config::{Endpoint, MavlinkConfig, Method, OnModeRefused};
 use crate::link::{Link, LinkStatus};
 use crate::memory::Learned;
 use crate::mode::{ModeControl, ModeState};
-use mavlink::dialects::ardupilotmega::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavCmd, MavMessage,
-    MavModeFlag, MavState, MavType, RC_CHANNELS_OVERRIDE_DATA,
-};
+use mavlink::dialects::ardupilotmega::{MANUAL_CONTROL_DATA, RC_CHANNELS_OVERRIDE_DATA};
 use rove_core::MonoTime;
 use rove_core::adapter::{Health, OutputAdapter, Telemetry};
 use rove_core::arbiter::Setpoint;
 use rove_core::error::{Disposition, LinkError};
-use rove_core::msg::MovementCommand;
+use send::first_error;
 use std::time::{Duration, Instant};
 use tracing::{info, warn};
 
@@ -316,200 +325,9 @@ impl MavlinkVehicle {
         }
     }
 
-    fn target(&self) -> Result<(u8, u8), LinkError> {
-        self.link.target().ok_or_else(|| {
-            LinkError::transient(format!(
-                "mavlink {}: no autopilot heard yet",
-                self.config.endpoint
-            ))
-        })
-    }
-
-    fn send_heartbeat_if_due(&mut self, now: MonoTime) -> Result<(), LinkError> {
-        if now < self.next_heartbeat {
-            return Ok(());
-        }
-        self.link.send(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: MavModeFlag::empty(),
-            system_status: MavState::MAV_STATE_ACTIVE,
-            mavlink_version: 3,
-        }))?;
-        // Advanced only on success: a link that comes up gets a heartbeat at once.
-        self.next_heartbeat = now + HEARTBEAT_PERIOD;
-        Ok(())
-    }
-
-    /// Whether the serial byte budget lets a control message leave now.
-    fn budget_allows(&self, now: MonoTime) -> bool {
-        self.last_control.is_none_or(|t| now >= t + self.min_gap)
-    }
-
-    /// Whether the keep-alive should repeat the control message (none left recently).
-    fn keepalive_due(&self, now: MonoTime) -> bool {
-        let skip = self.period.mul_f64(KEEPALIVE_SKIP);
-        self.last_control
-            .is_none_or(|t| now >= t + skip.max(self.min_gap))
-    }
-
-    fn send_control(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
-        let (sys, comp) = self.target()?;
-        let msg = match self.config.method {
-            Method::RcOverride => {
-                rc_override(sys, comp, &override_values(&self.config.channels, movement))
-            }
-            Method::ManualControl => {
-                let [x, y, z, r] = manual_control_values(&self.config.manual_control, movement);
-                MavMessage::MANUAL_CONTROL(MANUAL_CONTROL_DATA {
-                    x,
-                    y,
-                    z,
-                    r,
-                    target: sys,
-                    ..MANUAL_CONTROL_DATA::default()
-                })
-            }
-        };
-        self.link.send(&msg)?;
-        self.last_control = Some(now);
-        self.deferred = false;
-        Ok(())
-    }
-
-    /// Whether the operator's sticks wait for the autopilot to take the operator's mode: a mode
-    /// was asked for and is neither acknowledged nor reported by a HEARTBEAT yet.
-    ///
-    /// Sticks are meant for the mode they come with. Sent before the autopilot took it, they act
-    /// in the mode before (seen: a Rover refusing AUTO ran the AUTO request's throttle in MANUAL
-    /// for ~60 ms). So until then no control message leaves: the autopilot keeps what it last
-    /// had from rove in the mode it is in (an override lasts `RC_OVERRIDE_TIME`, 3 s; the wait
-    /// is bounded by the mode command's resends), and nothing it was not given for that mode
-    /// arrives — neither the new sticks nor a release (a vehicle starting under a streaming
-    /// operator must not blip the radio's values). The cost is one COMMAND_ACK round trip
-    /// (20–45 ms on ArduPilot) of the previous values at a mode change; a mode the autopilot
-    /// already reports costs nothing. A refusal then puts the outputs in their safe state.
-    fn sticks_wait(&self) -> bool {
-        let ModeState::Pending { mode, .. } = self.mode.state() else {
-            return false;
-        };
-        (self.link.status().autopilot).is_none_or(|a| a.custom_mode != mode.custom_mode)
-    }
-
-    /// The operator's sticks, unless they wait for their mode ([`Self::sticks_wait`]).
-    fn send_sticks(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
-        if self.sticks_wait() {
-            self.deferred = false;
-            return Ok(());
-        }
-        self.send_control(now, movement)
-    }
-
-    fn send_release(&mut self, now: MonoTime) -> Result<(), LinkError> {
-        let (sys, comp) = self.target()?;
-        self.link.send(&rc_override(
-            sys,
-            comp,
-            &release_values(&self.config.channels),
-        ))?;
-        self.last_control = Some(now);
-        Ok(())
-    }
-
-    fn send_mode_if_due(&mut self, now: MonoTime) -> Result<(), LinkError> {
-        let Some((sys, comp)) = self.link.target() else {
-            return Ok(()); // the first send waits for the autopilot
-        };
-        let Some(custom_mode) = self.mode.poll(now) else {
-            return Ok(());
-        };
-        let (param2, param3) = match self.config.autopilot {
-            crate::config::AutopilotKind::Ardupilot => (custom_mode as f32, 0.0),
-            crate::config::AutopilotKind::Px4 => (
-                ((custom_mode >> 16) & 0xff) as f32,
-                ((custom_mode >> 24) & 0xff) as f32,
-            ),
-        };
-        self.mode_sent = Some(Instant::now());
-        self.link.send(&MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-            param1: CUSTOM_MODE_ENABLED,
-            param2,
-            param3,
-            command: MavCmd::MAV_CMD_DO_SET_MODE,
-            target_system: sys,
-            target_component: comp,
-            ..COMMAND_LONG_DATA::default()
-        }))
-    }
-
-    /// The failsafe message for this step, if any.
-    fn send_failsafe(&mut self, now: MonoTime) -> Result<(), LinkError> {
-        if self.fresh && self.heard_at.is_none_or(|t| now < t + START_RELEASE_GRACE) {
-            return Ok(());
-        }
-        match (self.config.failsafe, &mut self.drive) {
-            (FailsafeAction::Neutral, _) => self.send_control(now, &MovementCommand::CENTRED),
-            (FailsafeAction::Release, Drive::Safe { releases_left }) if *releases_left > 0 => {
-                *releases_left -= 1;
-                self.send_release(now)
-            }
-            _ => Ok(()),
-        }
-    }
-
-    /// Until the autopilot is first heard, a send that fails (the transport still opening, a
-    /// udpin link before the autopilot's first datagram) is routine: the health says why
-    /// ("connecting", "no autopilot heard yet") and the link thread logs a transport that cannot
-    /// open. Reported as silent so that the gateway neither logs an output failure nor holds the
-    /// outputs at start. Once the autopilot was heard, failures are transient.
-    fn connecting(&self, e: LinkError) -> LinkError {
-        if self.link.first_connect_pending() || self.heard_at.is_none() {
-            LinkError {
-                disposition: Disposition::Silent,
-                ..e
-            }
-        } else {
-            e
-        }
-    }
-
     fn now_from_clock(&self) -> MonoTime {
         self.clock.0 + self.clock.1.elapsed()
     }
-}
-
-fn rc_override(sys: u8, comp: u8, v: &[u16; RC_CHANNELS]) -> MavMessage {
-    MavMessage::RC_CHANNELS_OVERRIDE(RC_CHANNELS_OVERRIDE_DATA {
-        target_system: sys,
-        target_component: comp,
-        chan1_raw: v[0],
-        chan2_raw: v[1],
-        chan3_raw: v[2],
-        chan4_raw: v[3],
-        chan5_raw: v[4],
-        chan6_raw: v[5],
-        chan7_raw: v[6],
-        chan8_raw: v[7],
-        chan9_raw: v[8],
-        chan10_raw: v[9],
-        chan11_raw: v[10],
-        chan12_raw: v[11],
-        chan13_raw: v[12],
-        chan14_raw: v[13],
-        chan15_raw: v[14],
-        chan16_raw: v[15],
-        chan17_raw: v[16],
-        chan18_raw: v[17],
-    })
-}
-
-/// Keeps the first error of several sends (all are attempted).
-fn first_error(results: [Result<(), LinkError>; 3]) -> Result<(), LinkError> {
-    results
-        .into_iter()
-        .collect::<Result<Vec<()>, _>>()
-        .map(|_| ())
 }
 
 impl OutputAdapter for MavlinkVehicle {
@@ -691,186 +509,11 @@ impl MavlinkVehicle {
             }
         }
     }
-
-    /// Steps the adapter with wall time until the mode machine settles or `limit` passes.
-    fn settle_mode(&mut self, limit: Duration) {
-        let deadline = Instant::now() + limit;
-        while matches!(self.mode.state(), ModeState::Pending { .. }) && Instant::now() < deadline {
-            let seen = self.link.generation();
-            let now = self.now_from_clock();
-            if self.keepalive(now).is_err() && self.link.target().is_none() {
-                break;
-            }
-            if !matches!(self.mode.state(), ModeState::Pending { .. }) {
-                break;
-            }
-            // Woken by the autopilot's answer, else at the next resend or keep-alive.
-            let next = self
-                .mode
-                .next_deadline()
-                .map_or(self.period, |d| d.saturating_since(now))
-                .min(self.period)
-                .min(deadline.saturating_duration_since(Instant::now()));
-            self.link.wait_for_news(seen, next);
-        }
-    }
-
-    /// The bound on waiting for a mode command: every send's timeout, plus one.
-    fn mode_wait(&self) -> Duration {
-        self.config.command_timeout * (self.config.command_retries + 2)
-    }
-}
-
-impl Drop for MavlinkVehicle {
-    fn drop(&mut self) {
-        let now = self.now_from_clock();
-        if self.safe_state(now).is_err() {
-            return;
-        }
-        // A safe mode already confirmed is not requested again (nothing is pending then).
-        self.settle_mode(self.mode_wait().min(STOP_ACK_WAIT));
-    }
-}
-
-/// `rove failsafe` for a MAVLink vehicle: connect, address the autopilot, release (or
-/// neutral), command the safe mode and wait for its confirmation.
-///
-/// It starts from what the running vehicle learned ([`crate::memory`], `config.memory`): the
-/// autopilot's ids and, on a `udpin:` link, its address. With them (or `target_system` on a link
-/// that needs no address) the messages leave as soon as the transport is open and the
-/// COMMAND_ACK ends the command within milliseconds. Without, it waits (bounded by the link
-/// timeout) for the autopilot to speak: its HEARTBEAT comes once a second.
-///
-/// # Errors
-/// Nobody to address within the link timeout (the message says what was missing), the messages
-/// cannot be sent, or the safe mode was refused or not confirmed.
-pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
-    let start = Instant::now();
-    let endpoint = config.endpoint.to_string();
-    let learned = match config
-        .memory
-        .as_deref()
-        .map(|p| Learned::load(p, &endpoint))
-    {
-        Some(Ok(learned)) => learned,
-        Some(Err(why)) => {
-            warn!(%why, "mavlink: what the vehicle learned is not used");
-            None
-        }
-        None => None,
-    };
-    // The file is the running vehicle's: read here, never written (a one-shot process killed
-    // by systemd mid-write would leave half of it behind).
-    let read_only = MavlinkConfig {
-        memory: None,
-        ..config.clone()
-    };
-    let mut v = MavlinkVehicle::start(read_only, MonoTime::ZERO, learned.as_ref())?;
-    let ready = |v: &MavlinkVehicle| v.link.target().is_some() && v.link.can_send();
-    while !ready(&v) && start.elapsed() < config.link_timeout {
-        let seen = v.link.generation();
-        let now = v.now_from_clock();
-        let _ = v.keepalive(now);
-        // The autopilot's first datagram or HEARTBEAT wakes this at once.
-        v.link.wait_for_news(seen, v.period);
-    }
-    if !ready(&v) {
-        let status = v.link.status();
-        let missing = if !status.connected {
-            format!(
-                "the link did not open ({})",
-                status.error.as_deref().unwrap_or("connecting")
-            )
-        } else if v.link.target().is_none() {
-            "no HEARTBEAT from an autopilot, and no system id known (set target_system)".into()
-        } else {
-            "no datagram from the autopilot, so no address to send to".into()
-        };
-        return Err(LinkError::transient(format!(
-            "mavlink {endpoint}: nothing sent: {missing} within {:?}; {}",
-            config.link_timeout,
-            match (&config.memory, &learned) {
-                (None, _) => "no runtime directory to learn the autopilot from".to_string(),
-                (Some(p), None) => format!("no running vehicle had written {}", p.display()),
-                (Some(p), Some(l)) => format!("{} had {l}", p.display()),
-            }
-        )));
-    }
-    if let Some(l) = &learned {
-        info!(learned = %l, "mavlink: addressing the autopilot the vehicle learned");
-    }
-    v.failsafe_now()
-}
-
-impl MavlinkVehicle {
-    /// `rove failsafe`'s work once the autopilot is known: release (or neutral), command the
-    /// safe mode, and wait (bounded) for its confirmation.
-    ///
-    /// # Errors
-    /// The messages cannot be sent, or the safe mode was refused or not confirmed in time.
-    pub fn failsafe_now(&mut self) -> Result<String, LinkError> {
-        let v = self;
-        let now = v.now_from_clock();
-        // `rove failsafe` releases at once, start-up grace or not.
-        v.fresh = false;
-        v.command_safe_mode(now);
-        v.safe_state(now)?;
-        v.settle_mode(v.mode_wait());
-        v.failsafe_result()
-    }
-
-    fn failsafe_result(&self) -> Result<String, LinkError> {
-        let v = self;
-        match v.mode.state() {
-            ModeState::Failed { reason, .. } => Err(LinkError::transient(reason.clone())),
-            ModeState::Pending { mode, .. } => Err(LinkError::transient(format!(
-                "{} not confirmed in time",
-                mode.name
-            ))),
-            ModeState::Confirmed(mode) => Ok(format!(
-                "{} — {}",
-                v.describe(),
-                confirmation(&v.link.status(), mode, |m| v.mode_name(m))
-            )),
-            ModeState::Idle => Ok(format!(
-                "{} — {}; no mode commanded (set_mode = false)",
-                v.describe(),
-                v.autopilot_summary()
-            )),
-        }
-    }
-}
-
-/// What `rove failsafe` says of a confirmed safe mode: who confirmed it, and how. A COMMAND_ACK
-/// is as good an answer as a HEARTBEAT; a HEARTBEAT that still shows the mode before is named as
-/// such (pure, unit-tested).
-fn confirmation(status: &LinkStatus, mode: &AutopilotMode, name: impl Fn(u32) -> String) -> String {
-    match (status.autopilot, status.acked_by) {
-        (Some(a), _) if a.custom_mode == mode.custom_mode => format!(
-            "system {}/{} in {}, {}",
-            a.system_id,
-            a.component_id,
-            mode.name,
-            if a.armed { "armed" } else { "disarmed" }
-        ),
-        (Some(a), _) => format!(
-            "system {}/{} acknowledged {} (its last HEARTBEAT, older, said {}), {}",
-            a.system_id,
-            a.component_id,
-            mode.name,
-            name(a.custom_mode),
-            if a.armed { "armed" } else { "disarmed" }
-        ),
-        (None, Some((sys, comp))) => format!(
-            "system {sys}/{comp} acknowledged {} (COMMAND_ACK; no HEARTBEAT heard yet)",
-            mode.name
-        ),
-        (None, None) => format!("{} confirmed", mode.name),
-    }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::stop::confirmation;
     use super::*;
 
     /// Issue 50: an ACK-only run said "no autopilot heard" while HOLD was acknowledged.

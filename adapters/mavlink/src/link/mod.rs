@@ -12,24 +12,37 @@
 //! COMMAND_ACKs it sent us. Messages from any other system are counted and dropped; bytes that do
 //! not parse are skipped. On a transport error (TCP closed, serial device gone) it reconnects
 //! every [`RECONNECT`]; UDP needs no reconnect (a restarted autopilot just speaks again).
+//!
+//! # Layout
+//! - this file: [`Link`] (start, what it knows, sending), [`LinkStatus`] and the state the
+//!   reader thread shares with it.
+//! - `transport.rs`: opening UDP, TCP and serial transports, and reading them
+//!   ([`classify_read`]).
+//! - `receive.rs`: the reader thread: (re)connect, read, decode, and what each message from
+//!   our autopilot changes.
+
+mod receive;
+mod transport;
+
+pub use transport::{ReadOutcome, classify_read};
 
 use crate::config::{Endpoint, MavlinkConfig};
-use crate::frame::{Decoder, encode};
+use crate::frame::encode;
 use crate::memory::{Keeper, Learned};
 use crate::mode::AckResult;
-use mavlink::dialects::ardupilotmega::{
-    MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavType,
-};
+use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::{MavHeader, MavlinkVersion};
+use receive::run;
 use rove_core::error::LinkError;
 use std::collections::VecDeque;
-use std::io::{self, Read, Write};
-use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::io::{self, Write};
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use tracing::{debug, info, warn};
+use tracing::warn;
+use transport::Writer;
 
 /// Pause between reconnect attempts.
 pub const RECONNECT: Duration = Duration::from_millis(500);
@@ -98,46 +111,6 @@ pub struct Battery {
     pub mv: Option<u32>,
     /// Remaining, percent (`battery_remaining`; -1: unknown).
     pub pct: Option<u8>,
-}
-
-/// The sending half of an open transport.
-enum Writer {
-    Tcp(Mutex<TcpStream>),
-    /// The socket, and where to send: fixed (udpout) or the last sender (udpin).
-    Udp(Arc<UdpSocket>, Arc<Mutex<Option<SocketAddr>>>),
-    Serial(Mutex<serialport::TTYPort>),
-}
-
-/// The receiving half.
-enum Reader {
-    Tcp(TcpStream),
-    /// The socket, and the peer to update from each datagram's sender (udpin only).
-    Udp(Arc<UdpSocket>, Option<Arc<Mutex<Option<SocketAddr>>>>),
-    Serial(serialport::TTYPort),
-}
-
-impl Reader {
-    /// Reads what arrived; `true` with it when a `udpin:` link's peer is new (its address
-    /// changed, or it is the first datagram).
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<(usize, bool)> {
-        match self {
-            Reader::Tcp(s) => match s.read(buf)? {
-                0 => Err(io::Error::new(
-                    io::ErrorKind::UnexpectedEof,
-                    "the autopilot closed the connection",
-                )),
-                n => Ok((n, false)),
-            },
-            Reader::Udp(sock, peer) => {
-                let (n, from) = sock.recv_from(buf)?;
-                let new = peer
-                    .as_ref()
-                    .is_some_and(|peer| lock(peer).replace(from) != Some(from));
-                Ok((n, new))
-            }
-            Reader::Serial(p) => Ok((p.read(buf)?, false)),
-        }
-    }
 }
 
 struct Shared {
@@ -355,178 +328,6 @@ impl Drop for Link {
     }
 }
 
-fn resolve(addr: &str) -> io::Result<SocketAddr> {
-    addr.to_socket_addrs()?.next().ok_or_else(|| {
-        io::Error::new(
-            io::ErrorKind::NotFound,
-            format!("{addr}: no address for this host"),
-        )
-    })
-}
-
-fn open(
-    endpoint: &Endpoint,
-    peer: &Arc<Mutex<Option<SocketAddr>>>,
-) -> io::Result<(Reader, Writer)> {
-    Ok(match endpoint {
-        Endpoint::UdpIn(a) => {
-            let sock = Arc::new(UdpSocket::bind(resolve(a)?)?);
-            sock.set_read_timeout(Some(READ_TIMEOUT))?;
-            sock.set_write_timeout(Some(SEND_TIMEOUT))?;
-            let peer = Arc::clone(peer);
-            (
-                Reader::Udp(Arc::clone(&sock), Some(Arc::clone(&peer))),
-                Writer::Udp(sock, peer),
-            )
-        }
-        Endpoint::UdpOut(a) => {
-            let to = resolve(a)?;
-            let any: SocketAddr = if to.is_ipv4() {
-                ([0, 0, 0, 0], 0).into()
-            } else {
-                (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-            };
-            let sock = Arc::new(UdpSocket::bind(any)?);
-            sock.set_read_timeout(Some(READ_TIMEOUT))?;
-            sock.set_write_timeout(Some(SEND_TIMEOUT))?;
-            (
-                Reader::Udp(Arc::clone(&sock), None),
-                Writer::Udp(sock, Arc::new(Mutex::new(Some(to)))),
-            )
-        }
-        Endpoint::TcpOut(a) => {
-            let stream = TcpStream::connect_timeout(&resolve(a)?, CONNECT_TIMEOUT)?;
-            // Each frame is one write and must leave at once (seen against ArduPilot: Nagle held the second
-            // of two back-to-back messages ~44 ms).
-            stream.set_nodelay(true)?;
-            stream.set_read_timeout(Some(READ_TIMEOUT))?;
-            stream.set_write_timeout(Some(SEND_TIMEOUT))?;
-            socket2::SockRef::from(&stream).set_send_buffer_size(TCP_SEND_BUFFER)?;
-            let writer = stream.try_clone()?;
-            (Reader::Tcp(stream), Writer::Tcp(Mutex::new(writer)))
-        }
-        Endpoint::Serial { device, baud } => {
-            let port = serialport::new(device, *baud)
-                .data_bits(serialport::DataBits::Eight)
-                .parity(serialport::Parity::None)
-                .stop_bits(serialport::StopBits::One)
-                .flow_control(serialport::FlowControl::None)
-                .timeout(READ_TIMEOUT)
-                .open_native()
-                .map_err(io::Error::from)?;
-            // What the port received before we opened it is another process's (the vehicle
-            // before `rove failsafe`, or before a restart): an old HEARTBEAT read now would say
-            // the autopilot is in a mode it has since left, and "confirm" a safe mode it is not
-            // in (seen: `rove failsafe` asked nothing of an autopilot 20 ms into MANUAL).
-            if let Err(e) = serialport::SerialPort::clear(&port, serialport::ClearBuffer::Input) {
-                warn!(device = %device, cause = %e, "mavlink: cannot discard stale serial input");
-            }
-            let writer = port.try_clone_native().map_err(io::Error::from)?;
-            (Reader::Serial(port), Writer::Serial(Mutex::new(writer)))
-        }
-    })
-}
-
-/// How a read error is handled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ReadOutcome {
-    /// Nothing arrived in time: check for stop, read again.
-    Idle,
-    /// The transport is gone: reconnect.
-    Reconnect,
-}
-
-/// Classifies a read error (pure, unit-tested).
-pub fn classify_read(e: &io::Error) -> ReadOutcome {
-    match e.kind() {
-        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted => {
-            ReadOutcome::Idle
-        }
-        // UDP: an ICMP port-unreachable from a peer that is not up yet surfaces here.
-        io::ErrorKind::ConnectionRefused => ReadOutcome::Idle,
-        _ => ReadOutcome::Reconnect,
-    }
-}
-
-fn run(shared: &Shared) {
-    let mut logged_error: Option<String> = None;
-    let mut decoder = Decoder::new();
-    let mut buf = vec![0u8; READ_CHUNK];
-    while !shared.stop.load(Ordering::Relaxed) {
-        let (mut reader, writer) = match open(&shared.endpoint, &shared.peer) {
-            Ok(c) => c,
-            Err(e) => {
-                let why = format!("{}: {e}", shared.endpoint);
-                if logged_error.as_deref() != Some(why.as_str()) {
-                    warn!(error = %why, "mavlink: cannot open the link; retrying every {RECONNECT:?}");
-                    logged_error = Some(why.clone());
-                }
-                let mut s = lock(&shared.status);
-                s.connected = false;
-                s.error = Some(e.to_string());
-                drop(s);
-                std::thread::sleep(RECONNECT);
-                continue;
-            }
-        };
-        info!(endpoint = %shared.endpoint, "mavlink: link open");
-        logged_error = None;
-        decoder.clear();
-        {
-            let mut s = lock(&shared.status);
-            s.connected = true;
-            s.error = None;
-            s.connects += 1;
-        }
-        *lock(&shared.writer) = Some(Arc::new(writer));
-        // A waiter with a configured target needs only an open transport.
-        notify(shared);
-        while !shared.stop.load(Ordering::Relaxed) {
-            match reader.read(&mut buf) {
-                Ok((n, new_peer)) => {
-                    if new_peer {
-                        // A udpin waiter needs the address; `rove failsafe` needs it kept.
-                        notify(shared);
-                        remember(shared);
-                    }
-                    decoder.push(buf.get(..n).unwrap_or(&buf));
-                    let skipped = decoder.skipped();
-                    while let Some(frame) = decoder.next_frame() {
-                        handle(shared, frame.header, &frame.message);
-                    }
-                    let more = decoder.skipped() - skipped;
-                    if more > 0 {
-                        debug!(
-                            bytes = more,
-                            "mavlink: skipped bytes that are not a message"
-                        );
-                        lock(&shared.status).garbage += more;
-                    }
-                }
-                Err(e) => match classify_read(&e) {
-                    ReadOutcome::Idle => {}
-                    ReadOutcome::Reconnect => {
-                        warn!(endpoint = %shared.endpoint, error = %e, "mavlink: link lost; reconnecting");
-                        let mut s = lock(&shared.status);
-                        s.connected = false;
-                        s.error = Some(e.to_string());
-                        break;
-                    }
-                },
-            }
-        }
-        *lock(&shared.writer) = None;
-        if !shared.stop.load(Ordering::Relaxed) {
-            std::thread::sleep(RECONNECT);
-        }
-    }
-}
-
-fn notify(shared: &Shared) {
-    *lock(&shared.generation) += 1;
-    shared.news.notify_all();
-}
-
 /// The (system, component) to address: see [`Link::target`].
 fn target(shared: &Shared) -> Option<(u8, u8)> {
     let heard = lock(&shared.status)
@@ -556,134 +357,14 @@ fn keeper(config: &MavlinkConfig) -> Option<Keeper> {
     }
 }
 
-/// Keeps what the link learned in the memory file, when it changed (the udpin peer, the
-/// autopilot's ids); the [`Keeper`] writes it on its own thread.
-fn remember(shared: &Shared) {
-    let Some(keeper) = &shared.keeper else {
-        return;
-    };
-    // Whom the link addresses: a udpin link's address is worth keeping with a configured
-    // target even before the first HEARTBEAT.
-    let Some((system_id, component_id)) = target(shared) else {
-        return;
-    };
-    keeper.keep(Learned {
-        endpoint: shared.endpoint.to_string(),
-        peer: *lock(&shared.peer),
-        system_id,
-        component_id,
-    });
-}
-
-fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
-    let mut s = lock(&shared.status);
-    let expected = shared
-        .target_system
-        .or(s.autopilot.map(|a| a.system_id))
-        .or(shared.learned.map(|(sys, _)| sys));
-    // Until an autopilot is heard (and without a configured target), any autopilot's
-    // HEARTBEAT locks on, even one other than an earlier run learned.
-    let lock_on = shared.target_system.is_none()
-        && s.autopilot.is_none()
-        && matches!(msg, MavMessage::HEARTBEAT(_));
-    let ours = lock_on || expected.is_none_or(|sys| header.system_id == u32::from(sys));
-    if !ours {
-        s.foreign += 1;
-        return;
-    }
-    // MAVLink 2 allows system ids above 255 in principle; no autopilot we drive uses one.
-    let Ok(system_id) = u8::try_from(header.system_id) else {
-        s.foreign += 1;
-        return;
-    };
-    match msg {
-        MavMessage::HEARTBEAT(hb) => {
-            let is_autopilot = hb.mavtype != MavType::MAV_TYPE_GCS
-                && hb.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID;
-            let component_ok = shared
-                .target_component
-                .is_none_or(|c| c == header.component_id);
-            if !is_autopilot || !component_ok {
-                return;
-            }
-            let info = AutopilotInfo {
-                system_id,
-                component_id: header.component_id,
-                mav_type: hb.mavtype as u32,
-                autopilot: hb.autopilot as u32,
-                custom_mode: hb.custom_mode,
-                armed: hb
-                    .base_mode
-                    .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
-            };
-            let known = s.autopilot.map(|a| (a.system_id, a.component_id));
-            if known != Some((info.system_id, info.component_id)) {
-                // Another autopilot: the last one's battery is not this one's.
-                s.battery = None;
-            }
-            s.autopilot = Some(info);
-            s.last_heartbeat = Some(Instant::now());
-            drop(s);
-            notify(shared);
-            if known != Some((info.system_id, info.component_id)) {
-                // Handed to the keeper before it is announced (written within milliseconds).
-                remember(shared);
-            }
-            if known.is_none() {
-                info!(
-                    system = info.system_id,
-                    component = info.component_id,
-                    autopilot = ?hb.autopilot,
-                    mav_type = ?hb.mavtype,
-                    "mavlink: autopilot found"
-                );
-            }
-        }
-        MavMessage::COMMAND_ACK(_) if expected.is_none() => {}
-        MavMessage::COMMAND_ACK(ack) => {
-            if ack.command != MavCmd::MAV_CMD_DO_SET_MODE {
-                return;
-            }
-            let result = match ack.result {
-                MavResult::MAV_RESULT_ACCEPTED => AckResult::Accepted,
-                MavResult::MAV_RESULT_IN_PROGRESS => AckResult::InProgress,
-                MavResult::MAV_RESULT_TEMPORARILY_REJECTED => AckResult::TemporarilyRejected,
-                MavResult::MAV_RESULT_DENIED => AckResult::Refused("MAV_RESULT_DENIED"),
-                MavResult::MAV_RESULT_UNSUPPORTED => AckResult::Refused("MAV_RESULT_UNSUPPORTED"),
-                MavResult::MAV_RESULT_FAILED => AckResult::Refused("MAV_RESULT_FAILED"),
-                _ => AckResult::Refused("a refusal"),
-            };
-            s.acked_by = Some((system_id, header.component_id));
-            drop(s);
-            let mut acks = lock(&shared.acks);
-            if acks.len() >= ACK_QUEUE {
-                acks.pop_front();
-            }
-            acks.push_back(result);
-            drop(acks);
-            notify(shared);
-        }
-        // The battery of the autopilot we drive (its component; before it is heard, nothing).
-        MavMessage::SYS_STATUS(st)
-            if s.autopilot.is_some_and(|a| {
-                a.system_id == system_id && a.component_id == header.component_id
-            }) =>
-        {
-            s.battery = Some(Battery {
-                mv: (st.voltage_battery != u16::MAX).then_some(u32::from(st.voltage_battery)),
-                pct: u8::try_from(st.battery_remaining)
-                    .ok()
-                    .filter(|p| *p <= 100),
-            });
-        }
-        _ => {}
-    }
-}
-
 #[cfg(test)]
 mod tests {
+    use super::receive::handle;
     use super::*;
-    use mavlink::dialects::ardupilotmega::{COMMAND_ACK_DATA, HEARTBEAT_DATA, MavState};
+    use mavlink::dialects::ardupilotmega::{
+        COMMAND_ACK_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavModeFlag, MavResult, MavState,
+        MavType,
+    };
 
     fn header(system_id: u32, component_id: u8) -> MavHeader {
         MavHeader {

@@ -4,6 +4,7 @@ use super::*;
 use crate::codes::{EV_ABS, EV_KEY, EV_SYN};
 use crate::config::InputSettings;
 use rove_core::adapter::InputAction;
+use rove_core::mapping::Axis;
 use rove_core::msg::Mode;
 
 const ABS_X: u16 = 0x00;

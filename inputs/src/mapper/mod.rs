@@ -19,10 +19,10 @@
 //!   `SYN_REPORT` (values are then unknown until re-reported, which the device layer does from
 //!   the kernel's state); after silence, any event.
 //! - **No jump.** At start and after every `Lost`, no `Axes` is emitted until every mapped axis
-//!   has been seen at its rest position ([`Rest`], within [`REST_TOLERANCE`]) and no axis key
-//!   is held. The first `Axes` after that is always emitted, even if centred: it is the
-//!   "live again" signal. [`Mapper::status`] names the axes still awaited so a UI can say
-//!   "centre the sticks".
+//!   has been seen at its rest position ([`Rest`](crate::config::Rest), within
+//!   [`REST_TOLERANCE`]) and no axis key is held. The first `Axes` after that is always
+//!   emitted, even if centred: it is the "live again" signal. [`Mapper::status`] names the axes
+//!   still awaited so a UI can say "centre the sticks".
 //! - **Stale keys.** A key a snapshot reports held drives no ramp until released.
 //! - **Press edges only.** Actions and the deadman fire on a press seen as an event, never on a
 //!   state snapshot (a button held through a replug must be pressed again); auto-repeat
@@ -33,18 +33,27 @@
 //! detected without it (the read fails with ENODEV at once); the timeout is for devices that
 //! stream continuously (many gamepads report motion sensors or noisy sticks at 100+ Hz), where
 //! silence means a frozen device or a dead wireless link.
+//!
+//! # Layout
+//! - this file: [`Mapper`], its link state and its entry points: device events, ticks, the
+//!   output queue, raw events, losing the device.
+//! - `status.rs`: [`InputStatus`] and [`LinkState`], the snapshot shown to users.
+//! - `axes.rs`: the end of a frame: control edges (actions, deadman), key-ramp targets, each
+//!   axis's value, the no-jump rest check and the `Axes` output.
+//! - `tests.rs`: its unit tests.
 
-use crate::codes::{
-    Control, EV_ABS, EV_KEY, RawEvent, SYN_DROPPED, SYN_REPORT, abs_name, key_name,
-};
-use crate::config::{AXES, AxisConfig, AxisInput, MappingConfig, Rest};
-use crate::curve::{AbsState, Calibration, Ramp, Shaping, to_axis};
+mod axes;
+mod status;
+
+pub use status::{InputStatus, LinkState};
+
+use crate::codes::{Control, EV_ABS, EV_KEY, RawEvent, SYN_DROPPED, SYN_REPORT};
+use crate::config::{AxisConfig, AxisInput, MappingConfig};
+use crate::curve::{AbsState, Ramp};
 use rove_core::adapter::InputEvent;
-use rove_core::mapping::Axis;
 use rove_core::msg::MovementCommand;
 use rove_core::time::MonoTime;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
-use std::fmt;
 use std::time::Duration;
 
 /// How often a moving key ramp emits, 10 ms: 100 Hz, twice the operator's default 50 Hz
@@ -107,77 +116,6 @@ enum Link {
     Live,
     AwaitingRest,
     Lost(LostCause, String),
-}
-
-/// The link state as shown to users.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum LinkState {
-    /// Sticks drive the output (subject to the deadman).
-    Live,
-    /// Waiting for these axes to reach their rest position (the no-jump rule): "centre the
-    /// sticks".
-    AwaitingRest {
-        /// Axes not yet at rest.
-        axes: Vec<Axis>,
-    },
-    /// No usable input.
-    Lost {
-        /// Why.
-        reason: String,
-    },
-}
-
-/// A snapshot for status displays and `rove inputs show`.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct InputStatus {
-    /// The device's name, once connected.
-    pub device: Option<String>,
-    /// Live, awaiting rest, or lost.
-    pub link: LinkState,
-    /// `Some(held)` when a deadman is configured.
-    pub deadman: Option<bool>,
-    /// The mapped stick values, whatever the link and deadman (what the sticks say).
-    pub sticks: MovementCommand,
-    /// What the source reports: `sticks` while live and the deadman is held, else neutral.
-    pub output: MovementCommand,
-    /// Every absolute axis seen, raw value by code (to find codes when writing a mapping).
-    pub abs: Vec<(u16, i32)>,
-    /// Every key and button held, by code.
-    pub pressed: Vec<u16>,
-}
-
-impl fmt::Display for InputStatus {
-    /// One line: `throttle=… roll=… pitch=… yaw=… deadman=held live | ABS_X=… | BTN_SOUTH …`.
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let s = &self.sticks;
-        write!(
-            f,
-            "throttle={:6} roll={:6} pitch={:6} yaw={:6}",
-            s.throttle, s.roll, s.pitch, s.yaw
-        )?;
-        match self.deadman {
-            Some(true) => f.write_str(" deadman=held")?,
-            Some(false) => f.write_str(" deadman=up")?,
-            None => {}
-        }
-        match &self.link {
-            LinkState::Live => f.write_str(" live")?,
-            LinkState::AwaitingRest { axes } => {
-                let names: Vec<_> = axes.iter().map(|a| a.name()).collect();
-                write!(f, " centre: {}", names.join(","))?;
-            }
-            LinkState::Lost { reason } => write!(f, " LOST: {reason}")?,
-        }
-        f.write_str(" |")?;
-        for (code, value) in &self.abs {
-            write!(f, " {}={value}", abs_name(*code))?;
-        }
-        f.write_str(" |")?;
-        for code in &self.pressed {
-            write!(f, " {}", key_name(*code))?;
-        }
-        Ok(())
-    }
 }
 
 /// The mapping state machine (see the module docs for its rules).
@@ -473,192 +411,6 @@ impl Mapper {
         }
     }
 
-    /// Ends a frame: control edges, ramp targets, axes.
-    fn evaluate(&mut self, fire: bool) {
-        let mut actions = Vec::new();
-        let mut deadman_pressed = false;
-        if let Some(deadman) = self.mapping.deadman {
-            let (was, now) = self.control_edge(deadman);
-            if was && !now && self.deadman_held {
-                self.deadman_held = false;
-                self.last_emitted = None;
-                self.push(InputEvent::Deadman(false));
-            }
-            if !was && now && fire && !self.deadman_held {
-                deadman_pressed = true;
-            }
-        }
-        for i in 0..self.mapping.actions.len() {
-            let (control, action) = self.mapping.actions[i];
-            let (was, now) = self.control_edge(control);
-            if !was && now && fire {
-                actions.push(action);
-            }
-        }
-        for action in actions {
-            self.push(InputEvent::Action(action));
-        }
-        if deadman_pressed {
-            self.deadman_held = true;
-            self.last_emitted = None;
-            self.push(InputEvent::Deadman(true));
-        }
-        for (slot, axis) in self.mapping.axes.iter().enumerate() {
-            if let (
-                Some(AxisConfig {
-                    input:
-                        AxisInput::Keys {
-                            negative, positive, ..
-                        },
-                    ..
-                }),
-                Some(ramp),
-            ) = (axis, &mut self.ramps[slot])
-            {
-                let held = |k: &Option<u16>| {
-                    k.is_some_and(|k| self.keys.contains(&k) && !self.stale_keys.contains(&k))
-                };
-                ramp.set_keys(held(negative), held(positive));
-            }
-        }
-        self.update_axes();
-    }
-
-    /// Updates a bound control's recorded state; returns (before, now).
-    fn control_edge(&mut self, control: Control) -> (bool, bool) {
-        let now = self.control_state(control);
-        let was = self.controls.insert(control, now).unwrap_or(false);
-        (was, now)
-    }
-
-    fn control_state(&self, control: Control) -> bool {
-        let direction = |code: u16| -> Option<f64> {
-            let value = *self.abs.get(&code)?;
-            // Without absinfo (a bare recording) the sign of the raw value decides, which is
-            // right for hats (−1/0/+1).
-            Some(
-                match Calibration::resolve(self.absinfo.get(&code), None, None, None) {
-                    Some(cal) => cal.normalise(value),
-                    None => f64::from(value.signum()),
-                },
-            )
-        };
-        match control {
-            Control::Key(code) => self.keys.contains(&code),
-            Control::AbsPositive(code) => direction(code).is_some_and(|x| x > 0.5),
-            Control::AbsNegative(code) => direction(code).is_some_and(|x| x < -0.5),
-        }
-    }
-
-    /// An axis's value before expo and scale (for the rest check) and after (the output),
-    /// both −1..1; `None` while its value or calibration is unknown.
-    fn axis_value(&self, slot: usize) -> Option<(f64, f64)> {
-        let config = self.mapping.axes[slot]?;
-        let x = match config.input {
-            AxisInput::Abs {
-                code,
-                min,
-                centre,
-                max,
-                deadzone,
-            } => {
-                let raw = *self.abs.get(&code)?;
-                let info = self.absinfo.get(&code);
-                let cal = Calibration::resolve(info, min, centre, max)?;
-                let deadzone =
-                    deadzone.unwrap_or_else(|| cal.flat_fraction(info.map_or(0, |i| i.flat)));
-                let shaping = Shaping {
-                    invert: config.reverse,
-                    deadzone,
-                    expo: 0.0,
-                    scale: 1.0,
-                };
-                shaping.apply(cal.normalise(raw))
-            }
-            AxisInput::Keys { .. } => {
-                let ramp = self.ramps[slot]?;
-                Shaping {
-                    invert: config.reverse,
-                    ..Shaping::default()
-                }
-                .apply(ramp.value())
-            }
-        };
-        let shaped = Shaping {
-            invert: false,
-            deadzone: 0.0,
-            expo: config.expo,
-            scale: config.scale,
-        }
-        .apply(x);
-        Some((x, shaped))
-    }
-
-    fn sticks(&self) -> MovementCommand {
-        let v = |slot: usize| self.axis_value(slot).map_or(0, |(_, y)| to_axis(y));
-        MovementCommand {
-            throttle: v(0),
-            roll: v(1),
-            pitch: v(2),
-            yaw: v(3),
-        }
-    }
-
-    fn axes_not_at_rest(&self) -> Vec<Axis> {
-        AXES.iter()
-            .enumerate()
-            .filter(|(slot, _)| !self.at_rest(*slot))
-            .map(|(_, a)| *a)
-            .collect()
-    }
-
-    fn at_rest(&self, slot: usize) -> bool {
-        let Some(config) = self.mapping.axes[slot] else {
-            return true;
-        };
-        if let AxisInput::Keys {
-            negative, positive, ..
-        } = config.input
-            && [negative, positive]
-                .iter()
-                .flatten()
-                .any(|k| self.keys.contains(k))
-        {
-            return false;
-        }
-        let Some((x, _)) = self.axis_value(slot) else {
-            return false;
-        };
-        match config.rest {
-            Rest::Centre => x.abs() <= REST_TOLERANCE,
-            Rest::Low => x <= -1.0 + REST_TOLERANCE,
-            Rest::High => x >= 1.0 - REST_TOLERANCE,
-        }
-    }
-
-    fn update_axes(&mut self) {
-        match self.link {
-            Link::Lost(..) => return,
-            Link::AwaitingRest => {
-                if (0..AXES.len()).all(|slot| self.at_rest(slot)) {
-                    self.link = Link::Live;
-                    self.last_emitted = None;
-                } else {
-                    return;
-                }
-            }
-            Link::Live => {}
-        }
-        if self.mapping.deadman.is_some() && !self.deadman_held {
-            return;
-        }
-        let sticks = self.sticks();
-        if self.last_emitted != Some(sticks) {
-            self.last_emitted = Some(sticks);
-            self.push(InputEvent::Axes(sticks));
-        }
-    }
-
     fn push(&mut self, event: InputEvent) {
         if self.out.len() >= MAX_QUEUED {
             if let Some(i) = self
@@ -676,5 +428,4 @@ impl Mapper {
 }
 
 #[cfg(test)]
-#[path = "mapper_tests.rs"]
 mod tests;
