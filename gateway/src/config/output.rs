@@ -18,6 +18,7 @@ pub const ADAPTERS: &[Adapter] = &[
     Adapter::of::<rove_naza::Naza>(),
     Adapter::of::<rove_mavlink::Mavlink>(),
     Adapter::of::<rove_can::Can>(),
+    Adapter::of::<rove_ros2::Ros2>(),
 ];
 
 /// One output adapter as the gateway knows it.

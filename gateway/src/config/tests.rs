@@ -96,6 +96,7 @@ fn each_output_adapter_loads_from_its_shipped_example() {
     assert_eq!(kind("vehicle-custom-pwm.toml"), "pwm");
     assert_eq!(kind("vehicle-eyedrive-pi.toml"), "eyedrive");
     assert_eq!(kind("vehicle-naza-pi.toml"), "naza");
+    assert_eq!(kind("vehicle-ros2-diffdrive.toml"), "ros2");
     assert_eq!(kind("vehicle-ardupilot-rover-sitl.toml"), "mavlink");
     assert_eq!(kind("vehicle-ardupilot-copter-serial.toml"), "mavlink");
     assert_eq!(kind("vehicle-px4-udp.toml"), "mavlink");

@@ -1,0 +1,57 @@
+//! `rove-ros2`: a ROS 2 robot as a rove vehicle, by config. The vehicle publishes its owner's
+//! sticks as a velocity (`geometry_msgs/TwistStamped` or `Twist` on `/cmd_vel`, what
+//! `diff_drive_controller`, Nav2 and most ROS 2 robots take), a zero twist and a latched
+//! e-stop (`std_msgs/Bool`) in failsafe, and reads the robot's `sensor_msgs/BatteryState`.
+//!
+//! The ROS 2 side is a DDS participant of its own, on its own domain and interfaces, written
+//! on rove's rustdds: the few message types are serde structs in IDL order ([`msg`]), so no
+//! ROS install and no second DDS stack are needed (docs/design.md, "ROS 2").
+//!
+//! # Layout
+//! - [`msg`]: the ROS 2 message types, their DDS names, topic name rules.
+//! - [`config`]: `[output]` for `adapter = "ros2"` ([`Ros2Settings`] → [`Ros2Config`]), and
+//!   the stick → twist map.
+//! - [`vehicle`]: [`Ros2Vehicle`], the [`rove_core::adapter::OutputAdapter`].
+//! - [`Ros2`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]).
+//!
+//! # Known limitations
+//! - Modes are not sent: a ROS 2 velocity interface has none. A mode other than MANUAL is
+//!   driven like MANUAL.
+//! - The ROS 2 participant is unsecured (SROS 2 is not supported).
+
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod msg;
+pub mod vehicle;
+
+pub use config::{Ros2Config, Ros2Settings};
+pub use vehicle::Ros2Vehicle;
+
+use rove_core::MonoTime;
+use rove_core::adapter::{OutputAdapter, OutputKind, OutputSpec};
+use rove_core::error::LinkError;
+
+/// `[output] adapter = "ros2"`.
+#[derive(Debug, Clone, Copy)]
+pub struct Ros2;
+
+impl OutputKind for Ros2 {
+    const NAME: &'static str = "ros2";
+    const SUMMARY: &'static str = "A ROS 2 robot: velocity on cmd_vel (TwistStamped or Twist), zero and an e-stop in failsafe.";
+    type Settings = Ros2Settings;
+
+    fn validate(settings: &mut Ros2Settings) -> rove_core::Result<Box<dyn OutputSpec>> {
+        Ok(Box::new(settings.validate()?))
+    }
+}
+
+impl OutputSpec for Ros2Config {
+    fn open(&self, now: MonoTime) -> Result<Box<dyn OutputAdapter>, LinkError> {
+        Ok(Box::new(Ros2Vehicle::new(self.clone(), now)?))
+    }
+
+    fn clone_spec(&self) -> Box<dyn OutputSpec> {
+        Box::new(self.clone())
+    }
+}

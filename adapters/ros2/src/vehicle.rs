@@ -1,0 +1,315 @@
+//! [`Ros2Vehicle`]: the ROS 2 robot as an [`OutputAdapter`]. It joins the ROS 2 graph as a DDS
+//! participant of its own (rustdds, unsecured, on `[output] domain_id` and `interfaces`),
+//! publishes the velocity while driven and a zero twist plus the e-stop in failsafe, and reads
+//! the robot's battery.
+
+use crate::config::{Ros2Config, TwistType};
+use crate::msg::{self, BatteryState, Bool, Header, RosType, Time, Twist, TwistStamped};
+use rove_core::MonoTime;
+use rove_core::adapter::{Health, OutputAdapter, Telemetry};
+use rove_core::arbiter::Setpoint;
+use rove_core::error::LinkError;
+use rustdds::no_key::{DataReaderCdr, DataWriterCdr};
+use rustdds::policy::{Durability, History, Reliability};
+use rustdds::{
+    DomainParticipant, DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicKind,
+};
+use std::time::Duration;
+
+/// How long a reliable write may wait for a full history: a velocity superseded 50 ms later
+/// is not worth waiting for.
+const MAX_BLOCKING: rustdds::Duration = rustdds::Duration::from_millis(5);
+
+/// rclcpp's and rclpy's default QoS, which their subscribers ask for: reliable, volatile,
+/// keep last. A reliable writer also serves best-effort readers.
+fn velocity_qos() -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: MAX_BLOCKING,
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 })
+        .build()
+}
+
+/// A latched topic (ROS 2's "transient local"): a subscriber that joins late gets the last
+/// value.
+fn latched_qos() -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: MAX_BLOCKING,
+        })
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+        .build()
+}
+
+/// A battery reader matches reliable and best-effort (sensor-data) publishers alike.
+fn battery_qos() -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::BestEffort)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 1 })
+        .build()
+}
+
+enum VelocityWriter {
+    Stamped(DataWriterCdr<TwistStamped>),
+    Plain(DataWriterCdr<Twist>),
+}
+
+/// Where the output stands.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum State {
+    /// Driven: `twist` is republished at least every period.
+    Driving(Twist),
+    /// Failsafe: zero is republished until then.
+    Safe { zero_until: MonoTime },
+}
+
+/// The ROS 2 robot.
+pub struct Ros2Vehicle {
+    config: Ros2Config,
+    velocity: VelocityWriter,
+    estop: Option<DataWriterCdr<Bool>>,
+    battery: Option<DataReaderCdr<BatteryState>>,
+    state: State,
+    /// The e-stop value last published.
+    estop_shown: Option<bool>,
+    last_publish: Option<MonoTime>,
+    battery_pct: Option<u8>,
+    error: Option<String>,
+    // Dropped last: its writers above go first.
+    _participant: DomainParticipant,
+}
+
+impl std::fmt::Debug for Ros2Vehicle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Ros2Vehicle")
+            .field("config", &self.config)
+            .field("state", &self.state)
+            .field("estop_shown", &self.estop_shown)
+            .finish_non_exhaustive()
+    }
+}
+
+fn fatal(what: &str, e: impl std::fmt::Display) -> LinkError {
+    LinkError::fatal(format!("ROS 2: {what}: {e}"))
+}
+
+impl Ros2Vehicle {
+    /// Joins the ROS 2 graph and puts the robot in the safe state (zero twist, e-stop set).
+    ///
+    /// # Errors
+    /// rustdds cannot join the domain (no such interface, ports taken) or create an endpoint
+    /// (fatal: the configuration must change).
+    pub fn new(config: Ros2Config, now: MonoTime) -> Result<Ros2Vehicle, LinkError> {
+        let participant = DomainParticipantBuilder::new(config.domain_id)
+            .with_only_networks(config.interfaces.iter().copied())
+            .same_host_loopback(true)
+            .build()
+            .map_err(|e| fatal(&format!("cannot join domain {}", config.domain_id), e))?;
+        let default = QosPolicyBuilder::new().build();
+        let publisher =
+            (participant.create_publisher(&default)).map_err(|e| fatal("publisher", e))?;
+        let topic = |name: &str, type_name: &str, qos: &QosPolicies| {
+            participant
+                .create_topic(
+                    msg::dds_topic(name),
+                    type_name.to_string(),
+                    qos,
+                    TopicKind::NoKey,
+                )
+                .map_err(|e| fatal(&format!("topic {name}"), e))
+        };
+        let velocity_topic = match config.message {
+            TwistType::Stamped => topic(&config.topic, TwistStamped::DDS_NAME, &velocity_qos())?,
+            TwistType::Plain => topic(&config.topic, Twist::DDS_NAME, &velocity_qos())?,
+        };
+        let writer_error = |e| fatal(&format!("writer {}", config.topic), e);
+        let velocity = match config.message {
+            TwistType::Stamped => VelocityWriter::Stamped(
+                publisher
+                    .create_datawriter_no_key_cdr(&velocity_topic, Some(velocity_qos()))
+                    .map_err(writer_error)?,
+            ),
+            TwistType::Plain => VelocityWriter::Plain(
+                publisher
+                    .create_datawriter_no_key_cdr(&velocity_topic, Some(velocity_qos()))
+                    .map_err(writer_error)?,
+            ),
+        };
+        let estop = match &config.estop_topic {
+            None => None,
+            Some(name) => {
+                let t = topic(name, Bool::DDS_NAME, &latched_qos())?;
+                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
+                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
+            }
+        };
+        let battery = match &config.battery_topic {
+            None => None,
+            Some(name) => {
+                let t = topic(name, BatteryState::DDS_NAME, &battery_qos())?;
+                let subscriber = (participant.create_subscriber(&default))
+                    .map_err(|e| fatal("subscriber", e))?;
+                let r = subscriber.create_datareader_no_key_cdr(&t, Some(battery_qos()));
+                Some(r.map_err(|e| fatal(&format!("reader {name}"), e))?)
+            }
+        };
+        let mut vehicle = Ros2Vehicle {
+            config,
+            velocity,
+            estop,
+            battery,
+            state: State::Safe { zero_until: now },
+            estop_shown: None,
+            last_publish: None,
+            battery_pct: None,
+            error: None,
+            _participant: participant,
+        };
+        vehicle.safe_state(now)?;
+        Ok(vehicle)
+    }
+
+    fn publish(&mut self, now: MonoTime, twist: Twist) -> Result<(), LinkError> {
+        let written = match &self.velocity {
+            VelocityWriter::Stamped(w) => {
+                let header = Header {
+                    stamp: Time::now(),
+                    frame_id: self.config.frame_id.clone(),
+                };
+                w.write(TwistStamped { header, twist }, None)
+                    .map_err(|e| e.to_string())
+            }
+            VelocityWriter::Plain(w) => w.write(twist, None).map_err(|e| e.to_string()),
+        };
+        self.last_publish = Some(now);
+        self.checked(written)
+    }
+
+    fn show_estop(&mut self, on: bool) -> Result<(), LinkError> {
+        let Some(writer) = &self.estop else {
+            return Ok(());
+        };
+        if self.estop_shown == Some(on) {
+            return Ok(());
+        }
+        let written = writer
+            .write(Bool { data: on }, None)
+            .map_err(|e| e.to_string());
+        self.checked(written)?;
+        self.estop_shown = Some(on);
+        Ok(())
+    }
+
+    /// A write's outcome: a failed write is transient (the gateway holds the output safe and
+    /// retries); the error shows in the health until a write works.
+    fn checked(&mut self, written: Result<(), String>) -> Result<(), LinkError> {
+        match written {
+            Ok(()) => {
+                self.error = None;
+                Ok(())
+            }
+            Err(e) => {
+                let e = format!("ROS 2 write: {e}");
+                self.error = Some(e.clone());
+                Err(LinkError::transient(e))
+            }
+        }
+    }
+
+    /// Takes whatever the battery topic brought; the newest percentage wins.
+    fn read_battery(&mut self) {
+        let Some(reader) = self.battery.as_mut() else {
+            return;
+        };
+        // Bounded: a flood is read at most this much per call, the rest next time.
+        for _ in 0..64 {
+            match reader.take_next_sample() {
+                Ok(Some(sample)) => {
+                    let p = sample.into_value().percentage;
+                    if p.is_finite() {
+                        self.battery_pct = Some((p.clamp(0.0, 1.0) * 100.0).round() as u8);
+                    }
+                }
+                Ok(None) | Err(_) => break,
+            }
+        }
+    }
+}
+
+impl OutputAdapter for Ros2Vehicle {
+    fn describe(&self) -> String {
+        let kind = match self.config.message {
+            TwistType::Stamped => TwistStamped::ROS_NAME,
+            TwistType::Plain => Twist::ROS_NAME,
+        };
+        format!(
+            "ROS 2 {} ({kind}) on domain {}, e-stop {}",
+            self.config.topic,
+            self.config.domain_id,
+            self.config.estop_topic.as_deref().unwrap_or("none")
+        )
+    }
+
+    fn apply(&mut self, now: MonoTime, setpoint: &Setpoint) -> Result<(), LinkError> {
+        let twist = self.config.twist_of(&setpoint.movement);
+        self.state = State::Driving(twist);
+        self.show_estop(false)?;
+        self.publish(now, twist)
+    }
+
+    fn safe_state(&mut self, now: MonoTime) -> Result<(), LinkError> {
+        self.state = State::Safe {
+            zero_until: now + self.config.zero_for,
+        };
+        // Zero first: it stops the robot even where nothing listens to the e-stop.
+        let zero = self.publish(now, Twist::default());
+        self.show_estop(true)?;
+        zero
+    }
+
+    fn keepalive_period(&self) -> Option<Duration> {
+        Some(self.config.period)
+    }
+
+    /// Republishes the driven twist when no command did within the period (a controller's
+    /// `cmd_vel_timeout` must not stop a driven robot), and zero for `zero_for_ms` after a
+    /// failsafe; reads the battery.
+    fn keepalive(&mut self, now: MonoTime) -> Result<(), LinkError> {
+        self.read_battery();
+        let due = self
+            .last_publish
+            .is_none_or(|t| now.saturating_since(t) >= self.config.period);
+        match self.state {
+            State::Driving(twist) if due => self.publish(now, twist),
+            State::Safe { zero_until } if due && now < zero_until => {
+                self.publish(now, Twist::default())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    fn health(&self) -> Health {
+        match &self.error {
+            None => Health::Ok,
+            Some(e) => Health::Down(e.clone()),
+        }
+    }
+
+    fn telemetry(&self) -> Telemetry {
+        Telemetry {
+            battery_pct: self.battery_pct,
+            ..Telemetry::default()
+        }
+    }
+}
+
+impl Drop for Ros2Vehicle {
+    /// Zero twist and the e-stop, however the adapter goes (the gateway stopping, unwinding).
+    fn drop(&mut self) {
+        let _ = self.safe_state(MonoTime::ZERO);
+    }
+}
