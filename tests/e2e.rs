@@ -18,6 +18,7 @@ mod mavlink;
 mod outputs;
 mod package;
 mod robustness;
+mod ros2;
 mod security;
 mod service;
 #[cfg(all(feature = "remote", feature = "security"))]

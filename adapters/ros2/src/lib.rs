@@ -51,6 +51,13 @@ impl OutputSpec for Ros2Config {
         Ok(Box::new(Ros2Vehicle::new(self.clone(), now)?))
     }
 
+    /// Waits up to a second for the robot's subscribers, so that a process of its own
+    /// (`rove failsafe` after the gateway died) reaches them.
+    fn failsafe(&self) -> Result<String, LinkError> {
+        let mut vehicle = Ros2Vehicle::new(self.clone(), MonoTime::ZERO)?;
+        vehicle.failsafe_now(std::time::Duration::from_secs(1))
+    }
+
     fn clone_spec(&self) -> Box<dyn OutputSpec> {
         Box::new(self.clone())
     }

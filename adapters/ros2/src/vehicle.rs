@@ -220,6 +220,59 @@ impl Ros2Vehicle {
         }
     }
 
+    /// `rove failsafe` from a process of its own: a participant that just joined has no
+    /// subscriber yet, so this waits up to `patience` for the velocity topic's subscribers
+    /// (discovery), publishes zero and the e-stop, and waits for them to acknowledge both.
+    ///
+    /// # Errors
+    /// A write fails.
+    pub fn failsafe_now(&mut self, patience: Duration) -> Result<String, LinkError> {
+        use rustdds::StatusEvented;
+        use rustdds::dds::statusevents::DataWriterStatus;
+        let start = std::time::Instant::now();
+        let mut matched = 0;
+        // A one-shot command, not a loop of the gateway: polling discovery is enough here.
+        loop {
+            let status = match &self.velocity {
+                VelocityWriter::Stamped(w) => w.try_recv_status(),
+                VelocityWriter::Plain(w) => w.try_recv_status(),
+            };
+            match status {
+                Some(DataWriterStatus::PublicationMatched { current, .. }) => {
+                    matched = current.count();
+                }
+                Some(_) => {}
+                None if matched > 0 || start.elapsed() >= patience => break,
+                None => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+        self.safe_state(MonoTime::ZERO)?;
+        let wait = Duration::from_millis(500);
+        let acked = match &self.velocity {
+            VelocityWriter::Stamped(w) => w.wait_for_acknowledgments(wait),
+            VelocityWriter::Plain(w) => w.wait_for_acknowledgments(wait),
+        };
+        if let Some(estop) = &self.estop {
+            let _ = estop.wait_for_acknowledgments(wait);
+        }
+        Ok(match (matched, acked) {
+            (0, _) => format!(
+                "{}: zero twist and e-stop published, but no subscriber of {} was found within {} ms",
+                self.describe(),
+                self.config.topic,
+                patience.as_millis()
+            ),
+            (n, Ok(true)) => format!(
+                "{}: zero twist and e-stop acknowledged by {n} subscriber(s)",
+                self.describe()
+            ),
+            (n, _) => format!(
+                "{}: zero twist and e-stop sent to {n} subscriber(s), not all acknowledged",
+                self.describe()
+            ),
+        })
+    }
+
     /// Takes whatever the battery topic brought; the newest percentage wins.
     fn read_battery(&mut self) {
         let Some(reader) = self.battery.as_mut() else {
