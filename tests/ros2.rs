@@ -5,7 +5,6 @@
 
 use crate::util::{Rig, eventually, wall_us};
 use serde_json::Value;
-use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -69,12 +68,6 @@ impl RosPeer {
                 )),
             }
         })
-    }
-
-    /// Sends one JSON line to the peer's standard input (its publishers' commands).
-    fn send(&mut self, line: &Value) {
-        let stdin = self.child.stdin.as_mut().expect("piped stdin");
-        writeln!(stdin, "{line}").expect("peer reads its stdin");
     }
 }
 
