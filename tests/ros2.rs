@@ -3,8 +3,9 @@
 //! `testkit/ros2_peer.py`, in the rig's network namespace. The ROS 2 side and the hierarchy
 //! share the namespace's loopback, on different DDS domains.
 
-use crate::util::{Rig, eventually, wall_us};
+use crate::util::{Rig, eventually, records, wait_for_output, wall_us};
 use serde_json::Value;
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -71,6 +72,14 @@ impl RosPeer {
     }
 }
 
+impl RosPeer {
+    /// Sends one JSON line to the peer's standard input (its publishers' commands).
+    fn send(&mut self, line: &Value) {
+        let stdin = self.child.stdin.as_mut().expect("piped stdin");
+        writeln!(stdin, "{line}").expect("the peer reads its stdin");
+    }
+}
+
 impl Drop for RosPeer {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -84,6 +93,16 @@ fn ros2_output(extra: &str) -> String {
          {extra}[[output.twist]]\ncomponent = \"linear.x\"\naxis = \"throttle\"\nmax = 0.8\n\
          [[output.twist]]\ncomponent = \"angular.z\"\naxis = \"roll\"\nmax = 1.5\nreverse = true\n"
     )
+}
+
+/// The owner topic's JSON text, read.
+fn parsed(line: &Value) -> Value {
+    serde_json::from_str(line["data"].as_str().unwrap_or("")).unwrap_or(Value::Null)
+}
+
+/// The owner an owner line names (`Value::Null` for the failsafe), if it is one.
+fn owner_of(line: &Value) -> Option<Value> {
+    parsed(line).get("owner").cloned()
 }
 
 fn linear_x(line: &Value) -> f64 {
@@ -100,7 +119,16 @@ fn a_laptop_drives_a_ros_2_robot_and_its_crash_stops_it() {
     let robot = RosPeer::start(
         &rig,
         "robot",
-        &["--twist", "/cmd_vel", "--stamped", "--estop", "/rove/estop"],
+        &[
+            "--twist",
+            "/cmd_vel",
+            "--stamped",
+            "--estop",
+            "/rove/estop",
+            "--owner",
+            "/rove/owner",
+            "--diagnostics",
+        ],
     );
     rig.vehicle_with_output(V, &ros2_output(""));
     // Nobody drives yet: the vehicle's failsafe publishes zero and sets the e-stop.
@@ -127,6 +155,22 @@ fn a_laptop_drives_a_ros_2_robot_and_its_crash_stops_it() {
     robot.wait_for("the e-stop cleared while driven", |l| {
         l["kind"] == "estop" && l["data"] == false
     });
+    // Who drives, latched, and the standing on /diagnostics.
+    let owner = robot.wait_for("the laptop named on /rove/owner", |l| {
+        l["kind"] == "owner" && owner_of(l) == Some(Value::from(LAPTOP))
+    });
+    assert_eq!(parsed(&owner)["failsafe"], false, "{owner}");
+    let diagnostics = robot.wait_for("the laptop driving on /diagnostics", |l| {
+        l["kind"] == "diagnostics"
+            && l["status"][0]["message"]
+                .as_str()
+                .is_some_and(|m| m.starts_with("driven by 11"))
+    });
+    assert_eq!(diagnostics["status"][0]["level"], 0, "{diagnostics}");
+    assert_eq!(
+        diagnostics["status"][0]["name"], "rove: vehicle 100",
+        "{diagnostics}"
+    );
     // The rate while driven: the laptop streams at 50 Hz, the adapter publishes at least 20.
     let window = Duration::from_secs(2);
     let before = robot.of("twist").len();
@@ -208,4 +252,52 @@ fn a_twist_robot_sees_rove_in_its_graph_and_its_battery_reaches_rove_status() {
         d["health"]["battery_low"] == true
     });
     assert_eq!(row["health"]["battery_pct"], 20, "{row}");
+}
+
+/// An rclpy `sensor_msgs/Joy` publisher (as the `joy` node) drives a rove vehicle through a
+/// rove operator with `[input] source = "ros2"`; a phone preempts it, and when the phone quits
+/// the Joy operator drives again; when the Joy messages stop, the operator lets go and the
+/// vehicle's failsafe takes over.
+#[test]
+fn a_ros_2_joy_node_drives_through_a_rove_operator_and_a_phone_preempts_it() {
+    const JOY: i64 = 13;
+    const PHONE: i64 = 12;
+    let mut rig = Rig::new("ros2-joy");
+    let record = rig.vehicle(V);
+    let config = rig.write(
+        "operator-joy.toml",
+        &format!(
+            "[device]\nid = {JOY}\nname = \"joy\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"desktop\"\ndrive = [{V}]\n[input]\nsource = \"ros2\"\n\
+             topic = \"/joy\"\ndomain_id = {ROS_DOMAIN}\n\
+             [input.axes.throttle]\nabs = \"ABS_Y\"\n[input.axes.roll]\nabs = \"ABS_X\"\n"
+        ),
+    );
+    let path = config.to_str().expect("utf-8 path");
+    rig.spawn("operator-13", &["operator", "-c", path, "--headless"]);
+    let mut joy = RosPeer::start(&rig, "joy", &["--joy", "/joy"]);
+    // Centred first (the no-jump rule): the operator drives with centred sticks once it hears
+    // the node; then half forward.
+    let start = wall_us();
+    joy.send(&serde_json::json!({"axes": [0.0, 0.0], "buttons": [0, 0]}));
+    wait_for_output(&record, Some(JOY), start).expect("the Joy operator drives, centred");
+    joy.send(&serde_json::json!({"axes": [0.0, 0.5], "buttons": [0, 0]}));
+    let half = i64::from(i16::MAX) / 2;
+    let driven = eventually("half throttle from the Joy operator", || {
+        let outs = records(&record);
+        match outs.iter().rev().find(|o| o.owner == Some(JOY)) {
+            Some(o) if o.throttle.is_some_and(|t| (t - half).abs() < half / 10) => Ok(o.clone()),
+            last => Err(format!("{last:?}")),
+        }
+    });
+    eprintln!("{driven:?}");
+    let joined = wall_us();
+    let phone = rig.operator(PHONE, "mobile", "phone", &[V], 3_000, "", &["--headless"]);
+    wait_for_output(&record, Some(PHONE), joined).expect("the phone preempts the Joy operator");
+    let quit = wall_us();
+    rig.procs[phone].terminate();
+    wait_for_output(&record, Some(JOY), quit).expect("the Joy operator drives again");
+    let stopped = wall_us();
+    joy.send(&serde_json::json!({"stop": true}));
+    wait_for_output(&record, None, stopped).expect("failsafe once the Joy messages stop");
 }

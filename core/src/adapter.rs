@@ -176,6 +176,21 @@ pub trait OutputAdapter {
         false
     }
 
+    /// What the vehicle says of itself, on every change of its VehicleStatus (owner,
+    /// failsafe, output state, battery): an adapter whose device has a world of its own to
+    /// tell (ROS 2's who-drives topic and `/diagnostics`) shows it there. An error here is
+    /// reported, never a reason to hold the outputs safe.
+    ///
+    /// # Errors
+    /// The device did not take it.
+    fn status(
+        &mut self,
+        _now: MonoTime,
+        _status: &crate::msg::VehicleStatus,
+    ) -> Result<(), LinkError> {
+        Ok(())
+    }
+
     /// What the device reports about the vehicle (an autopilot's battery, mode, armed state and
     /// how long ago it was heard); the default knows nothing.
     fn telemetry(&self) -> Telemetry {

@@ -43,6 +43,8 @@ rove_core::config_types! {
         Joystick => "An evdev joystick or gamepad (absent `device`/`name`: the first).",
         Keyboard => "An evdev keyboard (absent `device`/`name`: the first).",
         Replay => "A recorded event stream played from `file`.",
+        Ros2 => "A ROS 2 `sensor_msgs/Joy` topic (the standard `joy` node): axis i is `EV_ABS` \
+            code i (`ABS_X`, `ABS_Y`, `ABS_Z`, `ABS_RX`…), button j is `BTN_TRIGGER` + j.",
     }
 
     /// `[input]` as written.
@@ -53,6 +55,10 @@ rove_core::config_types! {
         grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB).",
         reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts, ms.",
         file: Option<PathBuf> => "Replay: the recording to play.",
+        topic: Option<String> => "ROS 2: the Joy topic (absent: `/joy`).",
+        domain_id: Option<Int> => "ROS 2: the graph's DDS domain, `ROS_DOMAIN_ID` (absent: 0).",
+        interfaces: Option<Vec<std::net::Ipv4Addr>> => "ROS 2: the interfaces the ROS 2 side \
+            may use (absent: loopback only).",
         silence_timeout_ms: Option<Int> => "No event at all for this long → lost, ms.",
         #[serde(default)] axes: AxesSettings => "`[input.axes.*]`: what drives each movement axis.",
         #[serde(default)] buttons: ButtonSettings => "`[input.buttons]`: each action's control.",
@@ -143,6 +149,11 @@ rove_core::config_types! {
             file: PathBuf => "The file (relative paths are relative to the process's working \
                 directory unless [`InputConfig::resolve_relative_to`] was called).",
         },
+        Ros2 => "A ROS 2 Joy topic." {
+            topic: String => "The topic (a ROS 2 name, `/joy`).",
+            domain_id: u16 => "The DDS domain.",
+            interfaces: Vec<std::net::Ipv4Addr> => "The interfaces.",
+        },
     }
 
     /// What drives a movement axis.
@@ -202,7 +213,7 @@ impl InputConfig {
     pub fn with_device(mut self, selector: DeviceSelector) -> Self {
         match &mut self.source {
             SourceConfig::Evdev { selector: s, .. } => *s = selector,
-            SourceConfig::Replay { .. } => {
+            SourceConfig::Replay { .. } | SourceConfig::Ros2 { .. } => {
                 let reopen = Duration::from_millis(DEFAULT_REOPEN_INTERVAL_MS.unsigned_abs());
                 self.kind = SourceKind::Joystick;
                 self.source = SourceConfig::Evdev {
@@ -259,7 +270,7 @@ impl InputSettings {
             }
             (_, Some(kind)) | (Some(kind), None) => kind,
             (None, None) => {
-                let rule = "must be one of \"joystick\", \"keyboard\", \"replay\"";
+                let rule = "must be one of \"joystick\", \"keyboard\", \"replay\", \"ros2\"";
                 errors.absent("source", rule);
                 SourceKind::Joystick
             }
@@ -357,6 +368,18 @@ impl InputSettings {
         let path =
             |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
         let name = self.name.as_ref().map(|n| format!("{n:?}"));
+        let only_ros2 = "only applies to source = \"ros2\"";
+        if kind == SourceKind::Ros2 {
+            return self.validate_ros2(errors);
+        }
+        errors.not_for(
+            "topic",
+            self.topic.as_ref().map(|t| format!("{t:?}")),
+            only_ros2,
+        );
+        errors.not_for("domain_id", self.domain_id, only_ros2);
+        let shown = self.interfaces.as_ref().map(|i| format!("{i:?}"));
+        errors.not_for("interfaces", shown, only_ros2);
         if kind == SourceKind::Replay {
             let only_devices = "only applies to source = \"joystick\" or \"keyboard\"";
             errors.not_for("device", path(&self.device), only_devices);
@@ -406,6 +429,60 @@ impl InputSettings {
         }
     }
 }
+
+impl InputSettings {
+    /// `source = "ros2"`: the topic, domain and interfaces; the device and recording keys do
+    /// not apply.
+    fn validate_ros2(&mut self, errors: &mut ConfigErrors) -> SourceConfig {
+        let only_others = "does not apply to source = \"ros2\"";
+        let path =
+            |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
+        errors.not_for("device", path(&self.device), only_others);
+        errors.not_for(
+            "name",
+            self.name.as_ref().map(|n| format!("{n:?}")),
+            only_others,
+        );
+        errors.not_for("grab", self.grab, only_others);
+        errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_others);
+        errors.not_for("file", path(&self.file), only_others);
+        let topic = self.topic.get_or_insert_with(|| "/joy".into()).clone();
+        let valid = topic.strip_prefix('/').is_some_and(|rest| {
+            !rest.is_empty()
+                && rest.split('/').all(|t| {
+                    !t.is_empty()
+                        && !t.starts_with(|c: char| c.is_ascii_digit())
+                        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                })
+        });
+        if !valid {
+            let rule = "must be a ROS 2 topic name: `/` then letters, digits and `_`, parts \
+                        separated by `/`";
+            errors.add("topic", format!("{topic:?}"), rule);
+        }
+        let domain = *self.domain_id.get_or_insert(0);
+        let domain_id = errors.int("domain_id", domain, 0..=232, "").unwrap_or(0);
+        let interfaces = (self.interfaces)
+            .get_or_insert_with(|| vec![std::net::Ipv4Addr::LOCALHOST])
+            .clone();
+        if interfaces.is_empty() {
+            errors.add("interfaces", "[]", "names at least one interface");
+        }
+        // The joy node repeats its last message (autorepeat_rate, 20 Hz by default): silence
+        // means the node or its link is gone.
+        self.silence_timeout_ms
+            .get_or_insert(DEFAULT_ROS2_SILENCE_MS);
+        SourceConfig::Ros2 {
+            topic,
+            domain_id,
+            interfaces,
+        }
+    }
+}
+
+/// `silence_timeout_ms` of a `ros2` source when absent: ten periods of the joy node's default
+/// 20 Hz autorepeat.
+pub const DEFAULT_ROS2_SILENCE_MS: Int = 500;
 
 impl AxisSettings {
     /// Validates one axis; keys in errors are relative to the axis table.

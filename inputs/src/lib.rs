@@ -23,6 +23,7 @@
 //! - [`curve`]: pure axis math: calibration, invert, deadzone, expo, scale, clamp; key ramps.
 //! - [`codes`]: evdev type and code names, raw events, button-like controls.
 //! - [`replay`]: recordings (text and raw `input_event` binary) and [`ReplaySource`].
+//! - [`ros2`]: [`Ros2Source`], a ROS 2 `sensor_msgs/Joy` topic fed to the mapper as a joystick.
 //! - [`device`]: the thin evdev layer: device selection, reader thread, [`list_devices`].
 //! - [`error`]: recording errors.
 //!
@@ -39,6 +40,7 @@ pub mod device;
 pub mod error;
 pub mod mapper;
 pub mod replay;
+pub mod ros2;
 
 pub use codes::{Control, RawEvent};
 pub use config::{InputConfig, InputSettings, SourceConfig, SourceKind};
@@ -46,6 +48,7 @@ pub use device::{EvdevSource, InputWaker, ListedDevice, list_devices};
 pub use error::{Error, Result};
 pub use mapper::{DeviceEvent, InputStatus, LinkState, Mapper};
 pub use replay::{Recording, ReplaySource};
+pub use ros2::Ros2Source;
 
 use rove_core::adapter::{InputEvent, InputSource};
 use rove_core::error::LinkError;
@@ -59,6 +62,8 @@ pub enum MappedSource {
     Replay(ReplaySource),
     /// An evdev device.
     Evdev(EvdevSource),
+    /// A ROS 2 Joy topic.
+    Ros2(Box<Ros2Source>),
 }
 
 impl MappedSource {
@@ -68,6 +73,7 @@ impl MappedSource {
         match self {
             MappedSource::Replay(s) => s.status(),
             MappedSource::Evdev(s) => s.status(),
+            MappedSource::Ros2(s) => s.status(),
         }
     }
 
@@ -86,6 +92,7 @@ impl InputSource for MappedSource {
         match self {
             MappedSource::Replay(s) => s.describe(),
             MappedSource::Evdev(s) => s.describe(),
+            MappedSource::Ros2(s) => s.describe(),
         }
     }
 
@@ -93,6 +100,7 @@ impl InputSource for MappedSource {
         match self {
             MappedSource::Replay(s) => s.poll(now),
             MappedSource::Evdev(s) => s.poll(now),
+            MappedSource::Ros2(s) => s.poll(now),
         }
     }
 
@@ -100,6 +108,7 @@ impl InputSource for MappedSource {
         match self {
             MappedSource::Replay(s) => s.next_deadline(),
             MappedSource::Evdev(s) => s.next_deadline(),
+            MappedSource::Ros2(s) => s.next_deadline(),
         }
     }
 }
@@ -128,6 +137,8 @@ pub fn open_mapped(config: &InputConfig) -> Result<MappedSource, LinkError> {
             config.mapping.clone(),
         )
         .map(MappedSource::Evdev),
+        SourceConfig::Ros2 { .. } => Ros2Source::open(&config.source, config.mapping.clone())
+            .map(|s| MappedSource::Ros2(Box::new(s))),
     }
 }
 

@@ -28,6 +28,10 @@ rove_core::config_types! {
             operator drives, latched (absent: `/rove/estop`; `\"\"`: none).",
         battery_topic: Option<String> => "A `sensor_msgs/BatteryState` topic whose percentage \
             feeds the vehicle's battery on every console (absent: none).",
+        owner_topic: Option<String> => "A `std_msgs/String`, latched, saying who drives as JSON \
+            on every change (absent: `/rove/owner`; `\"\"`: none).",
+        diagnostics: Option<bool> => "Publish the vehicle's standing, output and battery as \
+            `diagnostic_msgs/DiagnosticArray` on `/diagnostics` (absent: true).",
         #[serde(default)] twist: Vec<TwistAxisSettings> => "`[[output.twist]]`: which stick \
             feeds each twist component (absent: throttle → linear.x at 0.5 m/s, roll → \
             angular.z at 1.0 rad/s reversed, stick right turning right).",
@@ -90,6 +94,10 @@ pub struct Ros2Config {
     pub estop_topic: Option<String>,
     /// The battery topic, if any.
     pub battery_topic: Option<String>,
+    /// The who-drives topic, if any.
+    pub owner_topic: Option<String>,
+    /// Whether `/diagnostics` is published.
+    pub diagnostics: bool,
     /// The stick → twist map.
     pub twist: Vec<TwistAxis>,
 }
@@ -122,6 +130,12 @@ impl Ros2Settings {
         if !estop.is_empty() {
             check_topic(&mut errors, "estop_topic", estop);
         }
+        let owner = self.owner_topic.get_or_insert_with(|| "/rove/owner".into());
+        if !owner.is_empty() {
+            check_topic(&mut errors, "owner_topic", owner);
+        }
+        let owner_topic = Some(owner.clone()).filter(|t| !t.is_empty());
+        let diagnostics = *self.diagnostics.get_or_insert(true);
         if let Some(battery) = &self.battery_topic {
             check_topic(&mut errors, "battery_topic", battery);
         }
@@ -139,6 +153,8 @@ impl Ros2Settings {
             zero_for: Duration::from_millis(zero_for.unwrap_or(1000)),
             estop_topic: Some(estop.clone()).filter(|t| !t.is_empty()),
             battery_topic: self.battery_topic.clone(),
+            owner_topic,
+            diagnostics,
             twist,
         })
     }

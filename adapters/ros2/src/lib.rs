@@ -12,7 +12,8 @@
 //! - [`config`]: `[output]` for `adapter = "ros2"` ([`Ros2Settings`] → [`Ros2Config`]), and
 //!   the stick → twist map.
 //! - [`vehicle`]: [`Ros2Vehicle`], the [`rove_core::adapter::OutputAdapter`].
-//! - [`Ros2`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]).
+//! - [`Ros2`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]);
+//!   [`join`]: the ROS 2 participant, also for rove-inputs' `ros2` source (a Joy topic).
 //!
 //! # Known limitations
 //! - Modes are not sent: a ROS 2 velocity interface has none. A mode other than MANUAL is
@@ -31,6 +32,22 @@ pub use vehicle::Ros2Vehicle;
 use rove_core::MonoTime;
 use rove_core::adapter::{OutputAdapter, OutputKind, OutputSpec};
 use rove_core::error::LinkError;
+
+/// Joins the ROS 2 graph on DDS domain `domain_id`, confined to `interfaces`, unsecured: the
+/// participant of the output adapter and of the `ros2` input source.
+///
+/// # Errors
+/// rustdds cannot join (no such interface, ports taken): fatal, the configuration must change.
+pub fn join(
+    domain_id: u16,
+    interfaces: &[std::net::Ipv4Addr],
+) -> Result<rustdds::DomainParticipant, LinkError> {
+    rustdds::DomainParticipantBuilder::new(domain_id)
+        .with_only_networks(interfaces.iter().copied())
+        .same_host_loopback(true)
+        .build()
+        .map_err(|e| LinkError::fatal(format!("ROS 2: cannot join domain {domain_id}: {e}")))
+}
 
 /// `[output] adapter = "ros2"`.
 #[derive(Debug, Clone, Copy)]

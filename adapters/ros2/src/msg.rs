@@ -27,7 +27,7 @@ impl Time {
 }
 
 /// `std_msgs/msg/Header`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Header {
     /// When.
     pub stamp: Time,
@@ -116,6 +116,50 @@ pub struct BatteryState {
     pub serial_number: String,
 }
 
+/// `sensor_msgs/msg/Joy`, what the standard `joy` node publishes.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Joy {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Axes, −1 to 1.
+    pub axes: Vec<f32>,
+    /// Buttons, 0 or 1.
+    pub buttons: Vec<i32>,
+}
+
+/// `diagnostic_msgs/msg/KeyValue`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct KeyValue {
+    /// The key.
+    pub key: String,
+    /// The value, as text.
+    pub value: String,
+}
+
+/// `diagnostic_msgs/msg/DiagnosticStatus`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct DiagnosticStatus {
+    /// 0 OK, 1 WARN, 2 ERROR, 3 STALE (an octet).
+    pub level: u8,
+    /// What is described.
+    pub name: String,
+    /// Its state in words.
+    pub message: String,
+    /// Which hardware.
+    pub hardware_id: String,
+    /// Details.
+    pub values: Vec<KeyValue>,
+}
+
+/// `diagnostic_msgs/msg/DiagnosticArray`, what `/diagnostics` carries.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct DiagnosticArray {
+    /// Stamp.
+    pub header: Header,
+    /// One status per thing described.
+    pub status: Vec<DiagnosticStatus>,
+}
+
 /// A ROS 2 message type: its ROS name and its DDS type name.
 pub trait RosType {
     /// `pkg/msg/Name`, as `ros2 topic list -t` shows it.
@@ -139,6 +183,8 @@ ros_types! {
     Bool => "std_msgs", "Bool";
     RosString => "std_msgs", "String";
     BatteryState => "sensor_msgs", "BatteryState";
+    DiagnosticArray => "diagnostic_msgs", "DiagnosticArray";
+    Joy => "sensor_msgs", "Joy";
 }
 
 /// The DDS topic of the ROS 2 topic `name` (`/cmd_vel` → `rt/cmd_vel`).

@@ -4,16 +4,18 @@
 //! the robot's battery.
 
 use crate::config::{Ros2Config, TwistType};
-use crate::msg::{self, BatteryState, Bool, Header, RosType, Time, Twist, TwistStamped};
+use crate::msg::{
+    self, BatteryState, Bool, DiagnosticArray, DiagnosticStatus, Header, KeyValue, RosString,
+    RosType, Time, Twist, TwistStamped,
+};
 use rove_core::MonoTime;
 use rove_core::adapter::{Health, OutputAdapter, Telemetry};
 use rove_core::arbiter::Setpoint;
 use rove_core::error::LinkError;
+use rove_core::msg::{OutputState, VehicleStatus};
 use rustdds::no_key::{DataReaderCdr, DataWriterCdr};
 use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{
-    DomainParticipant, DomainParticipantBuilder, QosPolicies, QosPolicyBuilder, TopicKind,
-};
+use rustdds::{DomainParticipant, QosPolicies, QosPolicyBuilder, TopicKind};
 use std::time::Duration;
 
 /// How long a reliable write may wait for a full history: a velocity superseded 50 ms later
@@ -73,6 +75,10 @@ pub struct Ros2Vehicle {
     velocity: VelocityWriter,
     estop: Option<DataWriterCdr<Bool>>,
     battery: Option<DataReaderCdr<BatteryState>>,
+    owner: Option<DataWriterCdr<RosString>>,
+    diagnostics: Option<DataWriterCdr<DiagnosticArray>>,
+    /// The who-drives text last published.
+    owner_shown: Option<String>,
     state: State,
     /// The e-stop value last published.
     estop_shown: Option<bool>,
@@ -104,11 +110,7 @@ impl Ros2Vehicle {
     /// rustdds cannot join the domain (no such interface, ports taken) or create an endpoint
     /// (fatal: the configuration must change).
     pub fn new(config: Ros2Config, now: MonoTime) -> Result<Ros2Vehicle, LinkError> {
-        let participant = DomainParticipantBuilder::new(config.domain_id)
-            .with_only_networks(config.interfaces.iter().copied())
-            .same_host_loopback(true)
-            .build()
-            .map_err(|e| fatal(&format!("cannot join domain {}", config.domain_id), e))?;
+        let participant = crate::join(config.domain_id, &config.interfaces)?;
         let default = QosPolicyBuilder::new().build();
         let publisher =
             (participant.create_publisher(&default)).map_err(|e| fatal("publisher", e))?;
@@ -147,6 +149,22 @@ impl Ros2Vehicle {
                 Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
             }
         };
+        let owner = match &config.owner_topic {
+            None => None,
+            Some(name) => {
+                let t = topic(name, RosString::DDS_NAME, &latched_qos())?;
+                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
+                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
+            }
+        };
+        let diagnostics = match config.diagnostics {
+            false => None,
+            true => {
+                let t = topic("/diagnostics", DiagnosticArray::DDS_NAME, &velocity_qos())?;
+                let w = publisher.create_datawriter_no_key_cdr(&t, Some(velocity_qos()));
+                Some(w.map_err(|e| fatal("writer /diagnostics", e))?)
+            }
+        };
         let battery = match &config.battery_topic {
             None => None,
             Some(name) => {
@@ -162,6 +180,9 @@ impl Ros2Vehicle {
             velocity,
             estop,
             battery,
+            owner,
+            diagnostics,
+            owner_shown: None,
             state: State::Safe { zero_until: now },
             estop_shown: None,
             last_publish: None,
@@ -345,6 +366,36 @@ impl OutputAdapter for Ros2Vehicle {
         }
     }
 
+    /// Who drives, on the latched owner topic when it changes, and the vehicle's standing on
+    /// `/diagnostics`.
+    fn status(&mut self, _now: MonoTime, status: &VehicleStatus) -> Result<(), LinkError> {
+        let owner = owner_text(status);
+        if let Some(writer) = &self.owner
+            && self.owner_shown.as_deref() != Some(owner.as_str())
+        {
+            let data = RosString {
+                data: owner.clone(),
+            };
+            writer
+                .write(data, None)
+                .map_err(|e| LinkError::transient(format!("ROS 2 owner: {e}")))?;
+            self.owner_shown = Some(owner);
+        }
+        if let Some(writer) = &self.diagnostics {
+            let array = DiagnosticArray {
+                header: Header {
+                    stamp: Time::now(),
+                    frame_id: String::new(),
+                },
+                status: vec![diagnostic(status)],
+            };
+            writer
+                .write(array, None)
+                .map_err(|e| LinkError::transient(format!("ROS 2 /diagnostics: {e}")))?;
+        }
+        Ok(())
+    }
+
     fn health(&self) -> Health {
         match &self.error {
             None => Health::Ok,
@@ -364,5 +415,60 @@ impl Drop for Ros2Vehicle {
     /// Zero twist and the e-stop, however the adapter goes (the gateway stopping, unwinding).
     fn drop(&mut self) {
         let _ = self.safe_state(MonoTime::ZERO);
+    }
+}
+
+/// Who drives, as the owner topic says it: `{"vehicle":100,"owner":11,"failsafe":false}`, the
+/// owner `null` while the vehicle's failsafe owns it.
+pub fn owner_text(status: &VehicleStatus) -> String {
+    let owner = match status.controller_id == status.vehicle_id {
+        true => "null".to_string(),
+        false => status.controller_id.to_string(),
+    };
+    format!(
+        "{{\"vehicle\":{},\"owner\":{owner},\"failsafe\":{}}}",
+        status.vehicle_id, status.failsafe
+    )
+}
+
+/// The vehicle's standing as one `/diagnostics` status: ERROR when the output is down or hung,
+/// WARN in failsafe or on a low battery, else OK.
+pub fn diagnostic(status: &VehicleStatus) -> DiagnosticStatus {
+    let driven = status.controller_id != status.vehicle_id && !status.failsafe;
+    let level = match status.output {
+        OutputState::Down | OutputState::Hung => 2,
+        _ if !driven || status.health.battery_low || status.output == OutputState::Degraded => 1,
+        _ => 0,
+    };
+    let standing = match driven {
+        true => format!("driven by {}", status.controller_id),
+        false => "failsafe".to_string(),
+    };
+    let kv = |key: &str, value: String| KeyValue {
+        key: key.into(),
+        value,
+    };
+    let battery = status.health.battery_pct;
+    DiagnosticStatus {
+        level,
+        name: format!("rove: vehicle {}", status.vehicle_id),
+        message: format!("{standing}; output {:?}", status.output).to_lowercase(),
+        hardware_id: format!("rove-{}", status.vehicle_id),
+        values: vec![
+            kv("owner", status.controller_id.to_string()),
+            kv("failsafe", status.failsafe.to_string()),
+            kv("output", format!("{:?}", status.output).to_lowercase()),
+            kv("mode", format!("{:?}", status.mode).to_lowercase()),
+            kv(
+                "battery_pct",
+                if battery < 0 {
+                    "unknown".into()
+                } else {
+                    battery.to_string()
+                },
+            ),
+            kv("battery_low", status.health.battery_low.to_string()),
+            kv("detail", status.detail.clone()),
+        ],
     }
 }

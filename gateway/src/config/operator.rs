@@ -15,8 +15,8 @@ rove_core::config_types! {
         #[serde(default)] drive: Vec<DeviceId> => "Vehicles to drive from the start.",
     }
 
-    /// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, or a recorded
-    /// event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
+    /// `[input]`: `source` picks constant sticks, an evdev joystick or keyboard, a ROS 2 Joy
+    /// topic, or a recorded event stream (the last three are rove-inputs' keys, see `inputs/README.md`).
     #[derive(Debug, Clone, Serialize, Deserialize)]
     #[serde(deny_unknown_fields, tag = "source", rename_all = "lowercase")]
     pub enum InputSection {
@@ -24,6 +24,8 @@ rove_core::config_types! {
         Joystick => "An evdev joystick or gamepad." (Box<rove_inputs::InputSettings>),
         Keyboard => "An evdev keyboard." (Box<rove_inputs::InputSettings>),
         Replay => "A recorded event stream (tests, demos, benchmarks)."
+            (Box<rove_inputs::InputSettings>),
+        Ros2 => "A ROS 2 `sensor_msgs/Joy` topic (the standard `joy` node)."
             (Box<rove_inputs::InputSettings>),
     }
 
@@ -182,6 +184,7 @@ impl RawOperator {
             InputSection::Joystick(s) => device(s, rove_inputs::SourceKind::Joystick),
             InputSection::Keyboard(s) => device(s, rove_inputs::SourceKind::Keyboard),
             InputSection::Replay(s) => device(s, rove_inputs::SourceKind::Replay),
+            InputSection::Ros2(s) => device(s, rove_inputs::SourceKind::Ros2),
         };
         let mut config = OperatorConfig {
             common,

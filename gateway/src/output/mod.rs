@@ -44,6 +44,8 @@ pub struct ManagedOutput {
     /// When the adapter's keep-alive is next due.
     next_keepalive: Option<MonoTime>,
     last_error: Option<String>,
+    /// The last error of [`ManagedOutput::status`], logged once.
+    last_status_error: Option<String>,
 }
 
 impl std::fmt::Debug for ManagedOutput {
@@ -68,6 +70,7 @@ impl ManagedOutput {
             hold_until: None,
             next_keepalive: None,
             last_error: None,
+            last_status_error: None,
         };
         match open(&managed.config, now) {
             Ok(adapter) => managed.adapter = Some(adapter),
@@ -140,6 +143,20 @@ impl ManagedOutput {
                 self.failed(now, &e);
                 self.safe_state(now);
             }
+        }
+    }
+
+    /// Tells the adapter what the vehicle says of itself ([`OutputAdapter::status`]); a failure
+    /// is logged once per distinct message and changes nothing else.
+    pub fn status(&mut self, now: MonoTime, status: &rove_core::msg::VehicleStatus) {
+        let Some(adapter) = self.adapter.as_mut() else {
+            return;
+        };
+        if let Err(e) = adapter.status(now, status)
+            && self.last_status_error.as_deref() != Some(e.detail.as_str())
+        {
+            warn!(error = %e.detail, "the output did not take the vehicle's status");
+            self.last_status_error = Some(e.detail);
         }
     }
 

@@ -100,6 +100,7 @@ fn gated_worker(
             hold_until: None,
             next_keepalive: None,
             last_error: None,
+            last_status_error: None,
         })
     })
     .expect("worker")
@@ -215,6 +216,7 @@ fn r20_a_successful_apply_ends_the_hold() {
         hold_until: None,
         next_keepalive: None,
         last_error: None,
+        last_status_error: None,
     };
     let t0 = MonoTime::ZERO;
     out.tick(t0); // the keep-alive fails: held safe for RETRY

@@ -62,6 +62,9 @@ enum Command {
 struct WorkerState {
     /// The newest command the thread has not taken yet; a newer one replaces it.
     pending: Option<Command>,
+    /// The newest VehicleStatus the adapter has not been told yet (apart from `pending`, so
+    /// that a status never replaces a command).
+    status: Option<rove_core::msg::VehicleStatus>,
     /// When the thread entered the device call in progress, if it is in one.
     busy_since: Option<MonoTime>,
     stale: u64,
@@ -137,6 +140,7 @@ impl OutputWorker {
         let shared = std::sync::Arc::new(WorkerShared {
             state: std::sync::Mutex::new(WorkerState {
                 pending: None,
+                status: None,
                 busy_since: None,
                 stale: 0,
                 describe: format!("{name:?} (opening)"),
@@ -191,6 +195,12 @@ impl OutputWorker {
         self.hand_over(Command::Safe);
     }
 
+    /// Tells the adapter what the vehicle says of itself, as soon as the device is free.
+    pub fn status(&self, status: &rove_core::msg::VehicleStatus) {
+        self.shared.lock().status = Some(status.clone());
+        self.shared.wake.notify_all();
+    }
+
     fn hand_over(&self, command: Command) {
         self.shared.lock().pending = Some(command);
         self.shared.wake.notify_all();
@@ -237,7 +247,7 @@ fn work(
 ) {
     let mut state = shared.lock();
     loop {
-        while state.pending.is_none() && !state.stop {
+        while state.pending.is_none() && state.status.is_none() && !state.stop {
             let now = clock.now();
             state = match output.next_deadline() {
                 Some(due) if due <= now => break,
@@ -250,7 +260,7 @@ fn work(
                     .unwrap_or_else(std::sync::PoisonError::into_inner),
             };
         }
-        let (command, stop) = (state.pending.take(), state.stop);
+        let (command, status, stop) = (state.pending.take(), state.status.take(), state.stop);
         let now = clock.now();
         let command = match command {
             Some(Command::Apply(at, _)) if now.saturating_since(at) > max_age => {
@@ -265,6 +275,9 @@ fn work(
             Some(Command::Apply(_, setpoint)) => output.apply(now, &setpoint),
             Some(Command::Safe) => output.safe_state(now),
             None => {}
+        }
+        if let Some(status) = status {
+            output.status(now, &status);
         }
         output.tick(clock.now());
         shared.publish(&output);

@@ -81,6 +81,8 @@ pub(crate) trait Outputs {
     fn safe_state(&self);
     /// How the output is.
     fn report(&self) -> OutputReport;
+    /// Tells the output what the vehicle says of itself (VehicleStatus, on change).
+    fn status(&self, _status: &rove_core::msg::VehicleStatus) {}
     /// Safe state, then stop, waiting at most `wait`; `false` if the device did not return.
     fn stop(self, wait: Duration) -> bool;
 }
@@ -94,6 +96,9 @@ impl Outputs for OutputWorker {
     }
     fn report(&self) -> OutputReport {
         OutputWorker::report(self)
+    }
+    fn status(&self, status: &rove_core::msg::VehicleStatus) {
+        OutputWorker::status(self, status);
     }
     fn stop(self, wait: Duration) -> bool {
         OutputWorker::stop(self, wait)
@@ -299,6 +304,7 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         let now = self.clock.now();
         if let Some(status) = self.status.changed(&self.arbiter, &report, now) {
             self.net.publish_status(status);
+            self.output.status(status);
         }
     }
 
