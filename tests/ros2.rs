@@ -301,3 +301,127 @@ fn a_ros_2_joy_node_drives_through_a_rove_operator_and_a_phone_preempts_it() {
     joy.send(&serde_json::json!({"stop": true}));
     wait_for_output(&record, None, stopped).expect("failsafe once the Joy messages stop");
 }
+
+/// p50 and p99 of `ms`, sorted in place.
+fn percentiles(ms: &mut [f64]) -> (f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    let at = |q: f64| ms[((ms.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.99))
+}
+
+/// The issue's figures, in one run (`cargo test -p rove-gateway --test e2e -- --ignored
+/// ros2::bench --nocapture`): a Joy node's stick steps through a `ros2` operator to a sim
+/// vehicle's output and to an rclpy subscriber of a `ros2` vehicle, p50/p99; then 20 owner
+/// crashes, each timed to the zero twist and the e-stop. Timing is reported, not asserted
+/// (a benchmark, not a test: it runs by hand).
+#[test]
+#[ignore = "a benchmark: run by hand with --ignored --nocapture"]
+fn bench_joy_and_crash_latencies() {
+    const JOY: i64 = 13;
+    const SIM: i64 = 101;
+    let mut rig = Rig::new("ros2-bench");
+    let robot = RosPeer::start(&rig, "robot", &["--twist", "/cmd_vel", "--stamped"]);
+    rig.vehicle_with_output(V, &ros2_output(""));
+    let sim = rig.vehicle(SIM);
+    let config = rig.write(
+        "operator-joy.toml",
+        &format!(
+            "[device]\nid = {JOY}\nname = \"joy\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"desktop\"\ndrive = [{V}, {SIM}]\n[input]\nsource = \"ros2\"\n\
+             domain_id = {ROS_DOMAIN}\n[input.axes.throttle]\nabs = \"ABS_Y\"\n"
+        ),
+    );
+    let path = config.to_str().expect("utf-8 path");
+    rig.spawn("operator-13", &["operator", "-c", path, "--headless"]);
+    let mut joy = RosPeer::start(&rig, "joy", &["--joy", "/joy", "--joy-rate", "2"]);
+    let start = wall_us();
+    joy.send(&serde_json::json!({"axes": [0.0, 0.0]}));
+    wait_for_output(&sim, Some(JOY), start).expect("the Joy operator drives");
+    robot.wait_for("a centred twist", |l| l["kind"] == "twist");
+    let (mut to_sim, mut to_ros) = (Vec::new(), Vec::new());
+    for k in 0..100 {
+        let value = 0.3 + 0.004 * f64::from(k);
+        let sent = wall_us();
+        joy.send(&serde_json::json!({"axes": [0.0, value]}));
+        let out = joy.wait_for("the step published", |l| {
+            l["kind"] == "joy_out"
+                && l["axes"][1]
+                    .as_f64()
+                    .is_some_and(|a| (a - value).abs() < 1e-4)
+        });
+        let at = out["wall_us"].as_u64().unwrap_or(sent);
+        let applied = eventually("the step at the sim vehicle", || {
+            let outs = records(&sim);
+            let hit = outs.iter().find(|o| {
+                o.wall_us >= at
+                    && o.owner == Some(JOY)
+                    && o.throttle
+                        .is_some_and(|t| t as f64 >= (value - 0.002) * 32_767.0)
+            });
+            hit.map(|o| o.wall_us).ok_or("not yet")
+        });
+        let heard = robot.wait_for("the step at the rclpy subscriber", |l| {
+            l["kind"] == "twist"
+                && l["wall_us"].as_u64() >= Some(at)
+                && linear_x(l) >= (value - 0.002) * 0.8
+        });
+        to_sim.push((applied - at) as f64 / 1000.0);
+        to_ros.push((heard["wall_us"].as_u64().unwrap_or(at) - at) as f64 / 1000.0);
+    }
+    let (sim50, sim99) = percentiles(&mut to_sim);
+    let (ros50, ros99) = percentiles(&mut to_ros);
+    println!(
+        "Joy (rclpy) → ros2 operator → sim vehicle output: p50 {sim50:.2} ms, p99 {sim99:.2} ms (100 steps)"
+    );
+    println!(
+        "Joy (rclpy) → ros2 operator → ros2 vehicle → rclpy TwistStamped: p50 {ros50:.2} ms, p99 {ros99:.2} ms"
+    );
+    drop(joy);
+
+    // 20 owner crashes on the ROS 2 robot.
+    let mut crash_rig = Rig::new("ros2-bench-crash");
+    let robot = RosPeer::start(
+        &crash_rig,
+        "robot",
+        &["--twist", "/cmd_vel", "--stamped", "--estop", "/rove/estop"],
+    );
+    crash_rig.vehicle_with_output(V, &ros2_output(""));
+    let (mut zero, mut estop) = (Vec::new(), Vec::new());
+    for _ in 0..20 {
+        let started = wall_us();
+        let laptop = crash_rig.operator(
+            LAPTOP,
+            "stationary",
+            "laptop",
+            &[V],
+            16_384,
+            "",
+            &["--headless"],
+        );
+        robot.wait_for("driven", |l| {
+            l["kind"] == "twist" && l["wall_us"].as_u64() > Some(started) && linear_x(l) > 0.0
+        });
+        robot.wait_for("the e-stop cleared", |l| {
+            l["kind"] == "estop" && l["data"] == false && l["wall_us"].as_u64() > Some(started)
+        });
+        let crash = wall_us();
+        crash_rig.procs[laptop].crash();
+        let z = robot.wait_for("zero", |l| {
+            l["kind"] == "twist" && l["wall_us"].as_u64() > Some(crash) && linear_x(l) == 0.0
+        });
+        let e = robot.wait_for("e-stop", |l| {
+            l["kind"] == "estop" && l["data"] == true && l["wall_us"].as_u64() > Some(crash)
+        });
+        let ms = |l: &Value| (l["wall_us"].as_u64().unwrap_or(crash) - crash) as f64 / 1000.0;
+        zero.push(ms(&z));
+        estop.push(ms(&e));
+    }
+    let worst = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    let (zw, ew) = (worst(&zero), worst(&estop));
+    let (z50, z99) = percentiles(&mut zero);
+    let (e50, e99) = percentiles(&mut estop);
+    println!(
+        "owner kill -9 → zero twist: p50 {z50:.1} ms, p99 {z99:.1} ms, max {zw:.1} ms (20 runs, command timeout 100 ms)"
+    );
+    println!("owner kill -9 → e-stop true: p50 {e50:.1} ms, p99 {e99:.1} ms, max {ew:.1} ms");
+}
