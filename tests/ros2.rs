@@ -302,6 +302,40 @@ fn a_ros_2_joy_node_drives_through_a_rove_operator_and_a_phone_preempts_it() {
     wait_for_output(&record, None, stopped).expect("failsafe once the Joy messages stop");
 }
 
+/// A `teleop_twist_keyboard`-style node (an rclpy Twist publisher) drives a rove vehicle
+/// through a rove operator with `source = "ros2"`, `message = "Twist"`: linear.x as a
+/// fraction of `max_linear` is the throttle.
+#[test]
+fn a_ros_2_twist_teleop_node_drives_through_a_rove_operator() {
+    const TELEOP: i64 = 14;
+    let mut rig = Rig::new("ros2-teleop");
+    let record = rig.vehicle(V);
+    let config = rig.write(
+        "operator-teleop.toml",
+        &format!(
+            "[device]\nid = {TELEOP}\nname = \"teleop\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"desktop\"\ndrive = [{V}]\n[input]\nsource = \"ros2\"\n\
+             message = \"Twist\"\ntopic = \"/teleop\"\nmax_linear = 0.5\ndomain_id = {ROS_DOMAIN}\n\
+             [input.axes.throttle]\nabs = \"ABS_X\"\n"
+        ),
+    );
+    let path = config.to_str().expect("utf-8 path");
+    rig.spawn("operator-14", &["operator", "-c", path, "--headless"]);
+    let mut teleop = RosPeer::start(&rig, "teleop", &["--twist-out", "/teleop", "--unstamped"]);
+    let start = wall_us();
+    teleop.send(&serde_json::json!({"linear": [0.0, 0.0, 0.0], "angular": [0.0, 0.0, 0.0]}));
+    wait_for_output(&record, Some(TELEOP), start).expect("the teleop operator drives, stopped");
+    teleop.send(&serde_json::json!({"linear": [0.25, 0.0, 0.0], "angular": [0.0, 0.0, 0.0]}));
+    let half = i64::from(i16::MAX) / 2;
+    eventually("half throttle from the teleop node", || {
+        let outs = records(&record);
+        match outs.iter().rev().find(|o| o.owner == Some(TELEOP)) {
+            Some(o) if o.throttle.is_some_and(|t| (t - half).abs() < half / 10) => Ok(()),
+            last => Err(format!("{last:?}")),
+        }
+    });
+}
+
 /// p50 and p99 of `ms`, sorted in place.
 fn percentiles(ms: &mut [f64]) -> (f64, f64) {
     ms.sort_by(f64::total_cmp);

@@ -1,18 +1,21 @@
 //! [`Ros2Source`]: a ROS 2 teleop node as an operator's input. It reads `sensor_msgs/Joy`
-//! (the standard `joy` node) on its own ROS 2 participant and feeds the [`Mapper`] as a
-//! joystick would, so the axis and button vocabulary is evdev's: Joy axis i is `EV_ABS` code i
-//! (`ABS_X`, `ABS_Y`, `ABS_Z`, `ABS_RX`, …) on −1..1, button j is `BTN_TRIGGER` + j. The
-//! first message connects the "device"; silence for `silence_timeout_ms` (500 ms unless set)
-//! loses it, as an unplugged joystick, and the next message connects it again.
+//! (the standard `joy` node) or a twist (`teleop_twist_keyboard`) on its own ROS 2 participant
+//! and feeds the [`Mapper`] as a joystick would, so the axis and button vocabulary is evdev's:
+//! Joy axis i is `EV_ABS` code i (`ABS_X`, `ABS_Y`, `ABS_Z`, `ABS_RX`, …) on −1..1, button j
+//! is `BTN_TRIGGER` + j; a twist's linear x, y, z and angular x, y, z are axes 0 to 5 (`ABS_X`
+//! … `ABS_RZ`), as fractions of `max_linear` / `max_angular`. The first message connects the
+//! "device"; silence for `silence_timeout_ms` (500 ms unless set) loses it, as an unplugged
+//! joystick, and the next message connects it again.
 
 use crate::codes::{EV_ABS, EV_KEY, RawEvent};
+use crate::config::Ros2Message;
 use crate::config::{MappingConfig, SourceConfig};
 use crate::curve::AbsState;
 use crate::mapper::{DeviceEvent, InputStatus, LinkState, Mapper};
 use rove_core::adapter::{InputEvent, InputSource};
 use rove_core::error::LinkError;
 use rove_core::time::MonoTime;
-use rove_ros2::msg::{Joy, RosType, dds_topic};
+use rove_ros2::msg::{Joy, RosType, Twist, TwistStamped, dds_topic};
 use rustdds::no_key::DataReaderCdr;
 use rustdds::policy::{Durability, History, Reliability};
 use rustdds::{QosPolicyBuilder, TopicKind};
@@ -30,10 +33,51 @@ const BTN_TRIGGER: u16 = 0x120;
 /// Most axes and buttons taken from one message (a message claiming more is cut).
 const MAX_CONTROLS: usize = 64;
 
-/// The ROS 2 Joy source.
+/// What the source reads.
+enum Reader {
+    Joy(DataReaderCdr<Joy>),
+    Twist(DataReaderCdr<Twist>, [f64; 2]),
+    Stamped(DataReaderCdr<TwistStamped>, [f64; 2]),
+}
+
+impl Reader {
+    /// The next message as a Joy (a twist: its six components as axes, no buttons).
+    fn take(&mut self) -> Result<Option<Joy>, ()> {
+        let axes = |t: &Twist, [linear, angular]: [f64; 2]| {
+            let (l, a) = (&t.linear, &t.angular);
+            [
+                l.x / linear,
+                l.y / linear,
+                l.z / linear,
+                a.x / angular,
+                a.y / angular,
+                a.z / angular,
+            ]
+            .map(|v| v as f32)
+            .to_vec()
+        };
+        let joy = |axes| Joy {
+            axes,
+            ..Joy::default()
+        };
+        match self {
+            Reader::Joy(r) => r.take_next_sample().map(|s| s.map(|s| s.into_value())),
+            Reader::Twist(r, max) => {
+                (r.take_next_sample()).map(|s| s.map(|s| joy(axes(&s.into_value(), *max))))
+            }
+            Reader::Stamped(r, max) => {
+                (r.take_next_sample()).map(|s| s.map(|s| joy(axes(&s.into_value().twist, *max))))
+            }
+        }
+        .map_err(|_| ())
+    }
+}
+
+/// The ROS 2 teleop source.
 pub struct Ros2Source {
     mapper: Mapper,
-    reader: DataReaderCdr<Joy>,
+    reader: Reader,
+    message: Ros2Message,
     topic: String,
     /// Axes and buttons as last fed, once connected.
     last: Option<(Vec<i32>, Vec<bool>)>,
@@ -58,6 +102,9 @@ impl Ros2Source {
     pub fn open(source: &SourceConfig, mapping: MappingConfig) -> Result<Ros2Source, LinkError> {
         let SourceConfig::Ros2 {
             topic,
+            message,
+            max_linear,
+            max_angular,
             domain_id,
             interfaces,
         } = source
@@ -75,21 +122,38 @@ impl Ros2Source {
             .durability(Durability::Volatile)
             .history(History::KeepLast { depth: 16 })
             .build();
+        let type_name = match message {
+            Ros2Message::Joy => Joy::DDS_NAME,
+            Ros2Message::Twist => Twist::DDS_NAME,
+            Ros2Message::TwistStamped => TwistStamped::DDS_NAME,
+        };
         let t = (participant.create_topic(
             dds_topic(topic),
-            Joy::DDS_NAME.to_string(),
+            type_name.to_string(),
             &qos,
             TopicKind::NoKey,
         ))
         .map_err(|e| fatal("topic", &e))?;
         let subscriber =
             (participant.create_subscriber(&qos)).map_err(|e| fatal("subscriber", &e))?;
-        let reader = (subscriber.create_datareader_no_key_cdr::<Joy>(&t, Some(qos)))
-            .map_err(|e| fatal("reader", &e))?;
+        let max = [*max_linear, *max_angular];
+        let reader = match message {
+            Ros2Message::Joy => subscriber
+                .create_datareader_no_key_cdr(&t, Some(qos))
+                .map(Reader::Joy),
+            Ros2Message::Twist => subscriber
+                .create_datareader_no_key_cdr(&t, Some(qos))
+                .map(|r| Reader::Twist(r, max)),
+            Ros2Message::TwistStamped => subscriber
+                .create_datareader_no_key_cdr(&t, Some(qos))
+                .map(|r| Reader::Stamped(r, max)),
+        }
+        .map_err(|e| fatal("reader", &e))?;
         let label = format!("ROS 2 {topic}");
         Ok(Ros2Source {
             mapper: Mapper::new(mapping, label),
             reader,
+            message: *message,
             topic: topic.clone(),
             last: None,
             polled: None,
@@ -169,15 +233,20 @@ impl Ros2Source {
 
 impl InputSource for Ros2Source {
     fn describe(&self) -> String {
-        format!("ROS 2 sensor_msgs/Joy on {}", self.topic)
+        let kind = match self.message {
+            Ros2Message::Joy => Joy::ROS_NAME,
+            Ros2Message::Twist => Twist::ROS_NAME,
+            Ros2Message::TwistStamped => TwistStamped::ROS_NAME,
+        };
+        format!("ROS 2 {kind} on {}", self.topic)
     }
 
     fn poll(&mut self, now: MonoTime) -> Result<Option<InputEvent>, LinkError> {
         self.polled = Some(now);
         // Bounded per poll: a flood waits for the next one.
         for _ in 0..256 {
-            match self.reader.take_next_sample() {
-                Ok(Some(sample)) => self.feed(now, &sample.into_value()),
+            match self.reader.take() {
+                Ok(Some(joy)) => self.feed(now, &joy),
                 Ok(None) => break,
                 // A malformed sample is skipped: the next message counts.
                 Err(_) => continue,

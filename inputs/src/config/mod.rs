@@ -4,6 +4,10 @@
 //!
 //! Keys of errors are relative to the `[input]` table, e.g. `axes.throttle.deadband_pct`; the
 //! gateway puts `input.` in front. The keys are listed in the crate README.
+//!
+//! # Layout
+//! - this file: the tables, the validated types, every source but ROS 2's;
+//! - `ros2.rs`: `source = "ros2"`'s keys.
 
 use crate::codes::{Control, abs_name, parse_abs, parse_key};
 use rove_core::adapter::InputAction;
@@ -37,6 +41,9 @@ pub const DEFAULT_SPRING_BACK_MS: Int = 150;
 /// Longest accepted ramp-up or spring-back, ms; beyond ten seconds a key axis is unusable.
 pub const MAX_RAMP_MS: Int = 10_000;
 
+mod ros2;
+pub use ros2::DEFAULT_ROS2_SILENCE_MS;
+
 rove_core::config_types! {
     /// Which kind of input `[input] source` selects.
     pub keyword SourceKind {
@@ -47,6 +54,13 @@ rove_core::config_types! {
             code i (`ABS_X`, `ABS_Y`, `ABS_Z`, `ABS_RX`…), button j is `BTN_TRIGGER` + j.",
     }
 
+    /// What a `ros2` source reads.
+    pub keyword Ros2Message {
+        #[serde(rename = "Joy")] Joy => "`sensor_msgs/msg/Joy`.",
+        #[serde(rename = "Twist")] Twist => "`geometry_msgs/msg/Twist`.",
+        #[serde(rename = "TwistStamped")] TwistStamped => "`geometry_msgs/msg/TwistStamped`.",
+    }
+
     /// `[input]` as written.
     pub table InputSettings {
         source: Option<SourceKind> => "What to read.",
@@ -55,7 +69,12 @@ rove_core::config_types! {
         grab: Option<bool> => "Joystick/keyboard: take the device exclusively (EVIOCGRAB).",
         reopen_interval_ms: Option<Int> => "Joystick/keyboard: time between reopen attempts, ms.",
         file: Option<PathBuf> => "Replay: the recording to play.",
-        topic: Option<String> => "ROS 2: the Joy topic (absent: `/joy`).",
+        topic: Option<String> => "ROS 2: the topic (absent: `/joy`, or `/cmd_vel` for a twist).",
+        message: Option<Ros2Message> => "ROS 2: `\"Joy\"` (absent), `\"Twist\"` or \
+            `\"TwistStamped\"` (`teleop_twist_keyboard`).",
+        max_linear: Option<f64> => "ROS 2 twist: m/s that count as full stick (absent: 0.5, \
+            teleop_twist_keyboard's default speed).",
+        max_angular: Option<f64> => "ROS 2 twist: rad/s that count as full stick (absent: 1.0).",
         domain_id: Option<Int> => "ROS 2: the graph's DDS domain, `ROS_DOMAIN_ID` (absent: 0).",
         interfaces: Option<Vec<std::net::Ipv4Addr>> => "ROS 2: the interfaces the ROS 2 side \
             may use (absent: loopback only).",
@@ -138,7 +157,7 @@ impl std::fmt::Display for DeviceSelector {
 
 rove_core::config_types! {
     /// Validated source choice.
-    #[derive(Debug, Clone, PartialEq, Eq)]
+    #[derive(Debug, Clone, PartialEq)]
     pub enum SourceConfig {
         Evdev => "An evdev device." {
             selector: DeviceSelector => "Which device.",
@@ -149,8 +168,11 @@ rove_core::config_types! {
             file: PathBuf => "The file (relative paths are relative to the process's working \
                 directory unless [`InputConfig::resolve_relative_to`] was called).",
         },
-        Ros2 => "A ROS 2 Joy topic." {
+        Ros2 => "A ROS 2 Joy or twist topic." {
             topic: String => "The topic (a ROS 2 name, `/joy`).",
+            message: Ros2Message => "Joy, Twist or TwistStamped.",
+            max_linear: f64 => "A twist's m/s at full stick.",
+            max_angular: f64 => "A twist's rad/s at full stick.",
             domain_id: u16 => "The DDS domain.",
             interfaces: Vec<std::net::Ipv4Addr> => "The interfaces.",
         },
@@ -378,6 +400,9 @@ impl InputSettings {
             only_ros2,
         );
         errors.not_for("domain_id", self.domain_id, only_ros2);
+        errors.not_for("message", self.message.map(|m| format!("{m:?}")), only_ros2);
+        errors.not_for("max_linear", self.max_linear, only_ros2);
+        errors.not_for("max_angular", self.max_angular, only_ros2);
         let shown = self.interfaces.as_ref().map(|i| format!("{i:?}"));
         errors.not_for("interfaces", shown, only_ros2);
         if kind == SourceKind::Replay {
@@ -429,60 +454,6 @@ impl InputSettings {
         }
     }
 }
-
-impl InputSettings {
-    /// `source = "ros2"`: the topic, domain and interfaces; the device and recording keys do
-    /// not apply.
-    fn validate_ros2(&mut self, errors: &mut ConfigErrors) -> SourceConfig {
-        let only_others = "does not apply to source = \"ros2\"";
-        let path =
-            |p: &Option<PathBuf>| p.as_ref().map(|p| format!("{:?}", p.display().to_string()));
-        errors.not_for("device", path(&self.device), only_others);
-        errors.not_for(
-            "name",
-            self.name.as_ref().map(|n| format!("{n:?}")),
-            only_others,
-        );
-        errors.not_for("grab", self.grab, only_others);
-        errors.not_for("reopen_interval_ms", self.reopen_interval_ms, only_others);
-        errors.not_for("file", path(&self.file), only_others);
-        let topic = self.topic.get_or_insert_with(|| "/joy".into()).clone();
-        let valid = topic.strip_prefix('/').is_some_and(|rest| {
-            !rest.is_empty()
-                && rest.split('/').all(|t| {
-                    !t.is_empty()
-                        && !t.starts_with(|c: char| c.is_ascii_digit())
-                        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-                })
-        });
-        if !valid {
-            let rule = "must be a ROS 2 topic name: `/` then letters, digits and `_`, parts \
-                        separated by `/`";
-            errors.add("topic", format!("{topic:?}"), rule);
-        }
-        let domain = *self.domain_id.get_or_insert(0);
-        let domain_id = errors.int("domain_id", domain, 0..=232, "").unwrap_or(0);
-        let interfaces = (self.interfaces)
-            .get_or_insert_with(|| vec![std::net::Ipv4Addr::LOCALHOST])
-            .clone();
-        if interfaces.is_empty() {
-            errors.add("interfaces", "[]", "names at least one interface");
-        }
-        // The joy node repeats its last message (autorepeat_rate, 20 Hz by default): silence
-        // means the node or its link is gone.
-        self.silence_timeout_ms
-            .get_or_insert(DEFAULT_ROS2_SILENCE_MS);
-        SourceConfig::Ros2 {
-            topic,
-            domain_id,
-            interfaces,
-        }
-    }
-}
-
-/// `silence_timeout_ms` of a `ros2` source when absent: ten periods of the joy node's default
-/// 20 Hz autorepeat.
-pub const DEFAULT_ROS2_SILENCE_MS: Int = 500;
 
 impl AxisSettings {
     /// Validates one axis; keys in errors are relative to the axis table.
@@ -615,6 +586,55 @@ mod tests {
             }
             Err(e) => vec![e.to_string()],
         }
+    }
+
+    #[test]
+    fn a_ros_2_source_reads_joy_or_a_twist_and_loses_a_silent_node() {
+        let c = parse("source = \"ros2\"\n[axes.throttle]\nabs = \"ABS_Y\"\n")
+            .validate()
+            .expect("valid");
+        assert_eq!(
+            &c.source,
+            &SourceConfig::Ros2 {
+                topic: "/joy".into(),
+                message: Ros2Message::Joy,
+                max_linear: 0.5,
+                max_angular: 1.0,
+                domain_id: 0,
+                interfaces: vec![std::net::Ipv4Addr::LOCALHOST],
+            }
+        );
+        // The joy node repeats at 20 Hz: silence is detected unless said otherwise.
+        assert_eq!(c.mapping.silence_timeout, Some(Duration::from_millis(500)));
+        let twist = "source = \"ros2\"\nmessage = \"Twist\"\nmax_linear = 0.2\n\
+                     [axes.throttle]\nabs = \"ABS_X\"\n";
+        let c = parse(twist).validate().expect("valid");
+        assert!(
+            matches!(&c.source, SourceConfig::Ros2 { topic, max_linear, .. }
+                if topic == "/cmd_vel" && *max_linear == 0.2),
+            "{c:?}"
+        );
+        let errors = errors_of(
+            "source = \"ros2\"\ntopic = \"joy\"\ndevice = \"/dev/input/js0\"\ndomain_id = 300\n",
+        );
+        assert!(
+            errors.iter().any(|e| e.starts_with("topic = \"joy\"")),
+            "{errors:?}"
+        );
+        assert!(
+            errors.iter().any(|e| e.starts_with("device =")),
+            "{errors:?}"
+        );
+        assert!(
+            errors.iter().any(|e| e.starts_with("domain_id = 300")),
+            "{errors:?}"
+        );
+        // The ROS 2 keys do not apply to a joystick.
+        let errors = errors_of("source = \"joystick\"\ntopic = \"/joy\"\n");
+        assert!(
+            errors.iter().any(|e| e.starts_with("topic =")),
+            "{errors:?}"
+        );
     }
 
     #[test]
@@ -812,7 +832,7 @@ mod tests {
         assert_eq!(
             errors_of(""),
             [
-                "source = (absent): must be one of \"joystick\", \"keyboard\", \"replay\"",
+                "source = (absent): must be one of \"joystick\", \"keyboard\", \"replay\", \"ros2\"",
                 "axes = (none): must map at least one of throttle, roll, pitch, yaw ([input.axes.NAME])",
             ]
         );
