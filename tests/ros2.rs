@@ -336,6 +336,60 @@ fn a_ros_2_twist_teleop_node_drives_through_a_rove_operator() {
     });
 }
 
+/// A vehicle that stops (SIGTERM, as systemd stops it) leaves its ROS 2 robot at zero with the
+/// e-stop set; `rove failsafe` (the unit's `ExecStopPost`, a process of its own) does the same
+/// and says it reached the robot.
+#[test]
+fn a_stop_and_rove_failsafe_leave_the_ros_2_robot_stopped() {
+    let mut rig = Rig::new("ros2-stop");
+    let robot = RosPeer::start(
+        &rig,
+        "robot",
+        &["--twist", "/cmd_vel", "--stamped", "--estop", "/rove/estop"],
+    );
+    rig.vehicle_with_output(V, &ros2_output(""));
+    rig.operator(
+        LAPTOP,
+        "stationary",
+        "laptop",
+        &[V],
+        16_384,
+        "",
+        &["--headless"],
+    );
+    robot.wait_for("driven", |l| l["kind"] == "twist" && linear_x(l) > 0.0);
+    robot.wait_for("the e-stop cleared", |l| {
+        l["kind"] == "estop" && l["data"] == false
+    });
+    let stop = wall_us();
+    rig.procs[0].stop();
+    robot.wait_for("zero after the vehicle's stop", |l| {
+        l["kind"] == "twist" && l["wall_us"].as_u64() > Some(stop) && linear_x(l) == 0.0
+    });
+    robot.wait_for("the e-stop after the vehicle's stop", |l| {
+        l["kind"] == "estop" && l["data"] == true && l["wall_us"].as_u64() > Some(stop)
+    });
+    let config = rig.dir.join(format!("vehicle-{V}.toml"));
+    let before = robot.of("twist").len();
+    let out = rig
+        .command(&["failsafe", "-c", config.to_str().expect("utf-8 path")])
+        .output()
+        .expect("run rove failsafe");
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{said}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains("acknowledged by 1 subscriber"), "{said}");
+    let after = robot.of("twist");
+    assert!(after.len() > before, "rove failsafe published no twist");
+    assert!(
+        after[before..].iter().all(|l| linear_x(l) == 0.0),
+        "{after:?}"
+    );
+}
+
 /// p50 and p99 of `ms`, sorted in place.
 fn percentiles(ms: &mut [f64]) -> (f64, f64) {
     ms.sort_by(f64::total_cmp);
