@@ -95,6 +95,26 @@ fn ros2_output(extra: &str) -> String {
     )
 }
 
+/// Starts operator `id` (a stationary desktop driving `drive`) whose `[input]` is a `ros2`
+/// source on the test's ROS domain with `input` as its other keys and tables.
+fn ros2_operator(rig: &mut Rig, id: i64, drive: &[i64], input: &str) {
+    let drive: Vec<String> = drive.iter().map(i64::to_string).collect();
+    let config = rig.write(
+        &format!("operator-{id}.toml"),
+        &format!(
+            "[device]\nid = {id}\nname = \"op{id}\"\n[operator]\nlevel = \"stationary\"\n\
+             device_class = \"desktop\"\ndrive = [{}]\n[input]\nsource = \"ros2\"\n\
+             domain_id = {ROS_DOMAIN}\n{input}",
+            drive.join(", ")
+        ),
+    );
+    let path = config.to_str().expect("utf-8 path");
+    rig.spawn(
+        &format!("operator-{id}"),
+        &["operator", "-c", path, "--headless"],
+    );
+}
+
 /// The owner topic's JSON text, read.
 fn parsed(line: &Value) -> Value {
     serde_json::from_str(line["data"].as_str().unwrap_or("")).unwrap_or(Value::Null)
@@ -264,17 +284,8 @@ fn a_ros_2_joy_node_drives_through_a_rove_operator_and_a_phone_preempts_it() {
     const PHONE: i64 = 12;
     let mut rig = Rig::new("ros2-joy");
     let record = rig.vehicle(V);
-    let config = rig.write(
-        "operator-joy.toml",
-        &format!(
-            "[device]\nid = {JOY}\nname = \"joy\"\n[operator]\nlevel = \"stationary\"\n\
-             device_class = \"desktop\"\ndrive = [{V}]\n[input]\nsource = \"ros2\"\n\
-             topic = \"/joy\"\ndomain_id = {ROS_DOMAIN}\n\
-             [input.axes.throttle]\nabs = \"ABS_Y\"\n[input.axes.roll]\nabs = \"ABS_X\"\n"
-        ),
-    );
-    let path = config.to_str().expect("utf-8 path");
-    rig.spawn("operator-13", &["operator", "-c", path, "--headless"]);
+    let axes = "[input.axes.throttle]\nabs = \"ABS_Y\"\n[input.axes.roll]\nabs = \"ABS_X\"\n";
+    ros2_operator(&mut rig, JOY, &[V], &format!("topic = \"/joy\"\n{axes}"));
     let mut joy = RosPeer::start(&rig, "joy", &["--joy", "/joy"]);
     // Centred first (the no-jump rule): the operator drives with centred sticks once it hears
     // the node; then half forward.
@@ -310,17 +321,9 @@ fn a_ros_2_twist_teleop_node_drives_through_a_rove_operator() {
     const TELEOP: i64 = 14;
     let mut rig = Rig::new("ros2-teleop");
     let record = rig.vehicle(V);
-    let config = rig.write(
-        "operator-teleop.toml",
-        &format!(
-            "[device]\nid = {TELEOP}\nname = \"teleop\"\n[operator]\nlevel = \"stationary\"\n\
-             device_class = \"desktop\"\ndrive = [{V}]\n[input]\nsource = \"ros2\"\n\
-             message = \"Twist\"\ntopic = \"/teleop\"\nmax_linear = 0.5\ndomain_id = {ROS_DOMAIN}\n\
-             [input.axes.throttle]\nabs = \"ABS_X\"\n"
-        ),
-    );
-    let path = config.to_str().expect("utf-8 path");
-    rig.spawn("operator-14", &["operator", "-c", path, "--headless"]);
+    let input = "message = \"Twist\"\ntopic = \"/teleop\"\nmax_linear = 0.5\n\
+                 [input.axes.throttle]\nabs = \"ABS_X\"\n";
+    ros2_operator(&mut rig, TELEOP, &[V], input);
     let mut teleop = RosPeer::start(&rig, "teleop", &["--twist-out", "/teleop", "--unstamped"]);
     let start = wall_us();
     teleop.send(&serde_json::json!({"linear": [0.0, 0.0, 0.0], "angular": [0.0, 0.0, 0.0]}));
@@ -411,16 +414,12 @@ fn bench_joy_and_crash_latencies() {
     let robot = RosPeer::start(&rig, "robot", &["--twist", "/cmd_vel", "--stamped"]);
     rig.vehicle_with_output(V, &ros2_output(""));
     let sim = rig.vehicle(SIM);
-    let config = rig.write(
-        "operator-joy.toml",
-        &format!(
-            "[device]\nid = {JOY}\nname = \"joy\"\n[operator]\nlevel = \"stationary\"\n\
-             device_class = \"desktop\"\ndrive = [{V}, {SIM}]\n[input]\nsource = \"ros2\"\n\
-             domain_id = {ROS_DOMAIN}\n[input.axes.throttle]\nabs = \"ABS_Y\"\n"
-        ),
+    ros2_operator(
+        &mut rig,
+        JOY,
+        &[V, SIM],
+        "[input.axes.throttle]\nabs = \"ABS_Y\"\n",
     );
-    let path = config.to_str().expect("utf-8 path");
-    rig.spawn("operator-13", &["operator", "-c", path, "--headless"]);
     let mut joy = RosPeer::start(&rig, "joy", &["--joy", "/joy", "--joy-rate", "2"]);
     let start = wall_us();
     joy.send(&serde_json::json!({"axes": [0.0, 0.0]}));

@@ -41,14 +41,7 @@ impl InputSettings {
             0.001..=100.0,
             "must be 0.001..=100 rad/s",
         );
-        let valid = topic.strip_prefix('/').is_some_and(|rest| {
-            !rest.is_empty()
-                && rest.split('/').all(|t| {
-                    !t.is_empty()
-                        && !t.starts_with(|c: char| c.is_ascii_digit())
-                        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-                })
-        });
+        let valid = rove_ros2::msg::valid_topic(&topic);
         if !valid {
             let rule = "must be a ROS 2 topic name: `/` then letters, digits and `_`, parts \
                         separated by `/`";
