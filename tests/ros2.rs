@@ -245,8 +245,10 @@ fn a_twist_robot_sees_rove_in_its_graph_and_its_battery_reaches_rove_status() {
         "battery",
         &["--battery", "/base/battery", "--percentage", "0.2"],
     );
+    let mode = RosPeer::start(&rig, "mode", &["--owner", "/base/mode"]);
     let output = ros2_output(
-        "message = \"Twist\"\ntopic = \"/base/cmd_vel\"\nbattery_topic = \"/base/battery\"\n",
+        "message = \"Twist\"\ntopic = \"/base/cmd_vel\"\nbattery_topic = \"/base/battery\"\n\
+         mode_topic = \"/base/mode\"\n",
     );
     rig.vehicle_with_output(V, &output);
     rig.operator(
@@ -268,6 +270,10 @@ fn a_twist_robot_sees_rove_in_its_graph_and_its_battery_reaches_rove_status() {
             && topics.contains("[\"/rove/estop\",[\"std_msgs/msg/Bool\"]]")
     });
     eprintln!("{graph}");
+    // The owner's mode (the laptop asks MANUAL) on the latched mode topic.
+    mode.wait_for("the mode on /base/mode", |l| {
+        l["kind"] == "owner" && l["data"] == "manual"
+    });
     let row = rig.device_when("the robot's battery low in rove status", V, |d| {
         d["health"]["battery_low"] == true
     });

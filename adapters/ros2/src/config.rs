@@ -30,6 +30,9 @@ rove_core::config_types! {
             feeds the vehicle's battery on every console (absent: none).",
         owner_topic: Option<String> => "A `std_msgs/String`, latched, saying who drives as JSON \
             on every change (absent: `/rove/owner`; `\"\"`: none).",
+        mode_topic: Option<String> => "A `std_msgs/String`, latched, with the mode the owner \
+            asks (`manual`, `assisted`, `auto`) on every change, for a robot whose controllers \
+            switch on it (absent: none; the velocity is the same in every mode).",
         diagnostics: Option<bool> => "Publish the vehicle's standing, output and battery as \
             `diagnostic_msgs/DiagnosticArray` on `/diagnostics` (absent: true).",
         #[serde(default)] twist: Vec<TwistAxisSettings> => "`[[output.twist]]`: which stick \
@@ -96,6 +99,8 @@ pub struct Ros2Config {
     pub battery_topic: Option<String>,
     /// The who-drives topic, if any.
     pub owner_topic: Option<String>,
+    /// The mode topic, if any.
+    pub mode_topic: Option<String>,
     /// Whether `/diagnostics` is published.
     pub diagnostics: bool,
     /// The stick → twist map.
@@ -135,6 +140,9 @@ impl Ros2Settings {
             check_topic(&mut errors, "owner_topic", owner);
         }
         let owner_topic = Some(owner.clone()).filter(|t| !t.is_empty());
+        if let Some(mode) = &self.mode_topic {
+            check_topic(&mut errors, "mode_topic", mode);
+        }
         let diagnostics = *self.diagnostics.get_or_insert(true);
         if let Some(battery) = &self.battery_topic {
             check_topic(&mut errors, "battery_topic", battery);
@@ -154,6 +162,7 @@ impl Ros2Settings {
             estop_topic: Some(estop.clone()).filter(|t| !t.is_empty()),
             battery_topic: self.battery_topic.clone(),
             owner_topic,
+            mode_topic: self.mode_topic.clone(),
             diagnostics,
             twist,
         })

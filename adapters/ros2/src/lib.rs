@@ -16,8 +16,8 @@
 //!   [`join`]: the ROS 2 participant, also for rove-inputs' `ros2` source (a Joy topic).
 //!
 //! # Known limitations
-//! - Modes are not sent: a ROS 2 velocity interface has none. A mode other than MANUAL is
-//!   driven like MANUAL.
+//! - A ROS 2 velocity interface has no modes: the owner's mode goes out on `mode_topic` if one
+//!   is configured, and the velocity is the same in every mode.
 //! - The ROS 2 participant is unsecured (SROS 2 is not supported).
 
 #![deny(missing_docs)]

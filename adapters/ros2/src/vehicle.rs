@@ -76,6 +76,9 @@ pub struct Ros2Vehicle {
     estop: Option<DataWriterCdr<Bool>>,
     battery: Option<DataReaderCdr<BatteryState>>,
     owner: Option<DataWriterCdr<RosString>>,
+    mode: Option<DataWriterCdr<RosString>>,
+    /// The mode last published.
+    mode_shown: Option<rove_core::msg::Mode>,
     diagnostics: Option<DataWriterCdr<DiagnosticArray>>,
     /// The who-drives text last published.
     owner_shown: Option<String>,
@@ -157,6 +160,14 @@ impl Ros2Vehicle {
                 Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
             }
         };
+        let mode = match &config.mode_topic {
+            None => None,
+            Some(name) => {
+                let t = topic(name, RosString::DDS_NAME, &latched_qos())?;
+                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
+                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
+            }
+        };
         let diagnostics = match config.diagnostics {
             false => None,
             true => {
@@ -181,6 +192,8 @@ impl Ros2Vehicle {
             estop,
             battery,
             owner,
+            mode,
+            mode_shown: None,
             diagnostics,
             owner_shown: None,
             state: State::Safe { zero_until: now },
@@ -222,6 +235,23 @@ impl Ros2Vehicle {
             .map_err(|e| e.to_string());
         self.checked(written)?;
         self.estop_shown = Some(on);
+        Ok(())
+    }
+
+    /// The owner's mode on the mode topic, when it changes.
+    fn show_mode(&mut self, mode: rove_core::msg::Mode) -> Result<(), LinkError> {
+        let Some(writer) = &self.mode else {
+            return Ok(());
+        };
+        if self.mode_shown == Some(mode) {
+            return Ok(());
+        }
+        let data = format!("{mode:?}").to_lowercase();
+        let written = writer
+            .write(RosString { data }, None)
+            .map_err(|e| e.to_string());
+        self.checked(written)?;
+        self.mode_shown = Some(mode);
         Ok(())
     }
 
@@ -332,6 +362,7 @@ impl OutputAdapter for Ros2Vehicle {
         let twist = self.config.twist_of(&setpoint.movement);
         self.state = State::Driving(twist);
         self.show_estop(false)?;
+        self.show_mode(setpoint.mode)?;
         self.publish(now, twist)
     }
 
@@ -470,5 +501,58 @@ pub fn diagnostic(status: &VehicleStatus) -> DiagnosticStatus {
             kv("battery_low", status.health.battery_low.to_string()),
             kv("detail", status.detail.clone()),
         ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rove_core::msg::{Mode, VehicleHealth};
+
+    fn status(owner: i64, failsafe: bool, output: OutputState, low: bool) -> VehicleStatus {
+        VehicleStatus {
+            vehicle_id: 100,
+            controller_id: owner,
+            mode: Mode::Manual,
+            failsafe,
+            output,
+            detail: String::new(),
+            health: VehicleHealth {
+                battery_pct: 20,
+                battery_low: low,
+                ..VehicleHealth::default()
+            },
+        }
+    }
+
+    #[test]
+    fn the_owner_text_names_the_operator_or_the_failsafe() {
+        let driven = status(11, false, OutputState::Ok, false);
+        assert_eq!(
+            owner_text(&driven),
+            r#"{"vehicle":100,"owner":11,"failsafe":false}"#
+        );
+        let safe = status(100, true, OutputState::Ok, false);
+        assert_eq!(
+            owner_text(&safe),
+            r#"{"vehicle":100,"owner":null,"failsafe":true}"#
+        );
+    }
+
+    #[test]
+    fn diagnostics_levels_follow_the_standing_and_the_output() {
+        let level = |s: &VehicleStatus| diagnostic(s).level;
+        assert_eq!(level(&status(11, false, OutputState::Ok, false)), 0);
+        assert_eq!(level(&status(100, true, OutputState::Ok, false)), 1);
+        assert_eq!(level(&status(11, false, OutputState::Ok, true)), 1);
+        assert_eq!(level(&status(11, false, OutputState::Degraded, false)), 1);
+        assert_eq!(level(&status(11, false, OutputState::Down, false)), 2);
+        assert_eq!(level(&status(100, true, OutputState::Hung, false)), 2);
+        let d = diagnostic(&status(11, false, OutputState::Ok, false));
+        assert_eq!(d.message, "driven by 11; output ok");
+        assert!(d.values.contains(&KeyValue {
+            key: "battery_pct".into(),
+            value: "20".into()
+        }));
     }
 }
