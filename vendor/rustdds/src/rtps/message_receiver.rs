@@ -1019,7 +1019,10 @@ impl MessageReceiver {
         );
         match decode_result {
           Err(e) => {
-            error!(
+            // rove patch (ROVE-PATCH.md §32): a secured start decodes some of a peer's first
+            // protected submessages before its keys are in, so one failure is no error; a peer
+            // that stays undecodable is reported and repaired by §31.
+            debug!(
               "Submessage decoding failed: {e:?} (from participant {:?})",
               self.source_guid_prefix
             );
