@@ -4,11 +4,12 @@
 ROVE=$1; L=$2; NS=fs50-$L; D=/tmp/fs50-$L
 rm -rf $D; mkdir -p $D/run
 ip netns add $NS; ip netns exec $NS ip link set lo up; ip netns exec $NS ip link set lo multicast on; ip netns exec $NS ip route add 224.0.0.0/4 dev lo
-PY=/work/main/.venv/bin/python3
+REPO=$(cd "$(dirname "$0")/../.." && pwd)
+PY=$REPO/.venv/bin/python3
 for mode in ack hb; do
   args="--connection udpin:127.0.0.1:14560 --heartbeat-hz 0.2"
   [ $mode = hb ] && args="$args --mode-heartbeat"
-  ip netns exec $NS $PY /work/main/testkit/fake_autopilot.py $args --record $D/ap-$mode.jsonl > /dev/null 2>&1 & AP=$!
+  ip netns exec $NS $PY $REPO/testkit/fake_autopilot.py $args --record $D/ap-$mode.jsonl > /dev/null 2>&1 & AP=$!
   sleep 1
   printf '[device]\nid = 100\n[output]\nadapter = "mavlink"\nconnection = "udpout:127.0.0.1:14560"\n' > $D/v.toml
   [ $mode = hb ] && echo 'target_system = 1' >> $D/v.toml
