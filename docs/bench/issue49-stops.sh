@@ -24,7 +24,7 @@ for sec in plain secured; do
     t=$(date +%s%N); kill -TERM $VP; wait $VP; v_ms=$(ms $t)
     echo "$L $sec run $run: operator SIGTERM → exit $op_ms ms, vehicle SIGTERM → exit $v_ms ms"
   done
-  echo "== $L $sec: WARN/ERROR lines logged by run 3's operator and vehicle (their last 2 s):"
+  echo "== $L $sec: WARN/ERROR lines logged by run 3's operator and vehicle, start to stop:"
   grep -h "ERROR\|WARN" $D/o-$sec-3.log $D/v-$sec-3.log | grep -v "no \[security\]\|no \[access\]" | sed 's/^[0-9T:.\-]*Z //' | sort | uniq -c | head -12
 done
 ip netns del $NS
