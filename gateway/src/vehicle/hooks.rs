@@ -4,9 +4,12 @@ use crate::runtime::{Clock, JsonLines};
 use rove_core::arbiter::Owner;
 use std::time::Duration;
 
-/// The SIGUSR1 stall test hook, when enabled.
+/// The SIGUSR1 stall test hook, when enabled. Built in debug builds only, like the flag that
+/// arms it (`--test-stall-on-sigusr1`); a release build's hook is inert.
+#[cfg(debug_assertions)]
 pub(super) struct StallHook(Option<(tokio::signal::unix::Signal, Duration)>);
 
+#[cfg(debug_assertions)]
 impl StallHook {
     pub(super) fn new(stall: Option<Duration>) -> anyhow::Result<StallHook> {
         use tokio::signal::unix::{SignalKind, signal};
@@ -25,6 +28,22 @@ impl StallHook {
             },
             None => std::future::pending().await,
         }
+    }
+}
+
+/// The release build's stall hook: never armed, never resolves.
+#[cfg(not(debug_assertions))]
+pub(super) struct StallHook;
+
+#[cfg(not(debug_assertions))]
+impl StallHook {
+    pub(super) fn new(_stall: Option<Duration>) -> anyhow::Result<StallHook> {
+        Ok(StallHook)
+    }
+
+    /// Never resolves: release builds have no stall hook.
+    pub(super) async fn requested(&mut self) -> Duration {
+        std::future::pending().await
     }
 }
 
