@@ -8,17 +8,16 @@
 //! joystick, and the next message connects it again.
 
 use crate::codes::{EV_ABS, EV_KEY, RawEvent};
-use crate::config::Ros2Message;
-use crate::config::{MappingConfig, SourceConfig};
+use crate::config::{MappingConfig, Ros2Message, SourceConfig};
 use crate::curve::AbsState;
 use crate::mapper::{DeviceEvent, InputStatus, LinkState, Mapper};
 use rove_core::adapter::{InputEvent, InputSource};
 use rove_core::error::LinkError;
 use rove_core::time::MonoTime;
-use rove_ros2::msg::{Joy, RosType, Twist, TwistStamped, dds_topic};
+use rove_ros2::msg::{Joy, RosType, Twist, TwistStamped};
+use rustdds::QosPolicyBuilder;
 use rustdds::no_key::DataReaderCdr;
 use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{QosPolicyBuilder, TopicKind};
 use std::time::Duration;
 
 /// How often the source looks for new messages: the operator polls it at this period.
@@ -112,9 +111,6 @@ impl Ros2Source {
             return Err(LinkError::fatal("not a ROS 2 source"));
         };
         let participant = rove_ros2::join(*domain_id, interfaces)?;
-        let fatal = |what: &str, e: &dyn std::fmt::Display| {
-            LinkError::fatal(format!("ROS 2 {topic}: {what}: {e}"))
-        };
         // Best effort matches reliable and best-effort publishers alike; a Joy superseded by
         // the next is not worth a resend.
         let qos = QosPolicyBuilder::new()
@@ -122,33 +118,13 @@ impl Ros2Source {
             .durability(Durability::Volatile)
             .history(History::KeepLast { depth: 16 })
             .build();
-        let type_name = match message {
-            Ros2Message::Joy => Joy::DDS_NAME,
-            Ros2Message::Twist => Twist::DDS_NAME,
-            Ros2Message::TwistStamped => TwistStamped::DDS_NAME,
-        };
-        let t = (participant.create_topic(
-            dds_topic(topic),
-            type_name.to_string(),
-            &qos,
-            TopicKind::NoKey,
-        ))
-        .map_err(|e| fatal("topic", &e))?;
-        let subscriber =
-            (participant.create_subscriber(&qos)).map_err(|e| fatal("subscriber", &e))?;
         let max = [*max_linear, *max_angular];
+        let (p, name) = (&participant, topic.as_str());
         let reader = match message {
-            Ros2Message::Joy => subscriber
-                .create_datareader_no_key_cdr(&t, Some(qos))
-                .map(Reader::Joy),
-            Ros2Message::Twist => subscriber
-                .create_datareader_no_key_cdr(&t, Some(qos))
-                .map(|r| Reader::Twist(r, max)),
-            Ros2Message::TwistStamped => subscriber
-                .create_datareader_no_key_cdr(&t, Some(qos))
-                .map(|r| Reader::Stamped(r, max)),
-        }
-        .map_err(|e| fatal("reader", &e))?;
+            Ros2Message::Joy => Reader::Joy(rove_ros2::reader(p, name, qos)?),
+            Ros2Message::Twist => Reader::Twist(rove_ros2::reader(p, name, qos)?, max),
+            Ros2Message::TwistStamped => Reader::Stamped(rove_ros2::reader(p, name, qos)?, max),
+        };
         let label = format!("ROS 2 {topic}");
         Ok(Ros2Source {
             mapper: Mapper::new(mapping, label),

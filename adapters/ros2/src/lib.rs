@@ -13,7 +13,8 @@
 //!   the stick → twist map.
 //! - [`vehicle`]: [`Ros2Vehicle`], the [`rove_core::adapter::OutputAdapter`].
 //! - [`Ros2`]: the adapter as the gateway offers it ([`rove_core::adapter::OutputKind`]);
-//!   [`join`]: the ROS 2 participant, also for rove-inputs' `ros2` source (a Joy topic).
+//!   [`join`], [`topic`], [`reader`]: the ROS 2 participant and its endpoints, also for
+//!   rove-inputs' `ros2` source (a Joy or twist topic).
 //!
 //! # Known limitations
 //! - A ROS 2 velocity interface has no modes: the owner's mode goes out on `mode_topic` if one
@@ -47,6 +48,39 @@ pub fn join(
         .same_host_loopback(true)
         .build()
         .map_err(|e| LinkError::fatal(format!("ROS 2: cannot join domain {domain_id}: {e}")))
+}
+
+/// The DDS topic of the ROS 2 topic `name`, of message type `M`.
+///
+/// # Errors
+/// rustdds refuses it (fatal).
+pub fn topic<M: msg::RosType>(
+    participant: &rustdds::DomainParticipant,
+    name: &str,
+    qos: &rustdds::QosPolicies,
+) -> Result<rustdds::Topic, LinkError> {
+    let kind = rustdds::TopicKind::NoKey;
+    let type_name = M::DDS_NAME.to_string();
+    (participant.create_topic(msg::dds_topic(name), type_name, qos, kind))
+        .map_err(|e| LinkError::fatal(format!("ROS 2: topic {name}: {e}")))
+}
+
+/// A reader of `M` on the ROS 2 topic `name`, with a subscriber of its own: the vehicle's
+/// battery, the `ros2` input source's Joy or twist.
+///
+/// # Errors
+/// rustdds refuses the topic, subscriber or reader (fatal).
+pub fn reader<M: msg::RosType + serde::de::DeserializeOwned + 'static>(
+    participant: &rustdds::DomainParticipant,
+    name: &str,
+    qos: rustdds::QosPolicies,
+) -> Result<rustdds::no_key::DataReaderCdr<M>, LinkError> {
+    let fatal = |what: &str, e: &dyn std::fmt::Display| {
+        LinkError::fatal(format!("ROS 2: {what} {name}: {e}"))
+    };
+    let t = topic::<M>(participant, name, &qos)?;
+    let subscriber = (participant.create_subscriber(&qos)).map_err(|e| fatal("subscriber", &e))?;
+    (subscriber.create_datareader_no_key_cdr(&t, Some(qos))).map_err(|e| fatal("reader", &e))
 }
 
 /// `[output] adapter = "ros2"`.

@@ -5,8 +5,8 @@
 
 use crate::config::{Ros2Config, TwistType};
 use crate::msg::{
-    self, BatteryState, Bool, DiagnosticArray, DiagnosticStatus, Header, KeyValue, RosString,
-    RosType, Time, Twist, TwistStamped,
+    BatteryState, Bool, DiagnosticArray, DiagnosticStatus, Header, KeyValue, RosString, RosType,
+    Time, Twist, TwistStamped,
 };
 use rove_core::MonoTime;
 use rove_core::adapter::{Health, OutputAdapter, Telemetry};
@@ -15,7 +15,8 @@ use rove_core::error::LinkError;
 use rove_core::msg::{OutputState, VehicleStatus};
 use rustdds::no_key::{DataReaderCdr, DataWriterCdr};
 use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{DomainParticipant, QosPolicies, QosPolicyBuilder, TopicKind};
+use rustdds::{DomainParticipant, Publisher, QosPolicies, QosPolicyBuilder};
+use serde::Serialize;
 use std::time::Duration;
 
 /// How long a reliable write may wait for a full history: a velocity superseded 50 ms later
@@ -60,6 +61,73 @@ enum VelocityWriter {
     Plain(DataWriterCdr<Twist>),
 }
 
+impl VelocityWriter {
+    /// The writer's next status event, if one is waiting.
+    fn status(&self) -> Option<rustdds::dds::statusevents::DataWriterStatus> {
+        use rustdds::StatusEvented;
+        match self {
+            VelocityWriter::Stamped(w) => w.try_recv_status(),
+            VelocityWriter::Plain(w) => w.try_recv_status(),
+        }
+    }
+
+    /// Whether every matched reader acknowledged what was written, within `wait`.
+    fn acknowledged(&self, wait: Duration) -> bool {
+        let acked = match self {
+            VelocityWriter::Stamped(w) => w.wait_for_acknowledgments(wait),
+            VelocityWriter::Plain(w) => w.wait_for_acknowledgments(wait),
+        };
+        acked.unwrap_or(false)
+    }
+}
+
+/// A latched topic's writer that writes a value only when it differs from the last one written
+/// (the e-stop, who drives, the mode).
+struct Latched<M: Serialize> {
+    writer: DataWriterCdr<M>,
+    shown: Option<M>,
+}
+
+impl<M: Serialize + PartialEq + Clone> Latched<M> {
+    /// Writes `value` unless it is the value last written.
+    fn show(&mut self, value: M) -> Result<(), String> {
+        if self.shown.as_ref() == Some(&value) {
+            return Ok(());
+        }
+        (self.writer.write(value.clone(), None)).map_err(|e| e.to_string())?;
+        self.shown = Some(value);
+        Ok(())
+    }
+}
+
+/// A writer of `M` on the ROS 2 topic `name`.
+fn writer<M: RosType + Serialize>(
+    participant: &DomainParticipant,
+    publisher: &Publisher,
+    name: &str,
+    qos: QosPolicies,
+) -> Result<DataWriterCdr<M>, LinkError> {
+    let t = crate::topic::<M>(participant, name, &qos)?;
+    (publisher.create_datawriter_no_key_cdr(&t, Some(qos)))
+        .map_err(|e| fatal(&format!("writer {name}"), e))
+}
+
+/// A [`Latched`] writer of `M` on `name`, if the config names a topic.
+fn latched<M: RosType + Serialize>(
+    participant: &DomainParticipant,
+    publisher: &Publisher,
+    name: Option<&str>,
+) -> Result<Option<Latched<M>>, LinkError> {
+    name.map(|name| {
+        let writer = writer(participant, publisher, name, latched_qos())?;
+        Ok(Latched {
+            writer,
+            shown: None,
+        })
+    })
+    .transpose()
+}
+
 /// Where the output stands.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum State {
@@ -73,18 +141,12 @@ enum State {
 pub struct Ros2Vehicle {
     config: Ros2Config,
     velocity: VelocityWriter,
-    estop: Option<DataWriterCdr<Bool>>,
-    battery: Option<DataReaderCdr<BatteryState>>,
-    owner: Option<DataWriterCdr<RosString>>,
-    mode: Option<DataWriterCdr<RosString>>,
-    /// The mode last published.
-    mode_shown: Option<rove_core::msg::Mode>,
+    estop: Option<Latched<Bool>>,
+    owner: Option<Latched<RosString>>,
+    mode: Option<Latched<RosString>>,
     diagnostics: Option<DataWriterCdr<DiagnosticArray>>,
-    /// The who-drives text last published.
-    owner_shown: Option<String>,
+    battery: Option<DataReaderCdr<BatteryState>>,
     state: State,
-    /// The e-stop value last published.
-    estop_shown: Option<bool>,
     last_publish: Option<MonoTime>,
     battery_pct: Option<u8>,
     error: Option<String>,
@@ -97,7 +159,7 @@ impl std::fmt::Debug for Ros2Vehicle {
         f.debug_struct("Ros2Vehicle")
             .field("config", &self.config)
             .field("state", &self.state)
-            .field("estop_shown", &self.estop_shown)
+            .field("estop", &self.estop.as_ref().and_then(|e| e.shown))
             .finish_non_exhaustive()
     }
 }
@@ -117,87 +179,31 @@ impl Ros2Vehicle {
         let default = QosPolicyBuilder::new().build();
         let publisher =
             (participant.create_publisher(&default)).map_err(|e| fatal("publisher", e))?;
-        let topic = |name: &str, type_name: &str, qos: &QosPolicies| {
-            participant
-                .create_topic(
-                    msg::dds_topic(name),
-                    type_name.to_string(),
-                    qos,
-                    TopicKind::NoKey,
-                )
-                .map_err(|e| fatal(&format!("topic {name}"), e))
-        };
-        let velocity_topic = match config.message {
-            TwistType::Stamped => topic(&config.topic, TwistStamped::DDS_NAME, &velocity_qos())?,
-            TwistType::Plain => topic(&config.topic, Twist::DDS_NAME, &velocity_qos())?,
-        };
-        let writer_error = |e| fatal(&format!("writer {}", config.topic), e);
+        let (p, name) = (&participant, config.topic.as_str());
         let velocity = match config.message {
-            TwistType::Stamped => VelocityWriter::Stamped(
-                publisher
-                    .create_datawriter_no_key_cdr(&velocity_topic, Some(velocity_qos()))
-                    .map_err(writer_error)?,
-            ),
-            TwistType::Plain => VelocityWriter::Plain(
-                publisher
-                    .create_datawriter_no_key_cdr(&velocity_topic, Some(velocity_qos()))
-                    .map_err(writer_error)?,
-            ),
-        };
-        let estop = match &config.estop_topic {
-            None => None,
-            Some(name) => {
-                let t = topic(name, Bool::DDS_NAME, &latched_qos())?;
-                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
-                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
+            TwistType::Stamped => {
+                VelocityWriter::Stamped(writer(p, &publisher, name, velocity_qos())?)
             }
+            TwistType::Plain => VelocityWriter::Plain(writer(p, &publisher, name, velocity_qos())?),
         };
-        let owner = match &config.owner_topic {
-            None => None,
-            Some(name) => {
-                let t = topic(name, RosString::DDS_NAME, &latched_qos())?;
-                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
-                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
-            }
-        };
-        let mode = match &config.mode_topic {
-            None => None,
-            Some(name) => {
-                let t = topic(name, RosString::DDS_NAME, &latched_qos())?;
-                let w = publisher.create_datawriter_no_key_cdr(&t, Some(latched_qos()));
-                Some(w.map_err(|e| fatal(&format!("writer {name}"), e))?)
-            }
-        };
-        let diagnostics = match config.diagnostics {
-            false => None,
-            true => {
-                let t = topic("/diagnostics", DiagnosticArray::DDS_NAME, &velocity_qos())?;
-                let w = publisher.create_datawriter_no_key_cdr(&t, Some(velocity_qos()));
-                Some(w.map_err(|e| fatal("writer /diagnostics", e))?)
-            }
-        };
-        let battery = match &config.battery_topic {
-            None => None,
-            Some(name) => {
-                let t = topic(name, BatteryState::DDS_NAME, &battery_qos())?;
-                let subscriber = (participant.create_subscriber(&default))
-                    .map_err(|e| fatal("subscriber", e))?;
-                let r = subscriber.create_datareader_no_key_cdr(&t, Some(battery_qos()));
-                Some(r.map_err(|e| fatal(&format!("reader {name}"), e))?)
-            }
-        };
+        let estop = latched(p, &publisher, config.estop_topic.as_deref())?;
+        let owner = latched(p, &publisher, config.owner_topic.as_deref())?;
+        let mode = latched(p, &publisher, config.mode_topic.as_deref())?;
+        let diagnostics = (config.diagnostics)
+            .then(|| writer(p, &publisher, "/diagnostics", velocity_qos()))
+            .transpose()?;
+        let battery = (config.battery_topic.as_deref())
+            .map(|name| crate::reader(p, name, battery_qos()))
+            .transpose()?;
         let mut vehicle = Ros2Vehicle {
             config,
             velocity,
             estop,
-            battery,
             owner,
             mode,
-            mode_shown: None,
             diagnostics,
-            owner_shown: None,
+            battery,
             state: State::Safe { zero_until: now },
-            estop_shown: None,
             last_publish: None,
             battery_pct: None,
             error: None,
@@ -223,36 +229,27 @@ impl Ros2Vehicle {
         self.checked(written)
     }
 
+    /// The e-stop, when it changes.
     fn show_estop(&mut self, on: bool) -> Result<(), LinkError> {
-        let Some(writer) = &self.estop else {
-            return Ok(());
-        };
-        if self.estop_shown == Some(on) {
-            return Ok(());
+        match self.estop.as_mut() {
+            Some(estop) => {
+                let written = estop.show(Bool { data: on });
+                self.checked(written)
+            }
+            None => Ok(()),
         }
-        let written = writer
-            .write(Bool { data: on }, None)
-            .map_err(|e| e.to_string());
-        self.checked(written)?;
-        self.estop_shown = Some(on);
-        Ok(())
     }
 
     /// The owner's mode on the mode topic, when it changes.
     fn show_mode(&mut self, mode: rove_core::msg::Mode) -> Result<(), LinkError> {
-        let Some(writer) = &self.mode else {
-            return Ok(());
-        };
-        if self.mode_shown == Some(mode) {
-            return Ok(());
+        match self.mode.as_mut() {
+            Some(topic) => {
+                let data = format!("{mode:?}").to_lowercase();
+                let written = topic.show(RosString { data });
+                self.checked(written)
+            }
+            None => Ok(()),
         }
-        let data = format!("{mode:?}").to_lowercase();
-        let written = writer
-            .write(RosString { data }, None)
-            .map_err(|e| e.to_string());
-        self.checked(written)?;
-        self.mode_shown = Some(mode);
-        Ok(())
     }
 
     /// A write's outcome: a failed write is transient (the gateway holds the output safe and
@@ -278,17 +275,12 @@ impl Ros2Vehicle {
     /// # Errors
     /// A write fails.
     pub fn failsafe_now(&mut self, patience: Duration) -> Result<String, LinkError> {
-        use rustdds::StatusEvented;
         use rustdds::dds::statusevents::DataWriterStatus;
         let start = std::time::Instant::now();
         let mut matched = 0;
         // A one-shot command, not a loop of the gateway: polling discovery is enough here.
         loop {
-            let status = match &self.velocity {
-                VelocityWriter::Stamped(w) => w.try_recv_status(),
-                VelocityWriter::Plain(w) => w.try_recv_status(),
-            };
-            match status {
+            match self.velocity.status() {
                 Some(DataWriterStatus::PublicationMatched { current, .. }) => {
                     matched = current.count();
                 }
@@ -299,12 +291,9 @@ impl Ros2Vehicle {
         }
         self.safe_state(MonoTime::ZERO)?;
         let wait = Duration::from_millis(500);
-        let acked = match &self.velocity {
-            VelocityWriter::Stamped(w) => w.wait_for_acknowledgments(wait),
-            VelocityWriter::Plain(w) => w.wait_for_acknowledgments(wait),
-        };
+        let acked = self.velocity.acknowledged(wait);
         if let Some(estop) = &self.estop {
-            let _ = estop.wait_for_acknowledgments(wait);
+            let _ = estop.writer.wait_for_acknowledgments(wait);
         }
         Ok(match (matched, acked) {
             (0, _) => format!(
@@ -313,7 +302,7 @@ impl Ros2Vehicle {
                 self.config.topic,
                 patience.as_millis()
             ),
-            (n, Ok(true)) => format!(
+            (n, true) => format!(
                 "{}: zero twist and e-stop acknowledged by {n} subscriber(s)",
                 self.describe()
             ),
@@ -400,17 +389,10 @@ impl OutputAdapter for Ros2Vehicle {
     /// Who drives, on the latched owner topic when it changes, and the vehicle's standing on
     /// `/diagnostics`.
     fn status(&mut self, _now: MonoTime, status: &VehicleStatus) -> Result<(), LinkError> {
-        let owner = owner_text(status);
-        if let Some(writer) = &self.owner
-            && self.owner_shown.as_deref() != Some(owner.as_str())
-        {
-            let data = RosString {
-                data: owner.clone(),
-            };
-            writer
-                .write(data, None)
+        if let Some(owner) = self.owner.as_mut() {
+            let data = owner_text(status);
+            (owner.show(RosString { data }))
                 .map_err(|e| LinkError::transient(format!("ROS 2 owner: {e}")))?;
-            self.owner_shown = Some(owner);
         }
         if let Some(writer) = &self.diagnostics {
             let array = DiagnosticArray {
