@@ -158,6 +158,10 @@ pub enum Bench {
         /// through two bridges (measured too); 0: no second site.
         #[arg(long, default_value_t = 0)]
         remote_every: usize,
+        /// The `rove` binary the rig's processes run (default: this one), e.g. an older build
+        /// for a before/after comparison: its CLI and configs must be this one's.
+        #[arg(long)]
+        rove: Option<std::path::PathBuf>,
         /// Write the report as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
@@ -293,8 +297,10 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             request_every,
             max_kib_per_cycle,
             remote_every,
+            rove: other,
             json,
         } => {
+            let rove = other.as_deref().unwrap_or(rove);
             let options = soak::Options {
                 remote_every,
                 cycles,

@@ -85,6 +85,26 @@ pub fn bridge(rig: &mut Rig, name: &str, meet: Meet, site_dir: &Path, peers: &st
     rig.spawn(&format!("bridge-{name}"), &["bridge", "-c", &config])
 }
 
+/// Waits (up to `patience`) until the bridge logging to `log` has another site up.
+///
+/// # Errors
+/// It has none up by then.
+pub fn wait_up(log: &Path, patience: std::time::Duration) -> anyhow::Result<()> {
+    let deadline = std::time::Instant::now() + patience;
+    loop {
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        if text.contains("site up") {
+            return Ok(());
+        }
+        anyhow::ensure!(
+            std::time::Instant::now() < deadline,
+            "{}: no site up after {patience:?}",
+            log.display()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
 /// How the link is cut.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -32,6 +32,9 @@ const WEB_HOST: i64 = 20;
 const PHONES: std::ops::Range<i64> = 30..62;
 const TABLETS: std::ops::Range<i64> = 70..78;
 const REMOTES: std::ops::Range<i64> = 80..88;
+/// How long the two sites' bridges may take to meet.
+#[cfg(all(feature = "remote", feature = "security"))]
+const SITES_PATIENCE: Duration = Duration::from_secs(60);
 /// How long one owner change may take before the soak fails.
 const CHANGE_PATIENCE: Duration = Duration::from_secs(15);
 
@@ -187,7 +190,7 @@ fn remote_site(rove: &Path, lab: &mut Rig, every: usize) -> anyhow::Result<Optio
     let fleet = sites::fleet(&lab.rove, &lab.dir.join("fleet"))?;
     let remotes: Vec<i64> = REMOTES.collect();
     let offered = sites::peer("home", &remotes, &[VEHICLE]);
-    sites::bridge(
+    let lab_bridge = sites::bridge(
         lab,
         "lab",
         Meet::Listen(sites::LAB_ADDRESS),
@@ -196,13 +199,18 @@ fn remote_site(rove: &Path, lab: &mut Rig, every: usize) -> anyhow::Result<Optio
     );
     let lab_ids = sites::peer("lab", &[VEHICLE, LAPTOP], &[]);
     let home_dir = fleet.join("site-home");
-    sites::bridge(
+    let home_bridge = sites::bridge(
         &mut home,
         "home",
         Meet::Connect(sites::LAB_ADDRESS),
         &home_dir,
         &lab_ids,
     );
+    // The cycles start once each bridge has the other site up: a machine busy enough to take
+    // longer than an owner change's patience to open the TLS link fails no remote cycle.
+    for log in [&lab.procs[lab_bridge].log, &home.procs[home_bridge].log] {
+        sites::wait_up(log, SITES_PATIENCE)?;
+    }
     Ok(Some(home))
 }
 
