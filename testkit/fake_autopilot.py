@@ -291,7 +291,8 @@ def main():
                        accepted=accepted)
             elif kind == "COMMAND_LONG":
                 if msg.command != mavutil.mavlink.MAV_CMD_DO_SET_MODE or msg.target_system != a.sysid:
-                    record("command", src=src, command=msg.command, target=msg.target_system)
+                    record("command", src=src, command=msg.command, target=msg.target_system,
+                           confirmation=msg.confirmation)
                     continue
                 if a.autopilot == "px4":
                     wanted = (int(msg.param2) << 16) | (int(msg.param3) << 24)

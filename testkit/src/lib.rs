@@ -171,7 +171,21 @@ impl FakeAutopilot {
     pub fn start(args: &[&str]) -> FakeAutopilot {
         let dir = tempfile::tempdir().expect("temp dir for the autopilot's record");
         let record = dir.path().join("autopilot.jsonl");
-        FakeAutopilot::spawn(Command::new(python()), record, Some(dir), args)
+        let script = fake_autopilot_script();
+        FakeAutopilot::spawn(Command::new(python()), &script, record, Some(dir), args)
+    }
+
+    /// Starts the test ground station (`testkit/fake_gcs.py`, pymavlink; QGroundControl as
+    /// rove's routing sees it) with `args`, recording into a temp directory of its own;
+    /// returns once it is ready. Its record and waits are an autopilot's.
+    ///
+    /// # Panics
+    /// As [`FakeAutopilot::start`].
+    pub fn start_gcs(args: &[&str]) -> FakeAutopilot {
+        let dir = tempfile::tempdir().expect("temp dir for the ground station's record");
+        let record = dir.path().join("gcs.jsonl");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("fake_gcs.py");
+        FakeAutopilot::spawn(Command::new(python()), &script, record, Some(dir), args)
     }
 
     /// Starts the autopilot with `args` inside network namespace `netns` (`ip netns exec`),
@@ -182,18 +196,20 @@ impl FakeAutopilot {
     pub fn start_in_netns(netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
         let mut command = Command::new("ip");
         command.args(["netns", "exec", netns]).arg(python());
-        FakeAutopilot::spawn(command, record.to_path_buf(), None, args)
+        let script = fake_autopilot_script();
+        FakeAutopilot::spawn(command, &script, record.to_path_buf(), None, args)
     }
 
     fn spawn(
         mut command: Command,
+        script: &Path,
         record: PathBuf,
         dir: Option<tempfile::TempDir>,
         args: &[&str],
     ) -> FakeAutopilot {
         require_python_peers();
         let child = command
-            .arg(fake_autopilot_script())
+            .arg(script)
             .arg("--record")
             .arg(&record)
             .args(args)

@@ -41,6 +41,17 @@ rove_core::config_types! {
         #[serde(default)] channels: Vec<ChannelSettings> => "rc_override channel map (RCMAP).",
         manual_control: Option<ManualControlSettings> => "`[output.manual_control]`.",
         modes: Option<ModeSettings> => "The autopilot mode for each rove mode and failsafe.",
+        #[serde(default)] gcs: Vec<GcsSettings> => "`[[output.gcs]]`: ground stations rove \
+            routes the autopilot's link to (docs/mavlink.md).",
+    }
+
+    /// One `[[output.gcs]]` table: a ground station (QGroundControl, Mission Planner) that
+    /// reaches the autopilot through rove.
+    pub settings GcsSettings {
+        endpoint: Option<String> => "Where the ground station is: `udpout:HOST:PORT` (rove \
+            sends first, as to QGroundControl's 14550), `udpin:HOST:PORT` (the station sends \
+            first) or `tcpout:HOST:PORT`.",
+        #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
     /// Which autopilot firmware.
@@ -269,6 +280,7 @@ rove_core::config_types! {
         modes: ModesConfig => "Modes.",
         memory: Option<std::path::PathBuf> => "Where the link keeps what it learned about the \
             autopilot for `rove failsafe` ([`crate::memory`]); set by the gateway, not a key.",
+        gcs: Vec<Endpoint> => "The ground stations' endpoints ([`crate::link`] routes them).",
     }
 }
 
@@ -373,6 +385,7 @@ impl MavlinkSettings {
         let channels = self.validate_channels(method, vehicle, version, &mut errors);
         let manual_control = self.validate_manual_control(method, autopilot, vehicle, &mut errors);
         let modes = self.validate_modes(autopilot, vehicle, &mut errors);
+        let gcs = self.validate_gcs(&endpoint, &mut errors);
         errors.into_result(MavlinkConfig {
             endpoint,
             mavlink_version: version,
@@ -394,7 +407,48 @@ impl MavlinkSettings {
             manual_control,
             modes,
             memory: None,
+            gcs,
         })
+    }
+
+    fn validate_gcs(&self, autopilot: &Endpoint, errors: &mut ConfigErrors) -> Vec<Endpoint> {
+        let mut used = Unique::default();
+        let mut out = Vec::new();
+        for (i, g) in self.gcs.iter().enumerate() {
+            let owner = format!("gcs[{i}]");
+            let endpoint = errors.within(&owner, |ge| {
+                g.unknown.check(ge, GcsSettings::KNOWN);
+                let Some(text) = &g.endpoint else {
+                    ge.absent("endpoint", "is required, e.g. \"udpout:127.0.0.1:14550\"");
+                    return None;
+                };
+                let endpoint = match Endpoint::parse(text) {
+                    Ok(Endpoint::Serial { .. }) => Err("a ground station is on udpout:, udpin: \
+                        or tcpout: (a serial port is the autopilot's)"
+                        .to_string()),
+                    other => other,
+                };
+                let endpoint = endpoint
+                    .map_err(|rule| ge.add("endpoint", format!("\"{text}\""), rule))
+                    .ok()?;
+                if endpoint == *autopilot {
+                    let rule = "is the autopilot's connection";
+                    ge.add("endpoint", format!("\"{text}\""), rule);
+                    return None;
+                }
+                if let Some(first) = used.claim(endpoint.to_string(), &owner) {
+                    ge.add(
+                        "endpoint",
+                        format!("\"{text}\""),
+                        format!("is {first}'s too"),
+                    );
+                    return None;
+                }
+                Some(endpoint)
+            });
+            out.extend(endpoint);
+        }
+        out
     }
 
     fn validate_channels(
@@ -575,6 +629,49 @@ mod tests {
         assert_eq!(c.modes.for_mode(Mode::Manual).custom_mode, 0);
         assert_eq!(c.manual_control.z_range, ZRange::Signed);
         assert_eq!(c.on_mode_refused, OnModeRefused::Hold, "safe by default");
+    }
+
+    #[test]
+    fn ground_stations_need_a_network_endpoint_of_their_own() {
+        let c = parse(
+            "[[gcs]]\nendpoint = \"udpout:127.0.0.1:14550\"\n\
+             [[gcs]]\nendpoint = \"udpin:0.0.0.0:14551\"",
+        )
+        .validate()
+        .expect("valid");
+        assert_eq!(
+            c.gcs,
+            [
+                Endpoint::UdpOut("127.0.0.1:14550".into()),
+                Endpoint::UdpIn("0.0.0.0:14551".into())
+            ]
+        );
+        assert!(parse("").validate().expect("valid").gcs.is_empty());
+        let cases = [
+            ("[[gcs]]\nport = 14550", "gcs[0].endpoint"),
+            (
+                "[[gcs]]\nendpoint = \"serial:/dev/ttyUSB0:57600\"",
+                "a serial port",
+            ),
+            (
+                "[[gcs]]\nendpoint = \"tcpout:127.0.0.1:5760\"",
+                "the autopilot's connection",
+            ),
+            (
+                "[[gcs]]\nendpoint = \"udpout:h:1\"\n[[gcs]]\nendpoint = \"udpout:h:1\"",
+                "is gcs[0]'s too",
+            ),
+            ("[[gcs]]\nendpoint = \"udpout:h\"", "needs HOST:PORT"),
+        ];
+        for (toml, says) in cases {
+            let errors = errors_of(toml).join("\n");
+            assert!(errors.contains(says), "{toml}: {errors}");
+        }
+        assert!(
+            errors_of("[[gcs]]\nport = 14550")
+                .join("\n")
+                .contains("gcs[0].port")
+        );
     }
 
     #[test]

@@ -40,6 +40,8 @@ pub struct Frame {
     pub header: MavHeader,
     /// The message.
     pub message: MavMessage,
+    /// The frame's bytes as received (sequence, signature and all): what a router forwards.
+    pub raw: Vec<u8>,
 }
 
 /// What the bytes at a frame-start marker are.
@@ -174,6 +176,7 @@ fn candidate(b: &[u8]) -> Candidate {
                     sequence: seq,
                 },
                 message,
+                raw: b[..len].to_vec(),
             }),
         ),
         // Unknown id or a field out of its enum: not a message we can use.

@@ -917,3 +917,88 @@ fn r20_sticks_for_a_new_mode_wait_for_the_autopilot_to_take_it() {
 fn r20_sticks_for_a_new_mode_wait_for_an_autopilot_that_beats_at_once() {
     sticks_for_a_new_mode_wait_for_the_autopilot(&["--mode-heartbeat"]);
 }
+
+// Ground stations routed through rove ([[output.gcs]]; docs/mavlink.md, "Sharing the autopilot
+// with a ground station"), against the test ground station (testkit/fake_gcs.py).
+
+/// The frames a station's record says it received from `src`: (type, seq).
+fn received_from(gcs: &Peer, src: u64) -> Vec<(String, u64)> {
+    (gcs.of("rx").iter())
+        .filter(|e| e["src"] == src)
+        .map(|e| {
+            (
+                e["type"].as_str().unwrap().to_string(),
+                e["seq"].as_u64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_ground_station_talks_to_the_autopilot_through_rove_but_its_sticks_stop_there() {
+    let clock = Clock::new();
+    let autopilot = Peer::start(&["--connection", "tcpin:127.0.0.1:0"]);
+    let gcs = Peer::start_gcs(&[
+        "--connection",
+        "udpin:127.0.0.1:0",
+        "--params",
+        "--sticks-hz",
+        "50",
+    ]);
+    let toml = format!(
+        "connection = \"tcpout:127.0.0.1:{}\"\n[[gcs]]\nendpoint = \"udpout:127.0.0.1:{}\"\n",
+        autopilot.port(),
+        gcs.port()
+    );
+    let mut v = vehicle(&toml, &clock);
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    // Autopilot → station: its HEARTBEATs and ArduPilot's telemetry burst.
+    for kind in ["HEARTBEAT", "AHRS", "SYS_STATUS"] {
+        gcs.wait_for(&format!("the autopilot's {kind}"), |e| {
+            e["event"] == "rx" && e["type"] == kind && e["src"] == 1
+        });
+    }
+    // Station → autopilot: its HEARTBEAT and its parameter request, from its own id.
+    autopilot.wait_for("the station's HEARTBEAT", |e| {
+        e["event"] == "heartbeat" && e["src"] == 250
+    });
+    autopilot.wait_for("the station's PARAM_REQUEST_LIST", |e| {
+        e["event"] == "other" && e["type"] == "PARAM_REQUEST_LIST" && e["src"] == 250
+    });
+    // Its joystick: at least 50 MANUAL_CONTROLs sent while rove keeps its own link alive.
+    let start = Instant::now();
+    while gcs
+        .of("sent")
+        .iter()
+        .filter(|e| e["type"] == "MANUAL_CONTROL")
+        .count()
+        < 50
+    {
+        assert!(start.elapsed() < WAIT, "the station sent no sticks");
+        run(&mut v, &clock, Duration::from_millis(50), None);
+    }
+    run(&mut v, &clock, Duration::from_millis(200), None);
+    let sticks = autopilot.of("manual_control");
+    let passed = sticks.iter().filter(|e| e["src"] == 250).count();
+    assert_eq!(passed, 0, "a station's sticks reached the autopilot");
+    let station = &v.stations()[0];
+    assert!(
+        station.connected && station.sticks_dropped >= 50,
+        "{station:?}"
+    );
+    assert!(
+        station.to_autopilot >= 2 && station.to_station >= 3,
+        "{station:?}"
+    );
+    // Each of the autopilot's frames reached the station once, with the sequence number it was
+    // sent with: no (type, seq) twice in a row of HEARTBEATs, and they count up.
+    let beats: Vec<u64> = (received_from(&gcs, 1).into_iter())
+        .filter(|(kind, _)| kind == "HEARTBEAT")
+        .map(|(_, seq)| seq)
+        .collect();
+    assert!(beats.len() >= 2, "{beats:?}");
+    for pair in beats.windows(2) {
+        let step = (pair[1] + 256 - pair[0]) % 256;
+        assert!((1..=64).contains(&step), "HEARTBEAT sequence {beats:?}");
+    }
+}

@@ -21,9 +21,11 @@
 //! - `receive.rs`: the reader thread: (re)connect, read, decode, and what each message from
 //!   our autopilot changes.
 
+mod ground;
 mod receive;
 mod transport;
 
+pub use ground::{StationStatus, Verdict, from_station};
 pub use transport::{ReadOutcome, classify_read};
 
 use crate::config::{Endpoint, MavlinkConfig};
@@ -35,7 +37,7 @@ use mavlink::{MavHeader, MavlinkVersion};
 use receive::run;
 use rove_core::error::LinkError;
 use std::collections::VecDeque;
-use std::io::{self, Write};
+use std::io;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
@@ -131,6 +133,10 @@ struct Shared {
     generation: Mutex<u64>,
     news: Condvar,
     stop: AtomicBool,
+    /// Our system id (a COMMAND_ACK for another system is not ours).
+    system_id: u8,
+    /// The ground stations routed to the autopilot ([`ground`]).
+    ground: Vec<ground::Port>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -188,12 +194,31 @@ impl Link {
             generation: Mutex::new(0),
             news: Condvar::new(),
             stop: AtomicBool::new(false),
+            system_id: config.system_id,
+            ground: (config.gcs.iter().cloned())
+                .map(ground::Port::new)
+                .collect(),
         });
+        for index in 0..shared.ground.len() {
+            let for_thread = Arc::clone(&shared);
+            let spawned = std::thread::Builder::new()
+                .name("rove-mavlink-gcs".into())
+                .spawn(move || ground::serve(&for_thread, index));
+            if let Err(e) = spawned {
+                shared.stop.store(true, Ordering::Relaxed);
+                return Err(LinkError::transient(format!(
+                    "mavlink ground station thread: {e}"
+                )));
+            }
+        }
         let for_thread = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
             .name("rove-mavlink".into())
             .spawn(move || run(&for_thread))
-            .map_err(|e| LinkError::transient(format!("mavlink reader thread: {e}")))?;
+            .map_err(|e| {
+                shared.stop.store(true, Ordering::Relaxed);
+                LinkError::transient(format!("mavlink reader thread: {e}"))
+            })?;
         Ok(Link {
             shared,
             version: if config.mavlink_version == 1 {
@@ -237,11 +262,18 @@ impl Link {
     /// Whether a send can leave now: the transport is open and, on a `udpin:` link, the
     /// autopilot's address is known.
     pub fn can_send(&self) -> bool {
-        match lock(&self.shared.writer).as_deref() {
-            None => false,
-            Some(Writer::Udp(_, peer)) => lock(peer).is_some(),
-            Some(_) => true,
-        }
+        lock(&self.shared.writer)
+            .as_deref()
+            .is_some_and(Writer::ready)
+    }
+
+    /// The ground stations' ports and what passed through them.
+    pub fn stations(&self) -> Vec<StationStatus> {
+        self.shared
+            .ground
+            .iter()
+            .map(ground::Port::status)
+            .collect()
     }
 
     /// COMMAND_ACKs for MAV_CMD_DO_SET_MODE received since the last call.
@@ -283,19 +315,15 @@ impl Link {
                 self.shared.endpoint
             ))
         })?;
-        let written = match &*writer {
-            Writer::Tcp(s) => lock(s).write_all(&bytes),
-            Writer::Serial(p) => lock(p).write_all(&bytes),
-            Writer::Udp(sock, peer) => {
-                let Some(to) = *lock(peer) else {
-                    return Err(LinkError::transient(format!(
-                        "mavlink {}: no peer to send to yet (waiting for the autopilot's first \
-                         packet)",
-                        self.shared.endpoint
-                    )));
-                };
-                sock.send_to(&bytes, to).map(|_| ())
+        let written = match writer.write(&bytes) {
+            Err(e) if e.kind() == io::ErrorKind::NotConnected => {
+                return Err(LinkError::transient(format!(
+                    "mavlink {}: no peer to send to yet (waiting for the autopilot's first \
+                     packet)",
+                    self.shared.endpoint
+                )));
             }
+            written => written,
         };
         written.map_err(|e| {
             let timed_out = matches!(

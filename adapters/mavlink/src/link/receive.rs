@@ -61,6 +61,7 @@ pub(super) fn run(shared: &Shared) {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     let skipped = decoder.skipped();
                     while let Some(frame) = decoder.next_frame() {
+                        super::ground::to_stations(shared, &frame.raw);
                         handle(shared, frame.header, &frame.message);
                     }
                     let more = decoder.skipped() - skipped;
@@ -181,7 +182,10 @@ pub(super) fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
         }
         MavMessage::COMMAND_ACK(_) if expected.is_none() => {}
         MavMessage::COMMAND_ACK(ack) => {
-            if ack.command != MavCmd::MAV_CMD_DO_SET_MODE {
+            // A ground station's mode command is answered to the station (MAVLink 1 acks
+            // have no target: 0).
+            let for_us = ack.target_system == 0 || ack.target_system == shared.system_id;
+            if ack.command != MavCmd::MAV_CMD_DO_SET_MODE || !for_us {
                 return;
             }
             let result = match ack.result {

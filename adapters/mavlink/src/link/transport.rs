@@ -4,7 +4,7 @@
 
 use super::{CONNECT_TIMEOUT, READ_TIMEOUT, SEND_TIMEOUT, TCP_SEND_BUFFER, lock};
 use crate::config::Endpoint;
-use std::io::{self, Read};
+use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
 use std::sync::{Arc, Mutex};
 use tracing::warn;
@@ -15,6 +15,33 @@ pub(super) enum Writer {
     /// The socket, and where to send: fixed (udpout) or the last sender (udpin).
     Udp(Arc<UdpSocket>, Arc<Mutex<Option<SocketAddr>>>),
     Serial(Mutex<serialport::TTYPort>),
+}
+
+impl Writer {
+    /// Writes one frame's `bytes` at once (one datagram, one TCP or serial write).
+    ///
+    /// # Errors
+    /// The write failed, or a UDP link has nobody to send to yet (`NotConnected`).
+    pub(super) fn write(&self, bytes: &[u8]) -> io::Result<()> {
+        match self {
+            Writer::Tcp(s) => lock(s).write_all(bytes),
+            Writer::Serial(p) => lock(p).write_all(bytes),
+            Writer::Udp(sock, peer) => {
+                let Some(to) = *lock(peer) else {
+                    return Err(io::ErrorKind::NotConnected.into());
+                };
+                sock.send_to(bytes, to).map(|_| ())
+            }
+        }
+    }
+
+    /// Whether a send can leave now (a UDP link knows whom to send to).
+    pub(super) fn ready(&self) -> bool {
+        match self {
+            Writer::Udp(_, peer) => lock(peer).is_some(),
+            _ => true,
+        }
+    }
 }
 
 /// The receiving half.

@@ -209,6 +209,11 @@ impl MavlinkVehicle {
         self.link.status()
     }
 
+    /// The ground stations routed to the autopilot, and what passed through them.
+    pub fn stations(&self) -> Vec<crate::link::StationStatus> {
+        self.link.stations()
+    }
+
     /// The mode machine's state.
     pub fn mode_state(&self) -> &ModeState {
         self.mode.state()

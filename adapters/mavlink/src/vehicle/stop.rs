@@ -82,9 +82,10 @@ pub fn failsafe(config: &MavlinkConfig) -> Result<String, LinkError> {
         None => None,
     };
     // The file is the running vehicle's: read here, never written (a one-shot process killed
-    // by systemd mid-write would leave half of it behind).
+    // by systemd mid-write would leave half of it behind). Nor are its ground stations' ports: the vehicle is routing them.
     let read_only = MavlinkConfig {
         memory: None,
+        gcs: Vec::new(),
         ..config.clone()
     };
     let mut v = MavlinkVehicle::start(read_only, MonoTime::ZERO, learned.as_ref())?;

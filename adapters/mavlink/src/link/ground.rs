@@ -1,0 +1,219 @@
+//! Ground stations (QGroundControl, Mission Planner) that reach the autopilot through rove, as
+//! mavlink-router routes a link: one thread per `[[output.gcs]]` endpoint.
+//!
+//! - Autopilot → stations: every frame the link's reader decodes (telemetry, parameters,
+//!   mission items, COMMAND_ACKs, logs; from the autopilot and any other system on its link)
+//!   goes to every station whose port can send, as received: its sequence number, sender and
+//!   signature unchanged.
+//! - Station → autopilot: every frame goes to the autopilot's link as received, once, except
+//!   sticks: MANUAL_CONTROL and RC_CHANNELS_OVERRIDE are dropped ([`from_station`]), because the
+//!   hierarchy decides who drives and rove's own control messages carry the owner's sticks.
+//!   Everything else (parameters, missions, mode and arming commands) passes: docs/mavlink.md,
+//!   "Sharing the autopilot with a ground station", says why.
+//! - Frames of message ids the `ardupilotmega` dialect does not know are not forwarded (their
+//!   CRC cannot be checked); nor is one station's traffic sent to another station.
+
+use super::transport::{ReadOutcome, Writer, classify_read, open};
+use super::{READ_CHUNK, RECONNECT, Shared, lock};
+use crate::config::Endpoint;
+use crate::frame::{Decoder, Frame};
+use mavlink::dialects::ardupilotmega::MavMessage;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use tracing::{info, warn};
+
+/// What becomes of a message a ground station sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    /// Passed to the autopilot as received.
+    Forward,
+    /// Sticks: dropped (rove's control messages carry the owner's).
+    Sticks,
+}
+
+/// What becomes of `msg` from a ground station (pure).
+pub fn from_station(msg: &MavMessage) -> Verdict {
+    match msg {
+        MavMessage::MANUAL_CONTROL(_) | MavMessage::RC_CHANNELS_OVERRIDE(_) => Verdict::Sticks,
+        _ => Verdict::Forward,
+    }
+}
+
+/// A ground station's counters, as [`super::Link::stations`] reports them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StationStatus {
+    /// Its endpoint.
+    pub endpoint: String,
+    /// Its port is open.
+    pub connected: bool,
+    /// Frames it sent that went to the autopilot.
+    pub to_autopilot: u64,
+    /// Frames of the autopilot's link sent to it.
+    pub to_station: u64,
+    /// Stick messages it sent, dropped.
+    pub sticks_dropped: u64,
+}
+
+/// A ground station's port.
+pub(super) struct Port {
+    endpoint: Endpoint,
+    /// A `udpin:` port's peer: the station's last datagram's sender.
+    peer: Arc<Mutex<Option<SocketAddr>>>,
+    writer: Mutex<Option<Arc<Writer>>>,
+    connected: AtomicBool,
+    to_autopilot: AtomicU64,
+    to_station: AtomicU64,
+    sticks_dropped: AtomicU64,
+    /// Whether "it speaks as rove's own system id" was said.
+    same_id_said: AtomicBool,
+}
+
+impl Port {
+    pub(super) fn new(endpoint: Endpoint) -> Port {
+        Port {
+            endpoint,
+            peer: Arc::default(),
+            writer: Mutex::new(None),
+            connected: AtomicBool::new(false),
+            to_autopilot: AtomicU64::new(0),
+            to_station: AtomicU64::new(0),
+            sticks_dropped: AtomicU64::new(0),
+            same_id_said: AtomicBool::new(false),
+        }
+    }
+
+    pub(super) fn status(&self) -> StationStatus {
+        StationStatus {
+            endpoint: self.endpoint.to_string(),
+            connected: self.connected.load(Ordering::Relaxed),
+            to_autopilot: self.to_autopilot.load(Ordering::Relaxed),
+            to_station: self.to_station.load(Ordering::Relaxed),
+            sticks_dropped: self.sticks_dropped.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// Sends a frame of the autopilot's link (`raw`, as received) to every station that can take it.
+pub(super) fn to_stations(shared: &Shared, raw: &[u8]) {
+    for port in &shared.ground {
+        let writer = lock(&port.writer).clone();
+        let Some(writer) = writer.filter(|w| w.ready()) else {
+            continue;
+        };
+        match writer.write(raw) {
+            Ok(()) => {
+                port.to_station.fetch_add(1, Ordering::Relaxed);
+            }
+            // A TCP station that stopped reading: part of a frame may have left, so its stream
+            // is closed (its reader reconnects). The autopilot's reader waits at most the send
+            // timeout for it.
+            Err(_) if matches!(&*writer, Writer::Tcp(_)) => {
+                if let Writer::Tcp(s) = &*writer {
+                    let _ = lock(s).shutdown(std::net::Shutdown::Both);
+                }
+                *lock(&port.writer) = None;
+            }
+            Err(_) => {}
+        }
+    }
+}
+
+/// The thread of the station at `shared.ground[index]`: opens its port (again after an error,
+/// every [`RECONNECT`]), reads its frames and passes them on.
+pub(super) fn serve(shared: &Shared, index: usize) {
+    let Some(port) = shared.ground.get(index) else {
+        return;
+    };
+    let mut logged_error: Option<String> = None;
+    let mut decoder = Decoder::new();
+    let mut buf = vec![0u8; READ_CHUNK];
+    while !shared.stop.load(Ordering::Relaxed) {
+        let (mut reader, writer) = match open(&port.endpoint, &port.peer) {
+            Ok(c) => c,
+            Err(e) => {
+                let why = format!("{}: {e}", port.endpoint);
+                if logged_error.as_deref() != Some(why.as_str()) {
+                    warn!(error = %why, "mavlink: cannot open a ground station's port; retrying every {RECONNECT:?}");
+                    logged_error = Some(why);
+                }
+                std::thread::sleep(RECONNECT);
+                continue;
+            }
+        };
+        info!(endpoint = %port.endpoint, "mavlink: ground station port open");
+        logged_error = None;
+        decoder.clear();
+        *lock(&port.writer) = Some(Arc::new(writer));
+        port.connected.store(true, Ordering::Relaxed);
+        while !shared.stop.load(Ordering::Relaxed) {
+            match reader.read(&mut buf) {
+                Ok((n, _)) => {
+                    decoder.push(buf.get(..n).unwrap_or(&buf));
+                    while let Some(frame) = decoder.next_frame() {
+                        from_port(shared, port, &frame);
+                    }
+                }
+                Err(e) => match classify_read(&e) {
+                    ReadOutcome::Idle => {}
+                    ReadOutcome::Reconnect => {
+                        warn!(endpoint = %port.endpoint, error = %e, "mavlink: ground station gone; reopening its port");
+                        break;
+                    }
+                },
+            }
+        }
+        *lock(&port.writer) = None;
+        port.connected.store(false, Ordering::Relaxed);
+        if !shared.stop.load(Ordering::Relaxed) {
+            std::thread::sleep(RECONNECT);
+        }
+    }
+}
+
+/// A station's frame: to the autopilot, unless it is sticks.
+fn from_port(shared: &Shared, port: &Port, frame: &Frame) {
+    if frame.header.system_id == u32::from(shared.system_id)
+        && !port.same_id_said.swap(true, Ordering::Relaxed)
+    {
+        warn!(
+            endpoint = %port.endpoint,
+            system = shared.system_id,
+            "mavlink: a ground station speaks as rove's own system id: the autopilot's answers \
+             cannot tell the two apart; give the station another (QGroundControl: Application \
+             Settings → MAVLink → MAVLink System ID)"
+        );
+    }
+    if from_station(&frame.message) == Verdict::Sticks {
+        port.sticks_dropped.fetch_add(1, Ordering::Relaxed);
+        return;
+    }
+    let writer = lock(&shared.writer).clone();
+    if let Some(writer) = writer
+        && writer.write(&frame.raw).is_ok()
+    {
+        port.to_autopilot.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::ardupilotmega as ap;
+
+    #[test]
+    fn sticks_are_dropped_and_everything_else_passes() {
+        let manual = MavMessage::MANUAL_CONTROL(ap::MANUAL_CONTROL_DATA::default());
+        let rc = MavMessage::RC_CHANNELS_OVERRIDE(ap::RC_CHANNELS_OVERRIDE_DATA::default());
+        assert_eq!(from_station(&manual), Verdict::Sticks);
+        assert_eq!(from_station(&rc), Verdict::Sticks);
+        for passes in [
+            MavMessage::HEARTBEAT(ap::HEARTBEAT_DATA::default()),
+            MavMessage::PARAM_REQUEST_LIST(ap::PARAM_REQUEST_LIST_DATA::default()),
+            MavMessage::COMMAND_LONG(ap::COMMAND_LONG_DATA::default()),
+            MavMessage::MISSION_COUNT(ap::MISSION_COUNT_DATA::default()),
+        ] {
+            assert_eq!(from_station(&passes), Verdict::Forward, "{passes:?}");
+        }
+    }
+}
