@@ -290,27 +290,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 sweep::cli(rove, &options, &idle_sweep, json.as_deref())
             }
         }
-        Bench::Soak {
-            cycles,
-            warmup,
-            sample_every,
-            request_every,
-            max_kib_per_cycle,
-            remote_every,
-            rove: other,
-            json,
-        } => {
-            let rove = other.as_deref().unwrap_or(rove);
-            let options = soak::Options {
-                remote_every,
-                cycles,
-                warmup: warmup.unwrap_or(cycles / 5),
-                sample_every,
-                request_every,
-                max_kib_per_cycle,
-            };
-            soak::cli(rove, &options, json.as_deref())
-        }
+        soak @ Bench::Soak { .. } => run_soak(rove, soak),
         Bench::Handover {
             remote: true,
             runs,
@@ -376,4 +356,30 @@ fn remote_bench(
     _json: Option<&Path>,
 ) -> anyhow::Result<()> {
     anyhow::bail!("this rove was built without the `remote` and `security` features")
+}
+
+/// `rove bench soak`.
+fn run_soak(rove: &Path, soak: Bench) -> anyhow::Result<()> {
+    let Bench::Soak {
+        cycles,
+        warmup,
+        sample_every,
+        request_every,
+        max_kib_per_cycle,
+        remote_every,
+        rove: other,
+        json,
+    } = soak
+    else {
+        anyhow::bail!("not a soak");
+    };
+    let options = soak::Options {
+        remote_every,
+        cycles,
+        warmup: warmup.unwrap_or(cycles / 5),
+        sample_every,
+        request_every,
+        max_kib_per_cycle,
+    };
+    soak::cli(other.as_deref().unwrap_or(rove), &options, json.as_deref())
 }

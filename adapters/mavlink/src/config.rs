@@ -280,7 +280,7 @@ rove_core::config_types! {
         modes: ModesConfig => "Modes.",
         memory: Option<std::path::PathBuf> => "Where the link keeps what it learned about the \
             autopilot for `rove failsafe` ([`crate::memory`]); set by the gateway, not a key.",
-        gcs: Vec<Endpoint> => "The ground stations' endpoints ([`crate::link`] routes them).",
+        gcs: Vec<Endpoint> => "The ground stations' endpoints (the link routes them).",
     }
 }
 
