@@ -1002,3 +1002,39 @@ fn a_ground_station_talks_to_the_autopilot_through_rove_but_its_sticks_stop_ther
         assert!((1..=64).contains(&step), "HEARTBEAT sequence {beats:?}");
     }
 }
+
+#[test]
+fn a_ground_station_connects_to_a_tcpin_port_and_again_after_it_quit() {
+    let clock = Clock::new();
+    let autopilot = Peer::start(&["--connection", "tcpin:127.0.0.1:0"]);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    let toml = format!(
+        "connection = \"tcpout:127.0.0.1:{}\"\n[[gcs]]\nendpoint = \"tcpin:127.0.0.1:{port}\"\n",
+        autopilot.port()
+    );
+    let mut v = vehicle(&toml, &clock);
+    run_until(&mut v, &clock, "autopilot discovered", discovered);
+    let connection = format!("tcp:127.0.0.1:{port}");
+    for round in 0..2 {
+        let mut gcs = Peer::start_gcs(&["--connection", &connection, "--params"]);
+        gcs.wait_for(&format!("round {round}: the autopilot's HEARTBEAT"), |e| {
+            e["event"] == "rx" && e["type"] == "HEARTBEAT" && e["src"] == 1
+        });
+        let want = round + 1;
+        rove_testkit::eventually("the station's PARAM_REQUEST_LIST", || {
+            let n = (autopilot.of("other").iter())
+                .filter(|e| e["type"] == "PARAM_REQUEST_LIST" && e["src"] == 250)
+                .count();
+            if n >= want {
+                Ok(())
+            } else {
+                Err(format!("{n} of {want}"))
+            }
+        });
+        gcs.stop();
+    }
+    assert!(v.stations()[0].to_autopilot >= 2, "{:?}", v.stations());
+}

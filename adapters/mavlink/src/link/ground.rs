@@ -13,12 +13,12 @@
 //! - Frames of message ids the `ardupilotmega` dialect does not know are not forwarded (their
 //!   CRC cannot be checked); nor is one station's traffic sent to another station.
 
-use super::transport::{ReadOutcome, Writer, classify_read, open};
+use super::transport::{ReadOutcome, Writer, accept, classify_read, listen, open};
 use super::{READ_CHUNK, RECONNECT, Shared, lock};
 use crate::config::Endpoint;
 use crate::frame::{Decoder, Frame};
 use mavlink::dialects::ardupilotmega::MavMessage;
-use std::net::SocketAddr;
+use std::net::{SocketAddr, TcpListener};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use tracing::{info, warn};
@@ -128,9 +128,20 @@ pub(super) fn serve(shared: &Shared, index: usize) {
     let mut logged_error: Option<String> = None;
     let mut decoder = Decoder::new();
     let mut buf = vec![0u8; READ_CHUNK];
+    // A tcpin: port's listener, kept across its clients.
+    let mut listener: Option<TcpListener> = None;
     while !shared.stop.load(Ordering::Relaxed) {
-        let (mut reader, writer) = match open(&port.endpoint, &port.peer) {
-            Ok(c) => c,
+        let opened = match (&port.endpoint, &listener) {
+            (Endpoint::TcpIn(address), None) => listen(address).map(|l| {
+                listener = Some(l);
+                None
+            }),
+            (Endpoint::TcpIn(_), Some(l)) => accept(l),
+            (endpoint, _) => open(endpoint, &port.peer).map(Some),
+        };
+        let (mut reader, writer) = match opened {
+            Ok(Some(c)) => c,
+            Ok(None) => continue,
             Err(e) => {
                 let why = format!("{}: {e}", port.endpoint);
                 if logged_error.as_deref() != Some(why.as_str()) {

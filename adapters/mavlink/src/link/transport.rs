@@ -5,7 +5,7 @@
 use super::{CONNECT_TIMEOUT, READ_TIMEOUT, SEND_TIMEOUT, TCP_SEND_BUFFER, lock};
 use crate::config::Endpoint;
 use std::io::{self, Read, Write};
-use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs, UdpSocket};
 use std::sync::{Arc, Mutex};
 use tracing::warn;
 
@@ -115,16 +115,11 @@ pub(super) fn open(
                 Writer::Udp(sock, Arc::new(Mutex::new(Some(to)))),
             )
         }
-        Endpoint::TcpOut(a) => {
-            let stream = TcpStream::connect_timeout(&resolve(a)?, CONNECT_TIMEOUT)?;
-            // Each frame is one write and must leave at once (seen against ArduPilot: Nagle held the second
-            // of two back-to-back messages ~44 ms).
-            stream.set_nodelay(true)?;
-            stream.set_read_timeout(Some(READ_TIMEOUT))?;
-            stream.set_write_timeout(Some(SEND_TIMEOUT))?;
-            socket2::SockRef::from(&stream).set_send_buffer_size(TCP_SEND_BUFFER)?;
-            let writer = stream.try_clone()?;
-            (Reader::Tcp(stream), Writer::Tcp(Mutex::new(writer)))
+        Endpoint::TcpOut(a) => tcp(TcpStream::connect_timeout(&resolve(a)?, CONNECT_TIMEOUT)?)?,
+        // A listening port is kept across clients by its owner ([`listen`], [`accept`]).
+        Endpoint::TcpIn(a) => {
+            let why = format!("tcpin:{a} is a listening port: accept on it");
+            return Err(io::Error::new(io::ErrorKind::Unsupported, why));
         }
         Endpoint::Serial { device, baud } => {
             let port = serialport::new(device, *baud)
@@ -146,6 +141,35 @@ pub(super) fn open(
             (Reader::Serial(port), Writer::Serial(Mutex::new(writer)))
         }
     })
+}
+
+/// A connected TCP stream's halves, with rove's options.
+fn tcp(stream: TcpStream) -> io::Result<(Reader, Writer)> {
+    // Each frame is one write and must leave at once (seen against ArduPilot: Nagle held the
+    // second of two back-to-back messages ~44 ms).
+    stream.set_nodelay(true)?;
+    stream.set_read_timeout(Some(READ_TIMEOUT))?;
+    stream.set_write_timeout(Some(SEND_TIMEOUT))?;
+    socket2::SockRef::from(&stream).set_send_buffer_size(TCP_SEND_BUFFER)?;
+    let writer = stream.try_clone()?;
+    Ok((Reader::Tcp(stream), Writer::Tcp(Mutex::new(writer))))
+}
+
+/// A `tcpin:` port: listening at `address`, whose accept waits at most [`READ_TIMEOUT`] (so
+/// its thread notices a stop request).
+pub(super) fn listen(address: &str) -> io::Result<TcpListener> {
+    let listener = TcpListener::bind(resolve(address)?)?;
+    socket2::SockRef::from(&listener).set_read_timeout(Some(READ_TIMEOUT))?;
+    Ok(listener)
+}
+
+/// The next client of `listener` (`None` when none came within [`READ_TIMEOUT`]).
+pub(super) fn accept(listener: &TcpListener) -> io::Result<Option<(Reader, Writer)>> {
+    match listener.accept() {
+        Ok((stream, _)) => tcp(stream).map(Some),
+        Err(e) if classify_read(&e) == ReadOutcome::Idle => Ok(None),
+        Err(e) => Err(e),
+    }
 }
 
 /// How a read error is handled.

@@ -14,8 +14,11 @@ use rove_core::error::ConfigErrors;
 use rove_core::mapping::{Axis, AxisMap, AxisMapSettings};
 use rove_core::msg::Mode;
 use serde::{Deserialize, Serialize};
-use std::fmt;
 use std::time::Duration;
+
+mod endpoint;
+
+pub use endpoint::Endpoint;
 
 rove_core::config_types! {
     /// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which
@@ -50,7 +53,8 @@ rove_core::config_types! {
     pub settings GcsSettings {
         endpoint: Option<String> => "Where the ground station is: `udpout:HOST:PORT` (rove \
             sends first, as to QGroundControl's 14550), `udpin:HOST:PORT` (the station sends \
-            first) or `tcpout:HOST:PORT`.",
+            first), `tcpin:HOST:PORT` (the station connects; one at a time) or \
+            `tcpout:HOST:PORT`.",
         #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
@@ -141,77 +145,6 @@ rove_core::config_types! {
     pub enum AutopilotModeName {
         Name => "A name from the autopilot's table." (String),
         Number => "A raw `custom_mode` (PX4: `main << 16 | sub << 24`), 0..=4294967295." (Int),
-    }
-
-    /// Where the autopilot is.
-    #[derive(Debug, Clone, PartialEq, Eq)]
-    pub enum Endpoint {
-        UdpIn => "We listen on this address; replies go to the last sender." (String),
-        UdpOut => "We send to this address from an ephemeral port." (String),
-        TcpOut => "We connect to this TCP server (SITL: 127.0.0.1:5760)." (String),
-        Serial => "A serial device at a baud rate." {
-            device: String => "Device path.",
-            baud: u32 => "Baud rate.",
-        },
-    }
-}
-
-impl fmt::Display for Endpoint {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Endpoint::UdpIn(a) => write!(f, "udpin:{a}"),
-            Endpoint::UdpOut(a) => write!(f, "udpout:{a}"),
-            Endpoint::TcpOut(a) => write!(f, "tcpout:{a}"),
-            Endpoint::Serial { device, baud } => write!(f, "serial:{device}:{baud}"),
-        }
-    }
-}
-
-impl Endpoint {
-    /// Parses `udpin:`, `udp:`, `udpout:`, `tcpout:`, `tcp:` and `serial:` addresses.
-    ///
-    /// # Errors
-    /// The rule the text breaks.
-    pub fn parse(text: &str) -> Result<Endpoint, String> {
-        let schemes = "udpin, udpout, tcpout";
-        let Some((scheme, rest)) = text.split_once(':') else {
-            return Err(format!(
-                "must be SCHEME:ADDRESS with SCHEME {schemes} or serial"
-            ));
-        };
-        let host_port = |rest: &str| -> Result<String, String> {
-            let needs = || format!("{scheme}: needs HOST:PORT");
-            let (host, port) = rest.rsplit_once(':').ok_or_else(needs)?;
-            if host.is_empty() {
-                return Err(format!("{scheme}: needs a host before :PORT"));
-            }
-            match port.parse::<u16>() {
-                Ok(p) if p > 0 => Ok(rest.to_string()),
-                _ => Err(format!("{scheme}: port must be 1..=65535, not {port:?}")),
-            }
-        };
-        match scheme {
-            "udpin" | "udp" => Ok(Endpoint::UdpIn(host_port(rest)?)),
-            "udpout" => Ok(Endpoint::UdpOut(host_port(rest)?)),
-            "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
-            "serial" => {
-                let needs = "serial: needs DEVICE:BAUD, e.g. serial:/dev/ttyACM0:115200";
-                let (device, baud) = rest.rsplit_once(':').ok_or(needs)?;
-                if device.is_empty() {
-                    return Err("serial: needs a device path".into());
-                }
-                let device = device.to_string();
-                match baud.parse::<u32>() {
-                    Ok(baud) if baud > 0 => Ok(Endpoint::Serial { device, baud }),
-                    _ => Err(format!(
-                        "serial: baud must be a positive number, not {baud:?}"
-                    )),
-                }
-            }
-            other => Err(format!(
-                "unknown scheme {other:?}: use {schemes} (tcp) or serial"
-            )),
-        }
     }
 }
 
@@ -340,7 +273,15 @@ impl MavlinkSettings {
         let connection = self
             .connection
             .get_or_insert_with(|| "tcpout:127.0.0.1:5760".into());
-        let endpoint = Endpoint::parse(connection).unwrap_or_else(|rule| {
+        let endpoint = match Endpoint::parse(connection) {
+            Ok(Endpoint::TcpIn(_)) => {
+                Err("tcpin: is for a ground station ([[output.gcs]]); reach \
+                the autopilot with tcpout:, udpin:, udpout: or serial:"
+                    .to_string())
+            }
+            other => other,
+        };
+        let endpoint = endpoint.unwrap_or_else(|rule| {
             errors.add("connection", format!("\"{connection}\""), rule);
             Endpoint::TcpOut("127.0.0.1:5760".into())
         });
@@ -423,8 +364,8 @@ impl MavlinkSettings {
                     return None;
                 };
                 let endpoint = match Endpoint::parse(text) {
-                    Ok(Endpoint::Serial { .. }) => Err("a ground station is on udpout:, udpin: \
-                        or tcpout: (a serial port is the autopilot's)"
+                    Ok(Endpoint::Serial { .. }) => Err("a ground station is on udpout:, udpin:, \
+                        tcpin: or tcpout: (a serial port is the autopilot's)"
                         .to_string()),
                     other => other,
                 };
@@ -635,7 +576,8 @@ mod tests {
     fn ground_stations_need_a_network_endpoint_of_their_own() {
         let c = parse(
             "[[gcs]]\nendpoint = \"udpout:127.0.0.1:14550\"\n\
-             [[gcs]]\nendpoint = \"udpin:0.0.0.0:14551\"",
+             [[gcs]]\nendpoint = \"udpin:0.0.0.0:14551\"\n\
+             [[gcs]]\nendpoint = \"tcpin:0.0.0.0:5770\"",
         )
         .validate()
         .expect("valid");
@@ -643,7 +585,8 @@ mod tests {
             c.gcs,
             [
                 Endpoint::UdpOut("127.0.0.1:14550".into()),
-                Endpoint::UdpIn("0.0.0.0:14551".into())
+                Endpoint::UdpIn("0.0.0.0:14551".into()),
+                Endpoint::TcpIn("0.0.0.0:5770".into())
             ]
         );
         assert!(parse("").validate().expect("valid").gcs.is_empty());
@@ -662,6 +605,10 @@ mod tests {
                 "is gcs[0]'s too",
             ),
             ("[[gcs]]\nendpoint = \"udpout:h\"", "needs HOST:PORT"),
+            (
+                "connection = \"tcpin:0.0.0.0:5760\"",
+                "is for a ground station",
+            ),
         ];
         for (toml, says) in cases {
             let errors = errors_of(toml).join("\n");
@@ -716,6 +663,10 @@ mod tests {
             Ok(Endpoint::TcpOut("127.0.0.1:5760".into()))
         );
         assert_eq!(
+            Endpoint::parse("tcpin:0.0.0.0:5770"),
+            Ok(Endpoint::TcpIn("0.0.0.0:5770".into()))
+        );
+        assert_eq!(
             Endpoint::parse("serial:/dev/ttyACM0:115200"),
             Ok(Endpoint::Serial {
                 device: "/dev/ttyACM0".into(),
@@ -729,7 +680,8 @@ mod tests {
             "tcpout::5760",
             "serial:/dev/ttyS0",
             "serial:/dev/ttyS0:fast",
-            "tcpin:127.0.0.1:5760",
+            "tcpin:127.0.0.1",
+            "ftp:127.0.0.1:21",
         ] {
             assert!(Endpoint::parse(bad).is_err(), "{bad} accepted");
         }
