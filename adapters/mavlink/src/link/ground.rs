@@ -108,13 +108,11 @@ pub(super) fn to_stations(shared: &Shared, raw: &[u8]) {
             // A TCP station that stopped reading: part of a frame may have left, so its stream
             // is closed (its reader reconnects). The autopilot's reader waits at most the send
             // timeout for it.
-            Err(_) if matches!(&*writer, Writer::Tcp(_)) => {
-                if let Writer::Tcp(s) = &*writer {
-                    let _ = lock(s).shutdown(std::net::Shutdown::Both);
+            Err(_) => {
+                if writer.close_if_stream() {
+                    *lock(&port.writer) = None;
                 }
-                *lock(&port.writer) = None;
             }
-            Err(_) => {}
         }
     }
 }
@@ -199,11 +197,19 @@ fn from_port(shared: &Shared, port: &Port, frame: &Frame) {
         port.sticks_dropped.fetch_add(1, Ordering::Relaxed);
         return;
     }
-    let writer = lock(&shared.writer).clone();
-    if let Some(writer) = writer
-        && writer.write(&frame.raw).is_ok()
-    {
-        port.to_autopilot.fetch_add(1, Ordering::Relaxed);
+    let Some(writer) = lock(&shared.writer).clone() else {
+        return;
+    };
+    match writer.write(&frame.raw) {
+        Ok(()) => {
+            port.to_autopilot.fetch_add(1, Ordering::Relaxed);
+        }
+        // As rove's own sends: a TCP autopilot that stopped reading is reconnected.
+        Err(_) => {
+            if writer.close_if_stream() {
+                *lock(&shared.writer) = None;
+            }
+        }
     }
 }
 

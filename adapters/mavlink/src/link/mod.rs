@@ -330,10 +330,9 @@ impl Link {
                 e.kind(),
                 io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
             );
-            if let (true, Writer::Tcp(s)) = (timed_out, &*writer) {
-                // Part of a frame may have left: the stream is out of step. Closing it makes
-                // the reader reconnect.
-                let _ = lock(s).shutdown(std::net::Shutdown::Both);
+            // Part of a frame may have left: the stream is out of step. Closing it makes the
+            // reader reconnect.
+            if timed_out && writer.close_if_stream() {
                 *lock(&self.shared.writer) = None;
             }
             let why = match timed_out {

@@ -35,6 +35,18 @@ impl Writer {
         }
     }
 
+    /// After a failed write: a TCP stream may carry part of a frame, so it is shut down (its
+    /// reader reconnects); `true` if it was one, and the caller drops this writer.
+    pub(super) fn close_if_stream(&self) -> bool {
+        match self {
+            Writer::Tcp(s) => {
+                let _ = lock(s).shutdown(std::net::Shutdown::Both);
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Whether a send can leave now (a UDP link knows whom to send to).
     pub(super) fn ready(&self) -> bool {
         match self {
