@@ -148,6 +148,11 @@ pub fn fake_autopilot_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fake_autopilot.py")
 }
 
+/// `testkit/fake_gcs.py`: the test ground station ([`FakeAutopilot::start_gcs`]).
+pub fn fake_gcs_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fake_gcs.py")
+}
+
 /// A running [`fake_autopilot_script`] and its record (JSON lines, one per event, each with
 /// a monotonic `t` and a wall-clock `wall_us`). Killed on drop.
 ///
@@ -184,7 +189,7 @@ impl FakeAutopilot {
     pub fn start_gcs(args: &[&str]) -> FakeAutopilot {
         let dir = tempfile::tempdir().expect("temp dir for the ground station's record");
         let record = dir.path().join("gcs.jsonl");
-        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("fake_gcs.py");
+        let script = fake_gcs_script();
         FakeAutopilot::spawn(Command::new(python()), &script, record, Some(dir), args)
     }
 

@@ -137,35 +137,7 @@ pub enum Bench {
     /// Memory, file descriptors and threads of a vehicle, its fallback operator and a
     /// bystander while other operators join, preempt or request, and quit, cycle after cycle:
     /// the growth per cycle after a warm-up (needs root).
-    Soak {
-        /// Join-and-leave cycles.
-        #[arg(long, default_value_t = 1000)]
-        cycles: usize,
-        /// Cycles before the growth is measured (default: a fifth of them).
-        #[arg(long)]
-        warmup: Option<usize>,
-        /// Cycles between samples.
-        #[arg(long, default_value_t = 10)]
-        sample_every: usize,
-        /// Every this many cycles a request (active handover) instead of a preemption; 0:
-        /// never.
-        #[arg(long, default_value_t = 5)]
-        request_every: usize,
-        /// Fail when a long-lived process grows by more than this many KiB per cycle.
-        #[arg(long)]
-        max_kib_per_cycle: Option<f64>,
-        /// Every this many cycles a remote operator at a second site requests the vehicle
-        /// through two bridges (measured too); 0: no second site.
-        #[arg(long, default_value_t = 0)]
-        remote_every: usize,
-        /// The `rove` binary the rig's processes run (default: this one), e.g. an older build
-        /// for a before/after comparison: its CLI and configs must be this one's.
-        #[arg(long)]
-        rove: Option<std::path::PathBuf>,
-        /// Write the report as JSON to this file.
-        #[arg(long)]
-        json: Option<std::path::PathBuf>,
-    },
+    Soak(SoakArgs),
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
@@ -212,6 +184,38 @@ pub enum Bench {
 }
 
 /// `rove bench handover --security`.
+/// `rove bench soak`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct SoakArgs {
+    /// Join-and-leave cycles.
+    #[arg(long, default_value_t = 1000)]
+    pub cycles: usize,
+    /// Cycles before the growth is measured (default: a fifth of them).
+    #[arg(long)]
+    pub warmup: Option<usize>,
+    /// Cycles between samples.
+    #[arg(long, default_value_t = 10)]
+    pub sample_every: usize,
+    /// Every this many cycles a request (active handover) instead of a preemption; 0:
+    /// never.
+    #[arg(long, default_value_t = 5)]
+    pub request_every: usize,
+    /// Fail when a long-lived process grows by more than this many KiB per cycle.
+    #[arg(long)]
+    pub max_kib_per_cycle: Option<f64>,
+    /// Every this many cycles a remote operator at a second site requests the vehicle
+    /// through two bridges (measured too); 0: no second site.
+    #[arg(long, default_value_t = 0)]
+    pub remote_every: usize,
+    /// The `rove` binary the rig's processes run (default: this one), e.g. an older build
+    /// for a before/after comparison: its CLI and configs must be this one's.
+    #[arg(long)]
+    pub rove: Option<std::path::PathBuf>,
+    /// Write the report as JSON to this file.
+    #[arg(long)]
+    pub json: Option<std::path::PathBuf>,
+}
+
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum SecurityMode {
     /// Plain DDS.
@@ -290,7 +294,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 sweep::cli(rove, &options, &idle_sweep, json.as_deref())
             }
         }
-        soak @ Bench::Soak { .. } => run_soak(rove, soak),
+        Bench::Soak(args) => run_soak(rove, args),
         Bench::Handover {
             remote: true,
             runs,
@@ -359,27 +363,15 @@ fn remote_bench(
 }
 
 /// `rove bench soak`.
-fn run_soak(rove: &Path, soak: Bench) -> anyhow::Result<()> {
-    let Bench::Soak {
-        cycles,
-        warmup,
-        sample_every,
-        request_every,
-        max_kib_per_cycle,
-        remote_every,
-        rove: other,
-        json,
-    } = soak
-    else {
-        anyhow::bail!("not a soak");
-    };
+fn run_soak(rove: &Path, args: SoakArgs) -> anyhow::Result<()> {
     let options = soak::Options {
-        remote_every,
-        cycles,
-        warmup: warmup.unwrap_or(cycles / 5),
-        sample_every,
-        request_every,
-        max_kib_per_cycle,
+        remote_every: args.remote_every,
+        cycles: args.cycles,
+        warmup: args.warmup.unwrap_or(args.cycles / 5),
+        sample_every: args.sample_every,
+        request_every: args.request_every,
+        max_kib_per_cycle: args.max_kib_per_cycle,
     };
-    soak::cli(other.as_deref().unwrap_or(rove), &options, json.as_deref())
+    let rove = args.rove.as_deref().unwrap_or(rove);
+    soak::cli(rove, &options, args.json.as_deref())
 }

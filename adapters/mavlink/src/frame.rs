@@ -40,8 +40,6 @@ pub struct Frame {
     pub header: MavHeader,
     /// The message.
     pub message: MavMessage,
-    /// The frame's bytes as received (sequence, signature and all): what a router forwards.
-    pub raw: Vec<u8>,
 }
 
 /// What the bytes at a frame-start marker are.
@@ -59,6 +57,9 @@ enum Candidate {
 pub struct Decoder {
     buf: Vec<u8>,
     skipped: u64,
+    /// The bytes of the frame [`Decoder::next_frame`] returned last (reused: no allocation per
+    /// frame once it has held the longest).
+    last: Vec<u8>,
 }
 
 impl Decoder {
@@ -75,6 +76,12 @@ impl Decoder {
     /// Bytes thrown away so far (garbage, bad CRC, unknown messages).
     pub fn skipped(&self) -> u64 {
         self.skipped
+    }
+
+    /// The bytes of the frame [`Decoder::next_frame`] returned last, as received (sequence,
+    /// signature and all): what a router forwards.
+    pub fn raw(&self) -> &[u8] {
+        &self.last
     }
 
     /// Forgets buffered bytes (the transport was reopened).
@@ -94,7 +101,7 @@ impl Decoder {
             match candidate(&self.buf[start..]) {
                 Candidate::Valid(len, frame) => {
                     self.drop_front(start);
-                    self.buf.drain(..len);
+                    self.take_front(len);
                     return Some(*frame);
                 }
                 Candidate::Bad => from = start + 1,
@@ -104,7 +111,7 @@ impl Decoder {
                     while let Some(later) = find_marker(&self.buf, next) {
                         if let Candidate::Valid(len, frame) = candidate(&self.buf[later..]) {
                             self.drop_front(later);
-                            self.buf.drain(..len);
+                            self.take_front(len);
                             return Some(*frame);
                         }
                         next = later + 1;
@@ -114,6 +121,12 @@ impl Decoder {
                 }
             }
         }
+    }
+
+    /// Moves the frame of `len` bytes at the front into [`Decoder::raw`].
+    fn take_front(&mut self, len: usize) {
+        self.last.clear();
+        self.last.extend(self.buf.drain(..len));
     }
 
     fn drop_front(&mut self, n: usize) {
@@ -176,7 +189,6 @@ fn candidate(b: &[u8]) -> Candidate {
                     sequence: seq,
                 },
                 message,
-                raw: b[..len].to_vec(),
             }),
         ),
         // Unknown id or a field out of its enum: not a message we can use.
@@ -250,6 +262,26 @@ mod tests {
         assert_eq!(f.version, MavlinkVersion::V2);
         assert_eq!(d.skipped(), 5, "the stray bytes");
         assert_eq!(d.next_frame(), None);
+    }
+
+    #[test]
+    fn raw_is_each_frame_as_received_without_what_came_between() {
+        let (ack, beat) = (
+            bytes(MavlinkVersion::V2, &ack()),
+            bytes(
+                MavlinkVersion::V1,
+                &MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()),
+            ),
+        );
+        let mut d = Decoder::new();
+        d.push(&[0x00, MAV_STX, 116, 0x12]);
+        d.push(&ack);
+        d.push(&[0x55, 0xAA]);
+        d.push(&beat);
+        assert!(d.next_frame().is_some());
+        assert_eq!(d.raw(), &ack[..]);
+        assert!(d.next_frame().is_some());
+        assert_eq!(d.raw(), &beat[..]);
     }
 
     #[test]

@@ -576,8 +576,8 @@ mod tests {
     fn ground_stations_need_a_network_endpoint_of_their_own() {
         let c = parse(
             "[[gcs]]\nendpoint = \"udpout:127.0.0.1:14550\"\n\
-             [[gcs]]\nendpoint = \"udpin:0.0.0.0:14551\"\n\
-             [[gcs]]\nendpoint = \"tcpin:0.0.0.0:5770\"",
+             [[gcs]]\nendpoint = \"udpin:127.0.0.1:14551\"\n\
+             [[gcs]]\nendpoint = \"tcpin:127.0.0.1:5770\"",
         )
         .validate()
         .expect("valid");
@@ -585,8 +585,8 @@ mod tests {
             c.gcs,
             [
                 Endpoint::UdpOut("127.0.0.1:14550".into()),
-                Endpoint::UdpIn("0.0.0.0:14551".into()),
-                Endpoint::TcpIn("0.0.0.0:5770".into())
+                Endpoint::UdpIn("127.0.0.1:14551".into()),
+                Endpoint::TcpIn("127.0.0.1:5770".into())
             ]
         );
         assert!(parse("").validate().expect("valid").gcs.is_empty());
@@ -606,7 +606,7 @@ mod tests {
             ),
             ("[[gcs]]\nendpoint = \"udpout:h\"", "needs HOST:PORT"),
             (
-                "connection = \"tcpin:0.0.0.0:5760\"",
+                "connection = \"tcpin:127.0.0.1:5760\"",
                 "is for a ground station",
             ),
         ];
@@ -663,8 +663,8 @@ mod tests {
             Ok(Endpoint::TcpOut("127.0.0.1:5760".into()))
         );
         assert_eq!(
-            Endpoint::parse("tcpin:0.0.0.0:5770"),
-            Ok(Endpoint::TcpIn("0.0.0.0:5770".into()))
+            Endpoint::parse("tcpin:127.0.0.1:5770"),
+            Ok(Endpoint::TcpIn("127.0.0.1:5770".into()))
         );
         assert_eq!(
             Endpoint::parse("serial:/dev/ttyACM0:115200"),

@@ -160,7 +160,7 @@ pub(super) fn serve(shared: &Shared, index: usize) {
                 Ok((n, _)) => {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     while let Some(frame) = decoder.next_frame() {
-                        from_port(shared, port, &frame);
+                        from_port(shared, port, &frame, decoder.raw());
                     }
                 }
                 Err(e) => match classify_read(&e) {
@@ -180,8 +180,8 @@ pub(super) fn serve(shared: &Shared, index: usize) {
     }
 }
 
-/// A station's frame: to the autopilot, unless it is sticks.
-fn from_port(shared: &Shared, port: &Port, frame: &Frame) {
+/// A station's frame (`raw`, as received): to the autopilot, unless it is sticks.
+fn from_port(shared: &Shared, port: &Port, frame: &Frame, raw: &[u8]) {
     if frame.header.system_id == u32::from(shared.system_id)
         && !port.same_id_said.swap(true, Ordering::Relaxed)
     {
@@ -200,7 +200,7 @@ fn from_port(shared: &Shared, port: &Port, frame: &Frame) {
     let Some(writer) = lock(&shared.writer).clone() else {
         return;
     };
-    match writer.write(&frame.raw) {
+    match writer.write(raw) {
         Ok(()) => {
             port.to_autopilot.fetch_add(1, Ordering::Relaxed);
         }

@@ -61,7 +61,7 @@ pub(super) fn run(shared: &Shared) {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     let skipped = decoder.skipped();
                     while let Some(frame) = decoder.next_frame() {
-                        super::ground::to_stations(shared, &frame.raw);
+                        super::ground::to_stations(shared, decoder.raw());
                         handle(shared, frame.header, &frame.message);
                     }
                     let more = decoder.skipped() - skipped;
