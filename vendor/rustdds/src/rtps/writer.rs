@@ -1737,7 +1737,12 @@ impl Writer {
     depth: Option<usize>,
     resource_limit: usize,
   ) {
-    let first_keeper = if !self.like_stateless {
+    // rove patch (ROVE-PATCH.md §33): a best-effort writer is never acknowledged (its
+    // readers send no ACKNACK) and repairs nothing, so it keeps its depth as a stateless one
+    // does. Before, the minimum over its readers' acknowledgements stayed at zero and it kept
+    // every sample up to the resource limit: the SPDP writer, which writes its participant's
+    // announcement every period, grew by one announcement a period up to 8192 of them.
+    let first_keeper = if !self.like_stateless && self.is_reliable() {
       // Regular stateful writer behavior
       // All readers have acked up to this point (SequenceNumber)
       let acked_by_all_readers = self
@@ -1762,6 +1767,9 @@ impl Writer {
       // unacknowledged samples remain available for repair. The resource-limit
       // backstop below still bounds memory if a reader falls hopelessly behind.
       min(depth_keeper, acked_by_all_readers)
+    } else if depth.is_none() && !self.like_stateless {
+      // A best-effort KEEP_ALL writer keeps all, up to the resource limit below.
+      self.send_buffer.first_change_sequence_number()
     } else {
       // Stateless-like writer currently supports only BestEffort behavior, so here we
       // make it explicit that it does not care about acked sequence numbers
@@ -2928,7 +2936,7 @@ mod tests {
         let send_buffer = WriterSendBuffer::new(
           guid,
           "repair_test".to_string(),
-          true, // reliable
+          writer_qos.is_reliable(),
           writer_id.kind().is_built_in(),
           false,
           DEFAULT_WRITER_MAX_SAMPLES,
@@ -2993,6 +3001,21 @@ mod tests {
           &Discovery::builtin_subscriber_qos(),
           sample_count,
           payload_len,
+          None,
+        )
+      }
+
+      // The built-in SPDP Writer and a remote SPDP reader (both best effort), with the
+      // QoS Discovery gives them.
+      fn spdp(sample_count: i64) -> Self {
+        let qos = Discovery::create_spdp_participant_qos();
+        Self::new(
+          EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER,
+          qos.clone(),
+          EntityId::SPDP_BUILTIN_PARTICIPANT_READER,
+          &qos,
+          sample_count,
+          64,
           None,
         )
       }
@@ -3096,6 +3119,25 @@ mod tests {
         self.writer.handle_timed_event(event);
         before - self.unsent()
       }
+    }
+
+    // rove patch (ROVE-PATCH.md §33): a best-effort writer matched with a best-effort reader
+    // (which never acknowledges) keeps its History depth, not every sample it wrote.
+    #[test]
+    fn a_best_effort_writer_keeps_its_depth_although_nobody_acknowledges() {
+      let mut f = Fixture::spdp(200);
+      assert!(!f.writer.is_reliable());
+      assert_eq!(f.writer.send_buffer.retained_len(), 200);
+      f.writer.handle_cache_cleaning();
+      let depth = match f.writer.qos_policies.history {
+        Some(History::KeepLast { depth }) => depth as usize,
+        other => panic!("SPDP history {other:?}"),
+      };
+      let kept = f.writer.send_buffer.retained_len();
+      assert!(
+        (1..=depth + 1).contains(&kept),
+        "kept {kept} of 200 samples (depth {depth})"
+      );
     }
 
     // rove patch (ROVE-PATCH.md §20): a reader of a user writer that asks again
