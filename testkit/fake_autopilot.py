@@ -33,6 +33,18 @@ What it copies from a real ArduPilot (docs/mavlink.md, "ArduPilot as a GCS sees 
   --battery-drain percent a second (default 0), 12.6 V full to 10.5 V empty; --battery-pct -1
   sends the autopilot's "unknown" values (UINT16_MAX mV, -1 %).
 
+The GCS operator-control protocol (MAVLink development.xml), as ArduPilot PRs #29252/#33332
+implement it, with --system-manager: the autopilot streams CONTROL_STATUS (SYSTEM_MANAGER,
+TAKEOVER_ALLOWED with --takeover-allowed, gcs_main) with each HEARTBEAT and on every change, and
+takes RC_CHANNELS_OVERRIDE and MANUAL_CONTROL only from gcs_main. MAV_CMD_REQUEST_OPERATOR_CONTROL
+(32100): a request is granted (ACCEPTED) when nobody is in control, the requester already is, or
+takeover is allowed; otherwise it is answered FAILED and forwarded to the station in control. A
+release by the station in control frees the role. --gcs-main N: station N is in control at start;
+--release-after S: it lets go S seconds after start; --forward-request-at S1,S2,...: at each, a
+request of station --other-gcs (250) is forwarded to whoever is in control (recorded, with the
+ACK it gets). pymavlink 2.4.50 predates these
+messages: CONTROL_STATUS is packed by hand (CRC_EXTRA 21).
+
 Test knobs: --ignore-mode-commands N (drop the first N mode commands: no ACK), --deny-modes,
 --garbage (random bytes between messages), --foreign-sysid N (a second system that also sends
 HEARTBEATs and COMMAND_ACKs), --stop-reading-after S (stop reading, as a wedged autopilot whose
@@ -92,6 +104,12 @@ def main():
     p.add_argument("--stop-reading-after", type=float, default=0.0,
                    help="stop reading S seconds after the GCS's first RC override (a wedged "
                         "autopilot whose receive buffer fills), still sending HEARTBEATs")
+    p.add_argument("--system-manager", action="store_true")
+    p.add_argument("--takeover-allowed", action="store_true")
+    p.add_argument("--gcs-main", type=int, default=0)
+    p.add_argument("--release-after", type=float, default=0.0)
+    p.add_argument("--forward-request-at", default="", help="comma-separated seconds after start")
+    p.add_argument("--other-gcs", type=int, default=250)
     a = p.parse_args()
 
     safe_mode = PX4_AUTO_LOITER if a.autopilot == "px4" else ROVER_HOLD
@@ -138,6 +156,27 @@ def main():
     first_override = None
     stopped_reading = False
     failsafe_fired = False
+    gcs_main = a.gcs_main
+    released = False
+    forward_at = sorted(float(x) for x in a.forward_request_at.split(",") if x)
+
+    def control_status():
+        """CONTROL_STATUS (id 512), packed by hand: flags, gcs_main, gcs_secondary[10]."""
+        flags = 1 | (2 if a.takeover_allowed else 0)
+        payload = bytes([flags, gcs_main] + [0] * 10)
+        seq = m.mav.seq
+        m.mav.seq = (seq + 1) % 256
+        head = bytes([len(payload), 0, 0, seq, a.sysid, a.compid, 0x00, 0x02, 0x00])
+        crc = mavutil.mavlink.x25crc(head + payload)
+        crc.accumulate(bytes([21]))
+        send_raw(bytes([0xFD]) + head + payload + struct.pack("<H", crc.crc))
+
+    def set_gcs_main(holder, why):
+        nonlocal gcs_main
+        if holder != gcs_main:
+            gcs_main = holder
+            record("gcs_main", gcs_main=holder, why=why)
+            control_status()
 
     def send_raw(data):
         try:
@@ -208,8 +247,17 @@ def main():
                                                         mavutil.mavlink.MAV_RESULT_DENIED).pack(foreign))
                 if a.garbage:
                     send_raw(bytes(random.getrandbits(8) for _ in range(40)) + b"\xfd\x09\x00")
+                if a.system_manager:
+                    control_status()
             except OSError:
                 pass
+        if a.system_manager and a.release_after and not released and now - t0 >= a.release_after:
+            released = True
+            set_gcs_main(0, "released")
+        if a.system_manager and forward_at and now - t0 >= forward_at[0]:
+            forward_at.pop(0)
+            m.mav.command_long_send(gcs_main, 0, 32100, 0, 1, 0, 10, a.other_gcs, 0, 0, 0)
+            record("control_forwarded", to=gcs_main, requester=a.other_gcs)
         if a.telemetry == "ardupilot" and now >= next_burst:
             next_burst = now + 1.0
             burst_seq = (burst_seq + 1) % 256
@@ -270,6 +318,8 @@ def main():
                     first_override = time.monotonic()
                 raw = [getattr(msg, "chan%d_raw" % i, 0) for i in range(1, 19)]
                 accepted = src == a.gcs_sysid and msg.target_system == a.sysid
+                if a.system_manager and src != gcs_main:
+                    accepted = False
                 if accepted:
                     for i, v in enumerate(raw, start=1):
                         if i <= 8:
@@ -287,8 +337,29 @@ def main():
                        active={str(c): v for c, (v, _) in sorted(overrides.items())})
             elif kind == "MANUAL_CONTROL":
                 accepted = msg.target == a.sysid and src == a.gcs_sysid
+                if a.system_manager and src != gcs_main:
+                    accepted = False
                 record("manual_control", src=src, target=msg.target, x=msg.x, y=msg.y, z=msg.z, r=msg.r,
                        accepted=accepted)
+            elif kind == "COMMAND_LONG" and msg.command == 32100 and a.system_manager:
+                asking = msg.param1 >= 0.5
+                if not asking:
+                    ok = src == gcs_main
+                    if ok:
+                        set_gcs_main(0, "released by %d" % src)
+                elif gcs_main in (0, src) or a.takeover_allowed:
+                    ok = True
+                    set_gcs_main(src, "granted")
+                else:
+                    ok = False
+                    m.mav.command_long_send(gcs_main, 0, 32100, 0, 1, 0, msg.param3, src, 0, 0, 0)
+                    record("control_forwarded", to=gcs_main, requester=src)
+                result = mavutil.mavlink.MAV_RESULT_ACCEPTED if ok else mavutil.mavlink.MAV_RESULT_FAILED
+                record("control_request", src=src, request=asking, takeover=msg.param2 >= 0.5,
+                       gcs=int(msg.param4), result=result)
+                m.mav.command_ack_send(32100, result, 0, 0, src, srccomp)
+            elif kind == "COMMAND_ACK" and msg.command == 32100:
+                record("control_ack", src=src, result=msg.result)
             elif kind == "COMMAND_LONG":
                 if msg.command != mavutil.mavlink.MAV_CMD_DO_SET_MODE or msg.target_system != a.sysid:
                     record("command", src=src, command=msg.command, target=msg.target_system,

@@ -3,11 +3,12 @@
 //! read is followed by draining the decoder, as the link's reader thread does.
 //!
 //! Checked, besides "no panic": the decoder never counts more bytes skipped than it was given;
-//! every frame it yields re-encodes (as MAVLink 2) to one frame that decodes to the same
-//! message.
+//! every frame of the dialect it yields re-encodes (as MAVLink 2) to one frame that decodes to
+//! the same message; a frame of the operator-control protocol decodes again from its bytes to the
+//! same message.
 
 use mavlink::MavlinkVersion;
-use rove_mavlink::frame::{Decoder, encode};
+use rove_mavlink::frame::{Decoder, Payload, encode};
 
 /// Feeds `data` to a decoder.
 pub fn mavlink(data: &[u8]) {
@@ -25,8 +26,11 @@ pub fn mavlink(data: &[u8]) {
             // fields, yet a MAVLink 1 payload that carries their bytes decodes them (the
             // mavlink crate's reading, and pymavlink's), so a MAVLink 1 re-encoding would drop
             // them. Seen by this target; no message rove acts on depends on it.
-            let again = encode(MavlinkVersion::V2, frame.header, &frame.message)
-                .unwrap_or_else(|e| panic!("{frame:?} decoded but does not encode: {e}"));
+            let again = match &frame.message {
+                Payload::Mav(msg) => encode(MavlinkVersion::V2, frame.header, msg)
+                    .unwrap_or_else(|e| panic!("{frame:?} decoded but does not encode: {e}")),
+                Payload::Control(_) => decoder.raw().to_vec(),
+            };
             let mut fresh = Decoder::new();
             fresh.push(&again);
             let decoded = fresh.next_frame().unwrap_or_else(|| {

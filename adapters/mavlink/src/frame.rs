@@ -3,7 +3,8 @@
 //!
 //! The reader thread pushes whatever a read returned; [`Decoder::next_frame`] yields every complete
 //! frame whose CRC (with the message's CRC_EXTRA) checks and whose id the `ardupilotmega`
-//! dialect knows, decoded with the mavlink crate's own parser ([`Message::parse`]).
+//! dialect knows, decoded with the mavlink crate's own parser ([`Message::parse`]), and every
+//! message of the operator-control protocol, which that dialect lacks ([`crate::control`]).
 //!
 //! Resynchronisation: a candidate that fails (bad CRC, unknown id, unknown incompatibility flag)
 //! is skipped by one byte and the bytes already received are scanned again from there. A
@@ -39,7 +40,19 @@ pub struct Frame {
     /// Sender and sequence.
     pub header: MavHeader,
     /// The message.
-    pub message: MavMessage,
+    pub message: Payload,
+}
+
+/// A frame's message.
+// The dialect's messages are most frames: boxing them would cost an allocation per frame to
+// shrink the rare protocol one.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum Payload {
+    /// One the `ardupilotmega` dialect knows.
+    Mav(MavMessage),
+    /// One of the operator-control protocol.
+    Control(crate::control::Message),
 }
 
 /// What the bytes at a frame-start marker are.
@@ -175,11 +188,19 @@ fn candidate(b: &[u8]) -> Candidate {
         MavlinkVersion::V1 => (b[2], b[3], b[4], u32::from(b[5])),
     };
     let crc = u16::from_le_bytes([b[payload_end], b[payload_end + 1]]);
-    if calculate_crc(&b[1..payload_end], MavMessage::extra_crc(id)) != crc {
+    let extra = crate::control::crc_extra(id).unwrap_or_else(|| MavMessage::extra_crc(id));
+    if calculate_crc(&b[1..payload_end], extra) != crc {
         return Candidate::Bad;
     }
-    match MavMessage::parse(version, id, &b[header_len..payload_end]) {
-        Ok(message) => Candidate::Valid(
+    let payload = &b[header_len..payload_end];
+    let message = match MavMessage::parse(version, id, payload) {
+        Ok(message) => Some(Payload::Mav(message)),
+        // Unknown id or a field out of its enum: not a message we can use, unless it is the
+        // operator-control protocol's.
+        Err(_) => crate::control::parse(id, payload).map(Payload::Control),
+    };
+    match message {
+        Some(message) => Candidate::Valid(
             len,
             Box::new(Frame {
                 version,
@@ -191,8 +212,7 @@ fn candidate(b: &[u8]) -> Candidate {
                 message,
             }),
         ),
-        // Unknown id or a field out of its enum: not a message we can use.
-        Err(_) => Candidate::Bad,
+        None => Candidate::Bad,
     }
 }
 
@@ -214,6 +234,45 @@ pub fn encode(
     }
     let mut out = Vec::with_capacity(64);
     mavlink::write_versioned_msg(&mut out, version, header, msg).map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+/// A message the dialect does not know (id `id`, its `crc_extra`, its `payload`) as one frame's
+/// bytes, from `header`.
+///
+/// # Errors
+/// A MAVLink 1 frame for an id above 255, or a payload over 255 bytes.
+pub fn encode_raw(
+    version: MavlinkVersion,
+    header: MavHeader,
+    (id, crc_extra): (u32, u8),
+    payload: &[u8],
+) -> Result<Vec<u8>, String> {
+    let len =
+        u8::try_from(payload.len()).map_err(|_| format!("payload of {} bytes", payload.len()))?;
+    let sys = u8::try_from(header.system_id).map_err(|_| "system id over 255".to_string())?;
+    let id_bytes = id.to_le_bytes();
+    let mut out = match version {
+        MavlinkVersion::V2 => vec![
+            MAV_STX_V2,
+            len,
+            0,
+            0,
+            header.sequence,
+            sys,
+            header.component_id,
+            id_bytes[0],
+            id_bytes[1],
+            id_bytes[2],
+        ],
+        MavlinkVersion::V1 => {
+            let id = u8::try_from(id).map_err(|_| format!("message {id} has no MAVLink 1 form"))?;
+            vec![MAV_STX, len, header.sequence, sys, header.component_id, id]
+        }
+    };
+    out.extend_from_slice(payload);
+    let crc = calculate_crc(&out[1..], crc_extra);
+    out.extend(crc.to_le_bytes());
     Ok(out)
 }
 
@@ -245,7 +304,63 @@ mod tests {
     }
 
     fn all(d: &mut Decoder) -> Vec<MavMessage> {
-        std::iter::from_fn(|| d.next_frame().map(|f| f.message)).collect()
+        std::iter::from_fn(|| d.next_frame().map(|f| mav(f.message))).collect()
+    }
+
+    fn mav(p: Payload) -> MavMessage {
+        match p {
+            Payload::Mav(m) => m,
+            other => panic!("not a dialect message: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_operator_control_protocol_decodes_and_a_wrong_crc_extra_does_not() {
+        use crate::control::{self, Message};
+        let h = header(3);
+        let mut d = Decoder::new();
+        let status = (control::CONTROL_STATUS, control::CONTROL_STATUS_CRC_EXTRA);
+        d.push(&encode_raw(MavlinkVersion::V2, h, status, &[1, 250]).expect("frame"));
+        let request = control::request_payload(true, 255, (1, 1));
+        d.push(&encode_raw(MavlinkVersion::V2, h, control::COMMAND_LONG, &request).expect("frame"));
+        let ack = control::ack_payload(control::RESULT_ACCEPTED, (255, 190));
+        d.push(&encode_raw(MavlinkVersion::V1, h, control::COMMAND_ACK, &ack).expect("frame"));
+        // CONTROL_STATUS framed with another CRC_EXTRA: not a message.
+        d.push(
+            &encode_raw(
+                MavlinkVersion::V2,
+                h,
+                (control::CONTROL_STATUS, 0),
+                &[1, 250],
+            )
+            .expect("frame"),
+        );
+        let got: Vec<Payload> = std::iter::from_fn(|| d.next_frame().map(|f| f.message)).collect();
+        assert_eq!(
+            got,
+            vec![
+                Payload::Control(Message::Status {
+                    flags: 1,
+                    gcs_main: 250
+                }),
+                Payload::Control(Message::Request {
+                    request: true,
+                    takeover: false,
+                    timeout_s: 10.0,
+                    gcs: 255,
+                    target: (1, 1)
+                }),
+                Payload::Control(Message::Ack {
+                    result: 0,
+                    target_system: 255
+                }),
+            ]
+        );
+        assert!(
+            d.skipped() > 0,
+            "the frame with the wrong CRC_EXTRA was skipped"
+        );
+        assert!(encode_raw(MavlinkVersion::V1, h, status, &[1]).is_err());
     }
 
     #[test]
@@ -257,7 +372,7 @@ mod tests {
         let mut d = Decoder::new();
         d.push(&input);
         let f = d.next_frame().expect("the ACK decodes at once");
-        assert_eq!(f.message, ack());
+        assert_eq!(f.message, Payload::Mav(ack()));
         assert_eq!(f.header, header(7));
         assert_eq!(f.version, MavlinkVersion::V2);
         assert_eq!(d.skipped(), 5, "the stray bytes");
@@ -389,19 +504,23 @@ mod tests {
         let f = d.next_frame().expect("a frame");
         assert_eq!(d.skipped(), 0);
         assert_eq!(f.version, MavlinkVersion::V1);
-        let MavMessage::COMMAND_ACK(ack) = &f.message else {
-            panic!("not a COMMAND_ACK: {:?}", f.message);
+        let msg = mav(f.message);
+        let MavMessage::COMMAND_ACK(ack) = &msg else {
+            panic!("not a COMMAND_ACK: {msg:?}");
         };
         assert_eq!(ack.command, MavCmd::MAV_CMD_DO_SET_MODE);
         assert_eq!((ack.progress, ack.target_component), (50, 190));
         let mut v1 = Decoder::new();
-        v1.push(&bytes(MavlinkVersion::V1, &f.message));
-        let MavMessage::COMMAND_ACK(again) = v1.next_frame().expect("v1 frame").message else {
+        v1.push(&bytes(MavlinkVersion::V1, &msg));
+        let MavMessage::COMMAND_ACK(again) = mav(v1.next_frame().expect("v1 frame").message) else {
             panic!("not a COMMAND_ACK");
         };
         assert_eq!((again.progress, again.target_component), (0, 0));
         let mut v2 = Decoder::new();
-        v2.push(&bytes(MavlinkVersion::V2, &f.message));
-        assert_eq!(v2.next_frame().expect("v2 frame").message, f.message);
+        v2.push(&bytes(MavlinkVersion::V2, &msg));
+        assert_eq!(
+            v2.next_frame().expect("v2 frame").message,
+            Payload::Mav(msg)
+        );
     }
 }

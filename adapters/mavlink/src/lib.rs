@@ -39,6 +39,7 @@
 #![deny(missing_docs)]
 
 pub mod config;
+pub mod control;
 pub mod encode;
 pub mod frame;
 mod kind;

@@ -1038,3 +1038,138 @@ fn a_ground_station_connects_to_a_tcpin_port_and_again_after_it_quit() {
     }
     assert!(v.stations()[0].to_autopilot >= 2, "{:?}", v.stations());
 }
+
+/// The time of the first of `peer`'s events that `is` picks, if any.
+fn first_time(peer: &Peer, is: impl Fn(&Value) -> bool) -> Option<f64> {
+    (peer.events().iter().find(|e| is(e))).and_then(|e| e["t"].as_f64())
+}
+
+/// Issue 46 item 4: against an autopilot that is its own system manager (the GCS
+/// operator-control protocol) while QGC (system 250) holds control, rove sends no override,
+/// asks for control without takeover (the station's pilot is asked), says so in its health,
+/// and drives once the station lets go and the autopilot grants rove the role.
+#[test]
+fn an_autopilot_that_manages_its_stations_gets_no_override_until_it_grants_rove_control() {
+    let clock = Clock::new();
+    let args = [
+        "--system-manager",
+        "--gcs-main",
+        "250",
+        "--release-after",
+        "3",
+    ];
+    let (peer, mut v) = tcp_pair(&args, "", &clock);
+    let manual = setpoint(20000, 0, Mode::Manual);
+    let start = Instant::now();
+    while !matches!(v.health(), Health::Degraded(ref why) if why.contains("system 250 is in control"))
+    {
+        assert!(
+            start.elapsed() < WAIT,
+            "waiting not reported: {:?}",
+            v.health()
+        );
+        let _ = v.apply(clock.now(), &manual);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let granted = |e: &Value| e["event"] == "gcs_main" && e["gcs_main"] == 255;
+    while first_time(&peer, granted).is_none() {
+        assert!(start.elapsed() < 2 * WAIT, "rove never got control");
+        let _ = v.apply(clock.now(), &manual);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    run(&mut v, &clock, Duration::from_millis(300), Some(manual));
+    assert_eq!(v.health(), Health::Ok);
+    let granted_at = first_time(&peer, granted).unwrap();
+    let events = peer.events();
+    let from_rove = |e: &&Value| e["src"] == 255;
+    let asked: Vec<&Value> = (events.iter().filter(from_rove))
+        .filter(|e| e["event"] == "control_request")
+        .collect();
+    assert!(
+        asked.first().is_some_and(|e| e["request"] == true
+            && e["takeover"] == false
+            && e["gcs"] == 255
+            && e["result"] == 4),
+        "rove first asks while QGC holds control, and is refused: {asked:#?}"
+    );
+    assert!(
+        asked.iter().any(|e| e["result"] == 0),
+        "rove asks again once QGC let go, and is granted: {asked:#?}"
+    );
+    assert!(
+        events
+            .iter()
+            .any(|e| e["event"] == "control_forwarded" && e["to"] == 250),
+        "QGC's pilot was asked"
+    );
+    let early: Vec<&Value> = (events.iter().filter(from_rove))
+        .filter(|e| e["event"] == "rc_override")
+        .filter(|e| e["t"].as_f64().is_some_and(|t| t < granted_at))
+        .collect();
+    assert!(
+        early.is_empty(),
+        "rove overrode while another station held control: {early:#?}"
+    );
+    assert!(
+        (events.iter().filter(from_rove))
+            .any(|e| e["event"] == "rc_override" && e["accepted"] == true && raw(e)[2] == 1805),
+        "rove's sticks drive once it has control"
+    );
+}
+
+/// Issue 46 item 4: a request for control the system manager forwards to rove is acknowledged;
+/// rove keeps control while an operator drives, and lets go when nobody does.
+#[test]
+fn a_forwarded_request_is_acknowledged_kept_while_driving_and_granted_when_not() {
+    let clock = Clock::new();
+    let args = ["--system-manager", "--forward-request-at", "2,4"];
+    let (peer, mut v) = tcp_pair(&args, "", &clock);
+    let manual = setpoint(20000, 0, Mode::Manual);
+    let forwarded = |n: usize| {
+        move |p: &Peer| {
+            (p.events().iter())
+                .filter(|e| e["event"] == "control_forwarded")
+                .count()
+                >= n
+        }
+    };
+    let start = Instant::now();
+    while !forwarded(1)(&peer) {
+        assert!(start.elapsed() < WAIT, "no request forwarded");
+        let _ = v.apply(clock.now(), &manual);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    run(&mut v, &clock, Duration::from_millis(500), Some(manual));
+    let events = peer.events();
+    let acks = |events: &[Value]| {
+        (events.iter())
+            .filter(|e| e["event"] == "control_ack" && e["src"] == 255 && e["result"] == 0)
+            .count()
+    };
+    assert_eq!(acks(&events), 1, "rove acknowledged the forwarded request");
+    let holder = |events: &[Value]| {
+        (events.iter().rev())
+            .find(|e| e["event"] == "gcs_main")
+            .and_then(|e| e["gcs_main"].as_u64())
+    };
+    assert_eq!(
+        holder(&events),
+        Some(255),
+        "rove kept control while driving"
+    );
+    while !forwarded(2)(&peer) {
+        assert!(start.elapsed() < 2 * WAIT, "no second request forwarded");
+        let _ = v.safe_state(clock.now());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let start = Instant::now();
+    while holder(&peer.events()) != Some(0) {
+        assert!(
+            start.elapsed() < WAIT,
+            "rove did not let go while nobody drove"
+        );
+        let _ = v.safe_state(clock.now());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(acks(&peer.events()), 2);
+}

@@ -16,7 +16,7 @@
 use super::transport::{ReadOutcome, Writer, accept, classify_read, listen, open};
 use super::{READ_CHUNK, RECONNECT, Shared, lock};
 use crate::config::Endpoint;
-use crate::frame::{Decoder, Frame};
+use crate::frame::{Decoder, Frame, Payload};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use std::net::{SocketAddr, TcpListener};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -33,9 +33,13 @@ pub enum Verdict {
 }
 
 /// What becomes of `msg` from a ground station (pure).
-pub fn from_station(msg: &MavMessage) -> Verdict {
+pub fn from_station(msg: &Payload) -> Verdict {
     match msg {
-        MavMessage::MANUAL_CONTROL(_) | MavMessage::RC_CHANNELS_OVERRIDE(_) => Verdict::Sticks,
+        Payload::Mav(MavMessage::MANUAL_CONTROL(_) | MavMessage::RC_CHANNELS_OVERRIDE(_)) => {
+            Verdict::Sticks
+        }
+        // The operator-control protocol (a station asking an autopilot that manages its
+        // stations for control, or letting go) passes like any command.
         _ => Verdict::Forward,
     }
 }
@@ -222,15 +226,23 @@ mod tests {
     fn sticks_are_dropped_and_everything_else_passes() {
         let manual = MavMessage::MANUAL_CONTROL(ap::MANUAL_CONTROL_DATA::default());
         let rc = MavMessage::RC_CHANNELS_OVERRIDE(ap::RC_CHANNELS_OVERRIDE_DATA::default());
-        assert_eq!(from_station(&manual), Verdict::Sticks);
-        assert_eq!(from_station(&rc), Verdict::Sticks);
+        assert_eq!(from_station(&Payload::Mav(manual)), Verdict::Sticks);
+        assert_eq!(from_station(&Payload::Mav(rc)), Verdict::Sticks);
         for passes in [
             MavMessage::HEARTBEAT(ap::HEARTBEAT_DATA::default()),
             MavMessage::PARAM_REQUEST_LIST(ap::PARAM_REQUEST_LIST_DATA::default()),
             MavMessage::COMMAND_LONG(ap::COMMAND_LONG_DATA::default()),
             MavMessage::MISSION_COUNT(ap::MISSION_COUNT_DATA::default()),
         ] {
-            assert_eq!(from_station(&passes), Verdict::Forward, "{passes:?}");
+            assert_eq!(from_station(&Payload::Mav(passes)), Verdict::Forward);
         }
+        let request = crate::control::Message::Request {
+            request: true,
+            takeover: false,
+            timeout_s: 10.0,
+            gcs: 250,
+            target: (1, 1),
+        };
+        assert_eq!(from_station(&Payload::Control(request)), Verdict::Forward);
     }
 }

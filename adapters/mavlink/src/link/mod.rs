@@ -104,6 +104,8 @@ pub struct LinkStatus {
     /// The (system, component) whose last COMMAND_ACK for a mode was ours: proof the autopilot
     /// hears us, HEARTBEAT or not.
     pub acked_by: Option<(u8, u8)>,
+    /// The autopilot's system manager, if it has one (the operator-control protocol).
+    pub control: crate::control::Control,
 }
 
 /// A SYS_STATUS's battery: each part `None` where the autopilot says it does not know.
@@ -128,6 +130,8 @@ struct Shared {
     writer: Mutex<Option<Arc<Writer>>>,
     status: Mutex<LinkStatus>,
     acks: Mutex<VecDeque<AckResult>>,
+    /// Requests for control our autopilot's system manager forwarded to us, oldest first.
+    forwarded: Mutex<VecDeque<crate::control::Message>>,
     /// Bumped when the transport opens and on every HEARTBEAT or COMMAND_ACK from our
     /// autopilot; waiters wake on `news`.
     generation: Mutex<u64>,
@@ -191,6 +195,7 @@ impl Link {
             writer: Mutex::new(None),
             status: Mutex::new(LinkStatus::default()),
             acks: Mutex::new(VecDeque::new()),
+            forwarded: Mutex::new(VecDeque::new()),
             generation: Mutex::new(0),
             news: Condvar::new(),
             stop: AtomicBool::new(false),
@@ -281,6 +286,12 @@ impl Link {
         lock(&self.shared.acks).drain(..).collect()
     }
 
+    /// The requests for control the autopilot's system manager forwarded to rove since the last
+    /// call.
+    pub fn take_forwarded(&self) -> Vec<crate::control::Message> {
+        lock(&self.shared.forwarded).drain(..).collect()
+    }
+
     /// Whether the transport has never been open yet (the first connect is under way).
     pub fn first_connect_pending(&self) -> bool {
         let s = lock(&self.shared.status);
@@ -293,6 +304,22 @@ impl Link {
     /// Transient: not connected, nobody to send to yet (udpin before the first packet), or the
     /// write failed.
     pub fn send(&self, msg: &MavMessage) -> Result<(), LinkError> {
+        self.send_with(|header| encode(self.version, header, msg))
+    }
+
+    /// Sends a message the dialect does not know (id and CRC_EXTRA `id`, `payload`), as
+    /// [`Link::send`] does.
+    ///
+    /// # Errors
+    /// As [`Link::send`].
+    pub fn send_raw(&self, id: (u32, u8), payload: &[u8]) -> Result<(), LinkError> {
+        self.send_with(|header| crate::frame::encode_raw(self.version, header, id, payload))
+    }
+
+    fn send_with(
+        &self,
+        frame: impl FnOnce(MavHeader) -> Result<Vec<u8>, String>,
+    ) -> Result<(), LinkError> {
         let writer = lock(&self.shared.writer).clone();
         let Some(writer) = writer else {
             let why = lock(&self.shared.status)
@@ -309,7 +336,7 @@ impl Link {
             component_id: self.component_id,
             sequence: self.sequence.fetch_add(1, Ordering::Relaxed),
         };
-        let bytes = encode(self.version, header, msg).map_err(|e| {
+        let bytes = frame(header).map_err(|e| {
             LinkError::transient(format!(
                 "mavlink {}: message not encoded: {e}",
                 self.shared.endpoint

@@ -5,7 +5,8 @@
 
 use super::transport::{ReadOutcome, classify_read, open};
 use super::{ACK_QUEUE, AutopilotInfo, Battery, READ_CHUNK, RECONNECT, Shared, lock, target};
-use crate::frame::Decoder;
+use crate::control;
+use crate::frame::{Decoder, Payload};
 use crate::memory::Learned;
 use crate::mode::AckResult;
 use mavlink::MavHeader;
@@ -62,7 +63,10 @@ pub(super) fn run(shared: &Shared) {
                     let skipped = decoder.skipped();
                     while let Some(frame) = decoder.next_frame() {
                         super::ground::to_stations(shared, decoder.raw());
-                        handle(shared, frame.header, &frame.message);
+                        match &frame.message {
+                            Payload::Mav(msg) => handle(shared, frame.header, msg),
+                            Payload::Control(msg) => handle_control(shared, frame.header, *msg),
+                        }
                     }
                     let more = decoder.skipped() - skipped;
                     if more > 0 {
@@ -219,6 +223,57 @@ pub(super) fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
                     .ok()
                     .filter(|p| *p <= 100),
             });
+        }
+        _ => {}
+    }
+}
+
+/// A message of the operator-control protocol from our autopilot (docs/mavlink.md, "An
+/// autopilot that manages its ground stations"): its system manager's CONTROL_STATUS, a request
+/// for control it forwards to rove, or its answer to rove's own.
+fn handle_control(shared: &Shared, header: MavHeader, msg: control::Message) {
+    let mut s = lock(&shared.status);
+    let ours = (shared.target_system)
+        .or(s.autopilot.map(|a| a.system_id))
+        .is_some_and(|sys| header.system_id == u32::from(sys));
+    if !ours {
+        s.foreign += 1;
+        return;
+    }
+    match msg {
+        control::Message::Status { flags, gcs_main } => {
+            let before = s.control.standing(shared.system_id, Instant::now());
+            s.control
+                .heard(header.component_id, flags, gcs_main, Instant::now());
+            let after = s.control.standing(shared.system_id, Instant::now());
+            drop(s);
+            if before != after {
+                info!(
+                    ?after,
+                    gcs_main, "mavlink: the autopilot's system manager says who is in control"
+                );
+                notify(shared);
+            }
+        }
+        control::Message::Request { target, .. } if target.0 == shared.system_id => {
+            drop(s);
+            let mut forwarded = lock(&shared.forwarded);
+            if forwarded.len() < ACK_QUEUE {
+                forwarded.push_back(msg);
+            }
+            drop(forwarded);
+            notify(shared);
+        }
+        control::Message::Ack {
+            result,
+            target_system,
+        } if target_system == 0 || target_system == shared.system_id => {
+            drop(s);
+            info!(
+                result,
+                "mavlink: the autopilot answered rove's request for control (0 granted; 4 the \
+                 station in control is asked)"
+            );
         }
         _ => {}
     }

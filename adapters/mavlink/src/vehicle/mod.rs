@@ -27,6 +27,7 @@
 //! - `stop.rs`: stopping: the drop's bounded wait for the safe mode, and [`failsafe`] (`rove
 //!   failsafe`).
 
+mod manager;
 mod send;
 mod stop;
 
@@ -116,6 +117,8 @@ pub struct MavlinkVehicle {
     heard_at: Option<MonoTime>,
     /// Commands arrived before the autopilot was heard (logged once).
     warned_unheard: bool,
+    /// When rove last asked the autopilot's system manager for control ([`manager`]).
+    asking: crate::control::Asking,
 }
 
 /// The shortest spacing of control messages a serial link at `baud` (8N1) carries within
@@ -201,6 +204,7 @@ impl MavlinkVehicle {
             fresh: true,
             heard_at: None,
             warned_unheard: false,
+            asking: crate::control::Asking::default(),
         })
     }
 
@@ -392,7 +396,8 @@ impl OutputAdapter for MavlinkVehicle {
             Ok(())
         };
         let mode = self.send_mode_if_due(now);
-        let heartbeat = self.send_heartbeat_if_due(now);
+        let protocol = self.ask_for_control_if_due().and(self.answer_forwarded());
+        let heartbeat = self.send_heartbeat_if_due(now).and(protocol);
         first_error([control, mode, heartbeat]).map_err(|e| self.connecting(e))
     }
 
@@ -406,7 +411,8 @@ impl OutputAdapter for MavlinkVehicle {
             Some(_) => self.send_failsafe(now),
         };
         let mode = self.send_mode_if_due(now);
-        let heartbeat = self.send_heartbeat_if_due(now);
+        let forwarded = self.answer_forwarded();
+        let heartbeat = self.send_heartbeat_if_due(now).and(forwarded);
         first_error([control, mode, heartbeat]).map_err(|e| self.connecting(e))
     }
 
@@ -417,7 +423,13 @@ impl OutputAdapter for MavlinkVehicle {
     fn keepalive(&mut self, now: MonoTime) -> Result<(), LinkError> {
         self.clock = (now, Instant::now());
         self.observe(now);
-        let heartbeat = self.send_heartbeat_if_due(now);
+        let protocol = match self.drive {
+            Drive::Driving(_) => self.ask_for_control_if_due(),
+            Drive::Safe { .. } => Ok(()),
+        };
+        let heartbeat = (self.send_heartbeat_if_due(now))
+            .and(protocol)
+            .and(self.answer_forwarded());
         let due = self.keepalive_due(now) || (self.deferred && self.budget_allows(now));
         let control = match self.drive {
             Drive::Driving(setpoint) if due => self.send_sticks(now, &setpoint.movement),
@@ -454,6 +466,17 @@ impl OutputAdapter for MavlinkVehicle {
                 ),
                 OnModeRefused::Continue => format!("{reason}; driving on without {}", mode.name),
             });
+        }
+        if let (Drive::Driving(_), crate::control::Standing::Waiting { gcs_main }) =
+            (self.drive, self.standing())
+        {
+            let holder = match gcs_main {
+                0 => "nobody is in control of the autopilot".to_string(),
+                id => format!("system {id} is in control of the autopilot"),
+            };
+            return Health::Degraded(format!(
+                "{holder} (its system manager says so); rove asked for control"
+            ));
         }
         match self.mode.state() {
             ModeState::Failed { reason, .. } => Health::Degraded(reason.clone()),

@@ -59,6 +59,11 @@ impl MavlinkVehicle {
 
     fn send_control(&mut self, now: MonoTime, movement: &MovementCommand) -> Result<(), LinkError> {
         let (sys, comp) = self.target()?;
+        if !self.may_control() {
+            // Another station holds the role ([`Self::may_control`]): rove asks, and waits.
+            self.deferred = false;
+            return Ok(());
+        }
         let msg = match self.config.method {
             Method::RcOverride => {
                 rc_override(sys, comp, &override_values(&self.config.channels, movement))
@@ -115,6 +120,9 @@ impl MavlinkVehicle {
 
     fn send_release(&mut self, now: MonoTime) -> Result<(), LinkError> {
         let (sys, comp) = self.target()?;
+        if !self.may_control() {
+            return Ok(());
+        }
         self.link.send(&rc_override(
             sys,
             comp,
