@@ -14,14 +14,14 @@ const A: i64 = 11;
 const B: i64 = 21;
 
 /// A client of one operator's API: every line it has read, in order.
-struct Api {
+pub(crate) struct Api {
     writer: UnixStream,
     reader: BufReader<UnixStream>,
     lines: Vec<Value>,
 }
 
 impl Api {
-    fn connect(path: &Path) -> Api {
+    pub(crate) fn connect(path: &Path) -> Api {
         let stream = eventually(&format!("connect to {}", path.display()), || {
             UnixStream::connect(path)
         });
@@ -49,8 +49,24 @@ impl Api {
         }
     }
 
-    fn wait(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
-        let mut seen = 0;
+    pub(crate) fn wait(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        self.wait_from(0, what, pred)
+    }
+
+    /// Reads every line that has arrived; returns how many there are, for [`Api::wait_from`].
+    pub(crate) fn mark(&mut self) -> usize {
+        while self.pump() {}
+        self.lines.len()
+    }
+
+    /// As [`Api::wait`], for a line after the first `from`.
+    pub(crate) fn wait_from(
+        &mut self,
+        from: usize,
+        what: &str,
+        pred: impl Fn(&Value) -> bool,
+    ) -> Value {
+        let mut seen = from;
         eventually(what, || {
             while seen < self.lines.len() {
                 if pred(&self.lines[seen]) {
@@ -64,7 +80,7 @@ impl Api {
     }
 
     /// Sends one command line and returns its reply (`ok` or `error`).
-    fn send(&mut self, line: &str) -> Value {
+    pub(crate) fn send(&mut self, line: &str) -> Value {
         let from = self.lines.len();
         self.writer
             .write_all(format!("{line}\n").as_bytes())

@@ -12,6 +12,7 @@ mod boards;
 mod console_api;
 mod fleet;
 mod flood;
+mod gcs;
 mod hierarchy;
 mod inputs;
 mod mavlink;

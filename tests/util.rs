@@ -114,6 +114,12 @@ impl Rig {
     pub fn autopilot(&self, args: &[&str]) -> FakeAutopilot {
         FakeAutopilot::start_in_netns(&self.ns, &self.dir.join("autopilot.jsonl"), args)
     }
+
+    /// The test ground station (`testkit/fake_gcs.py`) in the rig's namespace, recording to
+    /// `NAME.jsonl` in the rig's directory.
+    pub fn gcs(&self, name: &str, args: &[&str]) -> FakeAutopilot {
+        FakeAutopilot::start_gcs_in_netns(&self.ns, &self.dir.join(format!("{name}.jsonl")), args)
+    }
 }
 
 impl Deref for Rig {

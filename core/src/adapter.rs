@@ -92,6 +92,60 @@ pub trait OutputSpec: fmt::Debug + Send + Sync {
 
     /// A copy (a vehicle's config is cloned into its output thread).
     fn clone_spec(&self) -> Box<dyn OutputSpec>;
+
+    /// The operators the adapter hosts (a MAVLink vehicle's ground stations), each with the
+    /// handle it shares with the adapter; a copy of the spec shares the same handles.
+    fn hosted(&self) -> Vec<HostedOperator> {
+        Vec::new()
+    }
+}
+
+/// An operator an output adapter hosts: a ground station on a MAVLink link (docs/design.md,
+/// "Ground stations"). The gateway runs an operator loop for it in the vehicle's process, a
+/// participant of its own, as it does for a web console's device.
+#[derive(Debug, Clone)]
+pub struct HostedOperator {
+    /// Its device id.
+    pub id: crate::msg::DeviceId,
+    /// Its name.
+    pub name: String,
+    /// Its level in the hierarchy.
+    pub level: crate::hierarchy::Level,
+    /// Its device class.
+    pub class: crate::hierarchy::DeviceClass,
+    /// Its DDS Security files (a secured fleet), as `[security]` names them.
+    pub security: Option<PathBuf>,
+    /// What it does, and where the hierarchy's answers go.
+    pub link: std::sync::Arc<dyn HostedLink>,
+}
+
+/// What a hosted operator did, as its adapter heard it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HostedEvent {
+    /// Its sticks, heard at that instant.
+    Sticks(MovementCommand, std::time::Instant),
+    /// It said it is there (a MAVLink HEARTBEAT).
+    Alive(std::time::Instant),
+    /// It asks for control of the vehicle.
+    Request,
+    /// It gives control back.
+    Release,
+}
+
+/// The handle a hosted operator's loop and its adapter share (both sides may run on threads of
+/// their own).
+pub trait HostedLink: Send + Sync + fmt::Debug {
+    /// One line for the log.
+    fn describe(&self) -> String;
+    /// What it did since the last call, oldest first (bounded: a loop that stops taking loses
+    /// the oldest sticks first).
+    fn take(&self) -> Vec<HostedEvent>;
+    /// Calls `waker` whenever something arrives.
+    fn set_waker(&self, waker: std::sync::Arc<dyn Fn() + Send + Sync>);
+    /// The hierarchy's answer to its last request: it may drive (`true`) or not.
+    fn answered(&self, granted: bool);
+    /// Whether it holds control now (a grant, or it drives the vehicle).
+    fn holds(&self, control: bool);
 }
 
 impl Clone for Box<dyn OutputSpec> {

@@ -59,6 +59,8 @@ pub enum RemoteLink {
 #[derive(Debug, Clone)]
 pub struct RemoteInput {
     silence: Duration,
+    /// Who sends the frames, for the lost line.
+    what: &'static str,
     link: RemoteLink,
     last_frame: Option<MonoTime>,
     deadman: bool,
@@ -77,9 +79,15 @@ pub fn is_centred(m: &MovementCommand) -> bool {
 impl RemoteInput {
     /// A link that counts as lost after `silence` without a frame; not connected yet.
     pub fn new(silence: Duration) -> RemoteInput {
+        RemoteInput::named(silence, "the browser")
+    }
+
+    /// As [`RemoteInput::new`], for frames from `what` (said when it goes quiet).
+    pub fn named(silence: Duration, what: &'static str) -> RemoteInput {
         RemoteInput {
             silence,
-            link: RemoteLink::Lost("no browser connected".into()),
+            what,
+            link: RemoteLink::Lost(format!("nothing from {what} yet")),
             last_frame: None,
             deadman: false,
             sticks: MovementCommand::CENTRED,
@@ -133,7 +141,7 @@ impl RemoteInput {
             && now >= deadline
         {
             let ms = self.silence.as_millis();
-            self.lost(&format!("no input from the browser for {ms} ms"));
+            self.lost(&format!("no input from {} for {ms} ms", self.what));
         }
     }
 

@@ -366,6 +366,11 @@ impl Access {
         }
     }
 
+    /// The hierarchy strengths are judged by.
+    pub fn hierarchy(&self) -> &Hierarchy {
+        &self.hierarchy
+    }
+
     /// True when any id inside the hierarchy may drive (no access list).
     pub fn is_open(&self) -> bool {
         self.allowed.is_none()

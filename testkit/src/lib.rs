@@ -199,10 +199,22 @@ impl FakeAutopilot {
     /// # Panics
     /// As [`FakeAutopilot::start`].
     pub fn start_in_netns(netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
+        FakeAutopilot::netns(&fake_autopilot_script(), netns, record, args)
+    }
+
+    /// The test ground station ([`FakeAutopilot::start_gcs`]) inside network namespace
+    /// `netns`, recording to `record`.
+    ///
+    /// # Panics
+    /// As [`FakeAutopilot::start`].
+    pub fn start_gcs_in_netns(netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
+        FakeAutopilot::netns(&fake_gcs_script(), netns, record, args)
+    }
+
+    fn netns(script: &Path, netns: &str, record: &Path, args: &[&str]) -> FakeAutopilot {
         let mut command = Command::new("ip");
         command.args(["netns", "exec", netns]).arg(python());
-        let script = fake_autopilot_script();
-        FakeAutopilot::spawn(command, &script, record.to_path_buf(), None, args)
+        FakeAutopilot::spawn(command, script, record.to_path_buf(), None, args)
     }
 
     fn spawn(

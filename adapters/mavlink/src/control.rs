@@ -29,6 +29,9 @@ pub const FLAG_SYSTEM_MANAGER: u8 = 1;
 pub const FLAG_TAKEOVER_ALLOWED: u8 = 2;
 /// MAV_RESULT_ACCEPTED.
 pub const RESULT_ACCEPTED: u8 = 0;
+/// MAV_RESULT_FAILED: the holder of control is asked (or, from rove to a station, the hierarchy
+/// said no).
+pub const RESULT_FAILED: u8 = 4;
 
 /// COMMAND_LONG's id and CRC_EXTRA (common.xml).
 pub const COMMAND_LONG: (u32, u8) = (76, 152);

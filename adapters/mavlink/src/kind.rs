@@ -3,7 +3,7 @@
 
 use crate::config::{Endpoint, MavlinkConfig, MavlinkSettings};
 use rove_core::MonoTime;
-use rove_core::adapter::{Need, OutputAdapter, OutputKind, OutputSpec};
+use rove_core::adapter::{HostedOperator, Need, OutputAdapter, OutputKind, OutputSpec};
 use rove_core::error::LinkError;
 use std::path::PathBuf;
 
@@ -48,5 +48,19 @@ impl OutputSpec for MavlinkConfig {
 
     fn clone_spec(&self) -> Box<dyn OutputSpec> {
         Box::new(self.clone())
+    }
+
+    /// The ground stations with an `id`: operators of the hierarchy.
+    fn hosted(&self) -> Vec<HostedOperator> {
+        (self.gcs.iter().filter_map(|g| g.station.as_ref()))
+            .map(|s| HostedOperator {
+                id: s.id,
+                name: s.name.clone(),
+                level: s.level,
+                class: s.class,
+                security: s.security.clone(),
+                link: s.feed.clone(),
+            })
+            .collect()
     }
 }

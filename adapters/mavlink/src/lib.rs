@@ -46,6 +46,7 @@ mod kind;
 pub mod link;
 pub mod memory;
 pub mod mode;
+pub mod station;
 pub mod vehicle;
 
 pub use config::{MavlinkConfig, MavlinkSettings};

@@ -42,6 +42,7 @@ mod hooks;
 mod intake;
 mod net;
 mod report;
+mod stations;
 #[cfg(test)]
 mod tests;
 
@@ -170,6 +171,7 @@ pub async fn run(
         "vehicle started"
     );
     let stall = options.stall_on_sigusr1;
+    let stations = stations::Stations::start(&config, config.output.spec().hosted())?;
     let mut vehicle = Vehicle::new(&config, stall, clock, net, output, log, notify);
     vehicle.audit = audit;
     vehicle.audit(&Owner::Failsafe, Why::Start);
@@ -179,7 +181,9 @@ pub async fn run(
              (any operator id may drive it, at any strength inside the hierarchy)"
         );
     }
-    vehicle.serve(shutdown).await
+    let result = vehicle.serve(shutdown).await;
+    stations.stop().await;
+    result
 }
 
 impl<N: Net, O: Outputs> Vehicle<N, O> {

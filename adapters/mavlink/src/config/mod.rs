@@ -17,8 +17,10 @@ use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
 mod endpoint;
+mod gcs;
 
 pub use endpoint::Endpoint;
+pub use gcs::{GcsConfig, StationConfig};
 
 rove_core::config_types! {
     /// The `[output]` table of a MAVLink vehicle, as written (without the `adapter` key, which
@@ -55,6 +57,15 @@ rove_core::config_types! {
             sends first, as to QGroundControl's 14550), `udpin:HOST:PORT` (the station sends \
             first), `tcpin:HOST:PORT` (the station connects; one at a time) or \
             `tcpout:HOST:PORT`.",
+        id: Option<Int> => "The station's device id: with it, the station is an operator of \
+            the hierarchy (absent: its link is only routed).",
+        system_id: Option<Int> => "The station's MAVLink system id (with `id`; QGroundControl: \
+            Application Settings → MAVLink).",
+        name: Option<String> => "Its name, shown as `NAME via MAVLink on vehicle N`.",
+        level: Option<rove_core::hierarchy::Level> => "Its level (with `id`).",
+        device_class: Option<rove_core::hierarchy::DeviceClass> => "Its device class (with `id`).",
+        security: Option<std::path::PathBuf> => "Its `[security]` files, as an operator's (a \
+            secured fleet: a certificate of its own).",
         #[serde(flatten)] unknown: UnknownKeys => "Keys nothing above took (see `validate`).",
     }
 
@@ -213,7 +224,7 @@ rove_core::config_types! {
         modes: ModesConfig => "Modes.",
         memory: Option<std::path::PathBuf> => "Where the link keeps what it learned about the \
             autopilot for `rove failsafe` ([`crate::memory`]); set by the gateway, not a key.",
-        gcs: Vec<Endpoint> => "The ground stations' endpoints (the link routes them).",
+        gcs: Vec<GcsConfig> => "The ground stations (the link routes them; some are operators).",
     }
 }
 
@@ -326,7 +337,7 @@ impl MavlinkSettings {
         let channels = self.validate_channels(method, vehicle, version, &mut errors);
         let manual_control = self.validate_manual_control(method, autopilot, vehicle, &mut errors);
         let modes = self.validate_modes(autopilot, vehicle, &mut errors);
-        let gcs = self.validate_gcs(&endpoint, &mut errors);
+        let gcs = self.validate_gcs(&endpoint, system_id, &mut errors);
         errors.into_result(MavlinkConfig {
             endpoint,
             mavlink_version: version,
@@ -350,46 +361,6 @@ impl MavlinkSettings {
             memory: None,
             gcs,
         })
-    }
-
-    fn validate_gcs(&self, autopilot: &Endpoint, errors: &mut ConfigErrors) -> Vec<Endpoint> {
-        let mut used = Unique::default();
-        let mut out = Vec::new();
-        for (i, g) in self.gcs.iter().enumerate() {
-            let owner = format!("gcs[{i}]");
-            let endpoint = errors.within(&owner, |ge| {
-                g.unknown.check(ge, GcsSettings::KNOWN);
-                let Some(text) = &g.endpoint else {
-                    ge.absent("endpoint", "is required, e.g. \"udpout:127.0.0.1:14550\"");
-                    return None;
-                };
-                let endpoint = match Endpoint::parse(text) {
-                    Ok(Endpoint::Serial { .. }) => Err("a ground station is on udpout:, udpin:, \
-                        tcpin: or tcpout: (a serial port is the autopilot's)"
-                        .to_string()),
-                    other => other,
-                };
-                let endpoint = endpoint
-                    .map_err(|rule| ge.add("endpoint", format!("\"{text}\""), rule))
-                    .ok()?;
-                if endpoint == *autopilot {
-                    let rule = "is the autopilot's connection";
-                    ge.add("endpoint", format!("\"{text}\""), rule);
-                    return None;
-                }
-                if let Some(first) = used.claim(endpoint.to_string(), &owner) {
-                    ge.add(
-                        "endpoint",
-                        format!("\"{text}\""),
-                        format!("is {first}'s too"),
-                    );
-                    return None;
-                }
-                Some(endpoint)
-            });
-            out.extend(endpoint);
-        }
-        out
     }
 
     fn validate_channels(
@@ -540,6 +511,7 @@ impl MavlinkSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rove_core::hierarchy::{DeviceClass, Level};
 
     fn parse(text: &str) -> MavlinkSettings {
         match toml::from_str(text) {
@@ -581,14 +553,16 @@ mod tests {
         )
         .validate()
         .expect("valid");
+        let endpoints: Vec<&Endpoint> = c.gcs.iter().map(|g| &g.endpoint).collect();
         assert_eq!(
-            c.gcs,
+            endpoints,
             [
-                Endpoint::UdpOut("127.0.0.1:14550".into()),
-                Endpoint::UdpIn("127.0.0.1:14551".into()),
-                Endpoint::TcpIn("127.0.0.1:5770".into())
+                &Endpoint::UdpOut("127.0.0.1:14550".into()),
+                &Endpoint::UdpIn("127.0.0.1:14551".into()),
+                &Endpoint::TcpIn("127.0.0.1:5770".into())
             ]
         );
+        assert!(c.gcs.iter().all(|g| g.station.is_none()));
         assert!(parse("").validate().expect("valid").gcs.is_empty());
         let cases = [
             ("[[gcs]]\nport = 14550", "gcs[0].endpoint"),
@@ -619,6 +593,34 @@ mod tests {
                 .join("\n")
                 .contains("gcs[0].port")
         );
+    }
+
+    #[test]
+    fn a_ground_station_with_an_id_is_an_operator_with_a_system_id_of_its_own() {
+        let c = parse(
+            "[[gcs]]\nendpoint = \"udpout:127.0.0.1:14550\"\nid = 50\nsystem_id = 250\n\
+             name = \"QGC\"\nlevel = \"remote\"",
+        )
+        .validate()
+        .expect("valid");
+        let s = c.gcs[0].station.as_ref().expect("an operator");
+        assert_eq!((s.id, s.system_id, s.name.as_str()), (50, 250, "QGC"));
+        assert_eq!((s.level, s.class), (Level::Remote, DeviceClass::Desktop));
+        let cases = [
+            ("id = 50", "gcs[0].system_id"),
+            ("id = 50\nsystem_id = 255", "rove's own system id"),
+            ("id = 50\nsystem_id = 0", "must be 1..=255"),
+            ("system_id = 250", "needs `id`"),
+            ("level = \"remote\"", "needs `id`"),
+        ];
+        for (keys, says) in cases {
+            let toml = format!("[[gcs]]\nendpoint = \"udpout:127.0.0.1:14550\"\n{keys}");
+            let errors = errors_of(&toml).join("\n");
+            assert!(errors.contains(says), "{keys}: {errors}");
+        }
+        let twice = "[[gcs]]\nendpoint = \"udpout:h:1\"\nid = 50\nsystem_id = 250\n\
+                     [[gcs]]\nendpoint = \"udpout:h:2\"\nid = 50\nsystem_id = 251";
+        assert!(errors_of(twice).join("\n").contains("is gcs[0]'s too"));
     }
 
     #[test]

@@ -57,32 +57,40 @@ pub struct StationStatus {
     pub to_station: u64,
     /// Stick messages it sent, dropped.
     pub sticks_dropped: u64,
+    /// Stick messages of a station with an `id`, taken for its operator loop.
+    pub sticks_taken: u64,
 }
 
 /// A ground station's port.
 pub(super) struct Port {
     endpoint: Endpoint,
+    /// The station as an operator of the hierarchy, if it has an `id`.
+    pub(super) station: Option<crate::config::StationConfig>,
     /// A `udpin:` port's peer: the station's last datagram's sender.
     peer: Arc<Mutex<Option<SocketAddr>>>,
-    writer: Mutex<Option<Arc<Writer>>>,
+    pub(super) writer: Mutex<Option<Arc<Writer>>>,
     connected: AtomicBool,
     to_autopilot: AtomicU64,
     to_station: AtomicU64,
     sticks_dropped: AtomicU64,
+    /// Sticks of a station with an `id`, taken for its operator loop.
+    pub(super) sticks_taken: AtomicU64,
     /// Whether "it speaks as rove's own system id" was said.
     same_id_said: AtomicBool,
 }
 
 impl Port {
-    pub(super) fn new(endpoint: Endpoint) -> Port {
+    pub(super) fn new(gcs: crate::config::GcsConfig) -> Port {
         Port {
-            endpoint,
+            endpoint: gcs.endpoint,
+            station: gcs.station,
             peer: Arc::default(),
             writer: Mutex::new(None),
             connected: AtomicBool::new(false),
             to_autopilot: AtomicU64::new(0),
             to_station: AtomicU64::new(0),
             sticks_dropped: AtomicU64::new(0),
+            sticks_taken: AtomicU64::new(0),
             same_id_said: AtomicBool::new(false),
         }
     }
@@ -94,12 +102,18 @@ impl Port {
             to_autopilot: self.to_autopilot.load(Ordering::Relaxed),
             to_station: self.to_station.load(Ordering::Relaxed),
             sticks_dropped: self.sticks_dropped.load(Ordering::Relaxed),
+            sticks_taken: self.sticks_taken.load(Ordering::Relaxed),
         }
     }
 }
 
 /// Sends a frame of the autopilot's link (`raw`, as received) to every station that can take it.
-pub(super) fn to_stations(shared: &Shared, raw: &[u8]) {
+/// The operator-control protocol is not passed on: toward the stations rove is the system
+/// manager ([`super::stations`]), and the autopilot's answers to rove are rove's.
+pub(super) fn to_stations(shared: &Shared, message: &Payload, raw: &[u8]) {
+    if matches!(message, Payload::Control(_)) {
+        return;
+    }
     for port in &shared.ground {
         let writer = lock(&port.writer).clone();
         let Some(writer) = writer.filter(|w| w.ready()) else {
@@ -132,6 +146,7 @@ pub(super) fn serve(shared: &Shared, index: usize) {
     let mut buf = vec![0u8; READ_CHUNK];
     // A tcpin: port's listener, kept across its clients.
     let mut listener: Option<TcpListener> = None;
+    let mut manager = super::stations::Manager::default();
     while !shared.stop.load(Ordering::Relaxed) {
         let opened = match (&port.endpoint, &listener) {
             (Endpoint::TcpIn(address), None) => listen(address).map(|l| {
@@ -164,11 +179,14 @@ pub(super) fn serve(shared: &Shared, index: usize) {
                 Ok((n, _)) => {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     while let Some(frame) = decoder.next_frame() {
-                        from_port(shared, port, &frame, decoder.raw());
+                        if !super::stations::from_station(shared, port, &mut manager, &frame) {
+                            from_port(shared, port, &frame, decoder.raw());
+                        }
                     }
+                    super::stations::tick(shared, port, &mut manager);
                 }
                 Err(e) => match classify_read(&e) {
-                    ReadOutcome::Idle => {}
+                    ReadOutcome::Idle => super::stations::tick(shared, port, &mut manager),
                     ReadOutcome::Reconnect => {
                         warn!(endpoint = %port.endpoint, error = %e, "mavlink: ground station gone; reopening its port");
                         break;

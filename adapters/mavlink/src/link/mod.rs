@@ -23,6 +23,7 @@
 
 mod ground;
 mod receive;
+mod stations;
 mod transport;
 
 pub use ground::{StationStatus, Verdict, from_station};
@@ -39,7 +40,7 @@ use rove_core::error::LinkError;
 use std::collections::VecDeque;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -141,6 +142,10 @@ struct Shared {
     system_id: u8,
     /// The ground stations routed to the autopilot ([`ground`]).
     ground: Vec<ground::Port>,
+    /// The vehicle's id and its owner's, from its last VehicleStatus ([`Link::set_owner`]; 0:
+    /// none yet), for CONTROL_STATUS ([`stations`]).
+    vehicle: AtomicI64,
+    owner: AtomicI64,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -203,6 +208,8 @@ impl Link {
             ground: (config.gcs.iter().cloned())
                 .map(ground::Port::new)
                 .collect(),
+            vehicle: AtomicI64::new(0),
+            owner: AtomicI64::new(0),
         });
         for index in 0..shared.ground.len() {
             let for_thread = Arc::clone(&shared);
@@ -284,6 +291,13 @@ impl Link {
     /// COMMAND_ACKs for MAV_CMD_DO_SET_MODE received since the last call.
     pub fn take_acks(&self) -> Vec<AckResult> {
         lock(&self.shared.acks).drain(..).collect()
+    }
+
+    /// The vehicle `vehicle` is owned by `owner` now (its own id: failsafe): what rove tells its
+    /// ground stations in CONTROL_STATUS.
+    pub fn set_owner(&self, vehicle: i64, owner: i64) {
+        self.shared.vehicle.store(vehicle, Ordering::Relaxed);
+        self.shared.owner.store(owner, Ordering::Relaxed);
     }
 
     /// The requests for control the autopilot's system manager forwarded to rove since the last

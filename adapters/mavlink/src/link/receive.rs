@@ -62,7 +62,7 @@ pub(super) fn run(shared: &Shared) {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     let skipped = decoder.skipped();
                     while let Some(frame) = decoder.next_frame() {
-                        super::ground::to_stations(shared, decoder.raw());
+                        super::ground::to_stations(shared, &frame.message, decoder.raw());
                         match &frame.message {
                             Payload::Mav(msg) => handle(shared, frame.header, msg),
                             Payload::Control(msg) => handle_control(shared, frame.header, *msg),

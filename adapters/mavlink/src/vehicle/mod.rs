@@ -340,6 +340,16 @@ impl MavlinkVehicle {
 }
 
 impl OutputAdapter for MavlinkVehicle {
+    /// Who drives, for the ground stations' CONTROL_STATUS.
+    fn status(
+        &mut self,
+        _now: MonoTime,
+        status: &rove_core::msg::VehicleStatus,
+    ) -> Result<(), LinkError> {
+        self.link.set_owner(status.vehicle_id, status.controller_id);
+        Ok(())
+    }
+
     fn describe(&self) -> String {
         format!(
             "mavlink {} ({:?} {:?}, {}, GCS {}/{})",

@@ -1,0 +1,184 @@
+//! Issue 46: a ground station in the hierarchy. A MAVLink vehicle whose `[[output.gcs]]` has an
+//! `id` hosts the station as an operator (docs/mavlink.md, "A ground station in the
+//! hierarchy"). The station is `testkit/fake_gcs.py` speaking the operator-control protocol as
+//! QGroundControl PR #14560 does; the autopilot is `testkit/fake_autopilot.py`, without the
+//! protocol and as its own system manager (as the ArduPilot PRs).
+
+use crate::console_api::Api;
+use crate::util::{Rig, records, wait_for_output, wall_us};
+use serde_json::{Value, json};
+use std::io::Write;
+use std::path::Path;
+
+const V: i64 = 100;
+const LAPTOP: i64 = 11;
+const STATION: i64 = 50;
+const COMMAND_TIMEOUT_MS: u64 = 100;
+
+fn command(file: &Path, line: &str) {
+    let mut f = (std::fs::OpenOptions::new().create(true).append(true))
+        .open(file)
+        .expect("the station's command file");
+    writeln!(f, "{line}").expect("a command");
+}
+
+fn ch3(e: &Value) -> Option<u64> {
+    e["raw"].as_array()?.get(2)?.as_u64()
+}
+
+/// The station asks; the laptop's person is prompted and accepts; the station drives.
+fn request_accepted(laptop: &mut Api, commands: &Path, record: &Path) -> u64 {
+    let t = wall_us();
+    let from = laptop.mark();
+    command(commands, "request");
+    let prompt = laptop.wait_from(from, "the station's request reaches the laptop", |v| {
+        v["event"] == "request_incoming" && v["from"] == STATION
+    });
+    assert_eq!(prompt["vehicle"], V, "{prompt}");
+    assert_eq!(
+        laptop.send(&json!({"cmd": "accept", "vehicle": V}).to_string())["ok"],
+        true
+    );
+    wait_for_output(record, Some(STATION), t).expect("the station drives after the ACCEPT");
+    t
+}
+
+/// The six steps of the issue, each asserted.
+fn scenario(test: &str, autopilot_manages: bool) {
+    let mut rig = Rig::new(test);
+    let mut ap_args = vec!["--connection", "udpin:127.0.0.1:14550", "--mode-heartbeat"];
+    if autopilot_manages {
+        ap_args.push("--system-manager");
+    }
+    let ap = rig.autopilot(&ap_args);
+    let commands = rig.dir.join("gcs-commands");
+    let commands_arg = commands.display().to_string();
+    let station_args = [
+        "--connection",
+        "udpin:127.0.0.1:14560",
+        "--sysid",
+        "250",
+        "--operator-control",
+        "--sticks-hz",
+        "25",
+        "--commands",
+        &commands_arg,
+    ];
+    let mut gcs = rig.gcs("gcs", &station_args);
+    let output = format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:14550\"\n\
+         [[output.gcs]]\nendpoint = \"udpout:127.0.0.1:14560\"\nid = {STATION}\n\
+         system_id = 250\nname = \"QGC\"\nlevel = \"remote\"\ndevice_class = \"desktop\"\n"
+    );
+    let record = rig.vehicle_with_output(V, &output);
+    rig.operator(
+        LAPTOP,
+        "stationary",
+        "laptop",
+        &[V],
+        1000,
+        "[handover]\nauto_accept = \"never\"\nconsent_timeout_ms = 10000\n\
+         [console]\napi_socket = \"laptop.sock\"\n",
+        &[],
+    );
+    // 1. The laptop drives; rove tells the station so (rove's system id in control).
+    wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+    gcs.wait_for("rove's CONTROL_STATUS: rove's operators in control", |e| {
+        e["event"] == "control_status" && e["gcs_main"] == 255 && e["flags"] == 1
+    });
+    let mut laptop = Api::connect(&rig.dir.join("laptop.sock"));
+    laptop.wait("the laptop sees the station as a device", |v| {
+        v["event"] == "device" && v["id"] == STATION
+    });
+
+    // 2. The station (weaker) asks; the laptop's person accepts.
+    let asked = request_accepted(&mut laptop, &commands, &record);
+    gcs.wait_for("the station's request acknowledged ACCEPTED", |e| {
+        e["event"] == "control_ack" && e["result"] == 0
+    });
+    gcs.wait_for("rove names the station in control", |e| {
+        e["event"] == "control_status" && e["gcs_main"] == 250
+    });
+    // 3. Its sticks reach the autopilot, in rove's override (z 700 → throttle 40 % → ch3 1700).
+    let driven = ap.wait_for("the station's sticks reach the autopilot", |e| {
+        e["event"] == "rc_override"
+            && e["src"] == 255
+            && e["accepted"] == true
+            && ch3(e).is_some_and(|c| c.abs_diff(1700) <= 5)
+    });
+    let to_drive = (driven["wall_us"].as_u64().unwrap_or(0)).saturating_sub(asked);
+    eprintln!(
+        "station request → its sticks at the autopilot: {:.1} ms (with the person's accept)",
+        to_drive as f64 / 1000.0
+    );
+
+    // 4. It gives control back: the laptop drives again.
+    let t = wall_us();
+    command(&commands, "release");
+    wait_for_output(&record, Some(LAPTOP), t).expect("the laptop drives again after the release");
+
+    // 5. It asks again, drives, and its process is killed: the laptop drives again.
+    request_accepted(&mut laptop, &commands, &record);
+    ap.wait_for("the station's sticks again", |e| {
+        e["event"] == "rc_override" && wall(e) > t && ch3(e).is_some_and(|c| c.abs_diff(1700) <= 5)
+    });
+    let crash = wall_us();
+    gcs.stop();
+    let back = wait_for_output(&record, Some(LAPTOP), crash).expect("the laptop after the crash");
+    let ms = (back.wall_us.saturating_sub(crash)) as f64 / 1000.0;
+    eprintln!(
+        "station crash → the laptop drives: {ms:.1} ms (command timeout {COMMAND_TIMEOUT_MS} ms)"
+    );
+    // The station's sticks stop within its silence limit (the command timeout): after that and
+    // a busy machine's slack, nothing of the station's is applied.
+    let late = crash + (COMMAND_TIMEOUT_MS + 400) * 1000;
+    let stale: Vec<_> = (records(&record).into_iter())
+        .filter(|o| o.wall_us > late && o.owner == Some(STATION))
+        .collect();
+    assert!(
+        stale.is_empty(),
+        "the crashed station still drove: {stale:?}"
+    );
+
+    // 6. A station not in control sends MANUAL_CONTROL: none of it reaches the autopilot, and
+    // the vehicle stays the laptop's.
+    let rogue_commands = rig.dir.join("rogue-commands");
+    command(&rogue_commands, "rogue");
+    let rogue_arg = rogue_commands.display().to_string();
+    let mut rogue_args = station_args.to_vec();
+    let at = rogue_args.len() - 1;
+    rogue_args[at] = &rogue_arg;
+    let t = wall_us();
+    let rogue = rig.gcs("rogue", &rogue_args);
+    rogue.wait_for("the rogue station sends sticks", |e| {
+        e["event"] == "sent" && e["type"] == "MANUAL_CONTROL"
+    });
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let stolen: Vec<_> = (records(&record).into_iter())
+        .filter(|o| o.wall_us > t && o.owner == Some(STATION))
+        .collect();
+    assert!(
+        stolen.is_empty(),
+        "a station not in control drove: {stolen:?}"
+    );
+    let manual = ap.of("manual_control");
+    assert!(
+        manual.is_empty(),
+        "MANUAL_CONTROL reached the autopilot: {manual:?}"
+    );
+    drop(rogue);
+}
+
+fn wall(e: &Value) -> u64 {
+    e["wall_us"].as_u64().unwrap_or(0)
+}
+
+#[test]
+fn a_ground_station_asks_drives_gives_back_and_crashes_in_the_hierarchy() {
+    scenario("gcs-hierarchy", false);
+}
+
+#[test]
+fn a_ground_station_in_the_hierarchy_with_an_autopilot_that_manages_its_stations() {
+    scenario("gcs-hierarchy-managed", true);
+}
