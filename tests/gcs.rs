@@ -182,3 +182,97 @@ fn a_ground_station_asks_drives_gives_back_and_crashes_in_the_hierarchy() {
 fn a_ground_station_in_the_hierarchy_with_an_autopilot_that_manages_its_stations() {
     scenario("gcs-hierarchy-managed", true);
 }
+
+/// p50, p99 and max of `ms`, sorted in place.
+fn percentiles(ms: &mut [f64]) -> (f64, f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    let at = |q: f64| ms[((ms.len() as f64 - 1.0) * q).round() as usize];
+    (at(0.5), at(0.99), at(1.0))
+}
+
+/// The issue's figures, by hand (`--ignored --nocapture`): a stronger station's request → its
+/// sticks at the autopilot (the laptop's default auto-accept lets it pass), a weaker one's
+/// accept → its sticks, and a driving station's crash → the laptop drives, 20 runs each.
+#[test]
+#[ignore = "a benchmark: run by hand with --ignored --nocapture"]
+fn bench_station_request_and_crash() {
+    let runs: usize = std::env::var("ROVE_GCS_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20);
+    for (level, class, laptop_toml) in [
+        ("mobile", "phone", ""),
+        (
+            "remote",
+            "desktop",
+            "[handover]\nauto_accept = \"never\"\nconsent_timeout_ms = 10000\n",
+        ),
+    ] {
+        let mut rig = Rig::new(&format!("gcs-bench-{level}"));
+        let ap = rig.autopilot(&["--connection", "udpin:127.0.0.1:14550", "--mode-heartbeat"]);
+        let output = format!(
+            "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:14550\"\n\
+             [[output.gcs]]\nendpoint = \"udpout:127.0.0.1:14560\"\nid = {STATION}\n\
+             system_id = 250\nlevel = \"{level}\"\ndevice_class = \"{class}\"\n"
+        );
+        let record = rig.vehicle_with_output(V, &output);
+        let toml = format!("{laptop_toml}[console]\napi_socket = \"laptop.sock\"\n");
+        rig.operator(LAPTOP, "stationary", "laptop", &[V], 1000, &toml, &[]);
+        wait_for_output(&record, Some(LAPTOP), 0).expect("the laptop drives");
+        let mut laptop = Api::connect(&rig.dir.join("laptop.sock"));
+        let (mut to_drive, mut to_laptop) = (Vec::new(), Vec::new());
+        for run in 0..runs {
+            let commands = rig.dir.join(format!("commands-{run}"));
+            let commands_arg = commands.display().to_string();
+            let mut gcs = rig.gcs(
+                &format!("gcs-{run}"),
+                &[
+                    "--connection",
+                    "udpin:127.0.0.1:14560",
+                    "--sysid",
+                    "250",
+                    "--operator-control",
+                    "--sticks-hz",
+                    "25",
+                    "--commands",
+                    &commands_arg,
+                ],
+            );
+            gcs.wait_for("rove's CONTROL_STATUS", |e| e["event"] == "control_status");
+            let from = laptop.mark();
+            let asked = wall_us();
+            command(&commands, "request");
+            let start = if laptop_toml.is_empty() {
+                asked
+            } else {
+                laptop.wait_from(from, "the prompt", |v| v["event"] == "request_incoming");
+                let t = wall_us();
+                laptop.send(&json!({"cmd": "accept", "vehicle": V}).to_string());
+                t
+            };
+            let driven = ap.wait_for("the station's sticks", |e| {
+                e["event"] == "rc_override"
+                    && wall(e) > start
+                    && ch3(e).is_some_and(|c| c.abs_diff(1700) <= 5)
+            });
+            to_drive.push((wall(&driven).saturating_sub(start)) as f64 / 1000.0);
+            let crash = wall_us();
+            gcs.stop();
+            let back = wait_for_output(&record, Some(LAPTOP), crash).expect("the laptop");
+            to_laptop.push((back.wall_us.saturating_sub(crash)) as f64 / 1000.0);
+        }
+        let what = if laptop_toml.is_empty() {
+            "stronger station: request"
+        } else {
+            "weaker station: the laptop's accept"
+        };
+        let (p50, p99, max) = percentiles(&mut to_drive);
+        eprintln!(
+            "{what} → its sticks at the autopilot: p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({runs} runs)"
+        );
+        let (p50, p99, max) = percentiles(&mut to_laptop);
+        eprintln!(
+            "{level} station kill -9 → the laptop drives: p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({runs} runs, command timeout {COMMAND_TIMEOUT_MS} ms)"
+        );
+    }
+}

@@ -15,12 +15,15 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 const MAX_EVENTS: usize = 64;
 
 /// What a station's port shares with its operator loop.
-#[derive(Default)]
 pub struct Feed {
     /// Names the station in the log: `QGC (50) on udpout:…`.
     what: String,
     state: Mutex<FeedState>,
+    /// Called when an answer or a change of control is told ([`Feed::set_nudge`]).
+    nudge: Mutex<Option<Nudge>>,
 }
+
+type Nudge = Box<dyn Fn() + Send + Sync>;
 
 #[derive(Default)]
 struct FeedState {
@@ -48,6 +51,19 @@ impl Feed {
         Feed {
             what,
             state: Mutex::default(),
+            nudge: Mutex::new(None),
+        }
+    }
+
+    /// `nudge` is called (on the caller's thread) whenever the hierarchy answers or control
+    /// changes hands, so that the station hears it at once.
+    pub fn set_nudge(&self, nudge: Nudge) {
+        *self.nudge.lock().unwrap_or_else(PoisonError::into_inner) = Some(nudge);
+    }
+
+    fn nudge(&self) {
+        if let Some(nudge) = &*self.nudge.lock().unwrap_or_else(PoisonError::into_inner) {
+            nudge();
         }
     }
 
@@ -99,10 +115,13 @@ impl HostedLink for Feed {
         if s.answers.len() < MAX_EVENTS {
             s.answers.push_back(granted);
         }
+        drop(s);
+        self.nudge();
     }
 
     fn holds(&self, control: bool) {
         lock(&self.state).holds = control;
+        self.nudge();
     }
 }
 

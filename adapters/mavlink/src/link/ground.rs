@@ -75,6 +75,8 @@ pub(super) struct Port {
     sticks_dropped: AtomicU64,
     /// Sticks of a station with an `id`, taken for its operator loop.
     pub(super) sticks_taken: AtomicU64,
+    /// What rove as the system manager keeps for this station ([`super::stations`]).
+    pub(super) manager: Mutex<super::stations::Manager>,
     /// Whether "it speaks as rove's own system id" was said.
     same_id_said: AtomicBool,
 }
@@ -91,6 +93,7 @@ impl Port {
             to_station: AtomicU64::new(0),
             sticks_dropped: AtomicU64::new(0),
             sticks_taken: AtomicU64::new(0),
+            manager: Mutex::default(),
             same_id_said: AtomicBool::new(false),
         }
     }
@@ -146,7 +149,6 @@ pub(super) fn serve(shared: &Shared, index: usize) {
     let mut buf = vec![0u8; READ_CHUNK];
     // A tcpin: port's listener, kept across its clients.
     let mut listener: Option<TcpListener> = None;
-    let mut manager = super::stations::Manager::default();
     while !shared.stop.load(Ordering::Relaxed) {
         let opened = match (&port.endpoint, &listener) {
             (Endpoint::TcpIn(address), None) => listen(address).map(|l| {
@@ -179,14 +181,14 @@ pub(super) fn serve(shared: &Shared, index: usize) {
                 Ok((n, _)) => {
                     decoder.push(buf.get(..n).unwrap_or(&buf));
                     while let Some(frame) = decoder.next_frame() {
-                        if !super::stations::from_station(shared, port, &mut manager, &frame) {
+                        if !super::stations::from_station(shared, port, &frame) {
                             from_port(shared, port, &frame, decoder.raw());
                         }
                     }
-                    super::stations::tick(shared, port, &mut manager);
+                    super::stations::tick(shared, port);
                 }
                 Err(e) => match classify_read(&e) {
-                    ReadOutcome::Idle => super::stations::tick(shared, port, &mut manager),
+                    ReadOutcome::Idle => super::stations::tick(shared, port),
                     ReadOutcome::Reconnect => {
                         warn!(endpoint = %port.endpoint, error = %e, "mavlink: ground station gone; reopening its port");
                         break;

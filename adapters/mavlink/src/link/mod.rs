@@ -212,6 +212,7 @@ impl Link {
             owner: AtomicI64::new(0),
         });
         for index in 0..shared.ground.len() {
+            stations::nudge_on_news(&shared, index);
             let for_thread = Arc::clone(&shared);
             let spawned = std::thread::Builder::new()
                 .name("rove-mavlink-gcs".into())

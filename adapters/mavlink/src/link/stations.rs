@@ -36,12 +36,7 @@ pub(super) struct Manager {
 /// Takes a station's frame for its operator loop, or answers it; `true` when it is not to go to
 /// the autopilot. Sticks go to the loop of a station with an `id` (any other's are dropped by
 /// the router); a request for control is the hierarchy's, whoever sends it.
-pub(super) fn from_station(
-    shared: &Shared,
-    port: &Port,
-    manager: &mut Manager,
-    frame: &Frame,
-) -> bool {
+pub(super) fn from_station(shared: &Shared, port: &Port, frame: &Frame) -> bool {
     let sender = u8::try_from(frame.header.system_id).ok();
     let station = port
         .station
@@ -59,7 +54,7 @@ pub(super) fn from_station(
             false
         }
         (Payload::Control(Message::Request { request, .. }), _) => {
-            manager.requester = sender.map(|sys| (sys, frame.header.component_id));
+            lock(&port.manager).requester = sender.map(|sys| (sys, frame.header.component_id));
             match station {
                 Some(s) => {
                     let event = if *request {
@@ -75,7 +70,7 @@ pub(super) fn from_station(
                 }
                 // Not an operator of the hierarchy (no `id`): it cannot drive, and has nothing
                 // to give back.
-                None => answer(shared, port, manager, !*request),
+                None => answer(shared, port, &mut lock(&port.manager), !*request),
             }
             true
         }
@@ -86,7 +81,8 @@ pub(super) fn from_station(
 
 /// Between reads: sends the hierarchy's answers to the station's requests and CONTROL_STATUS
 /// (on a change of who drives, and every [`STATUS_PERIOD`]).
-pub(super) fn tick(shared: &Shared, port: &Port, manager: &mut Manager) {
+pub(super) fn tick(shared: &Shared, port: &Port) {
+    let manager = &mut *lock(&port.manager);
     if let Some(s) = &port.station {
         for granted in s.feed.take_answers() {
             answer(shared, port, manager, granted);
@@ -107,6 +103,23 @@ pub(super) fn tick(shared: &Shared, port: &Port, manager: &mut Manager) {
     {
         manager.sent = Some((gcs_main, Instant::now()));
     }
+}
+
+/// Makes the station's feed tick its port at once when the hierarchy answers or control changes
+/// hands, instead of at the port's next read (up to its read timeout, 100 ms, later). Weak: the
+/// feed outlives nothing it points to.
+pub(super) fn nudge_on_news(shared: &std::sync::Arc<Shared>, index: usize) {
+    let Some(station) = shared.ground.get(index).and_then(|p| p.station.as_ref()) else {
+        return;
+    };
+    let weak = std::sync::Arc::downgrade(shared);
+    station.feed.set_nudge(Box::new(move || {
+        if let Some(shared) = weak.upgrade()
+            && let Some(port) = shared.ground.get(index)
+        {
+            tick(&shared, port);
+        }
+    }));
 }
 
 /// Who drives, in MAVLink's words: the system id of the station that owns the vehicle, rove's
