@@ -89,6 +89,13 @@ pub(super) fn tick(shared: &Shared, port: &Port) {
         }
     }
     let gcs_main = gcs_main(shared);
+    // Takeover is allowed when the hierarchy lets a request pass without asking anyone: nobody
+    // drives. While an operator drives, its own auto-accept decides, which the vehicle cannot
+    // promise for it.
+    let flags = match gcs_main {
+        0 => control::FLAG_SYSTEM_MANAGER | control::FLAG_TAKEOVER_ALLOWED,
+        _ => control::FLAG_SYSTEM_MANAGER,
+    };
     let due = manager
         .sent
         .is_none_or(|(sent, at)| sent != gcs_main || at.elapsed() >= STATUS_PERIOD);
@@ -98,7 +105,7 @@ pub(super) fn tick(shared: &Shared, port: &Port) {
             port,
             manager,
             (control::CONTROL_STATUS, control::CONTROL_STATUS_CRC_EXTRA),
-            &[control::FLAG_SYSTEM_MANAGER, gcs_main],
+            &[flags, gcs_main],
         )
     {
         manager.sent = Some((gcs_main, Instant::now()));
