@@ -26,6 +26,34 @@ fn ch3(e: &Value) -> Option<u64> {
     e["raw"].as_array()?.get(2)?.as_u64()
 }
 
+/// The test station (system 250, QGC-like), reading its commands from `commands`, in `rig`.
+fn station(rig: &Rig, name: &str, commands: &Path) -> rove_testkit::FakeAutopilot {
+    let commands = commands.display().to_string();
+    rig.gcs(
+        name,
+        &[
+            "--connection",
+            "udpin:127.0.0.1:14560",
+            "--sysid",
+            "250",
+            "--operator-control",
+            "--sticks-hz",
+            "25",
+            "--commands",
+            &commands,
+        ],
+    )
+}
+
+/// A MAVLink vehicle's `[output]` with the test station as an operator at `level`/`class`.
+fn station_output(level: &str, class: &str) -> String {
+    format!(
+        "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:14550\"\n\
+         [[output.gcs]]\nendpoint = \"udpout:127.0.0.1:14560\"\nid = {STATION}\n\
+         system_id = 250\nname = \"QGC\"\nlevel = \"{level}\"\ndevice_class = \"{class}\"\n"
+    )
+}
+
 /// The station asks; the laptop's person is prompted and accepts; the station drives.
 fn request_accepted(laptop: &mut Api, commands: &Path, record: &Path) -> u64 {
     let t = wall_us();
@@ -52,25 +80,8 @@ fn scenario(test: &str, autopilot_manages: bool) {
     }
     let ap = rig.autopilot(&ap_args);
     let commands = rig.dir.join("gcs-commands");
-    let commands_arg = commands.display().to_string();
-    let station_args = [
-        "--connection",
-        "udpin:127.0.0.1:14560",
-        "--sysid",
-        "250",
-        "--operator-control",
-        "--sticks-hz",
-        "25",
-        "--commands",
-        &commands_arg,
-    ];
-    let mut gcs = rig.gcs("gcs", &station_args);
-    let output = format!(
-        "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:14550\"\n\
-         [[output.gcs]]\nendpoint = \"udpout:127.0.0.1:14560\"\nid = {STATION}\n\
-         system_id = 250\nname = \"QGC\"\nlevel = \"remote\"\ndevice_class = \"desktop\"\n"
-    );
-    let record = rig.vehicle_with_output(V, &output);
+    let mut gcs = station(&rig, "gcs", &commands);
+    let record = rig.vehicle_with_output(V, &station_output("remote", "desktop"));
     rig.operator(
         LAPTOP,
         "stationary",
@@ -144,12 +155,8 @@ fn scenario(test: &str, autopilot_manages: bool) {
     // the vehicle stays the laptop's.
     let rogue_commands = rig.dir.join("rogue-commands");
     command(&rogue_commands, "rogue");
-    let rogue_arg = rogue_commands.display().to_string();
-    let mut rogue_args = station_args.to_vec();
-    let at = rogue_args.len() - 1;
-    rogue_args[at] = &rogue_arg;
     let t = wall_us();
-    let rogue = rig.gcs("rogue", &rogue_args);
+    let rogue = station(&rig, "rogue", &rogue_commands);
     rogue.wait_for("the rogue station sends sticks", |e| {
         e["event"] == "sent" && e["type"] == "MANUAL_CONTROL"
     });
@@ -210,11 +217,7 @@ fn bench_station_request_and_crash() {
     ] {
         let mut rig = Rig::new(&format!("gcs-bench-{level}"));
         let ap = rig.autopilot(&["--connection", "udpin:127.0.0.1:14550", "--mode-heartbeat"]);
-        let output = format!(
-            "[output]\nadapter = \"mavlink\"\nconnection = \"udpout:127.0.0.1:14550\"\n\
-             [[output.gcs]]\nendpoint = \"udpout:127.0.0.1:14560\"\nid = {STATION}\n\
-             system_id = 250\nlevel = \"{level}\"\ndevice_class = \"{class}\"\n"
-        );
+        let output = station_output(level, class);
         let record = rig.vehicle_with_output(V, &output);
         let toml = format!("{laptop_toml}[console]\napi_socket = \"laptop.sock\"\n");
         rig.operator(LAPTOP, "stationary", "laptop", &[V], 1000, &toml, &[]);
@@ -223,21 +226,7 @@ fn bench_station_request_and_crash() {
         let (mut to_drive, mut to_laptop) = (Vec::new(), Vec::new());
         for run in 0..runs {
             let commands = rig.dir.join(format!("commands-{run}"));
-            let commands_arg = commands.display().to_string();
-            let mut gcs = rig.gcs(
-                &format!("gcs-{run}"),
-                &[
-                    "--connection",
-                    "udpin:127.0.0.1:14560",
-                    "--sysid",
-                    "250",
-                    "--operator-control",
-                    "--sticks-hz",
-                    "25",
-                    "--commands",
-                    &commands_arg,
-                ],
-            );
+            let mut gcs = station(&rig, &format!("gcs-{run}"), &commands);
             gcs.wait_for("rove's CONTROL_STATUS", |e| e["event"] == "control_status");
             let from = laptop.mark();
             let asked = wall_us();
