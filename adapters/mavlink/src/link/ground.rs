@@ -38,8 +38,8 @@ pub fn from_station(msg: &Payload) -> Verdict {
         Payload::Mav(MavMessage::MANUAL_CONTROL(_) | MavMessage::RC_CHANNELS_OVERRIDE(_)) => {
             Verdict::Sticks
         }
-        // The operator-control protocol (a station asking an autopilot that manages its
-        // stations for control, or letting go) passes like any command.
+        // The operator-control protocol never gets here (rove answers it, `stations.rs`); by
+        // itself it is a command like any.
         _ => Verdict::Forward,
     }
 }
