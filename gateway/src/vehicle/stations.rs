@@ -287,3 +287,81 @@ impl std::fmt::Debug for StationSticks {
         f.write_str(&self.link.describe())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    /// A station's handle whose events the test sets.
+    #[derive(Debug, Default)]
+    struct Fake(Mutex<Vec<HostedEvent>>);
+
+    impl HostedLink for Fake {
+        fn describe(&self) -> String {
+            "fake station".into()
+        }
+        fn take(&self) -> Vec<HostedEvent> {
+            std::mem::take(&mut *self.0.lock().unwrap())
+        }
+        fn set_waker(&self, _: Arc<dyn Fn() + Send + Sync>) {}
+        fn answered(&self, _: bool) {}
+        fn holds(&self, _: bool) {}
+    }
+
+    /// What the loop gets at `now`, the deadman's presses aside (`RemoteInput`'s, tested there).
+    fn events(sticks: &mut StationSticks, now: MonoTime) -> Vec<InputEvent> {
+        std::iter::from_fn(|| sticks.poll(now).unwrap())
+            .filter(|e| !matches!(e, InputEvent::Deadman(_)))
+            .collect()
+    }
+
+    fn forward() -> HostedEvent {
+        let m = MovementCommand {
+            throttle: 1000,
+            ..MovementCommand::CENTRED
+        };
+        HostedEvent::Sticks(m, Instant::now())
+    }
+
+    #[test]
+    fn sticks_count_only_after_a_request_and_a_silence_or_release_ends_them() {
+        let fake = Arc::new(Fake::default());
+        let silence = Duration::from_millis(100);
+        let mut s = StationSticks::new(fake.clone(), silence);
+        let t = MonoTime::from_millis(1000);
+        // Sticks before any request: nothing.
+        fake.0.lock().unwrap().push(forward());
+        assert_eq!(events(&mut s, t), vec![]);
+        // A request: the action, and centred sticks (live) while it waits to stream.
+        fake.0.lock().unwrap().push(HostedEvent::Request);
+        let got = events(&mut s, t);
+        assert_eq!(
+            got,
+            vec![
+                InputEvent::Action(InputAction::RequestControl),
+                InputEvent::Axes(MovementCommand::CENTRED),
+            ]
+        );
+        // Centred frames keep it live while it waits (its HEARTBEAT is fresh).
+        for ms in (1050..1500).step_by(50) {
+            assert_eq!(events(&mut s, MonoTime::from_millis(ms)), vec![], "{ms}");
+        }
+        // Its sticks drive; their silence is a lost input.
+        fake.0.lock().unwrap().push(forward());
+        let t = MonoTime::from_millis(1500);
+        assert!(matches!(events(&mut s, t)[..], [InputEvent::Axes(m)] if m.throttle == 1000));
+        let lost = events(&mut s, MonoTime::from_millis(1601));
+        assert!(matches!(lost[..], [InputEvent::Lost { .. }]), "{lost:?}");
+        // Lost: sticks count again only after a new request.
+        fake.0.lock().unwrap().push(forward());
+        assert_eq!(events(&mut s, MonoTime::from_millis(1700)), vec![]);
+        // A release gives a grant back and stops driving.
+        fake.0.lock().unwrap().push(HostedEvent::Request);
+        events(&mut s, MonoTime::from_millis(1800));
+        fake.0.lock().unwrap().push(HostedEvent::Release);
+        let released = events(&mut s, MonoTime::from_millis(1810));
+        assert!(released.contains(&InputEvent::Action(InputAction::Finish)));
+        assert!(released.contains(&InputEvent::Action(InputAction::Release)));
+    }
+}
