@@ -302,7 +302,7 @@ mod tests {
             "fake station".into()
         }
         fn take(&self) -> Vec<HostedEvent> {
-            std::mem::take(&mut *self.0.lock().unwrap())
+            std::mem::take(&mut *self.0.lock().expect("events"))
         }
         fn set_waker(&self, _: Arc<dyn Fn() + Send + Sync>) {}
         fn answered(&self, _: bool) {}
@@ -311,7 +311,7 @@ mod tests {
 
     /// What the loop gets at `now`, the deadman's presses aside (`RemoteInput`'s, tested there).
     fn events(sticks: &mut StationSticks, now: MonoTime) -> Vec<InputEvent> {
-        std::iter::from_fn(|| sticks.poll(now).unwrap())
+        std::iter::from_fn(|| sticks.poll(now).expect("a station's sticks do not fail"))
             .filter(|e| !matches!(e, InputEvent::Deadman(_)))
             .collect()
     }
@@ -331,10 +331,10 @@ mod tests {
         let mut s = StationSticks::new(fake.clone(), silence);
         let t = MonoTime::from_millis(1000);
         // Sticks before any request: nothing.
-        fake.0.lock().unwrap().push(forward());
+        fake.0.lock().expect("events").push(forward());
         assert_eq!(events(&mut s, t), vec![]);
         // A request: the action, and centred sticks (live) while it waits to stream.
-        fake.0.lock().unwrap().push(HostedEvent::Request);
+        fake.0.lock().expect("events").push(HostedEvent::Request);
         let got = events(&mut s, t);
         assert_eq!(
             got,
@@ -348,18 +348,18 @@ mod tests {
             assert_eq!(events(&mut s, MonoTime::from_millis(ms)), vec![], "{ms}");
         }
         // Its sticks drive; their silence is a lost input.
-        fake.0.lock().unwrap().push(forward());
+        fake.0.lock().expect("events").push(forward());
         let t = MonoTime::from_millis(1500);
         assert!(matches!(events(&mut s, t)[..], [InputEvent::Axes(m)] if m.throttle == 1000));
         let lost = events(&mut s, MonoTime::from_millis(1601));
         assert!(matches!(lost[..], [InputEvent::Lost { .. }]), "{lost:?}");
         // Lost: sticks count again only after a new request.
-        fake.0.lock().unwrap().push(forward());
+        fake.0.lock().expect("events").push(forward());
         assert_eq!(events(&mut s, MonoTime::from_millis(1700)), vec![]);
         // A release gives a grant back and stops driving.
-        fake.0.lock().unwrap().push(HostedEvent::Request);
+        fake.0.lock().expect("events").push(HostedEvent::Request);
         events(&mut s, MonoTime::from_millis(1800));
-        fake.0.lock().unwrap().push(HostedEvent::Release);
+        fake.0.lock().expect("events").push(HostedEvent::Release);
         let released = events(&mut s, MonoTime::from_millis(1810));
         assert!(released.contains(&InputEvent::Action(InputAction::Finish)));
         assert!(released.contains(&InputEvent::Action(InputAction::Release)));
