@@ -122,20 +122,27 @@ pub(super) fn to_stations(shared: &Shared, message: &Payload, raw: &[u8]) {
         let Some(writer) = writer.filter(|w| w.ready()) else {
             continue;
         };
-        match writer.write(raw) {
-            Ok(()) => {
-                port.to_station.fetch_add(1, Ordering::Relaxed);
-            }
-            // A TCP station that stopped reading: part of a frame may have left, so its stream
-            // is closed (its reader reconnects). The autopilot's reader waits at most the send
-            // timeout for it.
-            Err(_) => {
-                if writer.close_if_stream() {
-                    *lock(&port.writer) = None;
-                }
-            }
+        // A TCP station that stopped reading is closed; the autopilot's reader waits at most
+        // the send timeout for it.
+        if write_or_close(&port.writer, &writer, raw) {
+            port.to_station.fetch_add(1, Ordering::Relaxed);
         }
     }
+}
+
+/// Writes `bytes` with `writer`, the one `slot` holds. A stream a write failed on is closed and
+/// leaves the slot (its reader reconnects): part of a frame may have left, so it is out of step.
+/// Whether the write went out.
+pub(super) fn write_or_close(
+    slot: &Mutex<Option<Arc<Writer>>>,
+    writer: &Writer,
+    bytes: &[u8],
+) -> bool {
+    let written = writer.write(bytes).is_ok();
+    if !written && writer.close_if_stream() {
+        *lock(slot) = None;
+    }
+    written
 }
 
 /// The thread of the station at `shared.ground[index]`: opens its port (again after an error,
@@ -224,16 +231,9 @@ fn from_port(shared: &Shared, port: &Port, frame: &Frame, raw: &[u8]) {
     let Some(writer) = lock(&shared.writer).clone() else {
         return;
     };
-    match writer.write(raw) {
-        Ok(()) => {
-            port.to_autopilot.fetch_add(1, Ordering::Relaxed);
-        }
-        // As rove's own sends: a TCP autopilot that stopped reading is reconnected.
-        Err(_) => {
-            if writer.close_if_stream() {
-                *lock(&shared.writer) = None;
-            }
-        }
+    // As rove's own sends: a TCP autopilot that stopped reading is reconnected.
+    if write_or_close(&shared.writer, &writer, raw) {
+        port.to_autopilot.fetch_add(1, Ordering::Relaxed);
     }
 }
 

@@ -186,5 +186,5 @@ fn send(
     };
     manager.sequence = manager.sequence.wrapping_add(1);
     encode_raw(MavlinkVersion::V2, header, id, payload)
-        .is_ok_and(|bytes| writer.write(&bytes).is_ok())
+        .is_ok_and(|bytes| super::ground::write_or_close(&port.writer, &writer, &bytes))
 }
