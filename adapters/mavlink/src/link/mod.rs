@@ -294,6 +294,12 @@ impl Link {
         lock(&self.shared.acks).drain(..).collect()
     }
 
+    /// What the link knows of the autopilot's system manager (the operator-control protocol),
+    /// without a copy of the rest of its status.
+    pub fn control(&self) -> crate::control::Control {
+        lock(&self.shared.status).control
+    }
+
     /// The vehicle `vehicle` is owned by `owner` now (its own id: failsafe): what rove tells its
     /// ground stations in CONTROL_STATUS.
     pub fn set_owner(&self, vehicle: i64, owner: i64) {

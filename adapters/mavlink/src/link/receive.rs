@@ -4,7 +4,9 @@
 //! learned in the memory file.
 
 use super::transport::{ReadOutcome, classify_read, open};
-use super::{ACK_QUEUE, AutopilotInfo, Battery, READ_CHUNK, RECONNECT, Shared, lock, target};
+use super::{
+    ACK_QUEUE, AutopilotInfo, Battery, LinkStatus, READ_CHUNK, RECONNECT, Shared, lock, target,
+};
 use crate::control;
 use crate::frame::{Decoder, Payload};
 use crate::memory::Learned;
@@ -120,12 +122,17 @@ fn remember(shared: &Shared) {
     });
 }
 
+/// The system id our autopilot speaks as: the configured target, else the one heard, else the
+/// one an earlier run learned; `None` until one of these is known.
+fn expected_system(shared: &Shared, status: &LinkStatus) -> Option<u8> {
+    (shared.target_system)
+        .or(status.autopilot.map(|a| a.system_id))
+        .or(shared.learned.map(|(sys, _)| sys))
+}
+
 pub(super) fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
     let mut s = lock(&shared.status);
-    let expected = shared
-        .target_system
-        .or(s.autopilot.map(|a| a.system_id))
-        .or(shared.learned.map(|(sys, _)| sys));
+    let expected = expected_system(shared, &s);
     // Until an autopilot is heard (and without a configured target), any autopilot's
     // HEARTBEAT locks on, even one other than an earlier run learned.
     let lock_on = shared.target_system.is_none()
@@ -233,9 +240,7 @@ pub(super) fn handle(shared: &Shared, header: MavHeader, msg: &MavMessage) {
 /// for control it forwards to rove, or its answer to rove's own.
 fn handle_control(shared: &Shared, header: MavHeader, msg: control::Message) {
     let mut s = lock(&shared.status);
-    let ours = (shared.target_system)
-        .or(s.autopilot.map(|a| a.system_id))
-        .is_some_and(|sys| header.system_id == u32::from(sys));
+    let ours = expected_system(shared, &s).is_some_and(|sys| header.system_id == u32::from(sys));
     if !ours {
         s.foreign += 1;
         return;

@@ -12,7 +12,7 @@ use tracing::{info, warn};
 impl MavlinkVehicle {
     /// Where rove stands with the autopilot's system manager now.
     pub(super) fn standing(&self) -> Standing {
-        (self.link.status().control).standing(self.config.system_id, Instant::now())
+        (self.link.control()).standing(self.config.system_id, Instant::now())
     }
 
     /// Whether the autopilot takes rove's control messages: it has no system manager, or its
@@ -26,15 +26,12 @@ impl MavlinkVehicle {
     /// manager for it (at once, again when the role changes hands, and when the request timed
     /// out), without takeover: the station's pilot is asked.
     pub(super) fn ask_for_control_if_due(&mut self) -> Result<(), LinkError> {
-        let status = self.link.status();
-        let standing = status
-            .control
-            .standing(self.config.system_id, Instant::now());
+        let control = self.link.control();
+        let standing = control.standing(self.config.system_id, Instant::now());
         if !self.asking.due(standing, Instant::now()) {
             return Ok(());
         }
-        let (Some(component), Some((system, _))) = (status.control.manager(), self.link.target())
-        else {
+        let (Some(component), Some((system, _))) = (control.manager(), self.link.target()) else {
             return Ok(());
         };
         if let Standing::Waiting { gcs_main } = standing {
@@ -57,8 +54,8 @@ impl MavlinkVehicle {
         if forwarded.is_empty() {
             return Ok(());
         }
-        let status = self.link.status();
-        let (Some(component), Some((system, _))) = (status.control.manager(), self.link.target())
+        let (Some(component), Some((system, _))) =
+            (self.link.control().manager(), self.link.target())
         else {
             return Ok(());
         };
