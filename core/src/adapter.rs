@@ -122,8 +122,8 @@ pub struct HostedOperator {
 /// What a hosted operator did, as its adapter heard it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum HostedEvent {
-    /// Its sticks, heard at that instant.
-    Sticks(MovementCommand, std::time::Instant),
+    /// Its sticks (taken as of when its loop takes them: it does so as they come).
+    Sticks(MovementCommand),
     /// It said it is there (a MAVLink HEARTBEAT).
     Alive(std::time::Instant),
     /// It asks for control of the vehicle.

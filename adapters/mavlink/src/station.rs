@@ -144,7 +144,6 @@ pub fn sticks(x: i16, y: i16, z: i16, r: i16) -> MovementCommand {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::time::Instant;
 
     #[test]
     fn manual_control_maps_to_sticks_centred_at_rest() {
@@ -167,10 +166,7 @@ mod tests {
         let feed = Feed::new("test".into());
         feed.heard(HostedEvent::Request);
         for _ in 0..200 {
-            feed.heard(HostedEvent::Sticks(
-                MovementCommand::CENTRED,
-                Instant::now(),
-            ));
+            feed.heard(HostedEvent::Sticks(MovementCommand::CENTRED));
         }
         let events = feed.take();
         assert_eq!(events.len(), MAX_EVENTS);

@@ -198,7 +198,7 @@ impl StationSticks {
         for event in self.link.take() {
             match event {
                 HostedEvent::Alive(at) => self.heard = Some(at),
-                HostedEvent::Sticks(sticks, _) if self.engaged => {
+                HostedEvent::Sticks(sticks) if self.engaged => {
                     self.streaming = true;
                     self.input.frame(
                         now,
@@ -208,7 +208,7 @@ impl StationSticks {
                         },
                     );
                 }
-                HostedEvent::Sticks(..) => {}
+                HostedEvent::Sticks(_) => {}
                 HostedEvent::Request => {
                     self.engaged = true;
                     self.streaming = false;
@@ -321,7 +321,7 @@ mod tests {
             throttle: 1000,
             ..MovementCommand::CENTRED
         };
-        HostedEvent::Sticks(m, Instant::now())
+        HostedEvent::Sticks(m)
     }
 
     #[test]

@@ -45,7 +45,7 @@ pub(super) fn from_station(shared: &Shared, port: &Port, frame: &Frame) -> bool 
     match (&frame.message, station) {
         (Payload::Mav(MavMessage::MANUAL_CONTROL(mc)), Some(s)) => {
             let sticks = crate::station::sticks(mc.x, mc.y, mc.z, mc.r);
-            s.feed.heard(HostedEvent::Sticks(sticks, Instant::now()));
+            s.feed.heard(HostedEvent::Sticks(sticks));
             port.sticks_taken.fetch_add(1, Ordering::Relaxed);
             true
         }
