@@ -255,6 +255,11 @@ fn bench_station_request_and_crash() {
         } else {
             "weaker station: the laptop's accept"
         };
+        let each: Vec<String> = to_drive.iter().map(|ms| format!("{ms:.1}")).collect();
+        eprintln!(
+            "{level} station, each run in order (ms): {}",
+            each.join(" ")
+        );
         let (p50, p99, max) = percentiles(&mut to_drive);
         eprintln!(
             "{what} → its sticks at the autopilot: p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms ({runs} runs)"

@@ -136,7 +136,10 @@ async fn answer(
     mut events: broadcast::Receiver<Stamped>,
     link: Arc<dyn HostedLink>,
 ) {
-    let mut held = false;
+    // It holds control while it holds a grant or owns the vehicle (it drives with its regular
+    // writer: nobody drove it, or it is the stronger). Told here as the loop learns it, so the
+    // station hears it at once, not when the vehicle's own view reaches the adapter.
+    let (mut granted, mut owns, mut told) = (false, false, false);
     loop {
         let event = match events.recv().await {
             Ok(stamped) => stamped.event,
@@ -150,20 +153,20 @@ async fn answer(
             } if v == vehicle => {
                 link.answered(outcome == Outcome::Accepted);
             }
-            Event::Driving { holding, .. } => {
-                let holds = holding.contains(&vehicle);
-                if holds != held {
-                    held = holds;
-                    link.holds(holds);
+            Event::Driving { holding, .. } => granted = holding.contains(&vehicle),
+            Event::OwnerChanged { vehicle: v, to, .. } if v == vehicle => {
+                // Driving it without a grant: control without asking.
+                if to == station && !granted && !owns {
+                    link.answered(true);
                 }
-            }
-            // Driving it with the regular writer (nobody drove it): control without asking.
-            Event::OwnerChanged { vehicle: v, to, .. }
-                if v == vehicle && to == station && !held =>
-            {
-                link.answered(true);
+                owns = to == station;
             }
             _ => {}
+        }
+        let holds = granted || owns;
+        if holds != told {
+            told = holds;
+            link.holds(holds);
         }
     }
 }
