@@ -1,5 +1,5 @@
 //! The link's reader thread: opens the transport (again after an error, every [`RECONNECT`]),
-//! reads and decodes, and keeps in [`LinkStatus`](super::LinkStatus) what our autopilot's
+//! reads and decodes, and keeps in [`LinkStatus`] what our autopilot's
 //! messages say: its HEARTBEAT, its COMMAND_ACKs for a mode, its battery; and keeps what it
 //! learned in the memory file.
 
