@@ -13,7 +13,8 @@
 //! - [`bench`](mod@bench): `rove bench handover` (graceful, active, crash) and `rove bench input`.
 //! - [`chaos`]: `rove bench chaos`: random faults and packet loss, counted against the contract.
 //! - [`fleet`]: `rove bench scale`: a fleet of N vehicles and M operators, per-node cost,
-//!   handover and late-joiner times; [`sweep`]: `--idle-sweep`, idle fleets of several sizes.
+//!   handover and late-joiner times; [`sweep`]: `--idle-sweep`, idle fleets of several sizes;
+//!   [`guard`]: `rove bench guard`, a short fleet run against a committed baseline (CI).
 //! - [`soak`]: `rove bench soak`: memory, fds and threads of long-lived processes while
 //!   operators come and go.
 
@@ -22,6 +23,7 @@ pub mod chaos;
 pub mod cleanup;
 pub mod demo;
 pub mod fleet;
+pub mod guard;
 pub mod harness;
 pub mod procstat;
 #[cfg(all(feature = "remote", feature = "security"))]
@@ -138,6 +140,10 @@ pub enum Bench {
     /// bystander while other operators join, preempt or request, and quit, cycle after cycle:
     /// the growth per cycle after a warm-up (needs root).
     Soak(SoakArgs),
+    /// A short fleet run (8 × 8 streaming, then idle) whose cost per node, as ratios in which
+    /// the machine's speed cancels, is compared against a committed baseline: fails when the
+    /// median of the attempts is more than the tolerance over it (needs root).
+    Guard(GuardArgs),
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
     Handover {
@@ -214,6 +220,37 @@ pub struct SoakArgs {
     /// Write the report as JSON to this file.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
+}
+
+/// `rove bench guard`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct GuardArgs {
+    /// Vehicles, and as many operators.
+    #[arg(long, default_value_t = 8)]
+    pub vehicles: usize,
+    /// Each CPU window, s.
+    #[arg(long, default_value_t = 10)]
+    pub window_s: u64,
+    /// Attempts: each ratio's median over them is compared with the baseline (or written as
+    /// the baseline).
+    #[arg(long, default_value_t = 3)]
+    pub attempts: usize,
+    /// Allowed growth over the baseline, percent.
+    #[arg(long, default_value_t = 25.0)]
+    pub tolerance_pct: f64,
+    /// The baseline to compare with (JSON, as `--write-baseline` writes it).
+    #[arg(long, conflicts_with = "write_baseline")]
+    pub baseline: Option<std::path::PathBuf>,
+    /// Measure once and write the result to this file as the new baseline.
+    #[arg(long, requires = "note")]
+    pub write_baseline: Option<std::path::PathBuf>,
+    /// Where and when the baseline was measured, in words (the commit, the machine).
+    #[arg(long)]
+    pub note: Option<String>,
+    /// The `rove` binary the fleet runs (default: this one), e.g. an older build for a
+    /// before/after comparison: its CLI and configs must be this one's.
+    #[arg(long)]
+    pub rove: Option<std::path::PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -295,6 +332,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             }
         }
         Bench::Soak(args) => run_soak(rove, args),
+        Bench::Guard(args) => run_guard(rove, args),
         Bench::Handover {
             remote: true,
             runs,
@@ -374,4 +412,17 @@ fn run_soak(rove: &Path, args: SoakArgs) -> anyhow::Result<()> {
     };
     let rove = args.rove.as_deref().unwrap_or(rove);
     soak::cli(rove, &options, args.json.as_deref())
+}
+
+/// `rove bench guard`.
+fn run_guard(rove: &Path, args: GuardArgs) -> anyhow::Result<()> {
+    let options = guard::Guard {
+        vehicles: args.vehicles,
+        window: std::time::Duration::from_secs(args.window_s),
+        attempts: args.attempts,
+        tolerance: args.tolerance_pct / 100.0,
+    };
+    let rove = args.rove.as_deref().unwrap_or(rove);
+    let write = (args.write_baseline.as_deref()).zip(args.note.as_deref());
+    guard::cli(rove, &options, args.baseline.as_deref(), write)
 }

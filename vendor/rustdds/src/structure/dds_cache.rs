@@ -2,7 +2,7 @@ use std::{
   cmp::max,
   collections::{btree_map, BTreeMap, HashMap},
   iter,
-  ops::Bound::{Excluded, Included},
+  ops::Bound::{Excluded, Included, Unbounded},
   sync::{Arc, Mutex},
 };
 
@@ -400,6 +400,18 @@ impl TopicCache {
   /// moved, the limits changed).
   pub fn generation(&self) -> u64 {
     self.generation
+  }
+
+  /// rove patch (ROVE-PATCH.md §34): whether the cache holds nothing stored after
+  /// `read_up_to`. A best-effort reader that read up to there and found nothing more up to now
+  /// may then wait for the next generation; while a sample stamped later than now (the clock
+  /// stepped back) waits for its time, it may not, since time alone makes that one readable.
+  pub fn holds_nothing_after(&self, read_up_to: Timestamp) -> bool {
+    self
+      .changes
+      .range((Excluded(read_up_to), Unbounded))
+      .next()
+      .is_none()
   }
 
   pub fn add_change(&mut self, instant: &Timestamp, cache_change: CacheChange) {
@@ -1053,6 +1065,55 @@ mod tests {
     assert!(moved(&topic_cache), "a writer forgotten");
     topic_cache.remove_changes_before(Timestamp::ZERO);
     assert!(moved(&topic_cache), "a collection");
+  }
+
+  // rove patch (ROVE-PATCH.md §34): what a best-effort reader relies on to skip a poll
+  // without news, and what keeps a sample stamped later than now readable.
+  #[test]
+  fn a_best_effort_reader_waits_for_news_unless_a_sample_waits_for_its_time() {
+    let mut topic_cache = keep_all_topic_cache();
+    let writer = user_writer();
+    let sample = |sn| {
+      CacheChange::new(
+        writer,
+        SequenceNumber::new(sn),
+        WriteOptions::default(),
+        DDSData::new(SerializedPayload::default()),
+      )
+    };
+    let now = Timestamp::now();
+    topic_cache.add_change(&now, sample(1));
+    let read: Vec<_> = topic_cache
+      .get_changes_in_range_best_effort(Timestamp::ZERO, now)
+      .map(|(t, _)| t)
+      .collect();
+    assert_eq!(read.len(), 1);
+    let read_up_to = read[0];
+    assert!(
+      topic_cache.holds_nothing_after(read_up_to),
+      "all read: only a new generation brings news"
+    );
+    // The clock stepped back: the next sample is stored at a time later than now.
+    let later = now + crate::Duration::from_secs(10);
+    topic_cache.add_change(&later, sample(2));
+    assert_eq!(
+      topic_cache
+        .get_changes_in_range_best_effort(read_up_to, now)
+        .count(),
+      0,
+      "not readable before its time"
+    );
+    assert!(
+      !topic_cache.holds_nothing_after(read_up_to),
+      "so the reader must look again without a new generation"
+    );
+    let at_its_time = later + crate::Duration::from_millis(1);
+    let read: Vec<_> = topic_cache
+      .get_changes_in_range_best_effort(read_up_to, at_its_time)
+      .map(|(t, _)| t)
+      .collect();
+    assert_eq!(read, vec![later], "readable with time alone");
+    assert!(topic_cache.holds_nothing_after(later));
   }
 
   // E.g. Fast DDS sends its first HEARTBEAT 3 s after matching, so a late joiner

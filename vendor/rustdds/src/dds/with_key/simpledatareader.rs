@@ -445,8 +445,10 @@ where
           // no more data available right now
           drop(changes);
           // Best effort reads up to now: a sample stored with a later timestamp
-          // (the clock stepped back) becomes readable without a new generation.
-          if is_reliable {
+          // (the clock stepped back) becomes readable without a new generation, so
+          // a best-effort reader waits for one only when nothing is stored beyond
+          // what it read (rove patch, ROVE-PATCH.md §34).
+          if is_reliable || topic_cache.holds_nothing_after(latest_instant) {
             read_state_ref.nothing_new_at = Some(generation);
           }
           return Ok(None);
