@@ -505,7 +505,10 @@ impl MessageReceiver {
                 .values()
                 .filter(|target_reader| {
                   // Reader must contain the writer
-                  target_reader.contains_writer(sending_writer_entity_id)
+                  target_reader.contains_writer(GUID {
+                    prefix: self.source_guid_prefix,
+                    entity_id: sending_writer_entity_id,
+                  })
                     // But there are two exceptions:
                     // 1. SPDP reader must read from unknown SPDP writers
                     //  TODO: This logic here is uglyish. Can we just inject a
@@ -1041,7 +1044,10 @@ impl MessageReceiver {
               if let Some(target_reader)=self.available_readers.values().find(|target_reader| {
                 (
                 // Reader must contain the writer
-                target_reader.contains_writer(sending_writer_entity_id)
+                target_reader.contains_writer(GUID {
+                  prefix: self.source_guid_prefix,
+                  entity_id: sending_writer_entity_id,
+                })
                     // But there are two exceptions:
                     // 1. SPDP reader must read from unknown SPDP writers
                     //  TODO: This logic here is uglyish. Can we just inject a

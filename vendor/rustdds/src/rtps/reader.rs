@@ -549,15 +549,27 @@ impl Reader {
     self.matched_writers.len()
   }
 
-  pub fn contains_writer(&self, entity_id: EntityId) -> bool {
-    if !self.like_stateless {
-      self
-        .matched_writers
-        .iter()
-        .any(|(&g, _)| g.entity_id == entity_id)
-    } else {
+  /// Whether a submessage of `writer` sent to no reader in particular is for this reader.
+  ///
+  /// rove patch (ROVE-PATCH.md §35): a user-defined writer is looked up by its GUID. Before,
+  /// any matched writer with the same entity id counted, from any participant: every rove
+  /// process makes its writers in the same order, so a sample went to every reader matched to
+  /// some other participant's writer of that entity id, to be decoded and dropped there for
+  /// want of a proxy, and each submessage walked every matched writer of every reader (the
+  /// largest single cost of a streaming process among 64). A built-in writer still counts by
+  /// its entity id alone, as before: a built-in reader takes discovery data from a writer it
+  /// has not matched yet (see `process_received_data`).
+  pub fn contains_writer(&self, writer: GUID) -> bool {
+    if self.like_stateless {
       // Making it explicit: stateless reader does not contain any writers
       false
+    } else if writer.entity_id.entity_kind.is_user_defined() {
+      self.matched_writers.contains_key(&writer)
+    } else {
+      self
+        .matched_writers
+        .keys()
+        .any(|g| g.entity_id == writer.entity_id)
     }
   }
 
@@ -2079,6 +2091,78 @@ mod tests {
         .all_ackable_before(),
       SequenceNumber::new(6)
     );
+  }
+
+  // rove patch (ROVE-PATCH.md §35)
+  #[test]
+  fn a_user_writer_is_heard_by_its_guid_and_a_built_in_one_by_its_entity_id() {
+    let dds_cache = Arc::new(RwLock::new(DDSCache::new()));
+    let qos_policy = QosPolicies::builder()
+      .reliability(Reliability::Reliable {
+        max_blocking_time: crate::Duration::ZERO,
+      })
+      .build();
+    let topic_cache_handle = dds_cache.write().unwrap().add_new_topic(
+      "test_name".to_string(),
+      TypeDesc::new("test_type".to_string()),
+      &qos_policy,
+    );
+    let (notification_sender, _notification_receiver) =
+      crate::mio_source::notification_channel(100);
+    let (_notification_event_source, notification_event_sender) =
+      mio_source::make_poll_channel().unwrap();
+    let (status_sender, _status_receiver) = sync_status_channel::<DataReaderStatus>(4).unwrap();
+    let (participant_status_sender, _participant_status_receiver) =
+      sync_status_channel(16).unwrap();
+    let (_reader_command_sender, reader_command_receiver) =
+      wake_channel::<ReaderCommand>(10, &LoopWaker::new());
+    let mut reader = Reader::new(
+      ReaderIngredients {
+        guid: GUID::dummy_test_guid(EntityKind::READER_WITH_KEY_USER_DEFINED),
+        notification_sender,
+        status_sender,
+        topic_name: "test_name".to_string(),
+        topic_cache_handle,
+        like_stateless: false,
+        qos_policy,
+        data_reader_command_receiver: reader_command_receiver,
+        data_reader_waker: Arc::new(Mutex::new(None)),
+        poll_event_sender: notification_event_sender,
+        security_plugins: None,
+        discovery_notify: None,
+      },
+      Rc::new(UDPSender::new(0).unwrap()),
+      new_shared_timer(),
+      participant_status_sender,
+    );
+    let writer = |participant: &[u8; 12], kind| GUID {
+      prefix: GuidPrefix::new(participant),
+      entity_id: EntityId {
+        entity_key: [0, 0, 7],
+        entity_kind: kind,
+      },
+    };
+    let matched = writer(b"participant1", EntityKind::WRITER_WITH_KEY_USER_DEFINED);
+    let built_in = writer(b"participant1", EntityKind::WRITER_WITH_KEY_BUILT_IN);
+    for w in [matched, built_in] {
+      reader.matched_writer_add(w, EntityId::UNKNOWN, vec![], vec![], &QosPolicies::qos_none());
+    }
+    assert!(reader.contains_writer(matched));
+    // The same entity id in another participant: not a writer of this reader (before the
+    // patch it was, and its samples were decoded here to be dropped).
+    let same_id_elsewhere = writer(b"participant2", EntityKind::WRITER_WITH_KEY_USER_DEFINED);
+    assert!(!reader.contains_writer(same_id_elsewhere));
+    // A built-in writer not matched yet still counts by its entity id, as before.
+    let built_in_elsewhere = writer(b"participant2", EntityKind::WRITER_WITH_KEY_BUILT_IN);
+    assert!(reader.contains_writer(built_in_elsewhere));
+    let other_entity = GUID {
+      entity_id: EntityId {
+        entity_key: [0, 0, 8],
+        entity_kind: EntityKind::WRITER_WITH_KEY_USER_DEFINED,
+      },
+      ..matched
+    };
+    assert!(!reader.contains_writer(other_entity));
   }
 
   #[test]
