@@ -7,8 +7,8 @@
 //!   its idle cost, over what one step of the ownership arbiter costs in this process (a pure
 //!   CPU yardstick of this machine).
 //!
-//! One fleet run is ±10 % from the next on a quiet machine, so an attempt is a streaming and an
-//! idle run, and the guard (as the baseline) takes each ratio's median over three attempts: one
+//! One fleet run is ±10 % from the next on a quiet machine, so an attempt is an idle and a
+//! streaming run, and the guard (as the baseline) takes each ratio's median over three attempts: one
 //! noisy run either way does not decide.
 
 use crate::fleet::{self, Options};
@@ -32,8 +32,12 @@ pub struct Guard {
     pub window: Duration,
     /// Attempts, whose medians are compared (or written as the baseline).
     pub attempts: usize,
-    /// Allowed growth over the baseline, a fraction (0.25: 25 %).
+    /// Allowed growth of streaming ÷ idle over the baseline, a fraction (0.25: 25 %).
     pub tolerance: f64,
+    /// Allowed growth of a sample's cost in arbiter steps, a fraction: looser, since the
+    /// arbiter, pure CPU, does not follow what the machine's network stack and scheduler do
+    /// from one minute to the next (docs/design.md, "A guard on the fleet's cost").
+    pub sample_tolerance: f64,
 }
 
 /// One attempt's measurements and the ratios made of them.
@@ -90,20 +94,24 @@ impl Ratios {
         }
     }
 
-    /// What is over `baseline` by more than `tolerance` (a fraction), in words; empty: within.
+    /// What is over `baseline` by more than its tolerance (fractions: `tolerance` for
+    /// streaming ÷ idle, `sample_tolerance` for a sample in arbiter steps), in words; empty:
+    /// within.
     #[must_use]
-    pub fn over(&self, baseline: &Ratios, tolerance: f64) -> Vec<String> {
+    pub fn over(&self, baseline: &Ratios, tolerance: f64, sample_tolerance: f64) -> Vec<String> {
         let mut over = Vec::new();
-        for (name, now, then) in [
+        for (name, now, then, tolerance) in [
             (
                 "streaming ÷ idle",
                 self.streaming_over_idle,
                 baseline.streaming_over_idle,
+                tolerance,
             ),
             (
                 "a sample in arbiter steps",
                 self.sample_in_arbiter_steps,
                 baseline.sample_in_arbiter_steps,
+                sample_tolerance,
             ),
         ] {
             if now > then * (1.0 + tolerance) {
@@ -151,7 +159,9 @@ pub fn arbiter_step() -> Duration {
             let started = Instant::now();
             for i in 0..STEPS {
                 now = now + period;
-                std::hint::black_box(arbiter.step(now, std::hint::black_box(busy_sample(i % 32, now))));
+                std::hint::black_box(
+                    arbiter.step(now, std::hint::black_box(busy_sample(i % 32, now))),
+                );
             }
             started.elapsed() / STEPS
         })
@@ -176,14 +186,21 @@ fn fleet_options(options: &Guard, idle: bool) -> Options {
     }
 }
 
-/// One attempt: a streaming run, an idle run, the yardstick.
+/// Between two fleets, for the first one's processes and namespace to be gone.
+const BETWEEN_FLEETS: Duration = Duration::from_secs(3);
+
+/// One attempt: an idle run, a streaming run, the yardstick. Idle first: measured right after
+/// a streaming fleet, an idle fleet cost up to twice its usual in one attempt of four, which a
+/// fleet measured on its own never did (8 × 8 idle, seven runs: 0.29–0.34 % per node).
 ///
 /// # Errors
 /// A fleet run failed.
 pub fn attempt(rove: &Path, options: &Guard) -> anyhow::Result<Ratios> {
     let quiet = &mut |_: &str| {};
-    let streaming = fleet::run(rove, &fleet_options(options, false), quiet)?;
     let idle = fleet::run(rove, &fleet_options(options, true), quiet)?;
+    std::thread::sleep(BETWEEN_FLEETS);
+    let streaming = fleet::run(rove, &fleet_options(options, false), quiet)?;
+    std::thread::sleep(BETWEEN_FLEETS);
     Ok(Ratios::of(
         streaming.vehicles + streaming.operators,
         streaming.operators,
@@ -279,11 +296,13 @@ pub fn check(rove: &Path, options: &Guard, baseline: &Baseline) -> anyhow::Resul
         options.vehicles
     );
     println!(
-        "baseline ({}): streaming ÷ idle {:.2}, a sample {:.0} arbiter steps; bound +{:.0} %",
+        "baseline ({}): streaming ÷ idle {:.2} (bound +{:.0} %), a sample {:.0} arbiter steps \
+         (bound +{:.0} %)",
         baseline.note,
         baseline.ratios.streaming_over_idle,
+        options.tolerance * 100.0,
         baseline.ratios.sample_in_arbiter_steps,
-        options.tolerance * 100.0
+        options.sample_tolerance * 100.0
     );
     let mut runs = Vec::new();
     for n in 1..=options.attempts.max(1) {
@@ -298,7 +317,11 @@ pub fn check(rove: &Path, options: &Guard, baseline: &Baseline) -> anyhow::Resul
         m.streaming_over_idle,
         m.sample_in_arbiter_steps
     );
-    let over = m.over(&baseline.ratios, options.tolerance);
+    let over = m.over(
+        &baseline.ratios,
+        options.tolerance,
+        options.sample_tolerance,
+    );
     if over.is_empty() {
         println!("within the baseline's bound");
         return Ok(());
@@ -337,7 +360,13 @@ mod tests {
 
     /// 8 × 8: 16 nodes at 1 % streaming and 0.3 % idle, an arbiter step of 100 ns.
     fn eight_by_eight(streaming_node_pct: f64) -> Ratios {
-        Ratios::of(16, 8, 16.0 * streaming_node_pct, 16.0 * 0.3, Duration::from_nanos(100))
+        Ratios::of(
+            16,
+            8,
+            16.0 * streaming_node_pct,
+            16.0 * 0.3,
+            Duration::from_nanos(100),
+        )
     }
 
     #[test]
@@ -355,17 +384,31 @@ mod tests {
     #[test]
     fn only_growth_beyond_the_tolerance_is_over() {
         let baseline = eight_by_eight(1.0);
-        assert!(eight_by_eight(1.0).over(&baseline, 0.25).is_empty());
-        assert!(eight_by_eight(1.1).over(&baseline, 0.25).is_empty());
-        assert!(eight_by_eight(0.6).over(&baseline, 0.25).is_empty(), "cheaper is fine");
-        let over = eight_by_eight(1.3).over(&baseline, 0.25);
-        assert_eq!(over.len(), 2, "{over:?}");
-        assert!(over[0].starts_with("streaming ÷ idle"), "{over:?}");
+        let over =
+            |streaming_node_pct| eight_by_eight(streaming_node_pct).over(&baseline, 0.25, 0.6);
+        assert!(over(1.0).is_empty());
+        // +10 % a node is +14 % a sample (the idle share stays): within both.
+        assert!(over(1.1).is_empty());
+        assert!(over(0.6).is_empty(), "cheaper is fine");
+        // +30 % a node: streaming ÷ idle +30 % (over 25), a sample +43 % (within 60).
+        let o = over(1.3);
+        assert_eq!(o.len(), 1, "{o:?}");
+        assert!(o[0].starts_with("streaming ÷ idle"), "{o:?}");
+        // A regression of idle and streaming together: streaming ÷ idle stays, the sample's
+        // cost in arbiter steps does not.
+        let both = Ratios::of(16, 8, 16.0 * 2.0, 16.0 * 0.6, Duration::from_nanos(100));
+        let o = both.over(&baseline, 0.25, 0.6);
+        assert_eq!(o.len(), 1, "{o:?}");
+        assert!(o[0].starts_with("a sample in arbiter steps"), "{o:?}");
     }
 
     #[test]
     fn the_baseline_is_each_ratios_median() {
-        let runs = [eight_by_eight(1.0), eight_by_eight(2.0), eight_by_eight(1.2)];
+        let runs = [
+            eight_by_eight(1.0),
+            eight_by_eight(2.0),
+            eight_by_eight(1.2),
+        ];
         let m = median(&runs).expect("three runs");
         assert_eq!(m, eight_by_eight(1.2));
         assert!(median(&[]).is_none());

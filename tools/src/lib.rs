@@ -142,7 +142,7 @@ pub enum Bench {
     Soak(SoakArgs),
     /// A short fleet run (8 × 8 streaming, then idle) whose cost per node, as ratios in which
     /// the machine's speed cancels, is compared against a committed baseline: fails when the
-    /// median of the attempts is more than the tolerance over it (needs root).
+    /// median of the attempts is more than a tolerance over it (needs root).
     Guard(GuardArgs),
     /// Handover latency between real processes in a private network namespace (needs root):
     /// the seed's Tables 5.1–5.3, plus how fast a late joiner lists every device.
@@ -235,9 +235,13 @@ pub struct GuardArgs {
     /// the baseline).
     #[arg(long, default_value_t = 3)]
     pub attempts: usize,
-    /// Allowed growth over the baseline, percent.
+    /// Allowed growth of streaming ÷ idle over the baseline, percent.
     #[arg(long, default_value_t = 25.0)]
     pub tolerance_pct: f64,
+    /// Allowed growth of a command sample's cost in arbiter steps, percent (looser: the
+    /// arbiter does not follow the machine's network stack from one minute to the next).
+    #[arg(long, default_value_t = 60.0)]
+    pub sample_tolerance_pct: f64,
     /// The baseline to compare with (JSON, as `--write-baseline` writes it).
     #[arg(long, conflicts_with = "write_baseline")]
     pub baseline: Option<std::path::PathBuf>,
@@ -421,6 +425,7 @@ fn run_guard(rove: &Path, args: GuardArgs) -> anyhow::Result<()> {
         window: std::time::Duration::from_secs(args.window_s),
         attempts: args.attempts,
         tolerance: args.tolerance_pct / 100.0,
+        sample_tolerance: args.sample_tolerance_pct / 100.0,
     };
     let rove = args.rove.as_deref().unwrap_or(rove);
     let write = (args.write_baseline.as_deref()).zip(args.note.as_deref());

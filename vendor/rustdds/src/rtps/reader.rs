@@ -558,18 +558,31 @@ impl Reader {
   /// want of a proxy, and each submessage walked every matched writer of every reader (the
   /// largest single cost of a streaming process among 64). A built-in writer still counts by
   /// its entity id alone, as before: a built-in reader takes discovery data from a writer it
-  /// has not matched yet (see `process_received_data`).
+  /// has not matched yet (see `process_received_data`); but a user-defined reader, which
+  /// matches user writers only, does not walk its writers for one, nor does a built-in reader
+  /// for a writer of another built-in topic (another entity key); and a built-in reader looks
+  /// the writer up first (it has usually matched the sender).
   pub fn contains_writer(&self, writer: GUID) -> bool {
+    let kind = writer.entity_id.entity_kind;
     if self.like_stateless {
       // Making it explicit: stateless reader does not contain any writers
       false
-    } else if writer.entity_id.entity_kind.is_user_defined() {
+    } else if kind.is_user_defined() {
       self.matched_writers.contains_key(&writer)
+    } else if kind.is_built_in() && self.my_guid.entity_id.entity_kind.is_user_defined() {
+      false
+    } else if self.my_guid.entity_id.entity_kind.is_built_in()
+      && self.my_guid.entity_id.entity_key != writer.entity_id.entity_key
+    {
+      // A built-in reader matches its counterpart writer only, which has its entity key
+      // (an SPDP announcement does not walk the SEDP readers' writers).
+      false
     } else {
-      self
-        .matched_writers
-        .keys()
-        .any(|g| g.entity_id == writer.entity_id)
+      self.matched_writers.contains_key(&writer)
+        || self
+          .matched_writers
+          .keys()
+          .any(|g| g.entity_id == writer.entity_id)
     }
   }
 
@@ -2107,34 +2120,37 @@ mod tests {
       TypeDesc::new("test_type".to_string()),
       &qos_policy,
     );
-    let (notification_sender, _notification_receiver) =
-      crate::mio_source::notification_channel(100);
-    let (_notification_event_source, notification_event_sender) =
-      mio_source::make_poll_channel().unwrap();
-    let (status_sender, _status_receiver) = sync_status_channel::<DataReaderStatus>(4).unwrap();
     let (participant_status_sender, _participant_status_receiver) =
       sync_status_channel(16).unwrap();
-    let (_reader_command_sender, reader_command_receiver) =
-      wake_channel::<ReaderCommand>(10, &LoopWaker::new());
-    let mut reader = Reader::new(
-      ReaderIngredients {
-        guid: GUID::dummy_test_guid(EntityKind::READER_WITH_KEY_USER_DEFINED),
-        notification_sender,
-        status_sender,
-        topic_name: "test_name".to_string(),
-        topic_cache_handle,
-        like_stateless: false,
-        qos_policy,
-        data_reader_command_receiver: reader_command_receiver,
-        data_reader_waker: Arc::new(Mutex::new(None)),
-        poll_event_sender: notification_event_sender,
-        security_plugins: None,
-        discovery_notify: None,
-      },
-      Rc::new(UDPSender::new(0).unwrap()),
-      new_shared_timer(),
-      participant_status_sender,
-    );
+    let reader_of_kind = |kind| {
+      let (notification_sender, _notification_receiver) =
+        crate::mio_source::notification_channel(100);
+      let (_notification_event_source, notification_event_sender) =
+        mio_source::make_poll_channel().unwrap();
+      let (status_sender, _status_receiver) =
+        sync_status_channel::<DataReaderStatus>(4).unwrap();
+      let (_reader_command_sender, reader_command_receiver) =
+        wake_channel::<ReaderCommand>(10, &LoopWaker::new());
+      Reader::new(
+        ReaderIngredients {
+          guid: GUID::dummy_test_guid(kind),
+          notification_sender,
+          status_sender,
+          topic_name: "test_name".to_string(),
+          topic_cache_handle: topic_cache_handle.clone(),
+          like_stateless: false,
+          qos_policy: qos_policy.clone(),
+          data_reader_command_receiver: reader_command_receiver,
+          data_reader_waker: Arc::new(Mutex::new(None)),
+          poll_event_sender: notification_event_sender,
+          security_plugins: None,
+          discovery_notify: None,
+        },
+        Rc::new(UDPSender::new(0).unwrap()),
+        new_shared_timer(),
+        participant_status_sender.clone(),
+      )
+    };
     let writer = |participant: &[u8; 12], kind| GUID {
       prefix: GuidPrefix::new(participant),
       entity_id: EntityId {
@@ -2142,19 +2158,18 @@ mod tests {
         entity_kind: kind,
       },
     };
-    let matched = writer(b"participant1", EntityKind::WRITER_WITH_KEY_USER_DEFINED);
-    let built_in = writer(b"participant1", EntityKind::WRITER_WITH_KEY_BUILT_IN);
-    for w in [matched, built_in] {
+    let add = |reader: &mut Reader, w| {
       reader.matched_writer_add(w, EntityId::UNKNOWN, vec![], vec![], &QosPolicies::qos_none());
-    }
-    assert!(reader.contains_writer(matched));
+    };
+
+    let mut user = reader_of_kind(EntityKind::READER_WITH_KEY_USER_DEFINED);
+    let matched = writer(b"participant1", EntityKind::WRITER_WITH_KEY_USER_DEFINED);
+    add(&mut user, matched);
+    assert!(user.contains_writer(matched));
     // The same entity id in another participant: not a writer of this reader (before the
     // patch it was, and its samples were decoded here to be dropped).
     let same_id_elsewhere = writer(b"participant2", EntityKind::WRITER_WITH_KEY_USER_DEFINED);
-    assert!(!reader.contains_writer(same_id_elsewhere));
-    // A built-in writer not matched yet still counts by its entity id, as before.
-    let built_in_elsewhere = writer(b"participant2", EntityKind::WRITER_WITH_KEY_BUILT_IN);
-    assert!(reader.contains_writer(built_in_elsewhere));
+    assert!(!user.contains_writer(same_id_elsewhere));
     let other_entity = GUID {
       entity_id: EntityId {
         entity_key: [0, 0, 8],
@@ -2162,7 +2177,33 @@ mod tests {
       },
       ..matched
     };
-    assert!(!reader.contains_writer(other_entity));
+    assert!(!user.contains_writer(other_entity));
+    // A user reader never hears a built-in writer.
+    assert!(!user.contains_writer(writer(b"participant1", EntityKind::WRITER_WITH_KEY_BUILT_IN)));
+
+    // A built-in reader hears its matched built-in writer, and one with the same entity id
+    // that it has not matched yet, as before; not another built-in topic's writer.
+    let mut sedp = reader_of_kind(EntityKind::READER_WITH_KEY_BUILT_IN);
+    sedp.my_guid.entity_id = EntityId::SEDP_BUILTIN_PUBLICATIONS_READER;
+    let sedp_writer = GUID {
+      prefix: GuidPrefix::new(b"participant1"),
+      entity_id: EntityId::SEDP_BUILTIN_PUBLICATIONS_WRITER,
+    };
+    add(&mut sedp, sedp_writer);
+    assert!(sedp.contains_writer(sedp_writer));
+    assert!(sedp.contains_writer(GUID {
+      prefix: GuidPrefix::new(b"participant2"),
+      ..sedp_writer
+    }));
+    for other_topic in [
+      EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER,
+      EntityId::SEDP_BUILTIN_SUBSCRIPTIONS_WRITER,
+    ] {
+      assert!(!sedp.contains_writer(GUID {
+        entity_id: other_topic,
+        ..sedp_writer
+      }));
+    }
   }
 
   #[test]
