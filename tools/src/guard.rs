@@ -171,19 +171,7 @@ pub fn arbiter_step() -> Duration {
 
 /// The fleet options of one run.
 fn fleet_options(options: &Guard, idle: bool) -> Options {
-    Options {
-        vehicles: options.vehicles,
-        operators: options.vehicles,
-        idle,
-        window: options.window,
-        handover_runs: 0,
-        restarts: 0,
-        latejoin_runs: 0,
-        heartbeat_ms: None,
-        presence_ms: None,
-        vehicle_rt: None,
-        secure: false,
-    }
+    Options::cpu_only(options.vehicles, options.vehicles, idle, options.window)
 }
 
 /// Between two fleets, for the first one's processes and namespace to be gone.

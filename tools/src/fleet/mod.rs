@@ -86,6 +86,27 @@ pub struct Options {
     pub secure: bool,
 }
 
+impl Options {
+    /// A fleet measured for its CPU alone: no handovers, restarts or late joiners, the default
+    /// network settings, unsecured.
+    #[must_use]
+    pub fn cpu_only(vehicles: usize, operators: usize, idle: bool, window: Duration) -> Options {
+        Options {
+            vehicles,
+            operators,
+            idle,
+            window,
+            handover_runs: 0,
+            restarts: 0,
+            latejoin_runs: 0,
+            heartbeat_ms: None,
+            presence_ms: None,
+            vehicle_rt: None,
+            secure: false,
+        }
+    }
+}
+
 /// CPU and memory of one role's processes.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Usage {
@@ -489,19 +510,7 @@ mod tests {
 
     #[test]
     fn operators_are_dealt_round_the_vehicles() {
-        let options = Options {
-            vehicles: 2,
-            operators: 3,
-            idle: false,
-            window: Duration::ZERO,
-            handover_runs: 0,
-            restarts: 0,
-            latejoin_runs: 0,
-            heartbeat_ms: None,
-            presence_ms: None,
-            vehicle_rt: None,
-            secure: false,
-        };
+        let options = Options::cpu_only(2, 3, false, Duration::ZERO);
         assert_eq!(
             fleet_ids(&options),
             (vec![100, 101], vec![1000, 1001, 1002])
