@@ -31,6 +31,7 @@
 
 mod net;
 mod samples;
+mod spawned;
 #[cfg(test)]
 mod tests;
 mod ui;
@@ -48,6 +49,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use tracing::{info, warn};
 use ui::Ui;
+
+pub use spawned::Spawned;
 
 /// Longest wait for peers to acknowledge the final FINISHes and releases on exit (one deadline
 /// for all writers).

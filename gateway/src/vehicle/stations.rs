@@ -11,7 +11,7 @@
 //! comes.
 
 use crate::config::{InputChoice, OperatorConfig, VehicleConfig};
-use crate::operator::{self, Edges, Options, Sticks};
+use crate::operator::{Edges, Options, Spawned, Sticks};
 use rove_console::{Event, Stamped};
 use rove_core::adapter::{
     HostedEvent, HostedLink, HostedOperator, InputAction, InputEvent, InputSource,
@@ -24,20 +24,23 @@ use rove_core::time::MonoTime;
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::{Notify, broadcast, oneshot};
-use tracing::{info, warn};
+use tokio::sync::{Notify, broadcast};
+use tracing::info;
 
 /// A station whose HEARTBEAT is older than this no longer holds its request up.
 const HEARTBEAT_SILENCE: Duration = Duration::from_secs(3);
 /// How often centred sticks are fed while a station waits to stream.
 const CENTRED_EVERY: Duration = Duration::from_millis(50);
+/// How long a stopping station's loop may take to release and leave before it is aborted (as a
+/// web console's device).
+const STOP_BOUND: Duration = Duration::from_secs(5);
 /// The stream rate of a station's operator, as an operator's default.
 const STREAM_PERIOD: Duration = Duration::from_millis(20);
 
 /// The running stations' loops.
 #[derive(Debug, Default)]
 pub(super) struct Stations {
-    running: Vec<(DeviceId, oneshot::Sender<()>, tokio::task::JoinHandle<()>)>,
+    running: Vec<Spawned>,
 }
 
 impl Stations {
@@ -67,31 +70,22 @@ impl Stations {
                 edges.events.subscribe(),
                 Arc::clone(&h.link),
             ));
-            let (stop_tx, stop_rx) = oneshot::channel::<()>();
-            let id = h.id;
-            info!(station = id, name = %op.common.name, strength = op.strength.0, "ground station joins the hierarchy");
-            let task = tokio::spawn(async move {
-                let stop = async {
-                    let _ = stop_rx.await;
-                };
-                if let Err(e) = operator::run(op, Options::default(), edges, stop).await {
-                    warn!(station = id, cause = %format!("{e:#}"), "ground station's operator stopped");
-                }
-            });
-            stations.running.push((id, stop_tx, task));
+            info!(station = h.id, name = %op.common.name, strength = op.strength.0, "ground station joins the hierarchy");
+            let operator =
+                Spawned::start(op, Options::default(), edges, "ground station's operator");
+            stations.running.push(operator);
         }
         Ok(stations)
     }
 
-    /// Stops every station's loop (each releases what it drives), and waits for them.
-    pub(super) async fn stop(self) {
-        let mut tasks = Vec::new();
-        for (_, stop, task) in self.running {
-            let _ = stop.send(());
-            tasks.push(task);
+    /// Stops every station's loop (each releases what it drives), and waits for them, each
+    /// at most [`STOP_BOUND`].
+    pub(super) async fn stop(mut self) {
+        for operator in &mut self.running {
+            operator.signal();
         }
-        for task in tasks {
-            let _ = task.await;
+        for operator in &mut self.running {
+            operator.wait(STOP_BOUND).await;
         }
     }
 }

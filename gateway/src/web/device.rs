@@ -3,7 +3,7 @@
 
 use super::{LINGER, SILENCE, Shared, Slot};
 use crate::config::OperatorConfig;
-use crate::operator::{self, Edges, Options, Sticks};
+use crate::operator::{self, Edges, Options, Spawned, Sticks};
 use crate::runtime::Clock;
 use rove_console::{CommandRequest, Hub};
 use rove_core::adapter::{InputEvent, InputSource};
@@ -13,7 +13,10 @@ use rove_core::time::MonoTime;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{Notify, mpsc, watch};
-use tracing::{info, warn};
+use tracing::info;
+
+/// How long a stopping device's loop may take to release and leave before it is aborted.
+const STOP_BOUND: Duration = Duration::from_secs(5);
 
 /// Sticks from a browser: the operator loop's input source for a web device.
 #[derive(Debug, Clone)]
@@ -72,8 +75,8 @@ pub(super) struct Running {
     pub(super) clock: Clock,
     pub(super) hub: Hub,
     pub(super) commands: mpsc::Sender<CommandRequest>,
-    pub(super) stop: Option<tokio::sync::oneshot::Sender<()>>,
-    pub(super) task: tokio::task::JoinHandle<()>,
+    /// Its operator loop.
+    pub(super) operator: Spawned,
     /// The connection that speaks for the device now (a number per connection), if any.
     pub(super) connection: watch::Sender<Option<u64>>,
     /// When its last connection closed.
@@ -94,26 +97,16 @@ pub(super) fn start_device(config: &OperatorConfig, options: &Options) -> Runnin
     );
     let clock = edges.clock;
     let hub = Hub::start(operator::console_state(config), edges.events.subscribe());
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let (config, options) = (config.clone(), options.clone());
     let id = config.common.id;
     info!(device = id, "web: starting the device's participant");
-    let task = tokio::spawn(async move {
-        let stop = async {
-            let _ = stop_rx.await;
-        };
-        if let Err(e) = operator::run(config, options, edges, stop).await {
-            warn!(device = id, cause = %format!("{e:#}"), "web device stopped");
-        }
-    });
+    let operator = Spawned::start(config.clone(), options.clone(), edges, "web device");
     Running {
         input,
         wake,
         clock,
         hub,
         commands: commands_tx,
-        stop: Some(stop_tx),
-        task,
+        operator,
         connection: watch::Sender::new(None),
         idle_since: None,
     }
@@ -144,17 +137,5 @@ pub(super) async fn stop_device(slot: &Slot) {
     let Some(mut running) = slot.running.lock().await.take() else {
         return;
     };
-    if let Some(stop) = running.stop.take() {
-        let _ = stop.send(());
-    }
-    if tokio::time::timeout(Duration::from_secs(5), &mut running.task)
-        .await
-        .is_err()
-    {
-        warn!(
-            device = slot.config.common.id,
-            "web device did not stop within 5 s"
-        );
-        running.task.abort();
-    }
+    running.operator.stop(STOP_BOUND).await;
 }

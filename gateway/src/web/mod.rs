@@ -420,7 +420,7 @@ async fn connection(shared: Arc<Shared>, mut socket: WebSocket) {
         .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let attached = {
         let mut running = slot.running.lock().await;
-        if running.as_ref().is_none_or(|r| r.task.is_finished()) {
+        if running.as_ref().is_none_or(|r| r.operator.is_finished()) {
             *running = Some(start_device(&slot.config, &shared.options));
         }
         let Some(r) = running.as_mut() else { return };
