@@ -143,9 +143,7 @@ fn scenario(test: &str, autopilot_manages: bool) {
     // The station's sticks stop within its silence limit (the command timeout): after that and
     // a busy machine's slack, nothing of the station's is applied.
     let late = crash + (COMMAND_TIMEOUT_MS + 400) * 1000;
-    let stale: Vec<_> = (records(&record).into_iter())
-        .filter(|o| o.wall_us > late && o.owner == Some(STATION))
-        .collect();
+    let stale = station_outputs_after(&record, late);
     assert!(
         stale.is_empty(),
         "the crashed station still drove: {stale:?}"
@@ -161,9 +159,7 @@ fn scenario(test: &str, autopilot_manages: bool) {
         e["event"] == "sent" && e["type"] == "MANUAL_CONTROL"
     });
     std::thread::sleep(std::time::Duration::from_millis(500));
-    let stolen: Vec<_> = (records(&record).into_iter())
-        .filter(|o| o.wall_us > t && o.owner == Some(STATION))
-        .collect();
+    let stolen = station_outputs_after(&record, t);
     assert!(
         stolen.is_empty(),
         "a station not in control drove: {stolen:?}"
@@ -174,6 +170,13 @@ fn scenario(test: &str, autopilot_manages: bool) {
         "MANUAL_CONTROL reached the autopilot: {manual:?}"
     );
     drop(rogue);
+}
+
+/// The vehicle's outputs applied from the station after `wall_us`.
+fn station_outputs_after(record: &Path, wall_us: u64) -> Vec<rove_tools::harness::Out> {
+    (records(record).into_iter())
+        .filter(|o| o.wall_us > wall_us && o.owner == Some(STATION))
+        .collect()
 }
 
 fn wall(e: &Value) -> u64 {
