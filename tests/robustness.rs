@@ -102,7 +102,8 @@ fn a_vehicle_stopped_and_continued_applies_no_backlog_and_hears_its_owner_again(
 
 /// `rove bench chaos`, short, and the ownership contract asserted (docs/design.md, Chaos): after
 /// 40 random faults, no wrong owner, no stale output and no failsafe while an operator runs
-/// (each judged after the documented grace); 20 s of 10 % UDP loss without a change of owner;
+/// (each judged after the documented grace); 20 s of 10 % UDP loss with at most one lapse of a
+/// silent owner and no failsafe;
 /// three partitions, each healed operator driving again within 1 s.
 ///
 /// A starved process may truly fall silent for a command timeout on a loaded 2-core machine,
@@ -139,8 +140,12 @@ fn the_chaos_bench_holds_the_ownership_contract() {
         assert_eq!(counts[count], 0, "{count}: {text}");
     }
     assert!(report["loss_s"].as_f64() >= Some(20.0), "{report}");
+    // Under loss the owner may lapse only when its stream truly fell silent for the command
+    // timeout (a change away from an owner heard sooner is a wrong owner, asserted above): five
+    // drops in a row at 50 Hz, or four and a late sample, about once in 30 to 100 such phases.
+    // Two in one phase would be a stream that loses more than the network does.
     let under_loss = |what: &str| counts[what]["10"].as_u64().unwrap_or(0);
-    assert_eq!(under_loss("owner_changes_under_loss"), 0, "{text}");
+    assert!(under_loss("lapses_under_loss") <= 1, "{text}");
     assert_eq!(under_loss("failsafe_under_loss"), 0, "{text}");
     let recovery = report["recovery_ms"].as_array().expect("recovery_ms");
     assert_eq!(recovery.len(), 3, "{report}");

@@ -6,6 +6,10 @@ use crate::harness::Out;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
+/// How much sooner than a command timeout after the owner's last apply a lapse may show in the
+/// record: the watchdog is kicked on receipt, a moment before the apply is written.
+const LAPSE_SLACK_US: u64 = 5_000;
+
 /// What the bench did, when (wall clock, µs). Operators are named by device id, ranked by
 /// strength (a higher rank is stronger).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -82,6 +86,11 @@ pub struct Counts {
     pub owner_changes_under_loss: BTreeMap<u8, usize>,
     /// Entries into the failsafe during each loss phase, by loss percentage.
     pub failsafe_under_loss: BTreeMap<u8, usize>,
+    /// Owner lapses during each loss phase, by loss percentage: the vehicle left its owner for
+    /// a weaker operator or the failsafe after the owner's last apply was a command timeout
+    /// old (its stream truly fell silent: enough drops in a row). A change away from an owner
+    /// heard more recently is a wrong owner, loss or not.
+    pub lapses_under_loss: BTreeMap<u8, usize>,
     /// The first few violations, for a look at the record.
     pub examples: Vec<String>,
 }
@@ -221,25 +230,43 @@ impl Analysis<'_> {
             _ => {}
         }
         if self.loss > 0 {
-            let owner = out.owner;
-            if let Some(before) = self.last_owner
-                && before != owner
+            self.under_loss(out.owner, t);
+        }
+    }
+
+    /// An output during a loss phase: an owner change is counted, and one away from the owner
+    /// to a weaker operator (or the failsafe) is a lapse if the owner had been silent for a
+    /// command timeout, else a wrong owner.
+    fn under_loss(&mut self, owner: Option<i64>, t: u64) {
+        let loss = self.loss;
+        if let Some(before) = self.last_owner
+            && before != owner
+        {
+            *self
+                .counts
+                .owner_changes_under_loss
+                .entry(loss)
+                .or_default() += 1;
+            if owner.is_none() {
+                *self.counts.failsafe_under_loss.entry(loss).or_default() += 1;
+            }
+            let weaker = owner.is_none_or(|x| before.is_some_and(|b| self.rank(x) < self.rank(b)));
+            if let Some(b) = before
+                && weaker
             {
-                *self
-                    .counts
-                    .owner_changes_under_loss
-                    .entry(self.loss)
-                    .or_default() += 1;
-                if owner.is_none() {
-                    *self
-                        .counts
-                        .failsafe_under_loss
-                        .entry(self.loss)
-                        .or_default() += 1;
+                let silent = self.last_applied.get(&b).map_or(u64::MAX, |at| t - at);
+                if silent + LAPSE_SLACK_US >= COMMAND_TIMEOUT_US {
+                    *self.counts.lapses_under_loss.entry(loss).or_default() += 1;
+                } else {
+                    self.counts.wrong_owner += 1;
+                    self.example(format!(
+                        "under {loss} % loss at {t}: {owner:?} took over from {b}, {}",
+                        self.silent(b, t)
+                    ));
                 }
             }
-            self.last_owner = Some(owner);
         }
+        self.last_owner = Some(owner);
     }
 
     /// An apply from `x` at `t`: stale after its death, or a wrong owner while a stronger,
@@ -402,5 +429,33 @@ mod tests {
         assert_eq!(counts.owner_changes_under_loss.get(&30), Some(&2));
         assert_eq!(counts.failsafe_under_loss.get(&30), Some(&1));
         assert_eq!(counts.failsafe_under_loss.get(&10), None);
+        // Each went away from an owner silent for a second: lapses, not wrong owners.
+        assert_eq!(counts.lapses_under_loss.get(&10), Some(&1));
+        assert_eq!(counts.lapses_under_loss.get(&30), Some(&1));
+    }
+
+    #[test]
+    fn under_loss_leaving_an_owner_heard_within_the_timeout_is_a_wrong_owner() {
+        const MS: u64 = 1_000;
+        let mut log = both_started();
+        log.push(at(2 * S, Fault::Loss { pct: 10 }));
+        let lapse = COMMAND_TIMEOUT_US;
+        let outputs = [
+            apply(S, STRONG),
+            apply(2 * S + 20 * MS, STRONG),
+            // Silent for a command timeout: a lapse; then the stronger is back.
+            apply(2 * S + 20 * MS + lapse, WEAK),
+            apply(2 * S + 30 * MS + lapse, STRONG),
+            // Heard 40 ms before the weaker drives: the vehicle left a live owner.
+            apply(2 * S + 70 * MS + lapse, WEAK),
+        ];
+        let counts = analyse(&log, &outputs, &ranks());
+        assert_eq!(counts.owner_changes_under_loss.get(&10), Some(&3));
+        assert_eq!(counts.lapses_under_loss.get(&10), Some(&1));
+        assert_eq!(counts.wrong_owner, 1, "{counts:?}");
+        assert!(
+            counts.examples[0].contains("40 ms after its last apply"),
+            "{counts:?}"
+        );
     }
 }
