@@ -189,7 +189,6 @@ pub enum Bench {
     },
 }
 
-/// `rove bench handover --security`.
 /// `rove bench soak`'s arguments.
 #[derive(Debug, clap::Args)]
 pub struct SoakArgs {
@@ -213,6 +212,10 @@ pub struct SoakArgs {
     /// through two bridges (measured too); 0: no second site.
     #[arg(long, default_value_t = 0)]
     pub remote_every: usize,
+    /// Every process secured (DDS Security, a certificate per device id): every joiner is
+    /// authenticated by every node. Not with --remote-every.
+    #[arg(long)]
+    pub secure: bool,
     /// The `rove` binary the rig's processes run (default: this one), e.g. an older build
     /// for a before/after comparison: its CLI and configs must be this one's.
     #[arg(long)]
@@ -413,6 +416,7 @@ fn run_soak(rove: &Path, args: SoakArgs) -> anyhow::Result<()> {
         sample_every: args.sample_every,
         request_every: args.request_every,
         max_kib_per_cycle: args.max_kib_per_cycle,
+        secure: args.secure,
     };
     let rove = args.rove.as_deref().unwrap_or(rove);
     soak::cli(rove, &options, args.json.as_deref())

@@ -16,7 +16,7 @@
 //! resident memory over the cycles after the warm-up ([`slope`], pure): a process that keeps
 //! something for every participant that left grows by that much per cycle.
 
-use super::harness::{Appended, Rig};
+use super::harness::{Appended, Rig, security_toml};
 use super::procstat;
 use serde::Serialize;
 use std::path::Path;
@@ -32,6 +32,8 @@ const WEB_HOST: i64 = 20;
 const PHONES: std::ops::Range<i64> = 30..62;
 const TABLETS: std::ops::Range<i64> = 70..78;
 const REMOTES: std::ops::Range<i64> = 80..88;
+/// The browser console's configured device (never connected: no browser).
+const WEB_DEVICE: i64 = 25;
 /// How long the two sites' bridges may take to meet.
 #[cfg(all(feature = "remote", feature = "security"))]
 const SITES_PATIENCE: Duration = Duration::from_secs(60);
@@ -54,6 +56,9 @@ pub struct Options {
     /// Every this many cycles, a remote operator at another site (joined by two bridges,
     /// docs/remote.md) requests the vehicle instead; 0: no second site, no bridges.
     pub remote_every: usize,
+    /// Every process of the site secured (DDS Security, one certificate per device id): each
+    /// joiner is authenticated by every node, as in a secured fleet.
+    pub secure: bool,
 }
 
 /// One sample of one process.
@@ -229,7 +234,7 @@ fn one_cycle(
     rig: &mut Rig,
     home: Option<&mut Rig>,
     tail: &mut Tail,
-    options: &Options,
+    (options, keys): (&Options, Option<&Path>),
     cycle: usize,
 ) -> anyhow::Result<()> {
     let turn = |ids: std::ops::Range<i64>| ids.start + (cycle as i64 % (ids.end - ids.start));
@@ -253,12 +258,14 @@ fn one_cycle(
     let (joiner, id) = if request {
         let id = turn(TABLETS);
         let args = ["--request", "100"];
-        let n = rig.operator(id, "remote", "tablet", &[], 3000, "", &args);
+        let extra = security_toml(keys, id);
+        let n = rig.operator(id, "remote", "tablet", &[], 3000, &extra, &args);
         (n, id)
     } else {
         let id = turn(PHONES);
+        let extra = security_toml(keys, id);
         (
-            rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, "", &[]),
+            rig.operator(id, "mobile", "phone", &[VEHICLE], 2000, &extra, &[]),
             id,
         )
     };
@@ -273,6 +280,14 @@ fn one_cycle(
     Ok(())
 }
 
+/// Every device id of a secured soak's site: the long-lived ones and every joiner's.
+fn certified_ids() -> Vec<i64> {
+    ([VEHICLE, LAPTOP, DESKTOP, WEB_HOST, WEB_DEVICE].into_iter())
+        .chain(PHONES)
+        .chain(TABLETS)
+        .collect()
+}
+
 /// Runs a soak with the `rove` binary at `rove`.
 ///
 /// # Errors
@@ -283,22 +298,35 @@ pub fn run(
     options: &Options,
     mut progress: impl FnMut(&str),
 ) -> anyhow::Result<Report> {
-    let mut rig = Rig::new(rove, "soak")?;
-    let record = rig.vehicle_with_output(VEHICLE, "[output]\nadapter = \"sim\"\n");
-    let accept = "[handover]\nauto_accept = \"always\"\n";
-    rig.operator(
-        LAPTOP,
-        "stationary",
-        "laptop",
-        &[VEHICLE],
-        1000,
-        accept,
-        &[],
+    anyhow::ensure!(
+        !(options.secure && options.remote_every > 0),
+        "--secure with --remote-every: the soak's bridges speak to their sites unsecured"
     );
-    rig.operator(DESKTOP, "stationary", "desktop", &[], 0, "", &[]);
+    let mut rig = Rig::new(rove, "soak")?;
+    let keys = options
+        .secure
+        .then(|| rig.fleet(&certified_ids()))
+        .transpose()?;
+    let keys = keys.as_deref();
+    let output = format!(
+        "{}[output]\nadapter = \"sim\"\n",
+        security_toml(keys, VEHICLE)
+    );
+    let record = rig.vehicle_with_output(VEHICLE, &output);
+    let accept = "[handover]\nauto_accept = \"always\"\n";
+    let extra = format!("{accept}{}", security_toml(keys, LAPTOP));
+    let fallback = [VEHICLE];
+    rig.operator(LAPTOP, "stationary", "laptop", &fallback, 1000, &extra, &[]);
+    let extra = security_toml(keys, DESKTOP);
+    rig.operator(DESKTOP, "stationary", "desktop", &[], 0, &extra, &[]);
     // The browser console's host (its page served, a phone device configured, no browser).
-    let web = "[web]\nlisten = \"127.0.0.1:18443\"\n[[web.device]]\nid = 40\ndrive = [100]\n";
-    rig.operator(WEB_HOST, "stationary", "desktop", &[], 0, web, &[]);
+    let device_keys = keys.map(|k| format!("security = {:?}\n", k.join(WEB_DEVICE.to_string())));
+    let web = format!(
+        "[web]\nlisten = \"127.0.0.1:18443\"\n[[web.device]]\nid = {WEB_DEVICE}\ndrive = [100]\n{}{}",
+        device_keys.unwrap_or_default(),
+        security_toml(keys, WEB_HOST)
+    );
+    rig.operator(WEB_HOST, "stationary", "desktop", &[], 0, &web, &[]);
     let mut home = remote_site(rove, &mut rig, options.remote_every)?;
     let mut long_lived: Vec<(String, u32)> = (rig.procs.iter())
         .map(|p| (p.name.clone(), p.pid()))
@@ -332,7 +360,7 @@ pub fn run(
         if cycle == options.cycles {
             break;
         }
-        one_cycle(&mut rig, home.as_mut(), &mut tail, options, cycle)?;
+        one_cycle(&mut rig, home.as_mut(), &mut tail, (options, keys), cycle)?;
     }
     for p in &mut processes {
         let points: Vec<(f64, f64)> = (p.samples.iter())
