@@ -963,13 +963,9 @@ impl SecurityPlugins {
     self
       .identity_handle_cache
       .remove(remote_participant_guid_prefix);
-    // rove patch (ROVE-PATCH.md §30): and its permissions.
-    if let Some(handle) = self
+    self
       .permissions_handle_cache
-      .remove(remote_participant_guid_prefix)
-    {
-      self.access.forget_remote_permissions(handle);
-    }
+      .remove(remote_participant_guid_prefix);
     self
       .handshake_handle_cache
       .remove(remote_participant_guid_prefix);
@@ -1037,9 +1033,15 @@ impl SecurityPlugins {
     {
       self.auth.forget_remote_identity(handle);
     }
-    self
+    // rove patch (ROVE-PATCH.md §36): and its permissions. §30 meant to do this, but its line
+    // went into the commented-out `unregister_local_participant` above, so the access control
+    // plugin kept every authenticated participant's parsed permissions (about 6 KiB each).
+    if let Some(handle) = self
       .permissions_handle_cache
-      .remove(remote_participant_guid_prefix);
+      .remove(remote_participant_guid_prefix)
+    {
+      self.access.forget_remote_permissions(handle);
+    }
     self
       .handshake_handle_cache
       .remove(remote_participant_guid_prefix);
@@ -1506,5 +1508,193 @@ impl std::ops::Deref for SecurityPluginsHandle {
   type Target = Mutex<SecurityPlugins>;
   fn deref(&self) -> &Self::Target {
     &self.inner
+  }
+}
+
+// rove patch (ROVE-PATCH.md §36)
+#[cfg(test)]
+mod tests {
+  use std::sync::{Arc, Mutex};
+
+  use super::*;
+  use crate::{
+    dds::qos::QosPolicies,
+    discovery::{sedp_messages::TopicBuiltinTopicData, SpdpDiscoveredParticipantData},
+    security::{AuthenticationBuiltin, CryptographicBuiltin},
+  };
+
+  /// An access control plugin that refuses everything and records which permissions it was
+  /// told to forget.
+  #[derive(Default)]
+  struct Forgetful {
+    forgotten: Arc<Mutex<Vec<PermissionsHandle>>>,
+  }
+
+  fn refused<T>() -> SecurityResult<T> {
+    Err(SecurityError {
+      msg: "test plugin".to_string(),
+    })
+  }
+
+  impl ParticipantAccessControl for Forgetful {
+    fn forget_remote_permissions(&mut self, handle: PermissionsHandle) {
+      self.forgotten.lock().expect("test lock").push(handle);
+    }
+    fn validate_local_permissions(
+      &mut self,
+      _: &dyn Authentication,
+      _: IdentityHandle,
+      _: u16,
+      _: &QosPolicies,
+    ) -> SecurityResult<PermissionsHandle> {
+      refused()
+    }
+    fn validate_remote_permissions(
+      &mut self,
+      _: &dyn Authentication,
+      _: IdentityHandle,
+      _: IdentityHandle,
+      _: &PermissionsToken,
+      _: &AuthenticatedPeerCredentialToken,
+    ) -> SecurityResult<PermissionsHandle> {
+      refused()
+    }
+    fn check_create_participant(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: &QosPolicies,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn check_remote_participant(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: Option<&SpdpDiscoveredParticipantData>,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn get_permissions_token(&self, _: PermissionsHandle) -> SecurityResult<PermissionsToken> {
+      refused()
+    }
+    fn get_permissions_credential_token(
+      &self,
+      _: PermissionsHandle,
+    ) -> SecurityResult<PermissionsCredentialToken> {
+      refused()
+    }
+    fn set_listener(&self) -> SecurityResult<()> {
+      refused()
+    }
+    fn get_participant_sec_attributes(
+      &self,
+      _: PermissionsHandle,
+    ) -> SecurityResult<ParticipantSecurityAttributes> {
+      refused()
+    }
+  }
+
+  impl LocalEntityAccessControl for Forgetful {
+    fn check_create_datawriter(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: String,
+      _: &QosPolicies,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn check_create_datareader(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: String,
+      _: &QosPolicies,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn check_create_topic(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: String,
+      _: &QosPolicies,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn get_topic_sec_attributes(
+      &self,
+      _: PermissionsHandle,
+      _: &str,
+    ) -> SecurityResult<TopicSecurityAttributes> {
+      refused()
+    }
+    fn get_datawriter_sec_attributes(
+      &self,
+      _: PermissionsHandle,
+      _: String,
+    ) -> SecurityResult<EndpointSecurityAttributes> {
+      refused()
+    }
+    fn get_datareader_sec_attributes(
+      &self,
+      _: PermissionsHandle,
+      _: String,
+    ) -> SecurityResult<EndpointSecurityAttributes> {
+      refused()
+    }
+  }
+
+  impl RemoteEntityAccessControl for Forgetful {
+    fn check_remote_datawriter(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: &PublicationBuiltinTopicDataSecure,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+    fn check_remote_datareader(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: &SubscriptionBuiltinTopicDataSecure,
+    ) -> SecurityResult<(bool, bool)> {
+      refused()
+    }
+    fn check_remote_topic(
+      &self,
+      _: PermissionsHandle,
+      _: u16,
+      _: &TopicBuiltinTopicData,
+    ) -> SecurityResult<bool> {
+      refused()
+    }
+  }
+
+  impl AccessControl for Forgetful {}
+
+  #[test]
+  fn a_participant_unregistered_has_its_permissions_forgotten() {
+    let access = Forgetful::default();
+    let forgotten = Arc::clone(&access.forgotten);
+    let mut plugins = SecurityPlugins::new(
+      Box::new(AuthenticationBuiltin::new()),
+      Box::new(access),
+      Box::new(CryptographicBuiltin::new()),
+    );
+    let (gone, stays) = (GuidPrefix::new(b"gone-peer-01"), GuidPrefix::new(b"stays-peer-2"));
+    plugins.insert_to_permissions_handle_cache(gone, 7);
+    plugins.insert_to_permissions_handle_cache(stays, 8);
+    // A handshake again: the replaced handle goes at once.
+    plugins.insert_to_permissions_handle_cache(gone, 9);
+    assert_eq!(*forgotten.lock().expect("test lock"), vec![7]);
+    plugins
+      .unregister_remote_participant(&gone)
+      .expect("unregister");
+    assert_eq!(*forgotten.lock().expect("test lock"), vec![7, 9]);
+    assert!(!plugins.permissions_handle_cache.contains_key(&gone));
+    assert!(plugins.permissions_handle_cache.contains_key(&stays));
   }
 }
