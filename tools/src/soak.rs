@@ -83,6 +83,11 @@ pub struct Process {
     pub samples: Vec<Sample>,
     /// Resident memory growth per cycle after the warm-up, KiB.
     pub kib_per_cycle: f64,
+    /// ERROR lines in its log by the end (a healthy fleet whose operators come and go
+    /// logs none).
+    pub error_lines: usize,
+    /// The first few distinct ERROR lines, without their time stamps.
+    pub error_examples: Vec<String>,
 }
 
 /// What a soak found.
@@ -280,6 +285,23 @@ fn one_cycle(
     Ok(())
 }
 
+/// The ERROR lines in the log at `path` (none if it cannot be read): how many, and the first
+/// three distinct ones without their time stamps.
+fn error_lines(path: &Path) -> (usize, Vec<String>) {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let mut examples: Vec<String> = Vec::new();
+    let mut count = 0;
+    for line in text.lines().filter(|l| l.contains(" ERROR ")) {
+        count += 1;
+        let what = line.split_once(" ERROR ").map_or(line, |(_, w)| w);
+        let what: String = what.chars().take(200).collect();
+        if examples.len() < 3 && !examples.contains(&what) {
+            examples.push(what);
+        }
+    }
+    (count, examples)
+}
+
 /// Every device id of a secured soak's site: the long-lived ones and every joiner's.
 fn certified_ids() -> Vec<i64> {
     ([VEHICLE, LAPTOP, DESKTOP, WEB_HOST, WEB_DEVICE].into_iter())
@@ -328,26 +350,30 @@ pub fn run(
     );
     rig.operator(WEB_HOST, "stationary", "desktop", &[], 0, &web, &[]);
     let mut home = remote_site(rove, &mut rig, options.remote_every)?;
-    let mut long_lived: Vec<(String, u32)> = (rig.procs.iter())
-        .map(|p| (p.name.clone(), p.pid()))
+    let mut long_lived: Vec<(String, u32, std::path::PathBuf)> = (rig.procs.iter())
+        .map(|p| (p.name.clone(), p.pid(), p.log.clone()))
         .collect();
     if let Some(home) = &home {
-        long_lived.extend((home.procs.iter()).map(|p| (format!("home {}", p.name), p.pid())));
+        long_lived.extend(
+            (home.procs.iter()).map(|p| (format!("home {}", p.name), p.pid(), p.log.clone())),
+        );
     }
     let mut tail = Tail::new(&record);
     tail.wait_owner(LAPTOP)?;
     let mut processes: Vec<Process> = (long_lived.iter())
-        .map(|(name, _)| Process {
+        .map(|(name, _, _)| Process {
             name: name.clone(),
             samples: Vec::new(),
             kib_per_cycle: 0.0,
+            error_lines: 0,
+            error_examples: Vec::new(),
         })
         .collect();
     let started = Instant::now();
     let safe_before = tail.safe;
     for cycle in 0..=options.cycles {
         if cycle % options.sample_every.max(1) == 0 || cycle == options.cycles {
-            for ((_, pid), process) in long_lived.iter().zip(&mut processes) {
+            for ((_, pid, _), process) in long_lived.iter().zip(&mut processes) {
                 let s = sample(*pid, cycle)
                     .ok_or_else(|| anyhow::anyhow!("{} exited during the soak", process.name))?;
                 process.samples.push(s);
@@ -362,7 +388,8 @@ pub fn run(
         }
         one_cycle(&mut rig, home.as_mut(), &mut tail, (options, keys), cycle)?;
     }
-    for p in &mut processes {
+    for (p, (_, _, log)) in processes.iter_mut().zip(&long_lived) {
+        (p.error_lines, p.error_examples) = error_lines(log);
         let points: Vec<(f64, f64)> = (p.samples.iter())
             .filter(|s| s.cycle >= options.warmup)
             .map(|s| (s.cycle as f64, s.rss_kib as f64))
@@ -408,14 +435,18 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             _ => "-".into(),
         };
         println!(
-            "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {}; fds {}; threads {}",
+            "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {}; fds {}; threads {}; {} ERROR lines",
             p.name,
             span(|s| s.rss_kib.to_string()),
             p.kib_per_cycle,
             report.warmup,
             span(|s| s.fds.to_string()),
             span(|s| s.threads.to_string()),
+            p.error_lines,
         );
+        for example in &p.error_examples {
+            println!("    ERROR {example}");
+        }
     }
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?)?;

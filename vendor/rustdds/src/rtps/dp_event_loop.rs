@@ -743,7 +743,9 @@ impl DPEventLoop {
       if let Some(dpd) = db.find_participant_proxy(participant_guid_prefix) {
         dpd
       } else {
-        error!("Participant was updated, but DB does not have it. Strange.");
+        // rove patch (ROVE-PATCH.md §38): the participant left (or authenticates again) after
+        // discovery queued its update and before this loop got to it; its loss comes next.
+        debug!("Participant {participant_guid_prefix:?} was updated, but DB does not have it");
         return;
       };
 

@@ -490,6 +490,19 @@ impl MessageReceiver {
         // Just normal, non-security processing
         match submessage.body {
           SubmessageBody::Interpreter(m) => self.handle_interpreter_submessage(m),
+          // rove patch (ROVE-PATCH.md §38): a submessage after an INFO_DST naming another
+          // participant is not ours (a handshake sent to a peer whose unicast address is not
+          // known yet goes to the multicast group): dropped here, as the handlers below would,
+          // before the security check, which looked for an unprotected reader or writer of
+          // *that* participant among ours and logged an ERROR when it found none.
+          SubmessageBody::Writer(_) | SubmessageBody::Reader(_)
+            if self.is_for_another_participant() =>
+          {
+            trace!(
+              "Message is not for this participant. Dropping. dest_guid_prefix={:?}",
+              self.dest_guid_prefix
+            );
+          }
           SubmessageBody::Writer(submessage) => {
             let security_plugins_clone = self.security_plugins.clone();
             let receiver_entity_id = submessage.receiver_entity_id();
@@ -681,6 +694,11 @@ impl MessageReceiver {
       } // state SecureSubmessage
     } // match secure_submessage_state
   } // fn
+
+  /// Whether the current INFO_DST names a participant other than this one.
+  fn is_for_another_participant(&self) -> bool {
+    self.dest_guid_prefix != self.own_guid_prefix && self.dest_guid_prefix != GuidPrefix::UNKNOWN
+  }
 
   fn handle_writer_submessage(
     &mut self,

@@ -502,10 +502,13 @@ impl CryptoTransform for CryptographicBuiltin {
       .participant_to_endpoint_info
       .get(&sending_remote_participant_crypto_handle)
       .ok_or_else(|| {
-        create_security_error_and_log!(
+        // rove patch (ROVE-PATCH.md §38): a participant that is joining (its endpoints not
+        // registered yet) or leaving (unregistered already) sends this; the caller says what
+        // a failed decode means (§32: not an error by itself), so it is not logged here.
+        SecurityError::from(format!(
           "Could not find registered entities for the sending_remote_participant_crypto_handle {}",
           sending_remote_participant_crypto_handle
-        )
+        ))
       })?;
 
     let matching_decode_materials = sending_participant_endpoints
