@@ -291,9 +291,15 @@ fn error_lines(path: &Path) -> (usize, Vec<String>) {
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let mut examples: Vec<String> = Vec::new();
     let mut count = 0;
-    for line in text.lines().filter(|l| l.contains(" ERROR ")) {
+    // A plain log line is `TIME LEVEL target: message`: the level is the second field (a
+    // message may say ERROR too).
+    let errors = (text.lines()).filter_map(|line| {
+        let mut fields = line.trim_start().splitn(3, char::is_whitespace);
+        let (_, level) = (fields.next(), fields.next());
+        (level == Some("ERROR")).then(|| fields.next().unwrap_or("").trim_start())
+    });
+    for what in errors {
         count += 1;
-        let what = line.split_once(" ERROR ").map_or(line, |(_, w)| w);
         let what: String = what.chars().take(200).collect();
         if examples.len() < 3 && !examples.contains(&what) {
             examples.push(what);
@@ -470,5 +476,30 @@ mod tests {
         assert!(slope(&flat).abs() < 0.2);
         assert_eq!(slope(&[(1.0, 5.0)]), 0.0);
         assert_eq!(slope(&[(1.0, 5.0), (1.0, 7.0)]), 0.0, "one x: no slope");
+    }
+
+    #[test]
+    fn error_lines_are_counted_and_the_first_distinct_ones_kept_without_time_stamps() {
+        let dir = std::env::temp_dir().join(format!("rove-soak-errors-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a temp dir");
+        let log = dir.join("p.log");
+        let lines = [
+            "2026-11-30T03:00:00.1Z  INFO rove: started",
+            "2026-11-30T03:00:01.1Z ERROR rustdds::a: one",
+            "2026-11-30T03:00:02.1Z ERROR rustdds::a: one",
+            "2026-11-30T03:00:03.1Z  WARN rustdds::b: an ERROR word in a warning",
+            "2026-11-30T03:00:04.1Z ERROR rustdds::b: two",
+            "2026-11-30T03:00:05.1Z ERROR rustdds::c: three",
+            "2026-11-30T03:00:06.1Z ERROR rustdds::d: four",
+        ];
+        std::fs::write(&log, lines.join("\n")).expect("write the log");
+        let (count, examples) = error_lines(&log);
+        assert_eq!(count, 5);
+        assert_eq!(
+            examples,
+            ["rustdds::a: one", "rustdds::b: two", "rustdds::c: three"]
+        );
+        assert_eq!(error_lines(&dir.join("absent.log")), (0, Vec::new()));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
