@@ -622,9 +622,7 @@ impl MessageReceiver {
 
           #[cfg(feature = "security")]
           SubmessageBody::Security(m) => {
-            if self.dest_guid_prefix != self.own_guid_prefix
-              && self.dest_guid_prefix != GuidPrefix::UNKNOWN
-            {
+            if self.is_for_another_participant() {
               trace!(
                 "Message is not for this participant. Dropping. dest_guid_prefix={:?} participant \
                  guid={:?}",
@@ -705,8 +703,7 @@ impl MessageReceiver {
     target_reader_entity_id: EntityId,
     submessage: WriterSubmessage,
   ) {
-    if self.dest_guid_prefix != self.own_guid_prefix && self.dest_guid_prefix != GuidPrefix::UNKNOWN
-    {
+    if self.is_for_another_participant() {
       debug!(
         "Message is not for this participant. Dropping. dest_guid_prefix={:?} participant \
          guid={:?}",
@@ -952,8 +949,7 @@ impl MessageReceiver {
   }
 
   fn handle_reader_submessage(&self, submessage: ReaderSubmessage) {
-    if self.dest_guid_prefix != self.own_guid_prefix && self.dest_guid_prefix != GuidPrefix::UNKNOWN
-    {
+    if self.is_for_another_participant() {
       debug!(
         "Message is not for this participant. Dropping. dest_guid_prefix={:?} participant \
          guid={:?}",
