@@ -50,7 +50,7 @@ use std::sync::Arc;
 use tracing::{info, warn};
 use ui::Ui;
 
-pub use spawned::Spawned;
+pub use spawned::{STOP_BOUND, Spawned};
 
 /// Longest wait for peers to acknowledge the final FINISHes and releases on exit (one deadline
 /// for all writers).

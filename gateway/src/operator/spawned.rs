@@ -8,6 +8,10 @@ use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tracing::warn;
 
+/// How long a stopping loop may take to finish its grants, release and leave before it is
+/// aborted.
+pub const STOP_BOUND: Duration = Duration::from_secs(5);
+
 /// A running operator loop, and how to stop it.
 #[derive(Debug)]
 pub struct Spawned {

@@ -11,7 +11,7 @@
 //! comes.
 
 use crate::config::{InputChoice, OperatorConfig, VehicleConfig};
-use crate::operator::{Edges, Options, Spawned, Sticks};
+use crate::operator::{Edges, Options, STOP_BOUND, Spawned, Sticks};
 use rove_console::{Event, Stamped};
 use rove_core::adapter::{
     HostedEvent, HostedLink, HostedOperator, InputAction, InputEvent, InputSource,
@@ -31,9 +31,6 @@ use tracing::info;
 const HEARTBEAT_SILENCE: Duration = Duration::from_secs(3);
 /// How often centred sticks are fed while a station waits to stream.
 const CENTRED_EVERY: Duration = Duration::from_millis(50);
-/// How long a stopping station's loop may take to release and leave before it is aborted (as a
-/// web console's device).
-const STOP_BOUND: Duration = Duration::from_secs(5);
 /// The stream rate of a station's operator, as an operator's default.
 const STREAM_PERIOD: Duration = Duration::from_millis(20);
 

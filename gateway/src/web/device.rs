@@ -3,7 +3,7 @@
 
 use super::{LINGER, SILENCE, Shared, Slot};
 use crate::config::OperatorConfig;
-use crate::operator::{self, Edges, Options, Spawned, Sticks};
+use crate::operator::{self, Edges, Options, STOP_BOUND, Spawned, Sticks};
 use crate::runtime::Clock;
 use rove_console::{CommandRequest, Hub};
 use rove_core::adapter::{InputEvent, InputSource};
@@ -11,12 +11,8 @@ use rove_core::error::LinkError;
 use rove_core::remote::{RemoteInput, RemoteLink};
 use rove_core::time::MonoTime;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 use tokio::sync::{Notify, mpsc, watch};
 use tracing::info;
-
-/// How long a stopping device's loop may take to release and leave before it is aborted.
-const STOP_BOUND: Duration = Duration::from_secs(5);
 
 /// Sticks from a browser: the operator loop's input source for a web device.
 #[derive(Debug, Clone)]
