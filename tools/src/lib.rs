@@ -140,7 +140,7 @@ pub enum Bench {
     /// bystander while other operators join, preempt or request, and quit, cycle after cycle:
     /// the growth per cycle after a warm-up (needs root).
     Soak(SoakArgs),
-    /// A short fleet run (8 × 8 streaming, then idle) whose cost per node, as ratios in which
+    /// A short fleet run (8 × 8 idle, then streaming) whose cost per node, as ratios in which
     /// the machine's speed cancels, is compared against a committed baseline: fails when the
     /// median of the attempts is more than a tolerance over it (needs root).
     Guard(GuardArgs),

@@ -250,9 +250,8 @@ impl Analysis<'_> {
             if owner.is_none() {
                 *self.counts.failsafe_under_loss.entry(loss).or_default() += 1;
             }
-            let weaker = owner.is_none_or(|x| before.is_some_and(|b| self.rank(x) < self.rank(b)));
             if let Some(b) = before
-                && weaker
+                && owner.is_none_or(|x| self.rank(x) < self.rank(b))
             {
                 let silent = self.last_applied.get(&b).map_or(u64::MAX, |at| t - at);
                 if silent + LAPSE_SLACK_US >= COMMAND_TIMEOUT_US {
