@@ -480,9 +480,8 @@ mod tests {
 
     #[test]
     fn error_lines_are_counted_and_the_first_distinct_ones_kept_without_time_stamps() {
-        let dir = std::env::temp_dir().join(format!("rove-soak-errors-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("a temp dir");
-        let log = dir.join("p.log");
+        let dir = tempfile::tempdir().expect("a temp dir");
+        let log = dir.path().join("p.log");
         let lines = [
             "2026-11-30T03:00:00.1Z  INFO rove: started",
             "2026-11-30T03:00:01.1Z ERROR rustdds::a: one",
@@ -499,7 +498,6 @@ mod tests {
             examples,
             ["rustdds::a: one", "rustdds::b: two", "rustdds::c: three"]
         );
-        assert_eq!(error_lines(&dir.join("absent.log")), (0, Vec::new()));
-        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(error_lines(&dir.path().join("absent.log")), (0, Vec::new()));
     }
 }

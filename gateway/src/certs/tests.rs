@@ -3,15 +3,17 @@
 use super::*;
 use openssl::x509::X509Crl;
 
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("rove-keys-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+/// A path for a fleet's directory (not made yet), and the temp dir that holds it (removed when
+/// the test drops it).
+fn scratch() -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path().join("fleet");
+    (tmp, dir)
 }
 
 #[test]
 fn a_revoked_device_is_listed_in_a_signed_list_copied_to_every_device() {
-    let dir = scratch("revoke");
+    let (_tmp, dir) = scratch();
     init(&dir, "test fleet", 0).expect("init");
     for id in [11, 12] {
         add(&dir, id, Lifetime::DEVICE, false).expect("add");
@@ -45,7 +47,7 @@ fn a_revoked_device_is_listed_in_a_signed_list_copied_to_every_device() {
 
 #[test]
 fn a_fleet_issues_device_certificates_that_verify_against_its_ca() {
-    let dir = scratch("issue");
+    let (_tmp, dir) = scratch();
     init(&dir, "test fleet", 0).expect("init");
     let out = add(&dir, 11, Lifetime::DEVICE, false).expect("add");
     let ca = X509::from_pem(&std::fs::read(dir.join("ca.cert.pem")).expect("ca")).expect("pem");
@@ -79,7 +81,7 @@ fn a_fleet_issues_device_certificates_that_verify_against_its_ca() {
 
 #[test]
 fn the_web_certificate_verifies_against_the_fleet_ca_and_serves_tls() {
-    let dir = scratch("web");
+    let (_tmp, dir) = scratch();
     init(&dir, "test fleet", 0).expect("init");
     let hosts = ["rover-base.local".to_string(), "192.168.1.20".to_string()];
     let out = web(&dir, &hosts, Lifetime::DEVICE).expect("issued");
@@ -126,7 +128,7 @@ fn the_guid_start_names_one_device() {
 
 #[test]
 fn a_secured_sites_proxies_speak_for_their_ids_at_their_level_only() {
-    let dir = scratch("proxies");
+    let (_tmp, dir) = scratch();
     init(&dir, "test fleet", 0).expect("init");
     let home = rove_core::site::SiteName::new("home").expect("name");
     let out = site_proxies(&dir, &home, &[100, 12], Level::Stationary, Lifetime::DEVICE)
@@ -170,7 +172,7 @@ fn a_secured_sites_proxies_speak_for_their_ids_at_their_level_only() {
 
 #[test]
 fn a_revoked_site_is_named_in_a_signed_list_and_its_identities_in_the_crl() {
-    let dir = scratch("revoke-site");
+    let (_tmp, dir) = scratch();
     init(&dir, "test fleet", 0).expect("init");
     add(&dir, 11, Lifetime::DEVICE, false).expect("add");
     let home = rove_core::site::SiteName::new("home").expect("name");
@@ -208,7 +210,7 @@ fn a_revoked_site_is_named_in_a_signed_list_and_its_identities_in_the_crl() {
     let edited = dir.join("edited.p7s");
     std::fs::write(&edited, text.replacen("home", "hume", 1)).expect("write");
     assert!(revoked_sites(&ca, &edited).is_err(), "edited");
-    let stranger = scratch("revoke-site-stranger");
+    let (_stranger_tmp, stranger) = scratch();
     init(&stranger, "strangers", 0).expect("init");
     assert!(
         revoked_sites(&stranger.join("ca.cert.pem"), &file).is_err(),

@@ -2,12 +2,24 @@
 
 use super::*;
 
-fn write(name: &str, text: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("rove-config-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let path = dir.join(name);
+/// A config file written for one test, in a directory of its own that is removed with it.
+struct Written {
+    path: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl std::ops::Deref for Written {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.path
+    }
+}
+
+fn write(name: &str, text: &str) -> Written {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join(name);
     std::fs::write(&path, text).expect("write");
-    path
+    Written { path, _dir: dir }
 }
 
 /// Issue 30: docs/mavlink.md's steps drive what they start. In each section of the guide,

@@ -5,11 +5,11 @@ use std::os::unix::fs::PermissionsExt;
 
 /// A fake system root; device files belong to the test's own user (root: gid 0), so the
 /// fake /etc/group names gid 0 as the device group under test.
-fn tree(name: &str) -> Roots {
-    let dir = std::env::temp_dir().join(format!("rove-doctor-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("tree");
-    Roots(dir)
+/// The root, and the temp dir that holds it (removed when the test drops it).
+fn tree() -> (tempfile::TempDir, Roots) {
+    let dir = tempfile::tempdir().expect("tree");
+    let roots = Roots(dir.path().to_path_buf());
+    (dir, roots)
 }
 
 fn put(roots: &Roots, path: &str, text: &str, mode: u32) {
@@ -36,7 +36,7 @@ fn line<'a>(found: &'a [Finding], starts: &str) -> &'a Finding {
 
 #[test]
 fn a_pi_with_pwm_serial_and_groups_is_reported_and_the_configs_needs_checked() {
-    let roots = tree("pi");
+    let (_tmp, roots) = tree();
     put(
         &roots,
         "/etc/group",
@@ -106,7 +106,7 @@ fn a_pi_with_pwm_serial_and_groups_is_reported_and_the_configs_needs_checked() {
 
 #[test]
 fn what_a_config_needs_and_the_computer_lacks_is_missing_or_wrong_with_the_fix() {
-    let roots = tree("bare");
+    let (_tmp, roots) = tree();
     put(&roots, "/etc/group", "input:x:0:\n", 0o644);
     let config = vehicle(
         &roots,
@@ -167,7 +167,7 @@ fn what_a_config_needs_and_the_computer_lacks_is_missing_or_wrong_with_the_fix()
 /// such a group reaches the device, it points at a udev rule and the device's own group.
 #[test]
 fn advice_never_names_a_privileged_group() {
-    let roots = tree("privileged");
+    let (_tmp, roots) = tree();
     let serial = vehicle(
         &roots,
         "[output]\nadapter = \"mavlink\"\nconnection = \"serial:/dev/ttyUSB0:57600\"\n",
@@ -204,7 +204,7 @@ fn advice_never_names_a_privileged_group() {
 
 #[test]
 fn input_devices_are_listed_by_name_with_their_access() {
-    let roots = tree("inputs");
+    let (_tmp, roots) = tree();
     put(&roots, "/etc/group", "input:x:0:rove\n", 0o644);
     put(&roots, "/dev/input/event3", "", 0o660);
     put(
@@ -250,8 +250,8 @@ fn a_certificate_near_its_end_is_a_warning_and_an_expired_one_is_wrong() {
         (-10, 5, Status::Wrong, "EXPIRED on"),
         (3, 30, Status::Wrong, "not valid yet"),
     ];
-    for (i, (starts, days, status, says)) in cases.into_iter().enumerate() {
-        let roots = tree(&format!("cert-{i}"));
+    for (starts, days, status, says) in cases {
+        let (_tmp, roots) = tree();
         let config = secured_vehicle(&roots, starts, days);
         let found = check(&roots, "rove", Some(&config));
         let cert = line(&found, "security: certificate");
@@ -271,7 +271,7 @@ fn a_certificate_near_its_end_is_a_warning_and_an_expired_one_is_wrong() {
 /// it keeps none.
 #[test]
 fn a_mavlink_vehicle_is_told_where_the_failsafe_memory_lives() {
-    let roots = tree("memory");
+    let (_tmp, roots) = tree();
     let mavlink = vehicle(
         &roots,
         "[output]\nadapter = \"mavlink\"\nconnection = \"udpin:127.0.0.1:14550\"\n",
