@@ -68,6 +68,9 @@ pub struct Sample {
     pub cycle: usize,
     /// Resident memory, KiB.
     pub rss_kib: u64,
+    /// Its anonymous part (heap, stacks), KiB: what the process keeps. The rest is mostly the
+    /// binary's pages, which grow as code runs for the first time, up to the binary's size.
+    pub anon_kib: u64,
     /// Open file descriptors.
     pub fds: usize,
     /// Threads.
@@ -83,6 +86,8 @@ pub struct Process {
     pub samples: Vec<Sample>,
     /// Resident memory growth per cycle after the warm-up, KiB.
     pub kib_per_cycle: f64,
+    /// Anonymous resident memory growth per cycle after the warm-up, KiB.
+    pub anon_kib_per_cycle: f64,
     /// ERROR lines in its log by the end (a healthy fleet whose operators come and go
     /// logs none).
     pub error_lines: usize,
@@ -127,14 +132,17 @@ fn sample(pid: u32, cycle: usize) -> Option<Sample> {
     let (_, rss_kib) = procstat::sample(pid)?;
     let fds = std::fs::read_dir(format!("/proc/{pid}/fd")).ok()?.count();
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let threads = (status.lines())
-        .find_map(|l| l.strip_prefix("Threads:"))
-        .and_then(|v| v.trim().parse().ok())?;
+    let field = |name: &str| {
+        (status.lines())
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.split_whitespace().next()?.parse().ok())
+    };
     Some(Sample {
         cycle,
         rss_kib,
+        anon_kib: field("RssAnon:")?,
         fds,
-        threads,
+        threads: field("Threads:")?,
     })
 }
 
@@ -371,6 +379,7 @@ pub fn run(
             name: name.clone(),
             samples: Vec::new(),
             kib_per_cycle: 0.0,
+            anon_kib_per_cycle: 0.0,
             error_lines: 0,
             error_examples: Vec::new(),
         })
@@ -385,7 +394,13 @@ pub fn run(
                 process.samples.push(s);
             }
             let rss: Vec<String> = (processes.iter())
-                .filter_map(|p| Some(format!("{} {} KiB", p.name, p.samples.last()?.rss_kib)))
+                .filter_map(|p| {
+                    let s = p.samples.last()?;
+                    Some(format!(
+                        "{} {} KiB (anon {})",
+                        p.name, s.rss_kib, s.anon_kib
+                    ))
+                })
                 .collect();
             progress(&format!("cycle {cycle}: {}", rss.join(", ")));
         }
@@ -396,11 +411,15 @@ pub fn run(
     }
     for (p, (_, _, log)) in processes.iter_mut().zip(&long_lived) {
         (p.error_lines, p.error_examples) = error_lines(log);
-        let points: Vec<(f64, f64)> = (p.samples.iter())
-            .filter(|s| s.cycle >= options.warmup)
-            .map(|s| (s.cycle as f64, s.rss_kib as f64))
-            .collect();
-        p.kib_per_cycle = slope(&points);
+        let growth = |kib: fn(&Sample) -> u64| {
+            let points: Vec<(f64, f64)> = (p.samples.iter())
+                .filter(|s| s.cycle >= options.warmup)
+                .map(|s| (s.cycle as f64, kib(s) as f64))
+                .collect();
+            slope(&points)
+        };
+        p.kib_per_cycle = growth(|s| s.rss_kib);
+        p.anon_kib_per_cycle = growth(|s| s.anon_kib);
     }
     let report = Report {
         cycles: options.cycles,
@@ -441,11 +460,14 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             _ => "-".into(),
         };
         println!(
-            "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {}; fds {}; threads {}; {} ERROR lines",
+            "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {} (anonymous {} KiB, {:+.2}); fds {}; \
+             threads {}; {} ERROR lines",
             p.name,
             span(|s| s.rss_kib.to_string()),
             p.kib_per_cycle,
             report.warmup,
+            span(|s| s.anon_kib.to_string()),
+            p.anon_kib_per_cycle,
             span(|s| s.fds.to_string()),
             span(|s| s.threads.to_string()),
             p.error_lines,
@@ -463,6 +485,14 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sample_reads_this_process_and_its_anonymous_memory_is_part_of_its_resident() {
+        let s = sample(std::process::id(), 7).expect("this process's /proc");
+        assert_eq!(s.cycle, 7);
+        assert!(0 < s.anon_kib && s.anon_kib < s.rss_kib, "{s:?}");
+        assert!(s.fds > 0 && s.threads > 0, "{s:?}");
+    }
 
     #[test]
     fn the_slope_is_the_growth_per_cycle() {
