@@ -17,7 +17,6 @@
 //! something for every participant that left grows by that much per cycle.
 
 use super::harness::{Appended, Rig, security_toml};
-use super::procstat;
 use serde::Serialize;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -127,9 +126,9 @@ pub fn slope(points: &[(f64, f64)]) -> f64 {
     if den == 0.0 { 0.0 } else { num / den }
 }
 
-/// Resident memory, fds and threads of `pid` after `cycle` cycles.
+/// Resident memory (all, and its anonymous part), fds and threads of `pid` after `cycle`
+/// cycles: one read of `/proc/PID/status` for the three counts it holds.
 fn sample(pid: u32, cycle: usize) -> Option<Sample> {
-    let (_, rss_kib) = procstat::sample(pid)?;
     let fds = std::fs::read_dir(format!("/proc/{pid}/fd")).ok()?.count();
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
     let field = |name: &str| {
@@ -139,7 +138,7 @@ fn sample(pid: u32, cycle: usize) -> Option<Sample> {
     };
     Some(Sample {
         cycle,
-        rss_kib,
+        rss_kib: field("VmRSS:")?,
         anon_kib: field("RssAnon:")?,
         fds,
         threads: field("Threads:")?,
