@@ -4,9 +4,9 @@ use std::{
   net::{IpAddr, Ipv4Addr, SocketAddr},
 };
 
-use log::{debug, error, info, trace, warn};
+use log::{debug, error, info, warn};
 use socket2::{Domain, Protocol, SockAddr, Socket, Type};
-use bytes::{Bytes, BytesMut};
+use bytes::Bytes;
 
 use crate::{
   network::util::{
@@ -14,7 +14,6 @@ use crate::{
     get_local_multicast_locators, get_local_unicast_locators_filtered,
   },
   rtps::transmit::InterfaceSelector,
-  serialization::padding_needed_for_alignment_4,
   structure::locator::Locator,
 };
 
@@ -45,8 +44,6 @@ impl PacketOrigin {
 }
 
 const MAX_MESSAGE_SIZE: usize = 64 * 1024; // This is max we can get from UDP.
-const MESSAGE_BUFFER_ALLOCATION_CHUNK: usize = 256 * 1024; // must be >= MAX_MESSAGE_SIZE
-static_assertions::const_assert!(MESSAGE_BUFFER_ALLOCATION_CHUNK > MAX_MESSAGE_SIZE);
 
 /// Listens to messages coming to specified host port combination.
 /// Only messages from added listen addressed are read when get_all_messages is
@@ -54,7 +51,8 @@ static_assertions::const_assert!(MESSAGE_BUFFER_ALLOCATION_CHUNK > MAX_MESSAGE_S
 #[derive(Debug)]
 pub struct UDPListener {
   socket: mio1::net::UdpSocket,
-  receive_buffer: BytesMut,
+  // rove patch (ROVE-PATCH.md §39): one datagram's room, reused for every receive.
+  receive_buffer: Box<[u8]>,
   multicast_group: Option<Ipv4Addr>,
   has_multicast_join: bool,
   // Cached OS interface-index -> local interface map, used to resolve the
@@ -198,7 +196,7 @@ impl UDPListener {
 
     Ok(Self {
       socket: mio_socket,
-      receive_buffer: BytesMut::with_capacity(MESSAGE_BUFFER_ALLOCATION_CHUNK),
+      receive_buffer: vec![0; MAX_MESSAGE_SIZE].into_boxed_slice(),
       multicast_group: None,
       has_multicast_join: false,
       ifindex_map: build_ifindex_to_interface_map(),
@@ -263,7 +261,7 @@ impl UDPListener {
 
     Ok(Self {
       socket: mio_socket,
-      receive_buffer: BytesMut::with_capacity(MESSAGE_BUFFER_ALLOCATION_CHUNK),
+      receive_buffer: vec![0; MAX_MESSAGE_SIZE].into_boxed_slice(),
       multicast_group: Some(multicast_group),
       has_multicast_join: joined_multicast,
       ifindex_map: build_ifindex_to_interface_map(),
@@ -328,67 +326,19 @@ impl UDPListener {
       if messages.len() >= max_messages {
         return messages;
       }
-      // Loop invariant. Note that capacity() may be large, but .len() == 0.
-      assert_eq!(self.receive_buffer.len(), 0);
-
-      // Ensure that receive buffer has enough capacity for a message
-      if self.receive_buffer.capacity() < MAX_MESSAGE_SIZE {
-        self.receive_buffer = BytesMut::with_capacity(MESSAGE_BUFFER_ALLOCATION_CHUNK);
-        debug!("ensure_receive_buffer_capacity - reallocated receive_buffer");
-      }
-      unsafe {
-        // This is safe, because we just checked that there is enough capacity,
-        // or allocated more.
-        // We do not read undefined data, because the recv()
-        // will overwrite this space and truncate the rest away.
-        self.receive_buffer.set_len(MAX_MESSAGE_SIZE);
-      }
-      trace!(
-        "ensure_receive_buffer_capacity - {} bytes left",
-        self.receive_buffer.capacity()
-      );
+      // rove patch (ROVE-PATCH.md §39): receive into one reused buffer and hand out a
+      // copy of exactly the datagram. A slice of a shared chunk kept the whole chunk
+      // alive for as long as any cached sample from it lived.
       let (nbytes, origin) = match self.recv_one() {
         Ok(Some(received)) => received,
-        Ok(None) => {
-          // WouldBlock: nothing (more) to read.
-          self.receive_buffer.clear();
-          return messages;
-        }
+        Ok(None) => return messages, // WouldBlock: nothing (more) to read.
         Err(e) => {
-          self.receive_buffer.clear();
           warn!("socket recv() error: {e:?}");
           return messages;
         }
       };
-      // Something was received.
-      // The buffer length is still MAX_MESSAGE_SIZE, set before the receive so
-      // the kernel had room to write into. Shrink it back to the number of bytes
-      // actually received, so that the padding + split below only consume this
-      // datagram's worth of the chunk. Without this, every datagram (however
-      // small) would carve off a full MAX_MESSAGE_SIZE slot, wasting the chunk
-      // and defeating the packing this alignment logic assumes.
-      unsafe {
-        // Safe: recv_one wrote `nbytes` valid bytes at the front of the buffer,
-        // and nbytes <= MAX_MESSAGE_SIZE == the current len.
-        self.receive_buffer.set_len(nbytes);
-      }
-
-      // Now, append some extra data to align the buffer end, so the next piece will
-      // be aligned also. This assumes that the initial buffer was aligned to begin
-      // with. This is because RTPS data is optimized to align to 4-byte boundaries.
-      let pad = padding_needed_for_alignment_4(self.receive_buffer.len());
-      if pad != 0 {
-        self
-          .receive_buffer
-          .extend_from_slice(&[0xCC, 0xCC, 0xCC, 0xCC][..pad]);
-        // Funny value 0xCC encourages a fast crash in case these bytes
-        // are ever accessed, as they should not.
-      }
-
-      // Now split away the used portion.
-      let mut message = self.receive_buffer.split_to(self.receive_buffer.len());
-      message.truncate(nbytes); // discard (hide) padding
-      messages.push((Bytes::from(message), origin)); // freeze bytes and push
+      let datagram = Bytes::copy_from_slice(&self.receive_buffer[..nbytes]);
+      messages.push((datagram, origin));
     } // loop
 
     // unreachable!(); // But why does this cause a warning? (rustc 1.66.0)
@@ -534,6 +484,41 @@ mod tests {
 
     assert_eq!(rec_data.len(), 5); // It appears that this test may randomly fail.
     assert_eq!(rec_data, data);
+  }
+
+  // rove patch (ROVE-PATCH.md §39): a received datagram owns its bytes alone, so a
+  // cached sample keeps only its own datagram alive, not a chunk shared with others.
+  #[test]
+  fn each_received_datagram_owns_its_bytes() {
+    let mut listener = UDPListener::new_unicast("127.0.0.1", 0).expect("listener");
+    let port = listener.port();
+    let sender = UDPSender::new_with_random_port().expect("failed to create UDPSender");
+    let sent: Vec<Vec<u8>> = vec![vec![1; 5], vec![2; 700], vec![3; 64]];
+    let addrs = vec![SocketAddr::new("127.0.0.1".parse().unwrap(), port)];
+    for data in &sent {
+      sender.send_to_all(data, &addrs);
+    }
+
+    let mut poll = mio1::Poll::new().expect("poll");
+    poll
+      .registry()
+      .register(listener.mio_socket(), mio1::Token(0), mio1::Interest::READABLE)
+      .expect("register");
+    let mut events = mio1::Events::with_capacity(4);
+    let mut received = Vec::new();
+    let deadline = time::Instant::now() + time::Duration::from_secs(10);
+    while received.len() < sent.len() && time::Instant::now() < deadline {
+      poll
+        .poll(&mut events, Some(time::Duration::from_millis(200)))
+        .expect("poll");
+      received.extend(listener.messages_bounded(usize::MAX));
+    }
+
+    let payloads: Vec<Vec<u8>> = received.iter().map(|(b, _)| b.to_vec()).collect();
+    assert_eq!(payloads, sent);
+    for (datagram, _) in received {
+      assert!(datagram.is_unique(), "a datagram shares its allocation");
+    }
   }
 
   #[test]
