@@ -241,14 +241,19 @@ impl TopicCache {
   // forward and false if not. The marker never moves backwards: the cache may
   // have given up on a missing sample that the Reader is still waiting for.
   pub fn mark_reliably_received_before(&mut self, writer: GUID, sn: SequenceNumber) -> bool {
-    self.generation = self.generation.wrapping_add(1);
     let prev_sn = self.reliable_before(writer);
     // The entry must exist even at the initial value: withheld samples are
     // protected only for Writers that have one.
     let marker = self.received_reliably_before.entry(writer).or_default();
     *marker = max(*marker, sn);
     self.advance_marker_over_present(writer);
-    prev_sn < self.reliable_before(writer)
+    let moved = prev_sn < self.reliable_before(writer);
+    // rove patch (ROVE-PATCH.md §40): a marker that stays (every HEARTBEAT of a writer
+    // whose samples are all in) changes nothing a reader may read.
+    if moved {
+      self.generation = self.generation.wrapping_add(1);
+    }
+    moved
   }
 
   // Samples present without a break right at the marker have nothing missing
@@ -1061,6 +1066,8 @@ mod tests {
     assert!(!moved(&topic_cache), "reading changes nothing");
     topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(2));
     assert!(moved(&topic_cache), "a reliable marker moved");
+    topic_cache.mark_reliably_received_before(writer, SequenceNumber::new(2));
+    assert!(!moved(&topic_cache), "a marker that stays (§40)");
     topic_cache.forget_reliable_writer(writer);
     assert!(moved(&topic_cache), "a writer forgotten");
     topic_cache.remove_changes_before(Timestamp::ZERO);
