@@ -87,10 +87,10 @@ pub struct Process {
     pub kib_per_cycle: f64,
     /// Anonymous resident memory growth per cycle after the warm-up, KiB.
     pub anon_kib_per_cycle: f64,
-    /// ERROR lines in its log by the end (a healthy fleet whose operators come and go
-    /// logs none).
+    /// ERROR lines and panics in its log by the end (a healthy fleet whose operators come and
+    /// go logs none).
     pub error_lines: usize,
-    /// The first few distinct ERROR lines, without their time stamps.
+    /// The first few distinct ERROR lines and panics, without their time stamps.
     pub error_examples: Vec<String>,
 }
 
@@ -292,15 +292,19 @@ fn one_cycle(
     Ok(())
 }
 
-/// The ERROR lines in the log at `path` (none if it cannot be read): how many, and the first
-/// three distinct ones without their time stamps.
+/// The ERROR lines and panics in the log at `path` (none if it cannot be read): how many, and
+/// the first three distinct ones without their time stamps.
 fn error_lines(path: &Path) -> (usize, Vec<String>) {
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let mut examples: Vec<String> = Vec::new();
     let mut count = 0;
     // A plain log line is `TIME LEVEL target: message`: the level is the second field (a
-    // message may say ERROR too).
+    // message may say ERROR too). A panic, on any thread, is `thread 'NAME' (ID) panicked at
+    // PLACE:`, on stderr, which the log holds too.
     let errors = (text.lines()).filter_map(|line| {
+        if line.starts_with("thread '") && line.contains(" panicked at ") {
+            return Some(line);
+        }
         let mut fields = line.trim_start().splitn(3, char::is_whitespace);
         let (_, level) = (fields.next(), fields.next());
         (level == Some("ERROR")).then(|| fields.next().unwrap_or("").trim_start())
@@ -460,7 +464,7 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         };
         println!(
             "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {} (anonymous {} KiB, {:+.2}); fds {}; \
-             threads {}; {} ERROR lines",
+             threads {}; {} ERROR lines and panics",
             p.name,
             span(|s| s.rss_kib.to_string()),
             p.kib_per_cycle,
@@ -508,7 +512,7 @@ mod tests {
     }
 
     #[test]
-    fn error_lines_are_counted_and_the_first_distinct_ones_kept_without_time_stamps() {
+    fn error_lines_and_panics_are_counted_and_the_first_distinct_errors_kept_without_time_stamps() {
         let dir = tempfile::tempdir().expect("a temp dir");
         let log = dir.path().join("p.log");
         let lines = [
@@ -519,10 +523,11 @@ mod tests {
             "2026-11-30T03:00:04.1Z ERROR rustdds::b: two",
             "2026-11-30T03:00:05.1Z ERROR rustdds::c: three",
             "2026-11-30T03:00:06.1Z ERROR rustdds::d: four",
+            "thread 'RustDDS discovery thread' (20150) panicked at std/src/thread.rs:127:9:",
         ];
         std::fs::write(&log, lines.join("\n")).expect("write the log");
         let (count, examples) = error_lines(&log);
-        assert_eq!(count, 5);
+        assert_eq!(count, 6, "five ERROR lines and a panic");
         assert_eq!(
             examples,
             ["rustdds::a: one", "rustdds::b: two", "rustdds::c: three"]

@@ -1180,12 +1180,24 @@ impl Drop for DomainParticipantDisc {
 
     debug!("Waiting for Discovery join.");
     if let Ok(handle) = self.discovery_join_handle.try_recv() {
-      handle
-        .join()
-        .unwrap_or_else(|e| warn!("Failed to join discovery thread: {e:?}"));
-      debug!("Joined Discovery.");
+      join_unless_current(handle);
     }
   }
+}
+
+/// rove patch (ROVE-PATCH.md §41): joins a thread, unless it is this one. Discovery holds the
+/// participant for a moment now and then (to announce it); when the application lets go of
+/// it meanwhile, the participant is dropped on Discovery's own thread, which cannot join
+/// itself (std panics: EDEADLK). Discovery then ends by itself: it has the stop command.
+fn join_unless_current(handle: JoinHandle<()>) {
+  if handle.thread().id() == thread::current().id() {
+    debug!("Discovery dropped its own participant: it stops by itself.");
+    return;
+  }
+  handle
+    .join()
+    .unwrap_or_else(|e| warn!("Failed to join discovery thread: {e:?}"));
+  debug!("Joined Discovery.");
 }
 
 // This is the actual working DomainParticipant.
@@ -1809,6 +1821,30 @@ mod tests {
     test::{random_data::RandomData, test_domain::test_domain_id},
   };
   use super::DomainParticipant;
+
+  // rove patch (ROVE-PATCH.md §41): a participant dropped on Discovery's own thread
+  // (Discovery held the last handle) stops without joining that thread, which would panic.
+  #[test]
+  fn a_thread_given_its_own_handle_does_not_join_itself() {
+    let (handle_tx, handle_rx) = std::sync::mpsc::channel::<std::thread::JoinHandle<()>>();
+    let (done_tx, done_rx) = std::sync::mpsc::channel();
+    let own = std::thread::spawn(move || {
+      super::join_unless_current(handle_rx.recv().expect("own handle"));
+      done_tx.send(()).expect("done");
+    });
+    handle_tx.send(own).expect("send the handle");
+    assert!(
+      done_rx
+        .recv_timeout(std::time::Duration::from_secs(10))
+        .is_ok(),
+      "the thread panicked joining itself"
+    );
+
+    // Another thread is joined: it has finished when the call returns.
+    let (tx, rx) = std::sync::mpsc::channel();
+    super::join_unless_current(std::thread::spawn(move || tx.send(7).expect("send")));
+    assert_eq!(rx.try_recv(), Ok(7));
+  }
 
   // TODO: improve basic test when more or the structure is known
   #[test]
