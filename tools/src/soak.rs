@@ -92,6 +92,9 @@ pub struct Process {
     pub error_lines: usize,
     /// The first few distinct ERROR lines and panics, without their time stamps.
     pub error_examples: Vec<String>,
+    /// A bridge: the times it saw the other site's link drop ("site gone"), which a link on
+    /// loopback should never do; 0 for every other process.
+    pub sites_gone: usize,
 }
 
 /// What a soak found.
@@ -319,6 +322,14 @@ fn error_lines(path: &Path) -> (usize, Vec<String>) {
     (count, examples)
 }
 
+/// The times the log at `path` says a site went (`rove bridge`'s "site gone" line).
+fn sites_gone(path: &Path) -> usize {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    text.lines()
+        .filter(|line| line.contains("bridge: site gone"))
+        .count()
+}
+
 /// Every device id of a secured soak's site: the long-lived ones and every joiner's.
 fn certified_ids() -> Vec<i64> {
     ([VEHICLE, LAPTOP, DESKTOP, WEB_HOST, WEB_DEVICE].into_iter())
@@ -384,6 +395,7 @@ pub fn run(
             kib_per_cycle: 0.0,
             anon_kib_per_cycle: 0.0,
             error_lines: 0,
+            sites_gone: 0,
             error_examples: Vec::new(),
         })
         .collect();
@@ -414,6 +426,7 @@ pub fn run(
     }
     for (p, (_, _, log)) in processes.iter_mut().zip(&long_lived) {
         (p.error_lines, p.error_examples) = error_lines(log);
+        p.sites_gone = sites_gone(log);
         let growth = |kib: fn(&Sample) -> u64| {
             let points: Vec<(f64, f64)> = (p.samples.iter())
                 .filter(|s| s.cycle >= options.warmup)
@@ -462,9 +475,13 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             (Some(a), Some(b)) => format!("{} → {}", f(a), f(b)),
             _ => "-".into(),
         };
+        let link = match p.name.contains("bridge") {
+            true => format!("; the other site gone {} times", p.sites_gone),
+            false => String::new(),
+        };
         println!(
             "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {} (anonymous {} KiB, {:+.2}); fds {}; \
-             threads {}; {} ERROR lines and panics",
+             threads {}; {} ERROR lines and panics{link}",
             p.name,
             span(|s| s.rss_kib.to_string()),
             p.kib_per_cycle,
@@ -533,5 +550,20 @@ mod tests {
             ["rustdds::a: one", "rustdds::b: two", "rustdds::c: three"]
         );
         assert_eq!(error_lines(&dir.path().join("absent.log")), (0, Vec::new()));
+    }
+
+    #[test]
+    fn a_bridges_link_drops_are_counted_from_its_log() {
+        let dir = tempfile::tempdir().expect("a temp dir");
+        let log = dir.path().join("bridge.log");
+        let lines = [
+            "2026-11-30T09:16:52.0Z  INFO rove_gateway::bridge: site up site=lab",
+            "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
+            "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site up site=lab",
+            "2026-11-30T09:22:02.6Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
+        ];
+        std::fs::write(&log, lines.join("\n")).expect("write the log");
+        assert_eq!(sites_gone(&log), 2);
+        assert_eq!(sites_gone(&dir.path().join("absent.log")), 0);
     }
 }
