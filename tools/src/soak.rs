@@ -295,10 +295,14 @@ fn one_cycle(
     Ok(())
 }
 
-/// The ERROR lines and panics in the log at `path` (none if it cannot be read): how many, and
-/// the first three distinct ones without their time stamps.
-fn error_lines(path: &Path) -> (usize, Vec<String>) {
-    let text = std::fs::read_to_string(path).unwrap_or_default();
+/// A long-lived process's log, read once at the end for what it says; empty if it cannot be read.
+fn read_log(path: &Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_default()
+}
+
+/// The ERROR lines and panics in a log's `text`: how many, and the first three distinct ones
+/// without their time stamps.
+fn error_lines(text: &str) -> (usize, Vec<String>) {
     let mut examples: Vec<String> = Vec::new();
     let mut count = 0;
     // A plain log line is `TIME LEVEL target: message`: the level is the second field (a
@@ -322,9 +326,8 @@ fn error_lines(path: &Path) -> (usize, Vec<String>) {
     (count, examples)
 }
 
-/// The times the log at `path` says a site went (`rove bridge`'s "site gone" line).
-fn sites_gone(path: &Path) -> usize {
-    let text = std::fs::read_to_string(path).unwrap_or_default();
+/// The times a log's `text` says a site went (`rove bridge`'s "site gone" line).
+fn sites_gone(text: &str) -> usize {
     text.lines()
         .filter(|line| line.contains("bridge: site gone"))
         .count()
@@ -425,8 +428,9 @@ pub fn run(
         one_cycle(&mut rig, home.as_mut(), &mut tail, (options, keys), cycle)?;
     }
     for (p, (_, _, log)) in processes.iter_mut().zip(&long_lived) {
-        (p.error_lines, p.error_examples) = error_lines(log);
-        p.sites_gone = sites_gone(log);
+        let text = read_log(log);
+        (p.error_lines, p.error_examples) = error_lines(&text);
+        p.sites_gone = sites_gone(&text);
         let growth = |kib: fn(&Sample) -> u64| {
             let points: Vec<(f64, f64)> = (p.samples.iter())
                 .filter(|s| s.cycle >= options.warmup)
@@ -475,9 +479,10 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
             (Some(a), Some(b)) => format!("{} → {}", f(a), f(b)),
             _ => "-".into(),
         };
-        let link = match p.name.contains("bridge") {
-            true => format!("; the other site gone {} times", p.sites_gone),
-            false => String::new(),
+        let link = if p.name.contains("bridge") {
+            format!("; the other site gone {} times", p.sites_gone)
+        } else {
+            String::new()
         };
         println!(
             "{:<12} RSS {} KiB, {:+.2} KiB/cycle after cycle {} (anonymous {} KiB, {:+.2}); fds {}; \
@@ -530,8 +535,6 @@ mod tests {
 
     #[test]
     fn error_lines_and_panics_are_counted_and_the_first_distinct_errors_kept_without_time_stamps() {
-        let dir = tempfile::tempdir().expect("a temp dir");
-        let log = dir.path().join("p.log");
         let lines = [
             "2026-11-30T03:00:00.1Z  INFO rove: started",
             "2026-11-30T03:00:01.1Z ERROR rustdds::a: one",
@@ -542,28 +545,31 @@ mod tests {
             "2026-11-30T03:00:06.1Z ERROR rustdds::d: four",
             "thread 'RustDDS discovery thread' (20150) panicked at std/src/thread.rs:127:9:",
         ];
-        std::fs::write(&log, lines.join("\n")).expect("write the log");
-        let (count, examples) = error_lines(&log);
+        let (count, examples) = error_lines(&lines.join("\n"));
         assert_eq!(count, 6, "five ERROR lines and a panic");
         assert_eq!(
             examples,
             ["rustdds::a: one", "rustdds::b: two", "rustdds::c: three"]
         );
-        assert_eq!(error_lines(&dir.path().join("absent.log")), (0, Vec::new()));
+        let dir = tempfile::tempdir().expect("a temp dir");
+        let absent = read_log(&dir.path().join("absent.log"));
+        assert_eq!(
+            error_lines(&absent),
+            (0, Vec::new()),
+            "a log that cannot be read"
+        );
     }
 
     #[test]
     fn a_bridges_link_drops_are_counted_from_its_log() {
-        let dir = tempfile::tempdir().expect("a temp dir");
-        let log = dir.path().join("bridge.log");
         let lines = [
             "2026-11-30T09:16:52.0Z  INFO rove_gateway::bridge: site up site=lab",
             "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
             "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site up site=lab",
             "2026-11-30T09:22:02.6Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
         ];
-        std::fs::write(&log, lines.join("\n")).expect("write the log");
-        assert_eq!(sites_gone(&log), 2);
-        assert_eq!(sites_gone(&dir.path().join("absent.log")), 0);
+        assert_eq!(sites_gone(&lines.join("\n")), 2);
+        let dir = tempfile::tempdir().expect("a temp dir");
+        assert_eq!(sites_gone(&read_log(&dir.path().join("absent.log"))), 0);
     }
 }
