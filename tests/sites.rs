@@ -236,8 +236,9 @@ fn a_cut_link_puts_the_vehicle_in_its_safe_state_and_driving_resumes_when_it_ret
             "{how:?}: safe state {:.1} ms after the cut",
             ms_since(t, safe)
         );
-        // Hold the cut past the link's lease, so the lab also sees the site go.
-        std::thread::sleep(Duration::from_secs(4));
+        // Hold the cut past the link's lease and the grace after it, so the lab also sees the
+        // site go and its devices leave.
+        std::thread::sleep(Duration::from_secs(5));
         assert!(
             records(&record)
                 .iter()

@@ -326,10 +326,11 @@ fn error_lines(text: &str) -> (usize, Vec<String>) {
     (count, examples)
 }
 
-/// The times a log's `text` says a site went (`rove bridge`'s "site gone" line).
+/// The times a log's `text` says a site's link went (`rove bridge`'s "site gone:" line; its
+/// devices leave only if it stays away, "site still gone").
 fn sites_gone(text: &str) -> usize {
     text.lines()
-        .filter(|line| line.contains("bridge: site gone"))
+        .filter(|line| line.contains(": site gone: "))
         .count()
 }
 
@@ -566,7 +567,9 @@ mod tests {
             "2026-11-30T09:16:52.0Z  INFO rove_gateway::bridge: site up site=lab",
             "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
             "2026-11-30T09:17:52.8Z  INFO rove_gateway::bridge: site up site=lab",
-            "2026-11-30T09:22:02.6Z  INFO rove_gateway::bridge: site gone: its devices leave this site site=lab",
+            "2026-11-30T09:22:02.6Z  INFO rove_gateway::bridge::sites: site gone: its devices leave this site unless it is back within the grace site=lab grace_ms=1000",
+            "2026-11-30T09:22:02.6Z  INFO rove_gateway::bridge::sites: site back: its devices stayed here site=lab",
+            "2026-11-30T09:23:02.6Z  INFO rove_gateway::bridge::sites: site still gone: its devices leave this site site=lab",
         ];
         assert_eq!(sites_gone(&lines.join("\n")), 2);
         let dir = tempfile::tempdir().expect("a temp dir");

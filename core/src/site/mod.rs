@@ -17,6 +17,7 @@
 //! and subscribe only to `rove/<its name>/**`, so `<from>` is authenticated by the link; which
 //! ids that site may speak for, and which of our vehicles it may see, is [`Policy`]'s.
 
+pub mod absence;
 pub mod wire;
 
 use crate::hierarchy::{Hierarchy, Level, Strength};

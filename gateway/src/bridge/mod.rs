@@ -17,10 +17,11 @@ mod local;
 mod proxy;
 mod revoked;
 mod secured;
+mod sites;
 mod tls;
 
 use crate::config::{BridgeConfig, Common};
-use crate::runtime::RateLimited;
+use crate::runtime::{Clock, RateLimited};
 use crate::sdnotify::Notifier;
 use link::{Arrived, Link};
 use local::{Heard, Local};
@@ -29,6 +30,7 @@ use revoked::Revocations;
 use rove_core::arbiter::ParticipantId;
 use rove_core::hierarchy::Strength;
 use rove_core::msg::{DeviceId, DeviceInfo, RequestControl, VehicleStatus};
+use rove_core::site::absence::Absences;
 use rove_core::site::{Key, Policy, SiteName, Subject, wire};
 use rustdds::GUID;
 use rustdds::with_key::Sample;
@@ -175,6 +177,9 @@ struct Bridge {
     ours: HashMap<ParticipantId, DeviceId>,
     /// Sites whose bridge is up.
     up: BTreeSet<SiteName>,
+    /// Sites whose link went: their devices leave unless they are back within the grace.
+    away: Absences,
+    clock: Clock,
     /// Local command writers the vehicles' proxies heard: their operator and strength (a
     /// release names neither).
     writers: HashMap<GUID, (DeviceId, Strength)>,
@@ -225,6 +230,8 @@ impl Bridge {
             proxies: HashMap::new(),
             ours: HashMap::new(),
             up: BTreeSet::new(),
+            away: Absences::new(),
+            clock: Clock::start(),
             writers: HashMap::new(),
             refreshed: Instant::now(),
             refused: RateLimited::new("refused a message of another site"),
@@ -507,18 +514,7 @@ impl Bridge {
                 }
             }
             Arrived::Site { site, up } if self.policy.peer(&site).is_some() => {
-                if up {
-                    info!(%site, "site up");
-                    self.up.insert(site.clone());
-                    self.show_all(&site).await;
-                    // Again a second later: its subscription may not have been routed yet
-                    // when its token arrived.
-                    self.reshow.insert(site, Instant::now() + RESHOW);
-                } else {
-                    info!(%site, "site gone: its devices leave this site");
-                    self.up.remove(&site);
-                    self.drop_site(&site);
-                }
+                self.site(site, up).await;
             }
             Arrived::Site { .. } => {}
         }
@@ -528,6 +524,7 @@ impl Bridge {
 
     async fn tick(&mut self) {
         self.cut_off_revoked();
+        self.leave_due();
         for proxy in self.proxies.values() {
             proxy.refresh();
         }

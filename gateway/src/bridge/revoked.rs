@@ -138,6 +138,7 @@ impl Bridge {
             let site = self.policy.peers.remove(peer).name;
             error!(%site, "site revoked: cut off, its devices leave this site");
             self.up.remove(&site);
+            self.away.came(&site); // no grace: it leaves now
             self.reshow.remove(&site);
             self.drop_site(&site);
         }
