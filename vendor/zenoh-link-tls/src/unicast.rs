@@ -14,18 +14,21 @@
 #[cfg(all(feature = "uring", target_os = "linux"))]
 use std::os::fd::RawFd;
 use std::{
-    cell::UnsafeCell,
     convert::TryInto,
     fmt::{self, Debug},
+    future::poll_fn,
+    io,
     net::SocketAddr,
-    sync::Arc,
+    pin::Pin,
+    sync::{Arc, Mutex, PoisonError},
+    task::{Context, Poll},
     time::Duration,
 };
 
 use async_trait::async_trait;
 use time::OffsetDateTime;
 use tokio::{
-    io::{AsyncReadExt, AsyncWriteExt},
+    io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf},
     net::{TcpListener, TcpStream},
     sync::Mutex as AsyncMutex,
 };
@@ -55,15 +58,14 @@ use crate::{
 pub struct TlsCommonName(String);
 
 pub struct LinkUnicastTls {
-    // The underlying socket as returned from the async-rustls library
-    // NOTE: TlsStream requires &mut for read and write operations. This means
-    //       that concurrent reads and writes are not possible. To achieve that,
-    //       we use an UnsafeCell for interior mutability. Using an UnsafeCell
-    //       is safe in our case since the transmission and reception logic
-    //       already ensures that no concurrent reads or writes can happen on
-    //       the same stream: there is only one task at the time that writes on
-    //       the stream and only one task at the time that reads from the stream.
-    inner: UnsafeCell<TlsStream<TcpStream>>,
+    // The underlying socket as returned from the async-rustls library.
+    // ROVE-PATCH: the reader and the writer of a link share one rustls connection, which
+    // must never be used by two threads at once (rustls/rustls#288). It was an UnsafeCell
+    // used by both tasks at once (eclipse-zenoh/zenoh#2557): a write that ran while a read
+    // processed records saw the connection's state as `Err(HandshakeNotComplete)` and closed
+    // the link. Each poll now takes this lock for the length of that poll only, so a read
+    // that waits for data never holds up a write.
+    inner: Mutex<TlsStream<TcpStream>>,
     // The source socket address of this link (address used on the local host)
     src_addr: SocketAddr,
     src_locator: Locator,
@@ -77,9 +79,6 @@ pub struct LinkUnicastTls {
     mtu: BatchSize,
     expiration_manager: Option<LinkCertExpirationManager>,
 }
-
-unsafe impl Send for LinkUnicastTls {}
-unsafe impl Sync for LinkUnicastTls {}
 
 impl LinkUnicastTls {
     fn new(
@@ -138,7 +137,7 @@ impl LinkUnicastTls {
 
         // Build the Tls object
         LinkUnicastTls {
-            inner: UnsafeCell::new(socket),
+            inner: Mutex::new(socket),
             src_addr,
             src_locator: Locator::new(TLS_LOCATOR_PREFIX, src_addr.to_string(), "").unwrap(),
             dst_addr,
@@ -151,24 +150,43 @@ impl LinkUnicastTls {
         }
     }
 
-    // NOTE: It is safe to suppress Clippy warning since no concurrent reads
-    //       or concurrent writes will ever happen. The read_mtx and write_mtx
-    //       are respectively acquired in any read and write operation.
-    #[allow(clippy::mut_from_ref)]
-    fn get_mut_socket(&self) -> &mut TlsStream<TcpStream> {
-        unsafe { &mut *self.inner.get() }
+    // ROVE-PATCH: one poll of the stream, with the stream locked for that poll only.
+    fn poll_stream<R>(
+        &self,
+        cx: &mut Context<'_>,
+        poll: impl FnOnce(Pin<&mut TlsStream<TcpStream>>, &mut Context<'_>) -> Poll<R>,
+    ) -> Poll<R> {
+        let mut stream = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+        poll(Pin::new(&mut *stream), cx)
+    }
+
+    async fn write_some(&self, buffer: &[u8]) -> io::Result<usize> {
+        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_write(cx, buffer))).await
+    }
+
+    async fn flush(&self) -> io::Result<()> {
+        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_flush(cx))).await
+    }
+
+    async fn read_some(&self, buffer: &mut [u8]) -> io::Result<usize> {
+        let mut buf = ReadBuf::new(buffer);
+        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_read(cx, &mut buf))).await?;
+        Ok(buf.filled().len())
     }
 
     async fn close(&self) -> ZResult<()> {
         tracing::trace!("Closing TLS link: {}", self);
         // Flush the TLS stream
         let _guard = zasynclock!(self.write_mtx);
-        let tls_stream = self.get_mut_socket();
-        let res = tls_stream.flush().await;
+        let res = self.flush().await;
         tracing::trace!("TLS link flush {}: {:?}", self, res);
-        // Close the underlying TCP stream
-        let (tcp_stream, _) = tls_stream.get_mut();
-        let res = tcp_stream.shutdown().await;
+        // Close the underlying TCP stream (its write side, as before: no close_notify)
+        let res = poll_fn(|cx| {
+            self.poll_stream(cx, |s, cx| {
+                Pin::new(s.get_mut().get_mut().0).poll_shutdown(cx)
+            })
+        })
+        .await;
         tracing::trace!("TLS link shutdown {}: {:?}", self, res);
         res.map_err(|e| zerror!(e).into())
     }
@@ -193,7 +211,7 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn write(&self, buffer: &[u8], _priority: Option<Priority>) -> ZResult<usize> {
         let _guard = zasynclock!(self.write_mtx);
-        self.get_mut_socket().write(buffer).await.map_err(|e| {
+        self.write_some(buffer).await.map_err(|e| {
             tracing::trace!("Write error on TLS link {}: {}", self, e);
             zerror!(e).into()
         })
@@ -201,15 +219,23 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn write_all(&self, buffer: &[u8], _priority: Option<Priority>) -> ZResult<()> {
         let _guard = zasynclock!(self.write_mtx);
-        self.get_mut_socket().write_all(buffer).await.map_err(|e| {
-            tracing::trace!("Write error on TLS link {}: {}", self, e);
-            zerror!(e).into()
-        })
+        let mut written = 0;
+        while written < buffer.len() {
+            let n = self.write_some(&buffer[written..]).await.map_err(|e| {
+                tracing::trace!("Write error on TLS link {}: {}", self, e);
+                zerror!(e)
+            })?;
+            if n == 0 {
+                bail!("Write error on TLS link {}: wrote zero bytes", self);
+            }
+            written += n;
+        }
+        Ok(())
     }
 
     async fn read(&self, buffer: &mut [u8], _priority: Option<Priority>) -> ZResult<usize> {
         let _guard = zasynclock!(self.read_mtx);
-        self.get_mut_socket().read(buffer).await.map_err(|e| {
+        self.read_some(buffer).await.map_err(|e| {
             tracing::trace!("Read error on TLS link {}: {}", self, e);
             zerror!(e).into()
         })
@@ -217,14 +243,19 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn read_exact(&self, buffer: &mut [u8], _priority: Option<Priority>) -> ZResult<()> {
         let _guard = zasynclock!(self.read_mtx);
-        let _ = self
-            .get_mut_socket()
-            .read_exact(buffer)
-            .await
-            .map_err(|e| {
+        let mut filled = 0;
+        while filled < buffer.len() {
+            let n = self.read_some(&mut buffer[filled..]).await.map_err(|e| {
                 tracing::trace!("Read error on TLS link {}: {}", self, e);
                 zerror!(e)
             })?;
+            if n == 0 {
+                let e = io::Error::from(io::ErrorKind::UnexpectedEof);
+                tracing::trace!("Read error on TLS link {}: {}", self, e);
+                bail!(zerror!(e));
+            }
+            filled += n;
+        }
         Ok(())
     }
 
@@ -287,7 +318,8 @@ impl LinkWithCertExpiration for LinkUnicastTls {
 impl Drop for LinkUnicastTls {
     fn drop(&mut self) {
         // Close the underlying TCP stream
-        let (tcp_stream, _) = self.get_mut_socket().get_mut();
+        let stream = self.inner.get_mut().unwrap_or_else(PoisonError::into_inner);
+        let (tcp_stream, _) = stream.get_mut();
         let _ = zenoh_runtime::ZRuntime::Acceptor
             .block_in_place(async move { tcp_stream.shutdown().await });
     }
@@ -678,5 +710,117 @@ impl Debug for TlsAuthId {
 impl From<TlsAuthId> for LinkAuthId {
     fn from(value: TlsAuthId) -> Self {
         LinkAuthId::Tls(value.auth_value.clone())
+    }
+}
+
+// ROVE-PATCH: the link's reader and writer used at once, as Zenoh's RX and TX tasks use them.
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, ServerName};
+
+    /// A client link and a server link joined over loopback TCP and TLS 1.3.
+    async fn pair() -> (LinkUnicastTls, LinkUnicastTls) {
+        let key = rcgen::generate_simple_self_signed(vec!["localhost".into()]).expect("a cert");
+        let cert = CertificateDer::from(key.cert.der().to_vec());
+        let private =
+            PrivateKeyDer::Pkcs8(PrivatePkcs8KeyDer::from(key.signing_key.serialize_der()));
+        let provider = Arc::new(rustls::crypto::ring::default_provider());
+        let server = rustls::ServerConfig::builder_with_provider(provider.clone())
+            .with_safe_default_protocol_versions()
+            .expect("versions")
+            .with_no_client_auth()
+            .with_single_cert(vec![cert.clone()], private)
+            .expect("server config");
+        let mut roots = rustls::RootCertStore::empty();
+        roots.add(cert).expect("root");
+        let client = rustls::ClientConfig::builder_with_provider(provider)
+            .with_safe_default_protocol_versions()
+            .expect("versions")
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let accept = async {
+            let (tcp, peer) = listener.accept().await.expect("accept");
+            let tls = TlsAcceptor::from(Arc::new(server))
+                .accept(tcp)
+                .await
+                .expect("accept TLS");
+            (TlsStream::Server(tls), peer)
+        };
+        let connect = async {
+            let tcp = TcpStream::connect(addr).await.expect("connect");
+            let local = tcp.local_addr().expect("local addr");
+            let name = ServerName::try_from("localhost").expect("name");
+            let tls = TlsConnector::from(Arc::new(client))
+                .connect(name, tcp)
+                .await
+                .expect("connect TLS");
+            (TlsStream::Client(tls), local)
+        };
+        let ((server, peer), (client, local)) = tokio::join!(accept, connect);
+        let id = || LinkAuthId::Tls(None);
+        (
+            LinkUnicastTls::new(client, local, addr, id(), None),
+            LinkUnicastTls::new(server, addr, peer, id(), None),
+        )
+    }
+
+    const CHUNK: usize = 64;
+    const CHUNKS: u64 = 50_000;
+
+    /// Writes numbered chunks on `link`.
+    async fn send(link: Arc<LinkUnicastTls>) -> ZResult<()> {
+        let mut chunk = [0u8; CHUNK];
+        for n in 0..CHUNKS {
+            chunk[..8].copy_from_slice(&n.to_le_bytes());
+            link.write_all(&chunk, None).await?;
+        }
+        // What rustls still holds goes out (a Zenoh link's keep-alives do that).
+        link.flush().await.map_err(|e| zerror!(e))?;
+        Ok(())
+    }
+
+    /// Reads the numbered chunks `send` wrote on the other end, in order.
+    async fn receive(link: Arc<LinkUnicastTls>) -> ZResult<()> {
+        let mut chunk = [0u8; CHUNK];
+        for n in 0..CHUNKS {
+            link.read_exact(&mut chunk, None).await?;
+            let got = u64::from_le_bytes(chunk[..8].try_into().expect("8 bytes"));
+            if got != n {
+                bail!("chunk {n} read as {got}");
+            }
+        }
+        Ok(())
+    }
+
+    /// Both ends write and read at once on two threads: every chunk arrives, in order, and
+    /// neither end fails. With the stream shared through an UnsafeCell, a write that ran
+    /// while a read processed records failed with "handshake not complete" within a few
+    /// thousand chunks.
+    #[test]
+    fn a_link_read_and_written_at_once_carries_every_chunk_both_ways() {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("a runtime");
+        runtime.block_on(async {
+            let (client, server) = pair().await;
+            let (client, server) = (Arc::new(client), Arc::new(server));
+            let tasks = [
+                tokio::spawn(send(client.clone())),
+                tokio::spawn(receive(client.clone())),
+                tokio::spawn(send(server.clone())),
+                tokio::spawn(receive(server.clone())),
+            ];
+            for task in tasks {
+                let done = tokio::time::timeout(Duration::from_secs(120), task).await;
+                done.expect("in time")
+                    .expect("not panicked")
+                    .expect("no error");
+            }
+        });
     }
 }
