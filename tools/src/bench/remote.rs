@@ -289,8 +289,9 @@ fn cuts(
             sites::cut(&sites.lab, &sites.veth, how, true)?;
             let out = wait_for_output(&record, None, t).map_err(anyhow::Error::msg)?;
             safe.push(ms(out.wall_us.saturating_sub(t)));
-            // Past the link's lease (3 s): both bridges see the other site go.
-            std::thread::sleep(Duration::from_secs(4));
+            // Past the link's lease (3 s) and the grace after it (1 s, with the bridge's
+            // half-second tick): both bridges see the other site go and its devices leave.
+            std::thread::sleep(Duration::from_secs(5));
             let healed = wall_us();
             sites::cut(&sites.lab, &sites.veth, how, false)?;
             let out = wait_for_output(&record, Some(CUT_OWNER), healed);
