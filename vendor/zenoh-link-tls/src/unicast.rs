@@ -28,7 +28,7 @@ use std::{
 use async_trait::async_trait;
 use time::OffsetDateTime;
 use tokio::{
-    io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf},
+    io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf},
     net::{TcpListener, TcpStream},
     sync::Mutex as AsyncMutex,
 };
@@ -160,25 +160,16 @@ impl LinkUnicastTls {
         poll(Pin::new(&mut *stream), cx)
     }
 
-    async fn write_some(&self, buffer: &[u8]) -> io::Result<usize> {
-        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_write(cx, buffer))).await
-    }
-
-    async fn flush(&self) -> io::Result<()> {
-        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_flush(cx))).await
-    }
-
-    async fn read_some(&self, buffer: &mut [u8]) -> io::Result<usize> {
-        let mut buf = ReadBuf::new(buffer);
-        poll_fn(|cx| self.poll_stream(cx, |s, cx| s.poll_read(cx, &mut buf))).await?;
-        Ok(buf.filled().len())
+    // ROVE-PATCH: the stream, for tokio's read and write helpers, each poll under the lock.
+    fn stream(&self) -> Polled<'_> {
+        Polled(self)
     }
 
     async fn close(&self) -> ZResult<()> {
         tracing::trace!("Closing TLS link: {}", self);
         // Flush the TLS stream
         let _guard = zasynclock!(self.write_mtx);
-        let res = self.flush().await;
+        let res = self.stream().flush().await;
         tracing::trace!("TLS link flush {}: {:?}", self, res);
         // Close the underlying TCP stream (its write side, as before: no close_notify)
         let res = poll_fn(|cx| {
@@ -211,7 +202,7 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn write(&self, buffer: &[u8], _priority: Option<Priority>) -> ZResult<usize> {
         let _guard = zasynclock!(self.write_mtx);
-        self.write_some(buffer).await.map_err(|e| {
+        self.stream().write(buffer).await.map_err(|e| {
             tracing::trace!("Write error on TLS link {}: {}", self, e);
             zerror!(e).into()
         })
@@ -219,23 +210,15 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn write_all(&self, buffer: &[u8], _priority: Option<Priority>) -> ZResult<()> {
         let _guard = zasynclock!(self.write_mtx);
-        let mut written = 0;
-        while written < buffer.len() {
-            let n = self.write_some(&buffer[written..]).await.map_err(|e| {
-                tracing::trace!("Write error on TLS link {}: {}", self, e);
-                zerror!(e)
-            })?;
-            if n == 0 {
-                bail!("Write error on TLS link {}: wrote zero bytes", self);
-            }
-            written += n;
-        }
-        Ok(())
+        self.stream().write_all(buffer).await.map_err(|e| {
+            tracing::trace!("Write error on TLS link {}: {}", self, e);
+            zerror!(e).into()
+        })
     }
 
     async fn read(&self, buffer: &mut [u8], _priority: Option<Priority>) -> ZResult<usize> {
         let _guard = zasynclock!(self.read_mtx);
-        self.read_some(buffer).await.map_err(|e| {
+        self.stream().read(buffer).await.map_err(|e| {
             tracing::trace!("Read error on TLS link {}: {}", self, e);
             zerror!(e).into()
         })
@@ -243,19 +226,10 @@ impl LinkUnicastTrait for LinkUnicastTls {
 
     async fn read_exact(&self, buffer: &mut [u8], _priority: Option<Priority>) -> ZResult<()> {
         let _guard = zasynclock!(self.read_mtx);
-        let mut filled = 0;
-        while filled < buffer.len() {
-            let n = self.read_some(&mut buffer[filled..]).await.map_err(|e| {
-                tracing::trace!("Read error on TLS link {}: {}", self, e);
-                zerror!(e)
-            })?;
-            if n == 0 {
-                let e = io::Error::from(io::ErrorKind::UnexpectedEof);
-                tracing::trace!("Read error on TLS link {}: {}", self, e);
-                bail!(zerror!(e));
-            }
-            filled += n;
-        }
+        let _ = self.stream().read_exact(buffer).await.map_err(|e| {
+            tracing::trace!("Read error on TLS link {}: {}", self, e);
+            zerror!(e)
+        })?;
         Ok(())
     }
 
@@ -322,6 +296,38 @@ impl Drop for LinkUnicastTls {
         let (tcp_stream, _) = stream.get_mut();
         let _ = zenoh_runtime::ZRuntime::Acceptor
             .block_in_place(async move { tcp_stream.shutdown().await });
+    }
+}
+
+// ROVE-PATCH: a link's stream as tokio's AsyncRead and AsyncWrite, each poll taking the
+// stream's lock for that poll only (`LinkUnicastTls::poll_stream`).
+struct Polled<'a>(&'a LinkUnicastTls);
+
+impl AsyncRead for Polled<'_> {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        self.0.poll_stream(cx, |s, cx| s.poll_read(cx, buf))
+    }
+}
+
+impl AsyncWrite for Polled<'_> {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        self.0.poll_stream(cx, |s, cx| s.poll_write(cx, buf))
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        self.0.poll_stream(cx, |s, cx| s.poll_flush(cx))
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        self.0.poll_stream(cx, |s, cx| s.poll_shutdown(cx))
     }
 }
 
@@ -778,7 +784,7 @@ mod tests {
             link.write_all(&chunk, None).await?;
         }
         // What rustls still holds goes out (a Zenoh link's keep-alives do that).
-        link.flush().await.map_err(|e| zerror!(e))?;
+        link.stream().flush().await.map_err(|e| zerror!(e))?;
         Ok(())
     }
 
