@@ -3,6 +3,13 @@
 // 0.8 `Source` when that optional compatibility feature is enabled.
 //
 // The internal reactors do not use this channel.
+//
+// rove patch (ROVE-PATCH.md §42): the channel is armed only while its Source is registered with
+// a poll. Unarmed, a send and a drain are no-ops: every reader's every cache
+// change used to write a byte to the socketpair, and every take to read it back
+// (at least two syscalls), for applications that wait with wakers (async
+// streams) and never poll this socket at all. Arming writes a byte, so what
+// was sent before the registration still wakes the poll once.
 
 macro_rules! socketpair_bridge {
   ($modname:ident, $mio:ident) => {
@@ -10,7 +17,10 @@ macro_rules! socketpair_bridge {
       use std::{
         io,
         io::{Read, Write},
-        sync::{Arc, Mutex},
+        sync::{
+          atomic::{AtomicBool, Ordering},
+          Arc, Mutex,
+        },
       };
       #[cfg(not(target_os = "windows"))]
       use std::os::fd::OwnedFd;
@@ -24,11 +34,15 @@ macro_rules! socketpair_bridge {
 
       pub struct Source {
         rec: Mutex<$mio::net::TcpStream>,
+        armed: Arc<AtomicBool>,
+        send: Sender,
       }
 
       #[derive(Clone)]
       pub struct Sender {
         send: Arc<Mutex<$mio::net::TcpStream>>,
+        // rove patch (ROVE-PATCH.md §42): true while the Source is registered with a poll.
+        armed: Arc<AtomicBool>,
       }
 
       #[cfg(not(target_os = "windows"))]
@@ -47,14 +61,7 @@ macro_rules! socketpair_bridge {
         let rec = $mio::net::TcpStream::from_std(std::net::TcpStream::from(OwnedFd::from(rec_sps)));
         let send =
           $mio::net::TcpStream::from_std(std::net::TcpStream::from(OwnedFd::from(send_sps)));
-        Ok((
-          Source {
-            rec: Mutex::new(rec),
-          },
-          Sender {
-            send: Arc::new(Mutex::new(send)),
-          },
-        ))
+        Ok(pair(rec, send))
       }
 
       #[cfg(target_os = "windows")]
@@ -69,18 +76,32 @@ macro_rules! socketpair_bridge {
         }
         let (send, _addr_send) = accepted?;
         debug!("IPC socket: {addr:#?} <-> {_addr_send:#?}");
-        Ok((
-          Source {
-            rec: Mutex::new(rec),
-          },
-          Sender {
-            send: Arc::new(Mutex::new(send)),
-          },
-        ))
+        Ok(pair(rec, send))
+      }
+
+      fn pair(rec: $mio::net::TcpStream, send: $mio::net::TcpStream) -> (Source, Sender) {
+        let armed = Arc::new(AtomicBool::new(false));
+        let sender = Sender {
+          send: Arc::new(Mutex::new(send)),
+          armed: Arc::clone(&armed),
+        };
+        let source = Source {
+          rec: Mutex::new(rec),
+          armed,
+          send: sender.clone(),
+        };
+        (source, sender)
       }
 
       impl Sender {
         pub fn send(&self) {
+          if !self.armed.load(Ordering::Acquire) {
+            return;
+          }
+          self.write_byte();
+        }
+
+        fn write_byte(&self) {
           match self.send.lock().unwrap().write(&[0xcc]) {
             Ok(_b) => {}
             Err(e) => info!("PollEventSender.send: {e}"),
@@ -90,14 +111,52 @@ macro_rules! socketpair_bridge {
 
       impl Source {
         pub fn drain(&self) {
-          let mut buf = Vec::with_capacity(16);
-          match self.rec.lock().unwrap().read_to_end(&mut buf) {
-            Ok(_) => (),
-            Err(err) => match err.kind() {
-              io::ErrorKind::WouldBlock => {}
-              other_kind => info!("PollEventSource.drain(): {other_kind}"),
-            },
+          if self.armed.load(Ordering::Acquire) {
+            self.read_all();
           }
+        }
+
+        // Reads until the socket is empty.
+        fn read_all(&self) {
+          let mut buf = [0u8; 64];
+          let mut rec = self.rec.lock().unwrap();
+          loop {
+            match rec.read(&mut buf) {
+              Ok(0) => break,
+              Ok(_) => {}
+              Err(err) => {
+                match err.kind() {
+                  io::ErrorKind::WouldBlock => {}
+                  io::ErrorKind::Interrupted => continue,
+                  other_kind => info!("PollEventSource.drain(): {other_kind}"),
+                }
+                break;
+              }
+            }
+          }
+        }
+
+        // Registered: sends write again, and one byte now stands for whatever
+        // was sent while unarmed.
+        fn arm(&self) {
+          self.armed.store(true, Ordering::Release);
+          self.send.write_byte();
+        }
+
+        fn disarm(&self) {
+          self.armed.store(false, Ordering::Release);
+          self.read_all();
+        }
+
+        // Bytes waiting in the socket, read without looking at `armed`.
+        #[cfg(test)]
+        pub(crate) fn waiting_bytes(&self) -> usize {
+          let mut buf = [0u8; 64];
+          let mut n = 0;
+          while let Ok(k @ 1..) = self.rec.lock().unwrap().read(&mut buf) {
+            n += k;
+          }
+          n
         }
       }
 
@@ -112,7 +171,9 @@ macro_rules! socketpair_bridge {
             .rec
             .lock()
             .unwrap()
-            .register(registry, token, interests)
+            .register(registry, token, interests)?;
+          self.arm();
+          Ok(())
         }
 
         fn reregister(
@@ -125,11 +186,15 @@ macro_rules! socketpair_bridge {
             .rec
             .lock()
             .unwrap()
-            .reregister(registry, token, interests)
+            .reregister(registry, token, interests)?;
+          self.arm();
+          Ok(())
         }
 
         fn deregister(&mut self, registry: &$mio::Registry) -> io::Result<()> {
-          self.rec.lock().unwrap().deregister(registry)
+          let done = self.rec.lock().unwrap().deregister(registry);
+          self.disarm();
+          done
         }
       }
     }
@@ -309,5 +374,51 @@ impl mio_06::Evented for NotificationReceiver {
 
   fn deregister(&self, poll: &mio_06::Poll) -> std::io::Result<()> {
     self.legacy_receiver.deregister(poll)
+  }
+}
+
+#[cfg(test)]
+mod tests {
+  use std::time::Duration;
+
+  use mio1::{event::Source, Events, Interest, Poll, Token};
+
+  use super::*;
+
+  fn events(poll: &mut Poll, wait: Duration) -> usize {
+    let mut events = Events::with_capacity(8);
+    poll.poll(&mut events, Some(wait)).expect("poll");
+    events.iter().count()
+  }
+
+  #[test]
+  fn an_unregistered_channel_neither_writes_nor_reads() {
+    let (source, sender) = make_poll_channel().expect("channel");
+    for _ in 0..3 {
+      sender.send();
+    }
+    source.drain();
+    // Stock rustdds wrote a byte per send here, and a drain read them back.
+    assert_eq!(source.mio1.waiting_bytes(), 0);
+  }
+
+  #[test]
+  fn a_registered_channel_wakes_its_poll_for_sends_before_and_after_registering() {
+    let (mut source, sender) = make_poll_channel().expect("channel");
+    let mut poll = Poll::new().expect("poll");
+    sender.send(); // unarmed: costs nothing, yet the registration below must not miss it
+    Source::register(&mut source, poll.registry(), Token(7), Interest::READABLE)
+      .expect("register");
+    assert_eq!(events(&mut poll, Duration::from_secs(5)), 1, "woken for the send before");
+    source.drain();
+    assert_eq!(events(&mut poll, Duration::ZERO), 0, "drained: no event");
+    sender.send();
+    assert_eq!(events(&mut poll, Duration::from_secs(5)), 1, "woken for a send");
+    source.drain();
+    assert_eq!(source.mio1.waiting_bytes(), 0, "a drain empties the socket");
+
+    Source::deregister(&mut source, poll.registry()).expect("deregister");
+    sender.send();
+    assert_eq!(source.mio1.waiting_bytes(), 0, "deregistered: unarmed again");
   }
 }
