@@ -90,6 +90,8 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
         idle: false,
         window: std::time::Duration::from_secs(1),
         handover_runs: 2,
+        // Each phone drives a moment before it quits (the option is exercised).
+        handover_hold: std::time::Duration::from_millis(100),
         restarts: 4,
         latejoin_runs: 1,
         heartbeat_ms: None,

@@ -100,6 +100,10 @@ pub enum Bench {
         /// Handovers measured on the first vehicle while the fleet streams.
         #[arg(long, default_value_t = 20)]
         handover_runs: usize,
+        /// How long each phone of the handover phase drives before it quits, ms: 0 quits at
+        /// its first command applied, while the fleet still takes in its join.
+        #[arg(long, default_value_t = 0)]
+        handover_hold_ms: u64,
         /// Restarts of a weaker operator (a desktop) while the fleet streams.
         #[arg(long, default_value_t = 8)]
         restarts: usize,
@@ -306,6 +310,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
             idle,
             window_s,
             handover_runs,
+            handover_hold_ms,
             restarts,
             latejoin_runs,
             idle_sweep,
@@ -323,6 +328,7 @@ pub fn run(what: Bench, rove: &Path) -> anyhow::Result<()> {
                 idle,
                 window: std::time::Duration::from_secs(window_s),
                 handover_runs: if idle { 0 } else { handover_runs },
+                handover_hold: std::time::Duration::from_millis(handover_hold_ms),
                 restarts: if idle { 0 } else { restarts },
                 latejoin_runs,
                 heartbeat_ms,

@@ -70,6 +70,10 @@ pub struct Options {
     pub window: Duration,
     /// Handovers measured on vehicle 100 (not with `idle`).
     pub handover_runs: usize,
+    /// How long each phone drives before it quits. Zero (the default) quits at its first
+    /// command applied, while the fleet is still taking in its join; longer measures the
+    /// handover alone, after the join has settled.
+    pub handover_hold: Duration,
     /// Restarts of a weaker operator in the churn phase (not with `idle`).
     pub restarts: usize,
     /// Late joiners measured.
@@ -97,6 +101,7 @@ impl Options {
             idle,
             window,
             handover_runs: 0,
+            handover_hold: Duration::ZERO,
             restarts: 0,
             latejoin_runs: 0,
             heartbeat_ms: None,
@@ -273,7 +278,7 @@ pub fn run(
     phases.push(("handover", wall_us()));
     let (handover, late_operator) = match options.idle {
         true => (Vec::new(), Vec::new()),
-        false => handovers(&mut rig, &f, options.handover_runs, progress)?,
+        false => handovers(&mut rig, &f, options, progress)?,
     };
     phases.push(("late joiner", wall_us()));
     let latejoin = late_joiners(
@@ -366,15 +371,17 @@ fn churn(rig: &mut Rig, f: &mut Started, restarts: usize, progress: &mut dyn FnM
     restarts
 }
 
-/// `runs` times: a mobile phone starts and takes the first vehicle from its laptop, then quits.
-/// Returns, ms, from the phone's SIGTERM to the laptop's first command applied again, and from
-/// the phone's start to its own first command applied (a late operator).
+/// `handover_runs` times: a mobile phone starts and takes the first vehicle from its laptop,
+/// drives it for `handover_hold`, then quits. Returns, ms, from the phone's SIGTERM to the
+/// laptop's first command applied again, and from the phone's start to its own first command
+/// applied (a late operator).
 fn handovers(
     rig: &mut Rig,
     f: &Started,
-    runs: usize,
+    options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
+    let runs = options.handover_runs;
     let (vehicle, record) = (f.vehicles[0], &f.records[0]);
     let owner = f.assignment[&vehicle].0;
     let (mut handover, mut late) = (Vec::new(), Vec::new());
@@ -391,6 +398,7 @@ fn handovers(
                 .saturating_sub(t_start) as f64
                 / 1e3,
         );
+        std::thread::sleep(options.handover_hold);
         let t0 = wall_us();
         rig.procs[phone].terminate();
         let out = harness::wait_for_output(record, Some(owner), t0).map_err(anyhow::Error::msg)?;
