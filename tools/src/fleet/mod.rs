@@ -14,8 +14,9 @@
 //! 3. **Churn.** `--restarts` times, a desktop quits (SIGTERM) and starts again, one a second:
 //!    a weaker operator joining must not take a vehicle from its laptop.
 //! 4. **Handover.** While the fleet streams, a mobile phone takes vehicle 100 and quits
-//!    (SIGTERM), `--handover-runs` times: from the SIGTERM to the first command of vehicle
-//!    100's laptop applied again.
+//!    (SIGTERM) at its first command applied, or after `--handover-hold-ms` of driving,
+//!    `--handover-runs` times: from the SIGTERM to the first command of vehicle 100's laptop
+//!    applied again.
 //! 5. **Late joiner.** `rove status --events` starts `--latejoin-runs` times: from its start to
 //!    the moment it has listed every device of the fleet.
 //!
