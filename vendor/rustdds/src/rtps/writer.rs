@@ -704,8 +704,9 @@ impl Writer {
     }
 
     let is_reliable = self.is_reliable();
-    // Reserve room for the single trailing HEARTBEAT (reliable only).
-    let hb_reserve = if is_reliable && !self.like_stateless {
+    // Reserve room for the single trailing HEARTBEAT (reliable only, and only
+    // when a reader can use it: rove patch, ROVE-PATCH.md §43).
+    let hb_reserve = if is_reliable && !self.like_stateless && self.any_reader_wants_heartbeats() {
       HEARTBEAT_SUBMESSAGE_SERIALIZED_SIZE
     } else {
       0
@@ -890,7 +891,8 @@ impl Writer {
         // per sample is pure overhead (an extra submessage built and sent for
         // every DATA). Only reliable writers piggyback a heartbeat here;
         // best-effort skips it entirely.
-        let send_also_heartbeat = self.is_reliable();
+        // rove patch (ROVE-PATCH.md §43): nor when every matched reader is best effort.
+        let send_also_heartbeat = self.is_reliable() && self.any_reader_wants_heartbeats();
         let (_fragmented, progress) = {
           let target_reader_opt = match write_options.to_single_reader() {
             Some(guid) => self.readers.get(&guid), // Sending only to this reader
@@ -976,6 +978,12 @@ impl Writer {
       }
     }
     self.kick_heartbeat();
+  }
+
+  /// rove patch (ROVE-PATCH.md §43): whether any matched reader can use a
+  /// HEARTBEAT (one that is not best effort).
+  fn any_reader_wants_heartbeats(&self) -> bool {
+    self.readers.values().any(reader_wants_heartbeats)
   }
 
   /// rove patch (ROVE-PATCH.md §25): after new data, a HEARTBEAT within
@@ -1133,11 +1141,13 @@ impl Writer {
     let first_change = self.send_buffer.first_change_sequence_number();
     let last_change = self.send_buffer.last_change_sequence_number();
 
-    if self
-      .readers
-      .values()
-      .all(|rp| last_change < rp.all_acked_before)
-    {
+    // rove patch (ROVE-PATCH.md §43): a best-effort reader never acknowledges and
+    // needs no HEARTBEAT, so it neither keeps the tick going nor gets one; a manual
+    // liveliness assertion still goes to every reader.
+    let prompted = |rp: &RtpsReaderProxy| {
+      last_change >= rp.all_acked_before && (is_manual_assertion || reader_wants_heartbeats(rp))
+    };
+    if !self.readers.values().any(prompted) {
       trace!("heartbeat tick: all readers have all available data.");
       false
     } else {
@@ -1188,10 +1198,7 @@ impl Writer {
         self.send_control_to_readers(
           DeliveryMode::Multicast,
           hb_message,
-          &mut self
-            .readers
-            .values()
-            .filter(|rp| last_change >= rp.all_acked_before),
+          &mut self.readers.values().filter(|rp| prompted(rp)),
         );
       }
       true
@@ -2416,6 +2423,13 @@ const DATAFRAG_SUBMESSAGE_OVERHEAD: usize = 36;
 // A fifth of a finite, positive Deadline, clamped to
 // [REPAIR_INTERVAL_MIN, REPAIR_INTERVAL_MAX]. No Deadline, INFINITE, zero or
 // negative give REPAIR_INTERVAL_DEFAULT.
+/// rove patch (ROVE-PATCH.md §43): a reader that asked for best effort has no use
+/// for a HEARTBEAT (RTPS 8.4.9.1: a best-effort reader proxy gets none). A reader
+/// that said nothing of its reliability is prompted, as before.
+fn reader_wants_heartbeats(rp: &RtpsReaderProxy) -> bool {
+  !matches!(rp.qos().reliability(), Some(Reliability::BestEffort))
+}
+
 fn repair_interval_for(deadline: Option<Duration>) -> std::time::Duration {
   match deadline {
     Some(d) if d != Duration::INFINITE && d > Duration::ZERO => {
@@ -3202,6 +3216,51 @@ mod tests {
         None,
         "not heard by multicast within the window: its route again"
       );
+    }
+
+    // rove patch (ROVE-PATCH.md §43): a reliable writer builds no HEARTBEAT for a
+    // best-effort reader, piggybacked on its DATA or periodic; a reliable reader
+    // gets both.
+    #[test]
+    fn a_reliable_writer_heartbeats_its_reliable_readers_only() {
+      let reliable = Reliability::Reliable {
+        max_blocking_time: Duration::from_millis(100),
+      };
+      for (reader, wants_heartbeats) in [(Reliability::BestEffort, false), (reliable, true)] {
+        let writer_qos = QosPolicyBuilder::new()
+          .reliability(reliable)
+          .history(History::KeepAll)
+          .build();
+        let reader_qos = QosPolicyBuilder::new().reliability(reader).build();
+        let mut f = Fixture::new(
+          EntityId::new([0, 0, 1], EntityKind::WRITER_WITH_KEY_USER_DEFINED),
+          writer_qos,
+          EntityId::new([0, 0, 2], EntityKind::READER_WITH_KEY_USER_DEFINED),
+          &reader_qos,
+          2,
+          8,
+          None,
+        );
+        let heartbeats =
+          |f: &Fixture| f.writer.heartbeat_message_counter.load(atomic::Ordering::SeqCst);
+        let before = heartbeats(&f);
+        f.writer.process_pending();
+        assert_eq!(f.writer.last_sent, SequenceNumber::new(2), "{reader:?}: both sent");
+        assert_eq!(
+          heartbeats(&f) > before,
+          wants_heartbeats,
+          "{reader:?}: piggybacked on the DATA"
+        );
+        let before = heartbeats(&f);
+        assert_eq!(
+          f.writer.handle_heartbeat_tick(false),
+          wants_heartbeats,
+          "{reader:?}: the periodic tick"
+        );
+        assert_eq!(heartbeats(&f) > before, wants_heartbeats, "{reader:?}: periodic");
+        // A manual liveliness assertion goes to every reader.
+        assert!(f.writer.handle_heartbeat_tick(true), "{reader:?}: liveliness");
+      }
     }
 
     // Built-in and user Writers alike answer an ACKNACK only after
