@@ -51,9 +51,11 @@ forged announcement to where the original went (`--count` times, `--every` secon
 It prints one JSON line {"forged": N, "participants": [PREFIX hex...], "kind": KIND, "sn": SN}.
 
 `census` reads a capture and prints one JSON line counting its DATA submessages by the writer's
-built-in role: {"spdp": N, "participant_message": N, "sedp": N, "user": N, "datagrams": N}
-(SPDP 0x000100c2, ParticipantMessage 0x000200c2, SEDP publications/subscriptions
-0x000003c2/0x000004c2; user: a user-defined writer, entity kind 0x02 or 0x03).
+built-in role: {"spdp": N, "participant_message": N, "sedp": N, "sedp_topic": N, "user": N,
+"datagrams": N} (SPDP 0x000100c2, ParticipantMessage 0x000200c2, SEDP publications/subscriptions
+0x000003c2/0x000004c2, DCPSTopic 0x000002c2; user: a user-defined writer, entity kind 0x02 or
+0x03), with "sedp_topic_any": the DCPSTopic writer's DATA, and its HEARTBEATs and ACKNACKs sent to
+another participant by unicast.
 
 Everything random comes from --seed (default 29), so a run can be repeated. At the end it prints
 one JSON line {"sent": N, "errors": E, "seconds": S, "rate": N / S, "mode": MODE, "seed": SEED,
@@ -390,20 +392,34 @@ WRITER_ROLES = {
     bytes.fromhex("000200c2"): "participant_message",
     bytes.fromhex("000003c2"): "sedp",
     bytes.fromhex("000004c2"): "sedp",
+    bytes.fromhex("000002c2"): "sedp_topic",
 }
+HEARTBEAT, ACKNACK, INFO_DST = 0x07, 0x06, 0x0E
 
 
 def census(args) -> None:
     records = read_capture(args.capture)
     counts = {"spdp": 0, "participant_message": 0, "sedp": 0, "user": 0, "datagrams": len(records)}
-    counts.update({"spdp_multicast": 0, "spdp_unicast": 0})
+    counts.update({"spdp_multicast": 0, "spdp_unicast": 0, "sedp_topic": 0, "sedp_topic_any": 0})
     for (dst, _port), payload in records:
         to_group = 224 <= int(dst.split(".")[0]) <= 239
+        to_self = False
         at = RTPS_HEADER
         while at + 4 <= len(payload):
             kind, flags = payload[at], payload[at + 1]
             length = struct.unpack("<H" if flags & 1 else ">H", payload[at + 2 : at + 4])[0]
             body = at + 4
+            if kind == INFO_DST and body + 12 <= len(payload):
+                to_self = payload[body : body + 12] == payload[8:20]
+            if kind in (HEARTBEAT, ACKNACK, DATA) and body + 12 <= len(payload):
+                # readerId, writerId at body; DATA has 4 more bytes (extraFlags, octetsToInlineQos)
+                writer_at = body + 8 if kind == DATA else body + 4
+                topic = payload[writer_at : writer_at + 4] == bytes.fromhex("000002c2")
+                # a participant's own DCPSTopic endpoints match each other (local endpoints
+                # of one topic do): its HEARTBEATs to the group and ACKNACKs to itself are
+                # not a peer's cost
+                if topic and (kind == DATA or not (to_group or to_self)):
+                    counts["sedp_topic_any"] += 1
             if kind == DATA and body + 12 <= len(payload):
                 writer = payload[body + 8 : body + 12]
                 role = WRITER_ROLES.get(writer)

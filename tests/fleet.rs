@@ -118,7 +118,9 @@ fn a_fleet_started_at_once_is_driven_by_each_vehicles_stronger_operator() {
 /// wire, in the first 3 s of a vehicle and a laptop (their own capture, `rtps_spray.py
 /// census`). Before, each sent a reliable ParticipantMessage a second to every peer, and each
 /// announcement went to the group and to every known peer (73 SPDP datagrams, 24 by
-/// multicast, in this census).
+/// multicast, in this census). Nor does any DCPSTopic message go out (ROVE-PATCH.md §44): rove
+/// announces no topics, so a join costs each pair none of that topic's DATA, HEARTBEATs and
+/// ACKNACKs (before: 30 DATA and 15 HEARTBEATs and ACKNACKs to the peer in this census).
 #[test]
 fn presence_by_spdp_sends_no_liveliness_messages_and_announces_by_multicast() {
     let mut rig = Rig::new("presence-census");
@@ -132,6 +134,7 @@ fn presence_by_spdp_sends_no_liveliness_messages_and_announces_by_multicast() {
     eprintln!("census of the first 3 s: {census}");
     let count = |key: &str| census[key].as_u64().unwrap_or(0);
     assert_eq!(count("participant_message"), 0, "{census}");
+    assert_eq!(count("sedp_topic_any"), 0, "DCPSTopic on the wire: {census}");
     // Two participants for most of 3 s at 4 a second: at least 2 × 2 s × 4 by multicast.
     assert!(count("spdp_multicast") >= 16, "{census}");
     // By unicast: the eleven fixed localhost ports once each (every 10 s) and a few before the

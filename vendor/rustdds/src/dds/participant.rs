@@ -85,6 +85,8 @@ pub struct DomainParticipantBuilder {
   presence: PresenceTiming,
   // rove patch (ROVE-PATCH.md §19): set by `presence`.
   multicast_alone: bool,
+  // rove patch (ROVE-PATCH.md §44): whether DCPSTopic is announced and read.
+  announce_topics: bool,
 
   #[cfg(feature = "security")]
   security_plugins: Option<SecurityPlugins>,
@@ -102,6 +104,7 @@ impl DomainParticipantBuilder {
       socket_send_buffer_size: Self::DEFAULT_SOCKET_SEND_BUFFER_SIZE,
       presence: PresenceTiming::default(),
       multicast_alone: false,
+      announce_topics: true,
       #[cfg(feature = "security")]
       security_plugins: None,
       #[cfg(feature = "security")]
@@ -149,6 +152,19 @@ impl DomainParticipantBuilder {
       lease: lease.max(2 * spdp_period),
     };
     self.multicast_alone = true;
+    self
+  }
+
+  /// rove patch (ROVE-PATCH.md §44): whether this participant announces its
+  /// topics on the built-in DCPSTopic topic and reads others' (default: yes).
+  /// The topic is optional in RTPS (8.5.4.2) and matching does not use it.
+  /// Without it, the SPDP announcement lists neither DCPSTopic endpoint, no
+  /// topic is published, and no peer's DCPSTopic endpoints are matched: a
+  /// join costs each pair that topic's samples, heartbeats and
+  /// acknowledgments. `discovered_topics` then lists only what this
+  /// participant learned from publications and subscriptions.
+  pub fn announce_topics(mut self, announce: bool) -> Self {
+    self.announce_topics = announce;
     self
   }
 
@@ -388,6 +404,7 @@ impl DomainParticipantBuilder {
     let dp_clone = dp.weak_clone();
     let disc_db_clone = dp.discovery_db();
     let presence = self.presence;
+    let announce_topics = self.announce_topics;
     let discovery_handle = thread::Builder::new()
       .name("RustDDS discovery thread".to_string())
       .spawn(move || {
@@ -403,6 +420,7 @@ impl DomainParticipantBuilder {
           discovery_waker,
           discovery_sample_receiver,
           presence,
+          announce_topics,
         ) {
           discovery.discovery_event_loop(); // run the event loop
         }

@@ -269,6 +269,8 @@ pub(crate) struct Discovery {
   // announce, and how often remote leases are checked; when the secure
   // announcement last went out.
   presence: PresenceTiming,
+  // rove patch (ROVE-PATCH.md §44): whether DCPSTopic is announced and read.
+  announce_topics: bool,
   #[cfg(feature = "security")]
   last_secure_spdp: std::cell::Cell<Option<Instant>>,
 
@@ -369,6 +371,7 @@ impl Discovery {
     waker: LoopWaker,
     discovery_samples: ReadyReceiver<Token>,
     presence: PresenceTiming,
+    announce_topics: bool,
   ) -> CreateResult<Self> {
     // helper macro to handle initialization failures.
     macro_rules! try_construct {
@@ -725,6 +728,7 @@ impl Discovery {
       spdp_reply_pending: false,
       pending_goodbyes: HashMap::new(),
       presence,
+      announce_topics,
       #[cfg(feature = "security")]
       last_secure_spdp: std::cell::Cell::new(None),
 
@@ -1030,6 +1034,7 @@ impl Discovery {
       &dp,
       &self.security_opt,
       Duration::INFINITE,
+      self.announce_topics,
     );
 
     // Initialize our own participant data into the Discovery DB, so we can talk to
@@ -1635,6 +1640,7 @@ impl Discovery {
       local_dp,
       &self.security_opt,
       Duration::from(self.presence.lease),
+      self.announce_topics,
     );
 
     // rove patch (ROVE-PATCH.md §18): the secure announcement is a reliable write to
@@ -2202,6 +2208,11 @@ impl Discovery {
   }
 
   pub fn sedp_publish_topic(&self, topic_name: &str) {
+    // rove patch (ROVE-PATCH.md §44): a participant that does not announce
+    // topics publishes nothing on DCPSTopic.
+    if !self.announce_topics {
+      return;
+    }
     let db = discovery_db_read(&self.discovery_db);
     // We might have multiple topics with the same name (but different Qos etc..),
     // and the following call gets just one of them. Should we publish all of

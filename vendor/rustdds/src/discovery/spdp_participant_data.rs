@@ -135,6 +135,7 @@ impl SpdpDiscoveredParticipantData {
     participant: &DomainParticipant,
     _secure_discovery_opt: &Option<SecureDiscovery>, // If present, security is enabled
     lease_duration: Duration,
+    announce_topics: bool,
   ) -> Self {
     let dp_locators = participant.self_locators();
     let metatraffic_multicast_locators = dp_locators
@@ -157,7 +158,6 @@ impl SpdpDiscoveredParticipantData {
       .cloned()
       .unwrap_or_default();
 
-    #[allow(unused_mut)] // only security feature mutates this
     let mut builtin_endpoints = BuiltinEndpointSet::PARTICIPANT_ANNOUNCER
       | BuiltinEndpointSet::PARTICIPANT_DETECTOR
       | BuiltinEndpointSet::PUBLICATIONS_ANNOUNCER
@@ -168,6 +168,11 @@ impl SpdpDiscoveredParticipantData {
       | BuiltinEndpointSet::PARTICIPANT_MESSAGE_DATA_READER
       | BuiltinEndpointSet::TOPICS_ANNOUNCER
       | BuiltinEndpointSet::TOPICS_DETECTOR;
+    // rove patch (ROVE-PATCH.md §44): DCPSTopic is optional (RTPS 8.5.4.2); a
+    // participant that does not announce topics lists neither of its endpoints.
+    if !announce_topics {
+      builtin_endpoints &= !(BuiltinEndpointSet::TOPICS_ANNOUNCER | BuiltinEndpointSet::TOPICS_DETECTOR);
+    }
 
     // Security-related items initially None
     #[cfg(feature = "security")]

@@ -18,6 +18,7 @@ use crate::{
     statusevents::{DomainParticipantStatusEvent, StatusChannelSender},
   },
   discovery::{
+    builtin_endpoint::BuiltinEndpointSet,
     discovery::DiscoveryCommand,
     discovery_db::{discovery_db_read, DiscoveryDB},
     sedp_messages::{DiscoveredReaderData, DiscoveredWriterData},
@@ -795,6 +796,20 @@ impl DPEventLoop {
       }
       (readers_init_list, writers_init_list)
     };
+
+    // rove patch (ROVE-PATCH.md §44): a participant that does not announce
+    // topics matches no peer's DCPSTopic endpoints either.
+    let announces_topics = db
+      .find_participant_proxy(self.domain_info.domain_participant_guid.prefix)
+      .is_none_or(|own| {
+        (own.available_builtin_endpoints).contains(BuiltinEndpointSet::TOPICS_ANNOUNCER)
+      });
+    let topics_if_announced =
+      |(writer_eid, ..): &(EntityId, EntityId, u32, crate::QosPolicies)| {
+        announces_topics || *writer_eid != EntityId::SEDP_BUILTIN_TOPIC_WRITER
+      };
+    let readers_init_list: Vec<_> = readers_init_list.into_iter().filter(topics_if_announced).collect();
+    let writers_init_list: Vec<_> = writers_init_list.into_iter().filter(topics_if_announced).collect();
 
     // Never create send-destinations (built-in reader proxies) toward our *own*
     // participant. We already know our own endpoints locally, so a self reader
