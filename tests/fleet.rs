@@ -134,7 +134,11 @@ fn presence_by_spdp_sends_no_liveliness_messages_and_announces_by_multicast() {
     eprintln!("census of the first 3 s: {census}");
     let count = |key: &str| census[key].as_u64().unwrap_or(0);
     assert_eq!(count("participant_message"), 0, "{census}");
-    assert_eq!(count("sedp_topic_any"), 0, "DCPSTopic on the wire: {census}");
+    assert_eq!(
+        count("sedp_topic_any"),
+        0,
+        "DCPSTopic on the wire: {census}"
+    );
     // Two participants for most of 3 s at 4 a second: at least 2 × 2 s × 4 by multicast.
     assert!(count("spdp_multicast") >= 16, "{census}");
     // By unicast: the eleven fixed localhost ports once each (every 10 s) and a few before the
