@@ -2171,10 +2171,16 @@ impl Writer {
           // send burst is never told what we have and never NACKs, so reliable
           // data (notably builtin SEDP DiscoveredWriterData) is never delivered
           // and the endpoints stay unmatched. Unicast to just the new reader.
-          if self.is_reliable() && !self.like_stateless {
-            let new_reader_guid = reader_proxy.remote_reader_guid;
-            let first = self.send_buffer.first_change_sequence_number();
-            let last = self.send_buffer.last_change_sequence_number();
+          // rove patch (ROVE-PATCH.md §45): not from a writer that has written
+          // nothing (there is nothing to request; its first sample is pushed to the
+          // reader as any other, and repaired by the HEARTBEATs that follow new
+          // data), nor to a best-effort reader (§43).
+          let new_reader_guid = reader_proxy.remote_reader_guid;
+          let first = self.send_buffer.first_change_sequence_number();
+          let last = self.send_buffer.last_change_sequence_number();
+          let prompt = (self.readers.get(&new_reader_guid))
+            .is_some_and(|rp| reader_wants_heartbeats(rp) && last >= SequenceNumber::new(1));
+          if self.is_reliable() && !self.like_stateless && prompt {
             let hb_message = MessageBuilder::new()
               .ts_msg(self.endianness, Some(Timestamp::now()))
               .heartbeat_msg(
@@ -3260,6 +3266,38 @@ mod tests {
         assert_eq!(heartbeats(&f) > before, wants_heartbeats, "{reader:?}: periodic");
         // A manual liveliness assertion goes to every reader.
         assert!(f.writer.handle_heartbeat_tick(true), "{reader:?}: liveliness");
+      }
+    }
+
+    // rove patch (ROVE-PATCH.md §45): a newly matched reliable reader is sent a
+    // HEARTBEAT only by a writer that has written something; a best-effort one never.
+    #[test]
+    fn a_new_reader_is_prompted_only_by_a_writer_with_something_to_announce() {
+      let reliable = Reliability::Reliable {
+        max_blocking_time: Duration::from_millis(100),
+      };
+      for (reader, samples, prompted) in [
+        (reliable, 0, false),
+        (reliable, 1, true),
+        (Reliability::BestEffort, 1, false),
+      ] {
+        let writer_qos = QosPolicyBuilder::new()
+          .reliability(reliable)
+          .history(History::KeepAll)
+          .build();
+        let reader_qos = QosPolicyBuilder::new().reliability(reader).build();
+        let f = Fixture::new(
+          EntityId::new([0, 0, 1], EntityKind::WRITER_WITH_KEY_USER_DEFINED),
+          writer_qos,
+          EntityId::new([0, 0, 2], EntityKind::READER_WITH_KEY_USER_DEFINED),
+          &reader_qos,
+          samples,
+          8,
+          None,
+        );
+        // The counter starts at 1 and counts each HEARTBEAT built.
+        let built = f.writer.heartbeat_message_counter.load(atomic::Ordering::SeqCst) - 1;
+        assert_eq!(built > 0, prompted, "{reader:?}, {samples} samples written");
       }
     }
 
