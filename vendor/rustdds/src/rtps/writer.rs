@@ -220,6 +220,8 @@ pub(crate) struct Writer {
   // announcement goes to every peer by its route as well, so that a peer our
   // multicast does not reach (links are not always symmetric) finds us again.
   multicast_alone_full_round: std::cell::Cell<Option<std::time::Instant>>,
+  // rove patch (ROVE-PATCH.md §46): how far forward both rounds' first is dated.
+  round_phase: std::time::Duration,
 
   // Whether route selection may prefer a same-host peer's loopback locator.
   // Mirrors the participant-builder `same_host_loopback` knob; `true` by
@@ -379,6 +381,7 @@ impl Writer {
       extra_unicast_sent: std::cell::Cell::new(None),
       multicast_alone: None,
       multicast_alone_full_round: std::cell::Cell::new(None),
+      round_phase: EXTRA_DESTINATIONS_PERIOD.mul_f64(rand::random::<f64>()),
       prefer_loopback_same_host: true,
       interface_observations,
       local_interfaces,
@@ -1968,8 +1971,9 @@ impl Writer {
           .filter(|_| preferred_mode == DeliveryMode::Multicast)
           .filter(|_| match self.multicast_alone_full_round.get() {
             Some(at) if now.duration_since(at) < EXTRA_DESTINATIONS_PERIOD => true,
-            _ => {
-              self.multicast_alone_full_round.set(Some(now));
+            last => {
+              (self.multicast_alone_full_round)
+                .set(Some(round_dated(now, last.is_none(), self.round_phase)));
               false
             }
           })
@@ -2025,14 +2029,19 @@ impl Writer {
         // (the stock SPDP period). They find same-host peers where loopback has
         // no multicast; a peer found is sent to as a reader proxy. At a short SPDP
         // period, eleven fixed ports a time were most of the datagrams sent.
-        let now = std::time::Instant::now();
-        if (self.extra_unicast_sent.get())
-          .is_none_or(|at| now.duration_since(at) >= EXTRA_DESTINATIONS_PERIOD)
-        {
+        let last = self.extra_unicast_sent.get();
+        if last.is_none_or(|at| now.duration_since(at) >= EXTRA_DESTINATIONS_PERIOD) {
           if !self.extra_unicast_destinations.is_empty() {
-            self.extra_unicast_sent.set(Some(now));
+            (self.extra_unicast_sent).set(Some(round_dated(now, last.is_none(), self.round_phase)));
           }
-          send_legacy!(self.extra_unicast_destinations);
+          // rove patch (ROVE-PATCH.md §46): not once more to a port a peer's route
+          // has just been sent to (on one host, the peers' own SPDP ports).
+          send_legacy!(self
+            .extra_unicast_destinations
+            .iter()
+            .filter(|l| !sent_routes.contains(&RouteKey::Unicast(**l)))
+            .copied()
+            .collect::<Vec<Locator>>());
         }
       }
       // rove patch (ROVE-PATCH.md §29): a peer that left has no crypto handle.
@@ -2429,6 +2438,25 @@ const DATAFRAG_SUBMESSAGE_OVERHEAD: usize = 36;
 // A fifth of a finite, positive Deadline, clamped to
 // [REPAIR_INTERVAL_MIN, REPAIR_INTERVAL_MAX]. No Deadline, INFINITE, zero or
 // negative give REPAIR_INTERVAL_DEFAULT.
+/// rove patch (ROVE-PATCH.md §46): when a round of the SPDP writer's periodic
+/// unicast sends (§18's fixed ports, §19's full round) that goes out `now` counts
+/// as sent. A writer's first round is dated forward by its `phase`, a random part
+/// of the period, so that participants started together (a fleet powered on at
+/// once) do not send every later round together: 64 processes on one host sent
+/// 4 800 datagrams within a tenth of a second every 10 s. Forward, so the second
+/// round comes no sooner than a period after the first. Both rounds share the
+/// phase, so they go out together and a port is sent to once.
+fn round_dated(
+  now: std::time::Instant,
+  first: bool,
+  phase: std::time::Duration,
+) -> std::time::Instant {
+  match first {
+    true => now + phase,
+    false => now,
+  }
+}
+
 /// rove patch (ROVE-PATCH.md §43): a reader that asked for best effort has no use
 /// for a HEARTBEAT (RTPS 8.4.9.1: a best-effort reader proxy gets none). A reader
 /// that said nothing of its reliability is prompted, as before.
@@ -3267,6 +3295,22 @@ mod tests {
         // A manual liveliness assertion goes to every reader.
         assert!(f.writer.handle_heartbeat_tick(true), "{reader:?}: liveliness");
       }
+    }
+
+    // rove patch (ROVE-PATCH.md §46): the first round of the SPDP writer's periodic
+    // unicast sends is dated forward by the writer's phase, later ones are not, and
+    // writers draw their phases apart within the period.
+    #[test]
+    fn the_periodic_rounds_of_writers_started_together_are_spread_over_the_period() {
+      let now = Instant::now();
+      let phase = StdDuration::from_millis(3_700);
+      assert_eq!(round_dated(now, true, phase), now + phase);
+      assert_eq!(round_dated(now, false, phase), now);
+      let phases: Vec<StdDuration> = (0..8).map(|_| Fixture::spdp(0).writer.round_phase).collect();
+      assert!(phases.iter().all(|p| *p < EXTRA_DESTINATIONS_PERIOD), "{phases:?}");
+      let spread = *phases.iter().max().unwrap() - *phases.iter().min().unwrap();
+      // Eight draws all within 1 s of each other: about 7e-7.
+      assert!(spread > StdDuration::from_secs(1), "{phases:?}");
     }
 
     // rove patch (ROVE-PATCH.md §45): a newly matched reliable reader is sent a
