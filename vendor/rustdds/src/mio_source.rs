@@ -34,7 +34,7 @@ macro_rules! socketpair_bridge {
 
       pub struct Source {
         rec: Mutex<$mio::net::TcpStream>,
-        armed: Arc<AtomicBool>,
+        // Shares the `armed` flag (ROVE-PATCH.md §42) with every Sender.
         send: Sender,
       }
 
@@ -83,11 +83,10 @@ macro_rules! socketpair_bridge {
         let armed = Arc::new(AtomicBool::new(false));
         let sender = Sender {
           send: Arc::new(Mutex::new(send)),
-          armed: Arc::clone(&armed),
+          armed,
         };
         let source = Source {
           rec: Mutex::new(rec),
-          armed,
           send: sender.clone(),
         };
         (source, sender)
@@ -111,19 +110,20 @@ macro_rules! socketpair_bridge {
 
       impl Source {
         pub fn drain(&self) {
-          if self.armed.load(Ordering::Acquire) {
+          if self.send.armed.load(Ordering::Acquire) {
             self.read_all();
           }
         }
 
-        // Reads until the socket is empty.
-        fn read_all(&self) {
+        // Reads until the socket is empty; how many bytes it read.
+        fn read_all(&self) -> usize {
           let mut buf = [0u8; 64];
           let mut rec = self.rec.lock().unwrap();
+          let mut read = 0;
           loop {
             match rec.read(&mut buf) {
               Ok(0) => break,
-              Ok(_) => {}
+              Ok(n) => read += n,
               Err(err) => {
                 match err.kind() {
                   io::ErrorKind::WouldBlock => {}
@@ -134,29 +134,25 @@ macro_rules! socketpair_bridge {
               }
             }
           }
+          read
         }
 
         // Registered: sends write again, and one byte now stands for whatever
         // was sent while unarmed.
         fn arm(&self) {
-          self.armed.store(true, Ordering::Release);
+          self.send.armed.store(true, Ordering::Release);
           self.send.write_byte();
         }
 
         fn disarm(&self) {
-          self.armed.store(false, Ordering::Release);
+          self.send.armed.store(false, Ordering::Release);
           self.read_all();
         }
 
         // Bytes waiting in the socket, read without looking at `armed`.
         #[cfg(test)]
         pub(crate) fn waiting_bytes(&self) -> usize {
-          let mut buf = [0u8; 64];
-          let mut n = 0;
-          while let Ok(k @ 1..) = self.rec.lock().unwrap().read(&mut buf) {
-            n += k;
-          }
-          n
+          self.read_all()
         }
       }
 

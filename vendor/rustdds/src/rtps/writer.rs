@@ -2435,9 +2435,6 @@ const SUBMESSAGE_INFO_TS_INVALIDATE_SIZE: usize = 4;
 // than data loss.
 const DATAFRAG_SUBMESSAGE_OVERHEAD: usize = 36;
 
-// A fifth of a finite, positive Deadline, clamped to
-// [REPAIR_INTERVAL_MIN, REPAIR_INTERVAL_MAX]. No Deadline, INFINITE, zero or
-// negative give REPAIR_INTERVAL_DEFAULT.
 /// rove patch (ROVE-PATCH.md §46): when a round of the SPDP writer's periodic
 /// unicast sends (§18's fixed ports, §19's full round) that goes out `now` counts
 /// as sent. A writer's first round is dated forward by its `phase`, a random part
@@ -2451,9 +2448,10 @@ fn round_dated(
   first: bool,
   phase: std::time::Duration,
 ) -> std::time::Instant {
-  match first {
-    true => now + phase,
-    false => now,
+  if first {
+    now + phase
+  } else {
+    now
   }
 }
 
@@ -2464,6 +2462,9 @@ fn reader_wants_heartbeats(rp: &RtpsReaderProxy) -> bool {
   !matches!(rp.qos().reliability(), Some(Reliability::BestEffort))
 }
 
+// A fifth of a finite, positive Deadline, clamped to
+// [REPAIR_INTERVAL_MIN, REPAIR_INTERVAL_MAX]. No Deadline, INFINITE, zero or
+// negative give REPAIR_INTERVAL_DEFAULT.
 fn repair_interval_for(deadline: Option<Duration>) -> std::time::Duration {
   match deadline {
     Some(d) if d != Duration::INFINITE && d > Duration::ZERO => {
