@@ -414,21 +414,20 @@ def census(args) -> None:
             if kind in (HEARTBEAT, ACKNACK, DATA) and body + 12 <= len(payload):
                 # readerId, writerId at body; DATA has 4 more bytes (extraFlags, octetsToInlineQos)
                 writer_at = body + 8 if kind == DATA else body + 4
-                topic = payload[writer_at : writer_at + 4] == bytes.fromhex("000002c2")
+                writer = payload[writer_at : writer_at + 4]
+                role = WRITER_ROLES.get(writer)
                 # a participant's own DCPSTopic endpoints match each other (local endpoints
                 # of one topic do): its HEARTBEATs to the group and ACKNACKs to itself are
                 # not a peer's cost
-                if topic and (kind == DATA or not (to_group or to_self)):
+                if role == "sedp_topic" and (kind == DATA or not (to_group or to_self)):
                     counts["sedp_topic_any"] += 1
-            if kind == DATA and body + 12 <= len(payload):
-                writer = payload[body + 8 : body + 12]
-                role = WRITER_ROLES.get(writer)
-                if role is None and writer[3] in (0x02, 0x03):
-                    role = "user"
-                if role is not None:
-                    counts[role] += 1
-                if role == "spdp":
-                    counts["spdp_multicast" if to_group else "spdp_unicast"] += 1
+                if kind == DATA:
+                    if role is None and writer[3] in (0x02, 0x03):
+                        role = "user"
+                    if role is not None:
+                        counts[role] += 1
+                    if role == "spdp":
+                        counts["spdp_multicast" if to_group else "spdp_unicast"] += 1
             if length == 0:
                 break
             at = body + length

@@ -2184,17 +2184,16 @@ impl Writer {
           // nothing (there is nothing to request; its first sample is pushed to the
           // reader as any other, and repaired by the HEARTBEATs that follow new
           // data), nor to a best-effort reader (§43).
-          let new_reader_guid = reader_proxy.remote_reader_guid;
-          let first = self.send_buffer.first_change_sequence_number();
           let last = self.send_buffer.last_change_sequence_number();
-          let prompt = (self.readers.get(&new_reader_guid))
-            .is_some_and(|rp| reader_wants_heartbeats(rp) && last >= SequenceNumber::new(1));
-          if self.is_reliable() && !self.like_stateless && prompt {
+          let prompt = self.is_reliable() && !self.like_stateless && last >= SequenceNumber::new(1);
+          let new_reader = (self.readers.get(&reader_proxy.remote_reader_guid))
+            .filter(|rp| prompt && reader_wants_heartbeats(rp));
+          if let Some(rp) = new_reader {
             let hb_message = MessageBuilder::new()
               .ts_msg(self.endianness, Some(Timestamp::now()))
               .heartbeat_msg(
                 self.entity_id(),
-                first,
+                self.send_buffer.first_change_sequence_number(),
                 last,
                 self.next_heartbeat_count(),
                 self.endianness,
@@ -2203,13 +2202,7 @@ impl Writer {
                 false, // liveliness_flag
               )
               .add_header_and_build(self.my_guid.prefix);
-            if let Some(rp) = self.readers.get(&new_reader_guid) {
-              self.send_control_to_readers(
-                DeliveryMode::Unicast,
-                hb_message,
-                &mut std::iter::once(rp),
-              );
-            }
+            self.send_control_to_readers(DeliveryMode::Unicast, hb_message, &mut std::iter::once(rp));
           }
           info!(
             "Matched new remote reader on topic={:?} reader={:?}",
