@@ -292,6 +292,9 @@ pub(crate) struct Writer {
   // when a reader matched recently may have missed what we sent (see `kick_heartbeat`).
   next_heartbeat: std::time::Instant,
   recently_matched_until: Option<std::time::Instant>,
+  // rove patch (ROVE-PATCH.md §47): when readers that have never answered are
+  // prompted next (see `handle_heartbeat_tick`).
+  next_unheard_round: std::time::Instant,
 }
 
 impl Writer {
@@ -375,6 +378,7 @@ impl Writer {
       next_heartbeat: std::time::Instant::now()
         + heartbeat_period.map_or(std::time::Duration::ZERO, std::time::Duration::from),
       recently_matched_until: None,
+      next_unheard_round: std::time::Instant::now(),
       requested_incompatible_qos_count: 0,
       udp_sender,
       extra_unicast_destinations: Vec::new(),
@@ -521,7 +525,8 @@ impl Writer {
         if now + HEARTBEAT_EVENT_SLACK < self.next_heartbeat {
           return;
         }
-        let readers_behind = self.handle_heartbeat_tick(false);
+        self.handle_heartbeat_tick(false);
+        let readers_behind = self.heard_reader_behind();
         // ^^ false = This is automatic heartbeat by timer, not manual by application
         // call.
         // Adaptive period: reschedule sooner (fast) while some reader still has
@@ -1117,10 +1122,9 @@ impl Writer {
 
   /// This is called periodically.
   ///
-  /// Returns `true` if some matched reader still has unacknowledged data (i.e.
-  /// a HEARTBEAT was sent to prompt repair), so the caller can reschedule the
-  /// next periodic heartbeat sooner. Returns `false` when all readers are
-  /// caught up.
+  /// Returns `true` if a HEARTBEAT was sent: some matched reader still has
+  /// unacknowledged data, or the assertion is manual. Whether the next periodic
+  /// one comes sooner is [`Self::heard_reader_behind`]'s.
   pub fn handle_heartbeat_tick(&mut self, is_manual_assertion: bool) -> bool {
     if self.like_stateless {
       info!(
@@ -1147,8 +1151,24 @@ impl Writer {
     // rove patch (ROVE-PATCH.md §43): a best-effort reader never acknowledges and
     // needs no HEARTBEAT, so it neither keeps the tick going nor gets one; a manual
     // liveliness assertion still goes to every reader.
+    // rove patch (ROVE-PATCH.md §47): a writer that has written nothing prompts
+    // nobody: there is nothing to acknowledge. A reader that has never answered
+    // (no ACKNACK yet) has most likely not discovered us: it drops the HEARTBEAT,
+    // and asks by itself (a preemptive ACKNACK) when it matches us. It is
+    // prompted once a slow period, not at the fast one, as a fallback for a lost
+    // request. (In a fleet started at once, every writer prompted every reader of
+    // every peer ten times a second until that peer had found it.) The volatile
+    // key exchange writer keeps prompting every reader.
+    let now = std::time::Instant::now();
+    let unheard_round = is_manual_assertion
+      || now >= self.next_unheard_round
+      || self.entity_id() == EntityId::P2P_BUILTIN_PARTICIPANT_VOLATILE_SECURE_WRITER;
     let prompted = |rp: &RtpsReaderProxy| {
-      last_change >= rp.all_acked_before && (is_manual_assertion || reader_wants_heartbeats(rp))
+      last_change >= rp.all_acked_before
+        && (is_manual_assertion
+          || (reader_wants_heartbeats(rp)
+            && last_change >= SequenceNumber::new(1)
+            && (unheard_round || reader_heard(rp))))
     };
     if !self.readers.values().any(prompted) {
       trace!("heartbeat tick: all readers have all available data.");
@@ -1204,8 +1224,22 @@ impl Writer {
           &mut self.readers.values().filter(|rp| prompted(rp)),
         );
       }
+      if unheard_round && self.readers.values().any(|rp| prompted(rp) && !reader_heard(rp)) {
+        self.next_unheard_round = now + std::time::Duration::from(HEARTBEAT_PERIOD_SLOW);
+      }
       true
     }
+  }
+
+  // rove patch (ROVE-PATCH.md §47): whether a reader that has answered us lags,
+  // which keeps the HEARTBEAT at the fast period; one that never answered is
+  // prompted at the slow period.
+  fn heard_reader_behind(&self) -> bool {
+    let last_change = self.send_buffer.last_change_sequence_number();
+    last_change >= SequenceNumber::new(1)
+      && (self.readers.values()).any(|rp| {
+        last_change >= rp.all_acked_before && reader_wants_heartbeats(rp) && reader_heard(rp)
+      })
   }
 
   /// When receiving an ACKNACK Message indicating a Reader is missing some data
@@ -2451,6 +2485,11 @@ fn round_dated(
 /// rove patch (ROVE-PATCH.md §43): a reader that asked for best effort has no use
 /// for a HEARTBEAT (RTPS 8.4.9.1: a best-effort reader proxy gets none). A reader
 /// that said nothing of its reliability is prompted, as before.
+// rove patch (ROVE-PATCH.md §47): the reader has sent us an ACKNACK.
+fn reader_heard(rp: &RtpsReaderProxy) -> bool {
+  rp.last_acknack_count.is_some()
+}
+
 fn reader_wants_heartbeats(rp: &RtpsReaderProxy) -> bool {
   !matches!(rp.qos().reliability(), Some(Reliability::BestEffort))
 }
@@ -3337,6 +3376,30 @@ mod tests {
         let built = f.writer.heartbeat_message_counter.load(atomic::Ordering::SeqCst) - 1;
         assert_eq!(built > 0, prompted, "{reader:?}, {samples} samples written");
       }
+    }
+
+    // rove patch (ROVE-PATCH.md §47): a reader that has never answered is prompted
+    // once a slow period, one that has at every tick while it lags; a writer that
+    // has written nothing prompts nobody, unless liveliness is asserted by hand.
+    #[test]
+    fn a_reader_that_never_answered_is_prompted_once_a_slow_period() {
+      let mut f = Fixture::user(2, 8, None);
+      assert!(f.writer.handle_heartbeat_tick(false), "the first round prompts it");
+      assert!(
+        !f.writer.handle_heartbeat_tick(false),
+        "not again within the slow period"
+      );
+      assert!(!f.writer.heard_reader_behind(), "so the tick stays slow");
+      f.ack_nack([2], 1);
+      assert!(f.writer.heard_reader_behind(), "it answered and lags");
+      assert!(f.writer.handle_heartbeat_tick(false), "prompted at every tick");
+      assert!(f.writer.handle_heartbeat_tick(false));
+
+      let mut f = Fixture::user(0, 8, None);
+      assert!(!f.writer.handle_heartbeat_tick(false), "nothing written");
+      assert!(f.writer.handle_heartbeat_tick(true), "liveliness asserted by hand");
+      f.ack_nack([], 1);
+      assert!(!f.writer.heard_reader_behind());
     }
 
     // Built-in and user Writers alike answer an ACKNACK only after
