@@ -1177,6 +1177,9 @@ impl DPEventLoop {
     }
     if new_writer.guid().entity_id == EntityId::SPDP_BUILTIN_PARTICIPANT_WRITER {
       new_writer.set_multicast_alone(self.multicast_alone);
+    } else if new_writer.set_group_data(self.multicast_alone) {
+      // rove patch (ROVE-PATCH.md §48)
+      debug!("Writer {:?} sends new samples by the group", new_writer.topic_name());
     }
 
     // The doorbell is a shared ready-queue plus the poll waker, not a

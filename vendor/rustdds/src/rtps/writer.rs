@@ -222,6 +222,9 @@ pub(crate) struct Writer {
   multicast_alone_full_round: std::cell::Cell<Option<std::time::Instant>>,
   // rove patch (ROVE-PATCH.md §46): how far forward both rounds' first is dated.
   round_phase: std::time::Duration,
+  // rove patch (ROVE-PATCH.md §48): `multicast_alone` carries new samples only,
+  // not HEARTBEATs or other control messages (see `set_group_data`).
+  group_data_only: bool,
 
   // Whether route selection may prefer a same-host peer's loopback locator.
   // Mirrors the participant-builder `same_host_loopback` knob; `true` by
@@ -386,6 +389,7 @@ impl Writer {
       multicast_alone: None,
       multicast_alone_full_round: std::cell::Cell::new(None),
       round_phase: EXTRA_DESTINATIONS_PERIOD.mul_f64(rand::random::<f64>()),
+      group_data_only: false,
       prefer_loopback_same_host: true,
       interface_observations,
       local_interfaces,
@@ -2002,7 +2006,7 @@ impl Writer {
         // that both are one datagram.
         let now = std::time::Instant::now();
         let multicast_alone = (self.multicast_alone)
-          .filter(|_| preferred_mode == DeliveryMode::Multicast)
+          .filter(|_| self.group_alone_applies(preferred_mode, class))
           .filter(|_| match self.multicast_alone_full_round.get() {
             Some(at) if now.duration_since(at) < EXTRA_DESTINATIONS_PERIOD => true,
             last => {
@@ -2158,6 +2162,40 @@ impl Writer {
   /// rove patch (ROVE-PATCH.md §19): see [`Self::multicast_alone`].
   pub fn set_multicast_alone(&mut self, window: Option<std::time::Duration>) {
     self.multicast_alone = window;
+  }
+
+  /// rove patch (ROVE-PATCH.md §48): a reliable user writer of state (TRANSIENT_LOCAL
+  /// or more durable), unsecured, sends each new sample to a peer heard by multicast
+  /// within `window` by the multicast group alone, as the SPDP writer sends its
+  /// announcements (§19): one datagram for every such reader instead of one to each.
+  /// Its HEARTBEATs, GAPs and repairs keep each reader's route, so that a reader that
+  /// has acknowledged everything is not prompted (§5). Other writers are left as
+  /// they are. Returns whether the writer took the setting.
+  pub fn set_group_data(&mut self, window: Option<std::time::Duration>) -> bool {
+    let durable = matches!(
+      self.qos_policies.durability,
+      Some(policy::Durability::TransientLocal)
+        | Some(policy::Durability::Transient)
+        | Some(policy::Durability::Persistent)
+    );
+    let eligible = window.is_some()
+      && !self.my_guid.entity_id.kind().is_built_in()
+      && self.is_reliable()
+      && !self.like_stateless
+      && durable
+      && self.security_plugins.is_none();
+    if eligible {
+      self.multicast_alone = window;
+      self.group_data_only = true;
+    }
+    eligible
+  }
+
+  // Whether a send of `class` preferring `mode` may go to a peer by the group alone.
+  fn group_alone_applies(&self, mode: DeliveryMode, class: TrafficClass) -> bool {
+    self.multicast_alone.is_some()
+      && mode == DeliveryMode::Multicast
+      && (!self.group_data_only || class == TrafficClass::Bulk)
   }
 
   pub fn set_prefer_loopback_same_host(&mut self, enabled: bool) {
@@ -3283,6 +3321,46 @@ mod tests {
         None,
         "not heard by multicast within the window: its route again"
       );
+    }
+
+    // rove patch (ROVE-PATCH.md §48): only a reliable, durable, unsecured user writer
+    // sends its new samples by the group alone, and only those: its HEARTBEATs and
+    // repairs keep each reader's route. The SPDP writer sends everything so (§19).
+    #[test]
+    fn only_a_durable_user_writer_sends_its_new_samples_by_the_group() {
+      let window = Some(StdDuration::from_millis(500));
+      let (mc, uc) = (DeliveryMode::Multicast, DeliveryMode::Unicast);
+      let (bulk, control) = (TrafficClass::Bulk, TrafficClass::Control);
+      let mut f = Fixture::user(1, 8, None);
+      assert!(!f.writer.group_alone_applies(mc, bulk), "not before it is set");
+      assert!(!f.writer.set_group_data(None), "no presence setting, no group");
+      assert!(f.writer.set_group_data(window));
+      assert!(f.writer.group_alone_applies(mc, bulk), "a new sample");
+      assert!(!f.writer.group_alone_applies(mc, control), "a HEARTBEAT");
+      assert!(!f.writer.group_alone_applies(uc, bulk), "a repair");
+
+      assert!(!Fixture::sedp(1, 8).writer.set_group_data(window), "built in");
+      let reliable = Reliability::Reliable {
+        max_blocking_time: Duration::from_millis(100),
+      };
+      for durability in [None, Some(Durability::Volatile)] {
+        let mut qos = QosPolicyBuilder::new().reliability(reliable).build();
+        qos.durability = durability;
+        let mut f = Fixture::new(
+          EntityId::new([0, 0, 1], EntityKind::WRITER_WITH_KEY_USER_DEFINED),
+          qos.clone(),
+          EntityId::new([0, 0, 2], EntityKind::READER_WITH_KEY_USER_DEFINED),
+          &qos,
+          1,
+          8,
+          None,
+        );
+        assert!(!f.writer.set_group_data(window), "{durability:?}");
+      }
+
+      let mut f = Fixture::spdp(1);
+      f.writer.set_multicast_alone(window);
+      assert!(f.writer.group_alone_applies(mc, control), "SPDP pushes as control");
     }
 
     // rove patch (ROVE-PATCH.md §43): a reliable writer builds no HEARTBEAT for a
