@@ -1168,11 +1168,8 @@ impl Writer {
       || now >= self.next_unheard_round
       || self.entity_id() == EntityId::P2P_BUILTIN_PARTICIPANT_VOLATILE_SECURE_WRITER;
     let prompted = |rp: &RtpsReaderProxy| {
-      last_change >= rp.all_acked_before
-        && (is_manual_assertion
-          || (reader_wants_heartbeats(rp)
-            && last_change >= SequenceNumber::new(1)
-            && (unheard_round || reader_heard(rp))))
+      (is_manual_assertion && last_change >= rp.all_acked_before)
+        || (reader_lags(rp, last_change) && (unheard_round || reader_heard(rp)))
     };
     if !self.readers.values().any(prompted) {
       trace!("heartbeat tick: all readers have all available data.");
@@ -1240,10 +1237,7 @@ impl Writer {
   // prompted at the slow period.
   fn heard_reader_behind(&self) -> bool {
     let last_change = self.send_buffer.last_change_sequence_number();
-    last_change >= SequenceNumber::new(1)
-      && (self.readers.values()).any(|rp| {
-        last_change >= rp.all_acked_before && reader_wants_heartbeats(rp) && reader_heard(rp)
-      })
+    (self.readers.values()).any(|rp| reader_lags(rp, last_change) && reader_heard(rp))
   }
 
   /// When receiving an ACKNACK Message indicating a Reader is missing some data
@@ -2178,10 +2172,10 @@ impl Writer {
         | Some(policy::Durability::Transient)
         | Some(policy::Durability::Persistent)
     );
+    // A reliable writer is never stateless-like (`Writer::new` refuses one).
     let eligible = window.is_some()
       && !self.my_guid.entity_id.kind().is_built_in()
       && self.is_reliable()
-      && !self.like_stateless
       && durable
       && self.security_plugins.is_none();
     if eligible {
@@ -2523,13 +2517,22 @@ fn round_dated(
 /// rove patch (ROVE-PATCH.md §43): a reader that asked for best effort has no use
 /// for a HEARTBEAT (RTPS 8.4.9.1: a best-effort reader proxy gets none). A reader
 /// that said nothing of its reliability is prompted, as before.
+fn reader_wants_heartbeats(rp: &RtpsReaderProxy) -> bool {
+  !matches!(rp.qos().reliability(), Some(Reliability::BestEffort))
+}
+
 // rove patch (ROVE-PATCH.md §47): the reader has sent us an ACKNACK.
 fn reader_heard(rp: &RtpsReaderProxy) -> bool {
   rp.last_acknack_count.is_some()
 }
 
-fn reader_wants_heartbeats(rp: &RtpsReaderProxy) -> bool {
-  !matches!(rp.qos().reliability(), Some(Reliability::BestEffort))
+// rove patch (ROVE-PATCH.md §47): the writer has written something (its last
+// sequence number is `last_change`) that the reader, which wants HEARTBEATs, has
+// not acknowledged.
+fn reader_lags(rp: &RtpsReaderProxy, last_change: SequenceNumber) -> bool {
+  last_change >= SequenceNumber::new(1)
+    && last_change >= rp.all_acked_before
+    && reader_wants_heartbeats(rp)
 }
 
 // A fifth of a finite, positive Deadline, clamped to
