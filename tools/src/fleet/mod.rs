@@ -195,6 +195,10 @@ pub struct Report {
     /// From the first process started until every vehicle was driven by its laptop and no
     /// vehicle had a wrong owner or a failsafe entry for 2 s, ms.
     pub settle_ms: u64,
+    /// From the first process started until every vehicle was driven by its laptop and the
+    /// start's last wrong owner or failsafe entry, whichever came later, ms: when the fleet
+    /// settled (`settle_ms` adds the quiet that shows it, and waits for it in whole seconds).
+    pub settled_ms: u64,
     /// Every device had a certificate of its own (DDS Security).
     pub secure: bool,
     /// From the first process started until every vehicle had applied its laptop's command, ms.
@@ -312,6 +316,7 @@ pub fn run(
         incidents: tally.incidents,
         incidents_by_phase: tally.by_phase,
         settle_ms,
+        settled_ms: driven_ms.max(tally.last_start_at_ms.unwrap_or(0)),
         secure: options.secure,
         driven_ms,
         late_operator_ms: Percentiles::of(&late_operator),
@@ -485,6 +490,13 @@ pub fn cli(rove: &Path, options: &Options, json: Option<&Path>) -> anyhow::Resul
         println!(
             "  {phase}: wrong owner {}, stale {}",
             n.wrong_owner, n.stale
+        );
+    }
+    if !r.idle {
+        println!(
+            "  settled {} ms after the start (every vehicle driven by its laptop {} ms, the \
+             start's last incident then)",
+            r.settled_ms, r.driven_ms
         );
     }
     for i in &r.incidents {

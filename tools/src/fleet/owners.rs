@@ -125,6 +125,8 @@ pub(super) struct Tally {
     pub by_phase: BTreeMap<&'static str, PhaseCount>,
     /// When the last one happened (ms after `since`).
     pub last_at_ms: Option<u64>,
+    /// When the start's last one happened (ms after `since`).
+    pub last_start_at_ms: Option<u64>,
 }
 
 /// Wrong owners, stale failsafe entries and outputs of every vehicle's record since `since`,
@@ -154,6 +156,9 @@ pub(super) fn tally(
         let found = incidents_of(&outs, since, &allowed, phases, vehicle);
         for i in &found {
             t.last_at_ms = t.last_at_ms.max(Some(i.at_ms));
+            if i.phase == START {
+                t.last_start_at_ms = t.last_start_at_ms.max(Some(i.at_ms));
+            }
             let phase = t.by_phase.entry(i.phase).or_default();
             match i.owner {
                 Some(_) => phase.wrong_owner += 1,
@@ -254,6 +259,50 @@ mod tests {
             ]
         );
         assert_eq!(found.len(), count(&outs, 10, &[1000, 9000]).0 + 2);
+    }
+
+    #[test]
+    fn the_start_s_last_incident_is_told_apart_from_the_last_of_all() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let line = |t: u64, action: &str, owner: Option<i64>| {
+            serde_json::json!({"wall_us": t, "action": action, "owner": owner}).to_string()
+        };
+        // Vehicle 100 (laptop 1000): failsafe, its desktop, its laptop; then a failsafe
+        // entry once the fleet is steady. Vehicle 101: its laptop only.
+        let records = [
+            [
+                line(1_000, "safe", None),
+                line(10_000, "apply", Some(1002)),
+                line(30_000, "apply", Some(1000)),
+                line(60_000, "safe", None),
+            ],
+            [
+                line(5_000, "apply", Some(1001)),
+                line(20_000, "apply", Some(1001)),
+                line(40_000, "apply", Some(1001)),
+                line(70_000, "apply", Some(1001)),
+            ],
+        ];
+        let paths: Vec<PathBuf> = (records.iter().enumerate())
+            .map(|(k, lines)| {
+                let path = dir.path().join(format!("{k}.jsonl"));
+                std::fs::write(&path, lines.join("\n") + "\n").expect("write");
+                path
+            })
+            .collect();
+        let a = assign(&[100, 101], &[1000, 1001, 1002, 1003]);
+        let t = tally(
+            &[100, 101],
+            &paths,
+            &a,
+            0,
+            &[(START, 0), ("steady", 50_000)],
+        );
+        assert_eq!(t.last_start_at_ms, Some(10), "the desktop at 10 ms");
+        assert_eq!(t.last_at_ms, Some(60), "the failsafe entry when steady");
+        assert_eq!((t.wrong_owner, t.stale), (0, 1), "the start is not counted");
+        let start = t.by_phase[START];
+        assert_eq!((start.wrong_owner, start.stale), (1, 1));
     }
 
     #[test]
