@@ -79,9 +79,6 @@ pub(crate) struct RtpsReaderProxy {
   // sends one ACKNACK to each of our locators; the copies carry the same count.
   pub last_acknack_count: Option<i32>,
   pub last_nackfrag_count: Option<i32>,
-  // rove patch (ROVE-PATCH.md §49): when the periodic HEARTBEAT last prompted
-  // this reader, if it has not answered (sent an ACKNACK) since.
-  pub prompted_at: Option<std::time::Instant>,
   qos: QosPolicies,
   frags_requested: BTreeMap<SequenceNumber, BitVec>,
 
@@ -118,7 +115,6 @@ impl RtpsReaderProxy {
       repair_frags_scheduled: false,
       last_acknack_count: None,
       last_nackfrag_count: None,
-      prompted_at: None,
       qos,
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),
@@ -248,7 +244,6 @@ impl RtpsReaderProxy {
       repair_frags_scheduled: false,
       last_acknack_count: None,
       last_nackfrag_count: None,
-      prompted_at: None,
       qos: reader.qos_policy.clone(),
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),
@@ -327,7 +322,6 @@ impl RtpsReaderProxy {
       repair_frags_scheduled: false,
       last_acknack_count: None,
       last_nackfrag_count: None,
-      prompted_at: None,
       qos: discovered_reader_data.subscription_topic_data.qos(),
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),

@@ -1164,21 +1164,12 @@ impl Writer {
     // every peer ten times a second until that peer had found it.) The volatile
     // key exchange writer keeps prompting every reader.
     let now = std::time::Instant::now();
-    let key_exchange = self.entity_id() == EntityId::P2P_BUILTIN_PARTICIPANT_VOLATILE_SECURE_WRITER;
-    let unheard_round = is_manual_assertion || now >= self.next_unheard_round || key_exchange;
-    // rove patch (ROVE-PATCH.md §49): a heard reader that has not answered the
-    // last prompt yet is not prompted again within a slow period. Its answer is
-    // queued behind its own work (a fleet starting at once on a busy machine):
-    // every further HEARTBEAT added an ACKNACK to answer and a repair to send.
-    // One that answers in time is prompted at every tick as before.
+    let unheard_round = is_manual_assertion
+      || now >= self.next_unheard_round
+      || self.entity_id() == EntityId::P2P_BUILTIN_PARTICIPANT_VOLATILE_SECURE_WRITER;
     let prompted = |rp: &RtpsReaderProxy| {
       (is_manual_assertion && last_change >= rp.all_acked_before)
-        || (reader_lags(rp, last_change)
-          && if reader_heard(rp) {
-            key_exchange || !awaits_answer(rp, now)
-          } else {
-            unheard_round
-          })
+        || (reader_lags(rp, last_change) && (unheard_round || reader_heard(rp)))
     };
     if !self.readers.values().any(prompted) {
       trace!("heartbeat tick: all readers have all available data.");
@@ -1236,11 +1227,6 @@ impl Writer {
       }
       if unheard_round && self.readers.values().any(|rp| prompted(rp) && !reader_heard(rp)) {
         self.next_unheard_round = now + std::time::Duration::from(HEARTBEAT_PERIOD_SLOW);
-      }
-      for rp in self.readers.values_mut() {
-        if prompted(rp) {
-          rp.prompted_at = Some(now);
-        }
       }
       true
     }
@@ -1320,7 +1306,6 @@ impl Writer {
             return;
           }
           reader_proxy.last_acknack_count = Some(an.count);
-          reader_proxy.prompted_at = None;
 
           // Mark requested SNs as "unsent changes"
 
@@ -1425,10 +1410,6 @@ impl Writer {
               hb_message,
               &mut std::iter::once(reader_proxy),
             );
-            // rove patch (ROVE-PATCH.md §49): a prompt like the periodic one.
-            if let Some(reader_proxy) = self.lookup_reader_proxy_mut(reader_guid) {
-              reader_proxy.prompted_at = Some(std::time::Instant::now());
-            }
           }
         }
       } // AckNack
@@ -2545,13 +2526,6 @@ fn reader_heard(rp: &RtpsReaderProxy) -> bool {
   rp.last_acknack_count.is_some()
 }
 
-// rove patch (ROVE-PATCH.md §49): the reader was prompted by the periodic
-// HEARTBEAT less than a slow period before `now` and has not answered since.
-fn awaits_answer(rp: &RtpsReaderProxy, now: std::time::Instant) -> bool {
-  rp.prompted_at
-    .is_some_and(|at| now < at + std::time::Duration::from(HEARTBEAT_PERIOD_SLOW))
-}
-
 // rove patch (ROVE-PATCH.md §47): the writer has written something (its last
 // sequence number is `last_change`) that the reader, which wants HEARTBEATs, has
 // not acknowledged.
@@ -3499,53 +3473,14 @@ mod tests {
       assert!(!f.writer.heard_reader_behind(), "so the tick stays slow");
       f.ack_nack([2], 1);
       assert!(f.writer.heard_reader_behind(), "it answered and lags");
-      assert!(f.writer.handle_heartbeat_tick(false), "prompted at the next tick");
+      assert!(f.writer.handle_heartbeat_tick(false), "prompted at every tick");
+      assert!(f.writer.handle_heartbeat_tick(false));
 
       let mut f = Fixture::user(0, 8, None);
       assert!(!f.writer.handle_heartbeat_tick(false), "nothing written");
       assert!(f.writer.handle_heartbeat_tick(true), "liveliness asserted by hand");
       f.ack_nack([], 1);
       assert!(!f.writer.heard_reader_behind());
-    }
-
-    // rove patch (ROVE-PATCH.md §49): a heard reader that lags is prompted at a
-    // tick, then again only once it has answered, or when a slow period has
-    // passed without an answer; the tick stays fast meanwhile. A manual
-    // liveliness assertion prompts it regardless.
-    #[test]
-    fn a_heard_reader_is_prompted_again_once_it_answered() {
-      let mut f = Fixture::user(2, 8, None);
-      f.ack_nack([1, 2], 1);
-      assert!(f.writer.handle_heartbeat_tick(false), "prompted");
-      assert!(
-        !f.writer.handle_heartbeat_tick(false),
-        "not again before it answers"
-      );
-      assert!(f.writer.heard_reader_behind(), "the tick stays fast");
-      assert!(f.writer.handle_heartbeat_tick(true), "liveliness asserted by hand");
-      f.ack_nack([1, 2], 2);
-      assert!(
-        f.writer.handle_heartbeat_tick(false),
-        "prompted again once it answered"
-      );
-      assert!(!f.writer.handle_heartbeat_tick(false));
-      let slow = std::time::Duration::from(HEARTBEAT_PERIOD_SLOW);
-      let at = f.reader_proxy().prompted_at.expect("prompted");
-      let reader_guid = f.reader_guid;
-      if let Some(rp) = f.writer.readers.get_mut(&reader_guid) {
-        rp.prompted_at = at.checked_sub(slow);
-      }
-      assert!(
-        f.writer.handle_heartbeat_tick(false),
-        "and once a slow period passed without an answer"
-      );
-
-      // An ACKNACK that asks for nothing although the reader lags is answered by a
-      // HEARTBEAT at once, which is a prompt like the tick's.
-      let mut f = Fixture::user(2, 8, None);
-      f.ack_nack([], 1);
-      assert!(f.reader_proxy().prompted_at.is_some(), "answered by a prompt");
-      assert!(!f.writer.handle_heartbeat_tick(false), "so the tick does not prompt again");
     }
 
     // Built-in and user Writers alike answer an ACKNACK only after
