@@ -388,6 +388,80 @@ fn command_timeout_is_configurable() {
     assert!(rig.tick(250).entered_failsafe());
 }
 
+// ---- Batches: samples taken together are one instant --------------------------------------
+
+fn sample_at(t: u64, writer: WriterId, device: i64, strength: u16, throttle: i16) -> Event {
+    Event::Sample {
+        writer,
+        strength: Strength(strength),
+        command: command(device, CommandType::Movement, throttle),
+        arrival: ms(t),
+    }
+}
+
+/// The owner's stream is a timeout old when one read takes a weaker operator's sample and then
+/// the owner's: stepped one by one, the weaker drives for one output (the fleet bench's start
+/// and handover incidents); as one batch, the owner keeps the vehicle.
+#[test]
+fn a_batch_taken_together_keeps_a_late_owner_whose_sample_is_in_it() {
+    let late = |rig: &mut Rig| {
+        rig.drive(0, w(2), OP_B, 340, 2);
+        rig.drive(0, w(1), OP_A, 220, 1);
+    };
+    let batch = [
+        sample_at(150, w(1), OP_A, 220, 11),
+        sample_at(150, w(2), OP_B, 340, 12),
+    ];
+
+    let mut one_by_one = Rig::new();
+    late(&mut one_by_one);
+    let d = one_by_one.at(150, batch[0]);
+    assert_eq!(change(&d), Some((Some(OP_B), Some(OP_A), Reason::TimedOut)));
+    assert_eq!(applied(&d), Some((OP_A, 11)), "the weaker drove");
+
+    let mut rig = Rig::new();
+    late(&mut rig);
+    let ds = rig.arb.step_batch(ms(150), &batch);
+    assert_eq!(ds.len(), 2);
+    assert!(ds.iter().all(|d| d.owner_change.is_none()), "{ds:?}");
+    assert_eq!(applied(&ds[0]), None);
+    assert_eq!(applied(&ds[1]), Some((OP_B, 12)), "the owner's new values");
+    assert_eq!(rig.arb.controller_id(), OP_B);
+}
+
+/// A batch decides once, at its end, as the last of its events would; each event's own
+/// verdict stays with its decision.
+#[test]
+fn a_batch_hands_over_once_and_reports_each_sample() {
+    let mut rig = Rig::new();
+    rig.drive(0, w(1), OP_A, 220, 1);
+    let batch = [
+        sample_at(150, w(3), OP_C, 110, 3),
+        sample_at(150, w(2), OP_A, 340, 9), // OP_A's id from participant 2: not believed
+        sample_at(150, w(1), OP_A, 220, 4),
+        Event::Released { writer: w(1) },
+    ];
+    let ds = rig.arb.step_batch(ms(150), &batch);
+    assert_eq!(ds.len(), 4);
+    assert_eq!(ds[1].ignored, Some(Ignored::Untrusted));
+    assert!(ds[1].suspect.is_some());
+    assert!(
+        ds[..3]
+            .iter()
+            .all(|d| d.owner_change.is_none() && d.output.is_none())
+    );
+    assert_eq!(
+        change(&ds[3]),
+        Some((Some(OP_A), Some(OP_C), Reason::Released))
+    );
+    assert_eq!(applied(&ds[3]), Some((OP_C, 3)));
+    assert!(
+        rig.arb.step_batch(ms(151), &[]).is_empty(),
+        "nothing to decide"
+    );
+    assert_eq!(rig.arb.controller_id(), OP_C);
+}
+
 // ---- Freshness: stale and reordered samples are never applied -----------------------------
 
 #[test]

@@ -583,8 +583,113 @@ fn check(played: &[(MonoTime, Event)], decisions: &[Decision]) -> Result<(), Tes
     Ok(())
 }
 
+/// One read of the command stream: samples and releases taken at one instant.
+fn batch() -> impl Strategy<Value = Vec<Gen>> {
+    let n = cast().len();
+    let sample = (0..n, 0u8..10, any::<i16>(), prop::bool::weighted(0.03)).prop_map(
+        |(who, kind, throttle, elsewhere)| Gen::Sample {
+            who,
+            kind,
+            throttle,
+            lag_ms: 0,
+            elsewhere,
+        },
+    );
+    prop::collection::vec(
+        prop_oneof![6 => sample, 1 => (0..n).prop_map(Gen::Release)],
+        1..8,
+    )
+}
+
+/// A history, then a batch `gap_ms` after its last step, stepped at once and one by one from
+/// the same state: each event's verdict is the same; the batch decides once, at its end, for
+/// the strongest eligible stream, keeping an owner that is among them; and only that owner's
+/// values are applied.
+fn check_batch(steps: &[(u64, Gen)], gap_ms: u64, batch: &[Gen]) -> Result<(), TestCaseError> {
+    let mut all = steps.to_vec();
+    all.extend(
+        batch
+            .iter()
+            .enumerate()
+            .map(|(i, g)| (if i == 0 { gap_ms } else { 0 }, g.clone())),
+    );
+    let (played, _) = play(&all);
+    let (history, taken) = played.split_at(steps.len());
+    let mut arb = Arbiter::new(VEHICLE, ArbiterConfig::default());
+    arb.pin_own(ParticipantId(1000));
+    for (now, event) in history {
+        arb.step(*now, *event);
+    }
+    let now = taken[0].0;
+    let events: Vec<Event> = taken.iter().map(|(_, e)| *e).collect();
+    let before = arb.owner();
+    let mut one_by_one = arb.clone();
+    let singles: Vec<Decision> = events.iter().map(|e| one_by_one.step(now, *e)).collect();
+    let decisions = arb.step_batch(now, &events);
+
+    prop_assert_eq!(decisions.len(), events.len());
+    for (d, single) in decisions.iter().zip(&singles) {
+        prop_assert_eq!(d.ignored, single.ignored);
+        prop_assert_eq!(d.suspect, single.suspect);
+    }
+    let (last, earlier) = decisions.split_last().expect("a batch of one or more");
+    prop_assert!(
+        earlier
+            .iter()
+            .all(|d| d.owner_change.is_none() && d.output.is_none())
+    );
+    let after = arb.owner();
+    match last.owner_change {
+        Some(c) => prop_assert_eq!((c.from, c.to), (before, after)),
+        None => prop_assert_eq!(before.writer(), after.writer()),
+    }
+    let eligible: Vec<_> = arb
+        .sources(now)
+        .filter(|s| s.eligible)
+        .map(|s| s.controller)
+        .collect();
+    let best = eligible.iter().map(|c| c.strength).max();
+    prop_assert_eq!(after.writer().is_some(), best.is_some());
+    if let Owner::Controller(c) = after {
+        prop_assert_eq!(Some(c.strength), best);
+    }
+    let strength_of = |o: Owner| match o {
+        Owner::Controller(c) => Some(c.strength),
+        Owner::Failsafe => None,
+    };
+    prop_assert_eq!(
+        strength_of(after),
+        strength_of(one_by_one.owner()),
+        "same strength as one by one"
+    );
+    if let Owner::Controller(b) = before
+        && eligible
+            .iter()
+            .any(|c| c.writer == b.writer && Some(c.strength) == best)
+    {
+        prop_assert_eq!(
+            after.writer(),
+            Some(b.writer),
+            "the owner keeps the vehicle"
+        );
+    }
+    if let Some(Output::Apply { by, .. }) = last.output {
+        prop_assert_eq!(Some(by.writer), after.writer());
+    }
+    Ok(())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 10_000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn a_batch_decides_once_for_the_strongest(
+        steps in scenario(),
+        gap_ms in prop_oneof![Just(0u64), 1u64..250],
+        batch in batch(),
+    ) {
+        check_batch(&steps, gap_ms, &batch)?;
+    }
 
     #[test]
     fn arbiter_keeps_the_ownership_contract(steps in scenario()) {

@@ -1,7 +1,8 @@
 //! The per-vehicle ownership arbiter: who drives this vehicle, at every instant (docs/design.md §4).
 //!
 //! DDS's EXCLUSIVE ownership is not arbitrated by rustdds, so the vehicle does it here, as a pure
-//! state machine: [`Arbiter::step`] takes `now` and one [`Event`] and returns a [`Decision`].
+//! state machine: [`Arbiter::step`] takes `now` and one [`Event`] and returns a [`Decision`];
+//! [`Arbiter::step_batch`] takes the samples of one read together, as one instant.
 //! It reads no clock and does no I/O; the same event sequence always yields the same decisions.
 //!
 //! # The contract
@@ -221,18 +222,62 @@ impl Arbiter {
     /// `now` must not go backwards; if it does, the latest `now` seen is used instead, so a
     /// misbehaving clock can delay a timeout but never revive a stream.
     pub fn step(&mut self, now: MonoTime, event: Event) -> Decision {
-        let now = now.max(self.last_now);
-        self.last_now = now;
+        let now = self.advance(now);
         let before = self.owner;
         let mut decision = Decision::default();
-
-        // 1. Record the event. `sampled` is the writer whose new values may need applying.
+        // `sampled` is the writer whose new values may need applying.
         let sampled = self.record(now, &event, &mut decision);
+        self.reselect(now, before, &event, |w| sampled == Some(w), &mut decision);
+        decision
+    }
 
-        // 2. Re-arbitrate.
+    /// Processes events taken together at `now` (one read of the command stream: samples and
+    /// releases) as one step: every event is recorded before the owner is chosen again.
+    ///
+    /// Stepped one by one, a weaker controller's sample that comes first in such a batch,
+    /// while the owner's last sample is a timeout old, hands it the vehicle and its values are
+    /// applied; the owner's sample right behind it, taken at the same instant, takes the
+    /// vehicle back: a weaker operator drove for one output although the owner was live all
+    /// along. One decision per event, in order: each says what recording its event found
+    /// (`ignored`, `suspect`), and the last also carries the owner change and the output, as
+    /// [`Arbiter::step`] would after the whole batch. Grants are decided against the owner
+    /// before the batch, so they belong in a step of their own.
+    pub fn step_batch(&mut self, now: MonoTime, events: &[Event]) -> Vec<Decision> {
+        let now = self.advance(now);
+        let before = self.owner;
+        let mut sampled = Vec::new();
+        let mut decisions = Vec::with_capacity(events.len());
+        for event in events {
+            let mut decision = Decision::default();
+            sampled.extend(self.record(now, event, &mut decision));
+            decisions.push(decision);
+        }
+        if let (Some(last), Some(decision)) = (events.last(), decisions.last_mut()) {
+            self.reselect(now, before, last, |w| sampled.contains(&w), decision);
+        }
+        decisions
+    }
+
+    /// `now`, or the latest `now` seen if the clock went backwards.
+    fn advance(&mut self, now: MonoTime) -> MonoTime {
+        let now = now.max(self.last_now);
+        self.last_now = now;
+        now
+    }
+
+    /// Re-arbitrates at `now` after `event` was recorded (the last of a batch), `before` owning
+    /// until then; `sent_values` says whether a writer's new values were recorded.
+    fn reselect(
+        &mut self,
+        now: MonoTime,
+        before: Owner,
+        event: &Event,
+        sent_values: impl Fn(WriterId) -> bool,
+        decision: &mut Decision,
+    ) {
         let after = self.select(now);
         if after.writer() != before.writer() {
-            let reason = self.reason(before, &event, now);
+            let reason = self.reason(before, event, now);
             if let Owner::Controller(c) = before {
                 let stepped_down =
                     matches!(reason, Reason::Released | Reason::Left | Reason::TimedOut);
@@ -251,7 +296,7 @@ impl Arbiter {
         } else {
             // Same writer; its strength may have been updated.
             self.owner = after;
-            let owner_sent_values = sampled.is_some() && sampled == after.writer();
+            let owner_sent_values = after.writer().is_some_and(&sent_values);
             let values_lapsed = self.driving
                 && self
                     .owner_source()
@@ -261,8 +306,6 @@ impl Arbiter {
                 decision.output = Some(self.output_for_owner());
             }
         }
-
-        decision
     }
 
     /// The index of `writer`'s source, if it has one.

@@ -266,23 +266,23 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         self.notify.ready(&self.shown);
         loop {
             let deadline = self.arbiter.next_deadline().map(|d| clock.instant(d));
+            // In this order when several are ready: what was heard before the deadline, so
+            // that a loop woken late (a busy machine) takes the owner's samples waiting for it
+            // before it times the owner out.
             let wake = tokio::select! {
+                biased;
                 () = &mut shutdown => Wake::Shutdown,
-                heard = self.net.heard(&clock) => Wake::Heard(heard),
-                _ = heartbeat.tick() => Wake::Heartbeat,
                 // From this loop, so that a hung loop stops the keep-alives; and stopped while
                 // the output has been hung past its limit, so that systemd restarts the unit.
                 _ = keepalive.tick() => Wake::Keepalive,
+                _ = heartbeat.tick() => Wake::Heartbeat,
                 stall_for = stall.requested() => Wake::Stall(stall_for),
+                heard = self.net.heard(&clock) => Wake::Heard(heard),
                 () = sleep_until(deadline) => Wake::Deadline,
             };
             match wake {
                 Wake::Shutdown => break,
-                Wake::Heard(events) => {
-                    for event in events? {
-                        self.decide(event);
-                    }
-                }
+                Wake::Heard(events) => self.decide_all(events?),
                 Wake::Heartbeat => self.on_heartbeat(),
                 Wake::Keepalive => self.on_keepalive(),
                 Wake::Stall(stall_for) => {
@@ -353,11 +353,44 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
 
     /// One event to the arbiter, and its decision carried out at once.
     fn decide(&mut self, event: Event) {
-        let clock = self.clock;
-        if tracing::enabled!(tracing::Level::TRACE) {
-            tracing::trace!(wall_us = clock.wall_micros(), ?event, "event");
+        self.trace(std::slice::from_ref(&event));
+        let decision = self.arbiter.step(self.clock.now(), event);
+        self.act(decision);
+    }
+
+    /// What one read heard: each run of command samples and releases is stepped as one batch
+    /// (taken at one instant, so that the owner's sample behind a weaker one's keeps the
+    /// vehicle: `Arbiter::step_batch`), anything else one by one.
+    fn decide_all(&mut self, events: Vec<Event>) {
+        let mut rest = events.as_slice();
+        while let Some(first) = rest.first() {
+            let run = rest.iter().take_while(|e| is_command(e)).count();
+            if run == 0 {
+                self.decide(*first);
+                rest = &rest[1..];
+                continue;
+            }
+            let (batch, after) = rest.split_at(run);
+            self.trace(batch);
+            for decision in self.arbiter.step_batch(self.clock.now(), batch) {
+                self.act(decision);
+            }
+            rest = after;
         }
-        let decision = self.arbiter.step(clock.now(), event);
+    }
+
+    fn trace(&self, events: &[Event]) {
+        if tracing::enabled!(tracing::Level::TRACE) {
+            let wall_us = self.clock.wall_micros();
+            for event in events {
+                tracing::trace!(wall_us, ?event, "event");
+            }
+        }
+    }
+
+    /// Acts on what the arbiter decided: outputs, DeviceInfo, the audit, `STATUS=`.
+    fn act(&mut self, decision: Decision) {
+        let clock = self.clock;
         let net = &self.net;
         apply_decision(
             self.me,
@@ -404,6 +437,11 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
         self.net.publish_owner(self.me);
         self.net.withdraw();
     }
+}
+
+/// A command stream's event: what one read of ControlCommand yields.
+fn is_command(event: &Event) -> bool {
+    matches!(event, Event::Sample { .. } | Event::Released { .. })
 }
 
 /// Whether the output's device failed (it is being reopened; a call that is only slow, hung,
