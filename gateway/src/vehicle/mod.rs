@@ -362,23 +362,20 @@ impl<N: Net, O: Outputs> Vehicle<N, O> {
     /// (taken at one instant, so that the owner's sample behind a weaker one's keeps the
     /// vehicle: `Arbiter::step_batch`), anything else one by one.
     fn decide_all(&mut self, events: Vec<Event>) {
-        let mut rest = events.as_slice();
-        while let Some(first) = rest.first() {
-            let run = rest.iter().take_while(|e| is_command(e)).count();
-            if run == 0 {
-                self.decide(*first);
-                rest = &rest[1..];
-                continue;
+        for run in events.chunk_by(|a, b| is_command(a) && is_command(b)) {
+            match run {
+                [event] if !is_command(event) => self.decide(*event),
+                batch => {
+                    self.trace(batch);
+                    for decision in self.arbiter.step_batch(self.clock.now(), batch) {
+                        self.act(decision);
+                    }
+                }
             }
-            let (batch, after) = rest.split_at(run);
-            self.trace(batch);
-            for decision in self.arbiter.step_batch(self.clock.now(), batch) {
-                self.act(decision);
-            }
-            rest = after;
         }
     }
 
+    /// The events, at TRACE, with the wall clock (the bench's timelines).
     fn trace(&self, events: &[Event]) {
         if tracing::enabled!(tracing::Level::TRACE) {
             let wall_us = self.clock.wall_micros();
